@@ -1,0 +1,141 @@
+"""Motion: a skeleton plus per-frame local rotations and translations."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import quat
+from .skeleton import Skeleton, fk
+
+AXES = "XYZ"
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """A clip as plain arrays.
+
+    Attributes
+    ----------
+    skeleton : Skeleton with J joints
+    rotations : ndarray, shape (F, J, 4), local rotations (w, x, y, z)
+    positions : ndarray, shape (F, J, 3), local translations in the clip's own length unit
+        (the bone offset for joints without position channels)
+    fps : float, frames per second
+    """
+
+    skeleton: Skeleton
+    rotations: np.ndarray
+    positions: np.ndarray
+    fps: float
+
+    def __post_init__(self):
+        j = self.skeleton.num_joints
+        if self.rotations.ndim != 3 or self.rotations.shape[1:] != (j, 4):
+            raise ValueError(f"rotations must be (F, {j}, 4), got {self.rotations.shape}")
+        if self.positions.shape != self.rotations.shape[:2] + (3,):
+            raise ValueError(f"positions must be (F, {j}, 3), got {self.positions.shape}")
+        if not self.fps > 0:
+            raise ValueError(f"fps must be positive, got {self.fps}")
+
+    @property
+    def num_frames(self) -> int:
+        return self.rotations.shape[0]
+
+    def __len__(self) -> int:
+        return self.num_frames
+
+    def __getitem__(self, index) -> "Motion":
+        """Frames by slice or index array; always returns a Motion (copies the arrays)."""
+        if isinstance(index, (int, np.integer)):
+            index = slice(index, index + 1 if index != -1 else None)
+        return Motion(self.skeleton, self.rotations[index].copy(), self.positions[index].copy(), self.fps)
+
+    def global_transforms(self) -> tuple[np.ndarray, np.ndarray]:
+        """Global rotations (F, J, 4) and positions (F, J, 3) of every joint."""
+        return fk(self.skeleton.parents, self.rotations, self.positions)
+
+    def global_positions(self) -> np.ndarray:
+        """Global joint positions, shape (F, J, 3), in the clip's length unit."""
+        return self.global_transforms()[1]
+
+
+def concatenate(motions: list[Motion]) -> Motion:
+    """Frames of ``motions`` one after another (same skeleton and fps required)."""
+    first = motions[0]
+    for m in motions[1:]:
+        if not m.skeleton.same_as(first.skeleton):
+            raise ValueError("cannot concatenate motions with different skeletons")
+        if abs(m.fps - first.fps) > 1e-6 * first.fps:
+            raise ValueError(f"cannot concatenate motions at {first.fps} and {m.fps} fps")
+    return Motion(first.skeleton, np.concatenate([m.rotations for m in motions]),
+                  np.concatenate([m.positions for m in motions]), first.fps)
+
+
+def root_index(motion: Motion) -> int:
+    """The joint that carries the trajectory: the first joint whose translation changes.
+
+    Bandai files keep ``joint_Root`` fixed at the origin and move ``Hips``; most files move
+    joint 0. Falls back to 0 for a clip with no moving translation.
+    """
+    moving = np.ptp(motion.positions, axis=0).max(axis=-1) > 1e-6
+    moving &= np.array([motion.skeleton.has_position(j) for j in range(motion.skeleton.num_joints)])
+    return int(np.argmax(moving)) if moving.any() else 0
+
+
+def up_axis(motion: Motion, sample: int = 32) -> int:
+    """Index (0=X, 1=Y, 2=Z) of the world's up axis, read from the data.
+
+    The body is taller than it is wide or deep: the axis with the largest median spread of
+    the joints is up. Uses up to ``sample`` frames spread over the clip.
+    """
+    frames = np.unique(np.linspace(0, motion.num_frames - 1, min(sample, motion.num_frames)).astype(int))
+    gpos = motion[frames].global_positions()
+    spread = np.median(np.ptp(gpos, axis=1), axis=0)
+    return int(np.argmax(spread))
+
+
+def body_height(motion: Motion, sample: int = 32) -> float:
+    """Median extent of the skeleton along the up axis, in the clip's unit."""
+    frames = np.unique(np.linspace(0, motion.num_frames - 1, min(sample, motion.num_frames)).astype(int))
+    gpos = motion[frames].global_positions()
+    return float(np.median(np.ptp(gpos[..., up_axis(motion, sample)], axis=1)))
+
+
+def length_unit(motion: Motion) -> str:
+    """The clip's length unit guessed from the body height ("m", "cm", "inch" or "unknown").
+
+    A guess for display only: posturemap never rescales a clip.
+    """
+    h = body_height(motion)
+    for unit, lo, hi in (("m", 0.8, 2.5), ("cm", 80.0, 250.0), ("inch", 30.0, 80.0), ("dm", 8.0, 25.0)):
+        if lo <= h <= hi:
+            return unit
+    return "unknown"
+
+
+def summary(motion: Motion) -> str:
+    """A short human-readable description of a clip."""
+    sk = motion.skeleton
+    return (f"{motion.num_frames} frames at {motion.fps:g} fps ({motion.num_frames / motion.fps:.2f} s), "
+            f"{sk.num_joints} joints, {sum(len(c) for c in sk.channels)} channels, "
+            f"up axis {AXES[up_axis(motion)]}, body height {body_height(motion):.3g} "
+            f"({length_unit(motion)}), root joint {sk.names[root_index(motion)]!r}")
+
+
+def up_vector(axis: int) -> np.ndarray:
+    v = np.zeros(3)
+    v[axis] = 1.0
+    return v
+
+
+def heading_angle(rotations: np.ndarray, up: int, forward: np.ndarray) -> np.ndarray:
+    """Heading angle (radians, about the up axis) of global rotations (..., 4).
+
+    ``forward`` is the joint's local direction (3,) that points forward; the angle is that
+    of its horizontal projection measured about ``up`` (right-handed).
+    """
+    f = quat.mul_vec(rotations, np.broadcast_to(forward, rotations.shape[:-1] + (3,)))
+    a, b = (up + 1) % 3, (up + 2) % 3
+    return np.arctan2(f[..., a], f[..., b])

@@ -1,0 +1,120 @@
+"""Skeleton: joint names, parents, offsets and the BVH channel layout; forward kinematics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import quat
+
+POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
+ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """A joint hierarchy.
+
+    Attributes
+    ----------
+    names : tuple of str, length J
+    parents : ndarray, shape (J,), int; -1 for the root, parents come before children
+    offsets : ndarray, shape (J, 3); rest translation of each joint in its parent's frame
+    channels : tuple of tuple of str, length J; BVH channel names per joint in file order
+    end_sites : tuple of (int, ndarray (3,)); End Site offsets, keyed by the joint they end
+    euler_style : "wrapped" (angles written in [-180, 180], middle angle within 90 degrees) or
+        "continuous" (angles continuous over time, as some exporters write); read from the file
+        and reproduced when writing
+    """
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: tuple[tuple[str, ...], ...]
+    end_sites: tuple[tuple[int, np.ndarray], ...] = ()
+    euler_style: str = "wrapped"
+
+    def __post_init__(self):
+        parents = np.asarray(self.parents, dtype=np.int64)
+        if parents.shape != (len(self.names),) or np.any(parents >= np.arange(len(parents))):
+            raise ValueError("parents must have one entry per joint and come before children")
+        object.__setattr__(self, "parents", parents)
+        object.__setattr__(self, "offsets", np.asarray(self.offsets, dtype=float).reshape(-1, 3))
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        """Index of the joint called ``name`` (ValueError if absent)."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"no joint named {name!r}") from None
+
+    def rotation_order(self, j: int) -> str:
+        """Euler order of joint ``j`` as in its channels, e.g. ``"ZXY"`` ("" if none)."""
+        return "".join(c[0] for c in self.channels[j] if c in ROTATION_CHANNELS)
+
+    def has_position(self, j: int) -> bool:
+        return any(c in POSITION_CHANNELS for c in self.channels[j])
+
+    def children(self, j: int) -> list[int]:
+        return [int(c) for c in np.flatnonzero(self.parents == j)]
+
+    def depth(self) -> np.ndarray:
+        """Number of ancestors of each joint, shape (J,)."""
+        d = np.zeros(self.num_joints, dtype=np.int64)
+        for j in range(1, self.num_joints):
+            d[j] = d[self.parents[j]] + 1 if self.parents[j] >= 0 else 0
+        return d
+
+    def same_as(self, other: "Skeleton") -> bool:
+        """True when both have the same joints, hierarchy and channel layout."""
+        return (self.names == other.names and np.array_equal(self.parents, other.parents)
+                and self.channels == other.channels)
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready description (inverse: :meth:`from_dict`)."""
+        return {
+            "names": list(self.names),
+            "parents": self.parents.tolist(),
+            "offsets": self.offsets.tolist(),
+            "channels": [list(c) for c in self.channels],
+            "end_sites": [[j, np.asarray(o).tolist()] for j, o in self.end_sites],
+            "euler_style": self.euler_style,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Skeleton":
+        return cls(tuple(d["names"]), np.asarray(d["parents"]), np.asarray(d["offsets"]),
+                   tuple(tuple(c) for c in d["channels"]),
+                   tuple((int(j), np.asarray(o, dtype=float)) for j, o in d.get("end_sites", [])),
+                   d.get("euler_style", "wrapped"))
+
+
+def fk(parents: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward kinematics for all frames at once.
+
+    Parameters
+    ----------
+    parents : ndarray, shape (J,), parents before children, -1 for roots
+    rotations : ndarray, shape (..., J, 4), local rotations (w, x, y, z)
+    positions : ndarray, shape (..., J, 3), local translations (offsets or channel values)
+
+    Returns
+    -------
+    global_rotations : ndarray, shape (..., J, 4)
+    global_positions : ndarray, shape (..., J, 3)
+    """
+    grot = np.empty(rotations.shape)
+    gpos = np.empty(positions.shape)
+    for j, p in enumerate(parents):
+        if p < 0:
+            grot[..., j, :] = rotations[..., j, :]
+            gpos[..., j, :] = positions[..., j, :]
+        else:
+            grot[..., j, :] = quat.mul(grot[..., p, :], rotations[..., j, :])
+            gpos[..., j, :] = gpos[..., p, :] + quat.mul_vec(grot[..., p, :], positions[..., j, :])
+    return grot, gpos
