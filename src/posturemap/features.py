@@ -1,0 +1,354 @@
+"""Posture vectors: the paper's DOF vector, the four bone classes, and the exact inverse.
+
+A posture excludes what a transition must not copy from another clip: the root's horizontal
+position and its heading (rotation about the up axis). What stays:
+
+- every joint's local rotation (joints above the root, such as Bandai's fixed
+  ``joint_Root``, belong to the trajectory and are left out),
+- the root's *tilt* (its global rotation with the heading removed) and its height.
+
+Two modes:
+
+``euler``
+    The paper's DOF vector: each rotation as Euler angles in the joint's own channel order,
+    bounded to [0, 2*pi); distances and updates are taken on the circle (359 and 1 degrees
+    are 2 degrees apart). Gimbal lock and the circle's seam remain, as in the paper.
+``logmap`` (default)
+    Each rotation as the rotation vector ``log(ref^-1 * q)`` relative to the joint's mean
+    rotation over the training data: no seam within 180 degrees of the mean, no gimbal lock,
+    and Euclidean distance equals the geodesic angle.
+
+The root height is divided by the leg length, so one unit of height weighs like one radian.
+Dimensions that never change in the training data (the paper's redundant DOFs, such as a
+joint that never moves) are dropped; the inverse puts their constant value back.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat
+from .errors import UserError
+from .motion import Motion, root_index, up_axis, up_vector
+
+CLASSES = ("body", "global", "medium", "detail")
+MODES = ("euler", "logmap")
+TWO_PI = 2.0 * np.pi
+
+# Name rules, tried in order; a name is lower-cased and stripped of prefixes such as
+# "mixamorig:" and of side markers before matching. Covers Bandai, CMU, LaFAN1 and Mixamo.
+_NAME_RULES = [
+    ("detail", r"hand|wrist|finger|thumb|index|middle|ring|pinky|little|toe|foot|ankle|heel"),
+    ("medium", r"forearm|lowerarm|elbow|lowerleg|shin|calf|knee|neck|head|^leg$"),
+    ("global", r"clavicle|collar|shoulder|upperarm|^arm$|thigh|upleg|upperleg|^hip$"),
+    ("body", r"hips|pelvis|root|spine|chest|torso|back|abdomen|waist|hipjoint|^body$"),
+]
+
+
+def _clean(name: str) -> str:
+    """Lower-case joint name without namespace, side marker, separators or trailing digits."""
+    n = name.split(":")[-1]
+    n = re.sub(r"^(joint_|Bip\d*_?|mixamorig_?)", "", n, flags=re.I)
+    n = re.sub(r"^(Left|Right|left|right|L|R)(?=[A-Z_])|[_.\s]?(Left|Right|left|right)$|[_.\s][LRlr]$",
+               "", n)
+    return re.sub(r"\d+$", "", re.sub(r"[_.\s]", "", n.lower()))
+
+
+def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
+    """Bone class index (0 body, 1 global, 2 medium, 3 detail) per joint, shape (J,).
+
+    Names decide where they can (see ``_NAME_RULES``); a joint no rule knows is placed from
+    the hierarchy: the root and the chain to the joint with the most descendants are body,
+    limb joints are global, medium and detail by their distance from the body. Never fails.
+    """
+    sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
+    parents = sk.parents
+    j_count = sk.num_joints
+    root = 0 if root is None else root
+    # Hierarchy fallback.
+    desc = np.zeros(j_count, dtype=np.int64)
+    for j in range(j_count - 1, 0, -1):
+        if parents[j] >= 0:
+            desc[parents[j]] += desc[j] + 1
+    body = np.zeros(j_count, dtype=bool)
+    body[: root + 1] = [j == root or _is_ancestor(parents, j, root) for j in range(root + 1)]
+    # Follow the spine: from the root, the child with the most descendants, up to the first
+    # joint where three or more chains part (the chest: neck and two arms).
+    j = root
+    while True:
+        kids = [c for c in range(j_count) if parents[c] == j]
+        if not kids or (j != root and len(kids) >= 3):
+            break
+        j = max(kids, key=lambda c: desc[c])
+        body[j] = True
+    fallback = np.zeros(j_count, dtype=np.int64)
+    steps = np.zeros(j_count, dtype=np.int64)
+    for c in range(j_count):
+        if body[c]:
+            continue
+        p = parents[c]
+        steps[c] = 1 if p < 0 or body[p] else steps[p] + 1
+        fallback[c] = min(int(steps[c]), 3)
+    out = fallback.copy()
+    for c in range(j_count):
+        name = _clean(sk.names[c])
+        for k, (cls, pattern) in enumerate(_NAME_RULES):
+            if re.search(pattern, name):
+                out[c] = CLASSES.index(cls)
+                break
+    out[root] = 0
+    return out
+
+
+def _is_ancestor(parents, a, j) -> bool:
+    while j >= 0:
+        j = parents[j]
+        if j == a:
+            return True
+    return False
+
+
+def load_class_overrides(path: str, names: tuple[str, ...]) -> dict[str, str]:
+    """Read a JSON object ``{"JointName": "body"|"global"|"medium"|"detail", ...}``."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as e:
+        raise UserError(path, f"cannot read class file ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise UserError(path, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+    if not isinstance(data, dict):
+        raise UserError(path, 'expected a JSON object {"joint": "class", ...}')
+    for k, v in data.items():
+        if k not in names:
+            raise UserError(path, f"unknown joint {k!r}")
+        if v not in CLASSES:
+            raise UserError(path, f"class of {k!r} must be one of {', '.join(CLASSES)}, got {v!r}")
+    return data
+
+
+@dataclass(frozen=True, eq=False)
+class FeatureSpace:
+    """How postures become vectors for one skeleton; fitted on training motions.
+
+    The full vector has three entries per joint below the root (the root's tilt first)
+    followed by the root height; ``active`` keeps the dimensions that vary.
+
+    Attributes
+    ----------
+    mode : "euler" or "logmap"
+    root : index of the joint that carries the trajectory
+    up : up axis index (0, 1, 2)
+    height_scale : length that counts as one unit of root height (leg length)
+    joints : ndarray (K,), joints whose rotations are features, root first
+    orders : tuple of str, Euler order per entry of ``joints`` (euler mode)
+    reference : ndarray (K, 4), reference rotations (logmap mode; identity in euler mode)
+    joint_class : ndarray (J,), class index per joint
+    fill : ndarray (3K + 1,), value of every full dimension (used for dropped ones)
+    active : ndarray (3K + 1,), bool, dimensions kept
+    """
+
+    mode: str
+    root: int
+    up: int
+    height_scale: float
+    joints: np.ndarray
+    orders: tuple[str, ...]
+    reference: np.ndarray
+    joint_class: np.ndarray
+    fill: np.ndarray
+    active: np.ndarray
+    class_dims: tuple = field(init=False)
+
+    def __post_init__(self):
+        dim_class = np.concatenate([np.repeat(self.joint_class[self.joints], 3), [0]])
+        dims = tuple(np.flatnonzero(self.active & (dim_class == c)) for c in range(len(CLASSES)))
+        object.__setattr__(self, "class_dims", dims)
+
+    @property
+    def circular(self) -> np.ndarray:
+        """Bool per full dimension: an angle measured on the circle (euler mode)."""
+        c = np.zeros(self.active.shape, dtype=bool)
+        if self.mode == "euler":
+            c[:-1] = True
+        return c
+
+    # -- encoding -------------------------------------------------------------------------
+    def root_frames(self, motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+        """Global root rotation (F, 4) and position (F, 3) via the root's ancestors."""
+        return root_global(motion, self.root)
+
+    def encode(self, motion: Motion) -> np.ndarray:
+        """Full posture vectors, shape (F, 3K + 1)."""
+        grot, gpos = self.root_frames(motion)
+        _, tilt = quat.heading_twist(grot, up_vector(self.up))
+        rots = motion.rotations[:, self.joints].copy()
+        rots[:, 0] = tilt
+        return self.encode_parts(rots, gpos[:, self.up])
+
+    def encode_parts(self, rots: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """Full vectors from rotations (F, K, 4) of ``joints`` (root tilt first) and heights (F,)."""
+        if self.mode == "euler":
+            ang = np.empty(rots.shape[:-1] + (3,))
+            for order in set(self.orders):
+                idx = [k for k, o in enumerate(self.orders) if o == order]
+                ang[:, idx] = quat.to_euler(rots[:, idx], order)
+            rot_part = np.mod(ang, TWO_PI)
+        else:
+            rot_part = quat.log(quat.mul(quat.inv(self.reference), rots))
+        return np.concatenate([rot_part.reshape(len(rots), -1), (height / self.height_scale)[:, None]], axis=1)
+
+    def split(self, x: np.ndarray) -> list[np.ndarray]:
+        """Per-class active parts of full vectors (..., 3K + 1): a list of 4 arrays."""
+        return [x[..., d] for d in self.class_dims]
+
+    def merge(self, parts: list[np.ndarray]) -> np.ndarray:
+        """Inverse of :meth:`split`: full vectors with dropped dimensions at their constant."""
+        lead = parts[0].shape[:-1]
+        x = np.broadcast_to(self.fill, lead + self.fill.shape).copy()
+        for d, p in zip(self.class_dims, parts):
+            x[..., d] = p
+        return x
+
+    def decode(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (F, K, 4) of ``joints`` (root tilt first) and root heights (F,)."""
+        k = len(self.joints)
+        rot_part = x[..., : 3 * k].reshape(x.shape[:-1] + (k, 3))
+        if self.mode == "euler":
+            rots = np.empty(rot_part.shape[:-1] + (4,))
+            for order in set(self.orders):
+                idx = [i for i, o in enumerate(self.orders) if o == order]
+                rots[..., idx, :] = quat.from_euler(rot_part[..., idx, :], order)
+        else:
+            rots = quat.mul(self.reference, quat.exp(rot_part))
+        return rots, x[..., -1] * self.height_scale
+
+    # -- metadata -------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "mode": self.mode, "root": self.root, "up": self.up, "height_scale": self.height_scale,
+            "joints": self.joints.tolist(), "orders": list(self.orders),
+            "joint_class": self.joint_class.tolist(),
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"reference": self.reference, "fill": self.fill, "active": self.active}
+
+    @classmethod
+    def from_parts(cls, meta: dict, arrays: dict) -> "FeatureSpace":
+        return cls(meta["mode"], int(meta["root"]), int(meta["up"]), float(meta["height_scale"]),
+                   np.asarray(meta["joints"], dtype=np.int64), tuple(meta["orders"]),
+                   np.asarray(arrays["reference"], dtype=float), np.asarray(meta["joint_class"], dtype=np.int64),
+                   np.asarray(arrays["fill"], dtype=float), np.asarray(arrays["active"], dtype=bool))
+
+
+def root_global(motion: Motion, root: int) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotation (F, 4) and position (F, 3) of joint ``root`` through its ancestors."""
+    parents = motion.skeleton.parents
+    chain = [root]
+    while parents[chain[-1]] >= 0:
+        chain.append(int(parents[chain[-1]]))
+    rot = motion.rotations[:, chain[-1]].copy()
+    pos = motion.positions[:, chain[-1]].copy()
+    for j in reversed(chain[:-1]):
+        pos = pos + quat.mul_vec(rot, motion.positions[:, j])
+        rot = quat.mul(rot, motion.rotations[:, j])
+    return rot, pos
+
+
+def leg_length(motion: Motion, root: int, up: int) -> float:
+    """Height of the root above the lowest joint in the first frame (a leg length)."""
+    gpos = motion[0].global_positions()[0]
+    h = gpos[root, up] - gpos[:, up].min()
+    return float(h) if h > 1e-9 else 1.0
+
+
+def fit_space(motions: list[Motion], mode: str = "logmap", classes: dict[str, str] | None = None,
+              tol: float = 1e-6) -> FeatureSpace:
+    """Fit a :class:`FeatureSpace` to training motions (all with one skeleton).
+
+    ``classes`` overrides the automatic bone classes for the joints it names.
+    """
+    if mode not in MODES:
+        raise UserError("--features", f"unknown feature mode {mode!r} (choose from {', '.join(MODES)})")
+    first = motions[0]
+    sk = first.skeleton
+    root = root_index(first)
+    up = up_axis(first)
+    jc = assign_classes(sk, root)
+    for name, cls in (classes or {}).items():
+        jc[sk.index(name)] = CLASSES.index(cls)
+    below = [j for j in range(sk.num_joints) if j == root or _is_ancestor(sk.parents, root, j)]
+    joints = np.array([root] + [j for j in below if j != root], dtype=np.int64)
+    orders = tuple(sk.rotation_order(int(j)) or "ZXY" for j in joints)
+    k = len(joints)
+    provisional = FeatureSpace(mode, root, up, leg_length(first, root, up), joints, orders,
+                               quat.identity((k,)), jc, np.zeros(3 * k + 1), np.ones(3 * k + 1, bool))
+    if mode == "logmap":
+        rots = np.concatenate([_feature_rotations(provisional, m) for m in motions])
+        provisional = FeatureSpace(mode, root, up, provisional.height_scale, joints, orders,
+                                   mean_rotation(rots), jc, provisional.fill, provisional.active)
+    x = np.concatenate([provisional.encode(m) for m in motions])
+    circ = provisional.circular
+    spread = np.where(circ, circular_range(x), np.ptp(x, axis=0))
+    active = spread > tol
+    active[-1] = True  # the root height always counts
+    fill = np.where(circ, circular_mean(x), x.mean(axis=0))
+    return FeatureSpace(mode, root, up, provisional.height_scale, joints, orders,
+                        provisional.reference, jc, fill, active)
+
+
+def _feature_rotations(space: FeatureSpace, motion: Motion) -> np.ndarray:
+    grot, _ = space.root_frames(motion)
+    _, tilt = quat.heading_twist(grot, up_vector(space.up))
+    rots = motion.rotations[:, space.joints].copy()
+    rots[:, 0] = tilt
+    return rots
+
+
+def mean_rotation(q: np.ndarray) -> np.ndarray:
+    """Mean of unit quaternions (N, K, 4) per K: principal eigenvector (Markley et al. 2007)."""
+    m = np.einsum("nki,nkj->kij", q, q)
+    _, vecs = np.linalg.eigh(m)
+    mean = vecs[..., -1]
+    return mean * np.where(mean[..., :1] < 0, -1.0, 1.0)
+
+
+def circular_mean(x: np.ndarray) -> np.ndarray:
+    """Mean angle in [0, 2*pi) over axis 0."""
+    return np.mod(np.arctan2(np.sin(x).mean(0), np.cos(x).mean(0)), TWO_PI)
+
+
+def circular_range(x: np.ndarray) -> np.ndarray:
+    """Largest deviation from the circular mean over axis 0 (radians, 0 for a constant)."""
+    d = np.mod(x - circular_mean(x) + np.pi, TWO_PI) - np.pi
+    return np.abs(d).max(axis=0)
+
+
+def wrap_diff(a: np.ndarray, b: np.ndarray, circular: np.ndarray) -> np.ndarray:
+    """``a - b`` with circular dimensions wrapped into [-pi, pi)."""
+    d = a - b
+    return np.where(circular, np.mod(d + np.pi, TWO_PI) - np.pi, d)
+
+
+def read_inputs(inputs: list[str]) -> list[tuple[str, Motion]]:
+    """Read BVH files and folders of them (sorted); clear errors for missing or empty input."""
+    from . import bvh
+
+    paths = []
+    for item in inputs:
+        if os.path.isdir(item):
+            found = sorted(os.path.join(item, f) for f in os.listdir(item) if f.lower().endswith(".bvh"))
+            if not found:
+                raise UserError(item, "folder holds no .bvh files")
+            paths.extend(found)
+        elif os.path.exists(item):
+            paths.append(item)
+        else:
+            raise UserError(item, "no such file or folder")
+    return [(p, bvh.read(p)) for p in paths]

@@ -1,0 +1,242 @@
+"""PostureMap: the four class maps, the skeleton and the feature space; map files.
+
+A map file is a ``.npz`` archive read with ``allow_pickle=False``: a ``meta`` entry holding
+UTF-8 JSON (format name, version, skeleton, feature configuration, class assignment,
+training parameters and quality figures) and plain numeric arrays (per class: weights,
+edges, hits, witness samples, periods; the feature space's reference rotations, fill values
+and active dimensions). Written atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from . import features
+from .bvh import write_bytes_atomic
+from .errors import UserError
+from .features import CLASSES, FeatureSpace
+from .motion import Motion
+from .skeleton import Skeleton
+from .upm import UniformPostureMap
+
+FORMAT = "posturemap-map"
+VERSION = 1
+
+
+class MapFileError(UserError):
+    """A map file that cannot be used: corrupt, truncated, foreign or of another version."""
+
+    def __init__(self, path, what):
+        super().__init__(path, what)
+
+
+class PostureMap:
+    """Four Uniform Posture Maps (body, global, medium, detail) over one skeleton.
+
+    Parameters
+    ----------
+    radius : float or "auto"
+        Radius of every class map (``auto``: per class, see :func:`posturemap.upm.auto_radius`).
+    neighborhood, learning_rate, epochs, seed :
+        As for :class:`~posturemap.upm.UniformPostureMap`.
+    features : "logmap" or "euler"
+        Posture feature mode (see :mod:`posturemap.features`).
+    classes : dict or None
+        Joint name to class name overrides.
+
+    Attributes (after ``fit``)
+    --------------------------
+    skeleton_ : Skeleton
+    space_ : FeatureSpace
+    maps_ : list of 4 UniformPostureMap
+    info_ : dict, training summary (clips, frames, seconds, quality per class)
+    """
+
+    def __init__(self, radius="auto", neighborhood=2, learning_rate=0.5, epochs=4, seed=0,
+                 features="logmap", classes=None):
+        self.radius = radius
+        self.neighborhood = neighborhood
+        self.learning_rate = learning_rate
+        self.epochs = epochs
+        self.seed = seed
+        self.features = features
+        self.classes = classes
+
+    def fit(self, motions: list[Motion], names: list[str] | None = None, progress=None) -> "PostureMap":
+        """Learn the four class maps from training motions (one skeleton); returns ``self``.
+
+        ``progress(class_name, epoch, epochs, n_neurons)`` is called as training advances.
+        """
+        import time
+
+        if not motions:
+            raise ValueError("no training motions")
+        names = names or [f"clip {i}" for i in range(len(motions))]
+        first = motions[0].skeleton
+        for name, m in zip(names, motions):
+            if not m.skeleton.same_as(first):
+                raise UserError(name, f"skeleton differs from {names[0]} (a map needs one skeleton)")
+        t0 = time.perf_counter()
+        space = features.fit_space(motions, self.features, self.classes)
+        x = np.concatenate([space.encode(m) for m in motions])
+        seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
+        parts = space.split(x)
+        circ = space.circular
+        maps = []
+        for c in range(len(CLASSES)):
+            period = np.where(circ[space.class_dims[c]], 2 * np.pi, np.inf)
+            maps.append(UniformPostureMap(self.radius, self.neighborhood, self.learning_rate,
+                                          self.epochs, self.seed + c, period))
+
+        def train(c):
+            cb = None
+            if progress is not None:
+                cb = lambda e, n, err: progress(CLASSES[c], e, int(self.epochs), n)  # noqa: E731
+            return maps[c].fit(parts[c], seq, cb)
+
+        with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+            list(pool.map(train, range(len(CLASSES))))
+        self.skeleton_ = first
+        self.space_ = space
+        self.maps_ = maps
+        self.info_ = {
+            "clips": len(motions), "frames": int(len(x)), "fps": float(motions[0].fps),
+            "train_seconds": round(time.perf_counter() - t0, 3),
+            "quality": {CLASSES[c]: {
+                "neurons": m.n_neurons, "dims": int(parts[c].shape[1]), "radius": m.radius_,
+                "quantization_error": m.quantization_error_,
+                "topographic_error": m.topographic_error(parts[c]),
+                "invalid_neurons": m.invalid_fraction(parts[c]),
+                "edges": int(len(m.edges_)),
+            } for c, m in enumerate(maps)},
+        }
+        return self
+
+    # -- use ------------------------------------------------------------------------------
+    def encode(self, motion: Motion) -> np.ndarray:
+        """Full posture vectors of a motion with this map's skeleton, (F, D)."""
+        self.check_skeleton(motion.skeleton, "motion")
+        return self.space_.encode(motion)
+
+    def check_skeleton(self, sk: Skeleton, where: str):
+        if not sk.same_as(self.skeleton_):
+            raise UserError(where, "skeleton differs from the map's (joints, hierarchy or channels)")
+
+    def neuron_counts(self) -> list[int]:
+        return [m.n_neurons for m in self.maps_]
+
+    # -- files ----------------------------------------------------------------------------
+    def save(self, path: str) -> None:
+        """Write the map to ``path`` (.npz, no pickle) atomically."""
+        meta = {
+            "format": FORMAT, "version": VERSION,
+            "skeleton": self.skeleton_.to_dict(),
+            "space": self.space_.to_dict(),
+            "classes": list(CLASSES),
+            "assignment": {n: CLASSES[c] for n, c in zip(self.skeleton_.names, self.space_.joint_class)},
+            "params": {"radius": self.radius, "neighborhood": self.neighborhood,
+                       "learning_rate": self.learning_rate, "epochs": self.epochs, "seed": self.seed,
+                       "features": self.features},
+            "radius": [m.radius_ for m in self.maps_],
+            "info": self.info_,
+        }
+        arrays = {"meta": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
+        for k, v in self.space_.arrays().items():
+            arrays[f"space_{k}"] = v
+        for c, m in enumerate(self.maps_):
+            arrays[f"c{c}_weights"] = m.weights_
+            arrays[f"c{c}_edges"] = m.edges_.astype(np.int64).reshape(-1, 2)
+            arrays[f"c{c}_hits"] = m.hits_
+            arrays[f"c{c}_witness"] = m.witness_
+            arrays[f"c{c}_period"] = m.period_
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        write_bytes_atomic(path, buf.getvalue())
+
+    @classmethod
+    def load(cls, path: str) -> "PostureMap":
+        """Read a map file; a corrupt, truncated or foreign file raises :class:`MapFileError`."""
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise MapFileError(path, "no such map file")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+            raise MapFileError(path, f"not a posturemap map file (unreadable archive: {e})") from None
+        try:
+            meta = json.loads(bytes(arrays.pop("meta")).decode("utf-8"))
+        except KeyError:
+            raise MapFileError(path, "not a posturemap map file (no 'meta' entry)") from None
+        except (UnicodeDecodeError, json.JSONDecodeError, TypeError, ValueError):
+            raise MapFileError(path, "corrupt metadata (not JSON)") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise MapFileError(path, "not a posturemap map file (foreign format)")
+        if meta.get("version") != VERSION:
+            raise MapFileError(path, f"map format version {meta.get('version')!r}; this posturemap reads {VERSION}")
+        try:
+            return cls._from_parts(meta, arrays)
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            raise MapFileError(path, f"corrupt map file ({type(e).__name__}: {e})") from None
+
+    @classmethod
+    def _from_parts(cls, meta: dict, arrays: dict) -> "PostureMap":
+        p = meta["params"]
+        self = cls(p["radius"], p["neighborhood"], p["learning_rate"], p["epochs"], p["seed"], p["features"])
+        self.skeleton_ = Skeleton.from_dict(meta["skeleton"])
+        self.space_ = FeatureSpace.from_parts(meta["space"], {k[6:]: v for k, v in arrays.items()
+                                                               if k.startswith("space_")})
+        sp = self.space_
+        j = self.skeleton_.num_joints
+        full = 3 * len(sp.joints) + 1
+        if (sp.joint_class.shape != (j,) or sp.fill.shape != (full,) or sp.active.shape != (full,)
+                or sp.reference.shape != (len(sp.joints), 4) or not 0 <= sp.root < j
+                or np.any(sp.joints < 0) or np.any(sp.joints >= j)):
+            raise ValueError("feature space does not match the skeleton")
+        self.maps_ = []
+        for c in range(len(CLASSES)):
+            w = np.asarray(arrays[f"c{c}_weights"], dtype=np.float64)
+            edges = np.asarray(arrays[f"c{c}_edges"], dtype=np.int64)
+            period = np.asarray(arrays[f"c{c}_period"], dtype=np.float64)
+            dims = len(sp.class_dims[c])
+            if w.ndim != 2 or w.shape[1] != dims or len(w) == 0:
+                raise ValueError(f"class {CLASSES[c]} weights have shape {w.shape}, expected (n, {dims})")
+            if not np.all(np.isfinite(w)):
+                raise ValueError(f"class {CLASSES[c]} weights are not finite")
+            if edges.ndim != 2 or edges.shape[1] != 2 or (edges.size and (edges.min() < 0 or edges.max() >= len(w))):
+                raise ValueError(f"class {CLASSES[c]} edges do not fit its {len(w)} neurons")
+            if period.shape != (dims,):
+                raise ValueError(f"class {CLASSES[c]} periods have shape {period.shape}")
+            m = UniformPostureMap(meta["radius"][c], p["neighborhood"], p["learning_rate"], p["epochs"],
+                                  p["seed"] + c, period)
+            m.weights_, m.edges_, m.period_ = w, edges, period
+            m.hits_ = np.asarray(arrays[f"c{c}_hits"], dtype=np.int64)
+            m.witness_ = np.asarray(arrays[f"c{c}_witness"], dtype=np.int64)
+            m.radius_ = float(meta["radius"][c])
+            self.maps_.append(m)
+        self.info_ = meta.get("info", {})
+        return self
+
+    def describe(self) -> dict:
+        """JSON-ready summary: neurons per class, parameters, quality, class assignment."""
+        return {
+            "skeleton": {"joints": self.skeleton_.num_joints, "root": self.skeleton_.names[self.space_.root],
+                         "up": "XYZ"[self.space_.up]},
+            "features": self.space_.mode,
+            "params": {"radius": self.radius, "neighborhood": self.neighborhood,
+                       "learning_rate": self.learning_rate, "epochs": self.epochs, "seed": self.seed},
+            "classes": {CLASSES[c]: {"neurons": m.n_neurons, "dims": int(m.weights_.shape[1]),
+                                     "radius": m.radius_, "edges": int(len(m.edges_)),
+                                     **{k: v for k, v in self.info_.get("quality", {}).get(CLASSES[c], {}).items()
+                                        if k in ("quantization_error", "topographic_error", "invalid_neurons")}}
+                        for c, m in enumerate(self.maps_)},
+            "training": {k: v for k, v in self.info_.items() if k != "quality"},
+            "assignment": {CLASSES[c]: [n for n, jc in zip(self.skeleton_.names, self.space_.joint_class) if jc == c]
+                           for c in range(len(CLASSES))},
+        }

@@ -1,0 +1,452 @@
+"""Motion transitions: key posture from the maps, B-spline in-between, root alignment.
+
+The transition fills ``length`` frames between the end of clip A (frame ``a_end``, time 0)
+and the start of clip B (frame ``b_start``, time ``length + 1``).
+
+Every frame is split into a *trajectory* (root horizontal position, heading about the up
+axis) and a *posture* (root height, root tilt, local rotations). Rotations are handled as
+rotation vectors ``log(ref^-1 q)`` relative to a per-joint reference rotation (the key's,
+or B's first), a space without sign flips or seams for the short arcs of a transition.
+Each method is then a fixed linear map from the seam values to the in-between frames:
+
+``upm`` (paper)
+    Key posture from the four class maps: per class, the neuron nearest the ``alpha``-blend of
+    A's last and B's first posture (an O(n) scan). A clamped cubic B-spline passes through A's
+    end (value and velocity), the key at frame ``key_at`` and B's start (value and velocity).
+``upm-path``
+    As ``upm``, with each class key the neuron at fraction ``alpha`` of the way along the
+    shortest path between the two postures' winners in the map graph.
+``spline``
+    The same cubic (Hermite) spline without a key: matches values and velocities at both ends.
+``slerp``
+    SLERP of every rotation and LERP of the root, from A's end to B's start (no velocities).
+``inertialize``
+    B's start, extrapolated backwards with its velocity, plus an offset that decays with a
+    quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
+
+Root alignment (default): B is turned about the up axis and moved so that it continues A:
+its start lies where A's root, moving at the mean of the two clips' seam velocities, gets to
+in ``length + 1`` frames, facing A's heading advanced by the mean turning rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from . import kernels, quat
+from .errors import UserError
+from .features import TWO_PI, root_global
+from .motion import Motion, concatenate, root_index, up_axis, up_vector
+
+METHODS = ("upm", "upm-path", "spline", "slerp", "inertialize")
+KEYED = ("upm", "upm-path")
+
+
+# -- bases: the in-between frames as linear maps of the seam values ------------------------
+@lru_cache(maxsize=256)
+def key_spline_basis(length: int, key_at: int) -> np.ndarray:
+    """Clamped cubic B-spline through (0: pA, vA), (key_at: key), (length+1: pB, vB).
+
+    Returns the matrix (length, 5) mapping ``[pA, vA, pB, vB, key]`` to frames 1..length.
+    """
+    from scipy.interpolate import make_interp_spline
+
+    x = np.array([0.0, key_at, length + 1.0])
+    t = np.arange(1, length + 1, dtype=float)
+    out = np.empty((length, 5))
+    for col in range(5):
+        e = np.zeros(5)
+        e[col] = 1.0
+        y = np.array([e[0], e[4], e[2]])
+        spl = make_interp_spline(x, y, k=3, bc_type=([(1, e[1])], [(1, e[3])]))
+        out[:, col] = spl(t)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=256)
+def hermite_basis(length: int) -> np.ndarray:
+    """Cubic Hermite from (pA, vA) at 0 to (pB, vB) at length+1: matrix (length, 4)."""
+    d = length + 1.0
+    s = np.arange(1, length + 1) / d
+    out = np.stack([2 * s**3 - 3 * s**2 + 1, (s**3 - 2 * s**2 + s) * d,
+                    -2 * s**3 + 3 * s**2, (s**3 - s**2) * d], axis=1)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=256)
+def linear_basis(length: int) -> np.ndarray:
+    """Straight line from pA at 0 to pB at length+1: matrix (length, 2)."""
+    s = np.arange(1, length + 1) / (length + 1.0)
+    out = np.stack([1 - s, s], axis=1)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=256)
+def inertialize_basis(length: int) -> np.ndarray:
+    """B's start extrapolated back with vB, plus a quintic offset decay: matrix (length, 5).
+
+    Maps ``[pA, vA, pB, vB, aA]``; the offset ``x0 = pA - (pB - vB d)``, ``v0 = vA - vB``,
+    ``a0 = aA`` decays to zero value, velocity and acceleration at ``d = length + 1``.
+    """
+    d = length + 1.0
+    t = np.arange(1, length + 1, dtype=float)
+    # Offset polynomial x(t) = A t^5 + B t^4 + C t^3 + a0/2 t^2 + v0 t + x0, per unit x0, v0, a0.
+    def poly(x0, v0, a0):
+        a = -(a0 * d**2 + 6 * v0 * d + 12 * x0) / (2 * d**5)
+        b = (3 * a0 * d**2 + 16 * v0 * d + 30 * x0) / (2 * d**4)
+        c = -(3 * a0 * d**2 + 12 * v0 * d + 20 * x0) / (2 * d**3)
+        return a * t**5 + b * t**4 + c * t**3 + 0.5 * a0 * t**2 + v0 * t + x0
+    px, pv, pa = poly(1, 0, 0), poly(0, 1, 0), poly(0, 0, 1)
+    # target(t) = pB - vB (d - t); x0 = pA - pB + vB d; v0 = vA - vB.
+    out = np.stack([px, pv, 1 - px, -(d - t) + d * px - pv, pa], axis=1)
+    out.setflags(write=False)
+    return out
+
+
+# -- per-clip decomposition ---------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Track:
+    """A clip split into trajectory and posture, computed once per clip.
+
+    Attributes
+    ----------
+    motion : the clip
+    gpos : (F, 3) global root position
+    heading : (F,) root heading about the up axis, radians, continuous over time
+    rots : (F, J, 4) local rotations, with the root's replaced by its tilt
+    features : (F, D) posture vectors for a map, or None
+    """
+
+    motion: Motion
+    gpos: np.ndarray
+    heading: np.ndarray
+    rots: np.ndarray
+    features: np.ndarray | None
+
+
+def heading_of(q: np.ndarray, up: int) -> np.ndarray:
+    """Angle (radians) of rotations ``q (..., 4)`` about the up axis (they must be pure turns)."""
+    return 2.0 * np.arctan2(q[..., 1 + up], q[..., 0])
+
+
+def turn(angle: np.ndarray, up: int) -> np.ndarray:
+    """Rotations (..., 4) by ``angle`` (radians) about the up axis."""
+    angle = np.asarray(angle, dtype=float)
+    q = np.zeros(angle.shape + (4,))
+    q[..., 0] = np.cos(0.5 * angle)
+    q[..., 1 + up] = np.sin(0.5 * angle)
+    return q
+
+
+def rotate_about_up(v: np.ndarray, angle: float, up: int) -> np.ndarray:
+    """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis."""
+    a, b = (up + 1) % 3, (up + 2) % 3
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.array(v, dtype=float, copy=True)
+    out[..., a] = c * v[..., a] - s * v[..., b]
+    out[..., b] = s * v[..., a] + c * v[..., b]
+    return out
+
+
+def make_track(motion: Motion, root: int, up: int, space=None) -> Track:
+    grot, gpos = root_global(motion, root)
+    head_q, tilt = quat.heading_twist(grot, up_vector(up))
+    heading = np.unwrap(heading_of(head_q, up))
+    rots = motion.rotations.copy()
+    rots[:, root] = tilt
+    feats = space.encode(motion) if space is not None else None
+    return Track(motion, gpos, heading, rots, feats)
+
+
+def _ancestors(parents: np.ndarray, root: int) -> list[int]:
+    chain = []
+    j = parents[root]
+    while j >= 0:
+        chain.append(int(j))
+        j = parents[j]
+    return chain[::-1]
+
+
+# -- the engine -----------------------------------------------------------------------------
+class TransitionEngine:
+    """Keeps a map and prepared clips in memory; one transition per call (for a game loop).
+
+    >>> engine = TransitionEngine(model)              # doctest: +SKIP
+    >>> engine.add("walk", walk); engine.add("run", run)
+    >>> rots, pos = engine.generate("walk", "run", alpha=0.3)
+
+    Clips are split into trajectory and posture once (:meth:`add`); :meth:`generate` then
+    only reads seam frames, finds the key and evaluates a precomputed spline basis, writing
+    into buffers reused between calls of the same length.
+    """
+
+    def __init__(self, model=None, skeleton=None):
+        self.model = model
+        if model is not None:
+            skeleton = model.skeleton_
+        self.skeleton = skeleton
+        self.tracks: dict[str, Track] = {}
+        self._root = self._up = None
+        self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._chain = np.zeros(0, dtype=np.int64)
+        if model is not None:
+            space = model.space_
+            self._root, self._up = space.root, space.up
+            self._chain = np.array(_ancestors(skeleton.parents, self._root), dtype=np.int64)
+            self._circular = space.circular if space.circular.any() else None
+            self._paths = [None] * len(model.maps_)
+
+    def add(self, name: str, motion: Motion) -> Track:
+        """Prepare a clip under ``name`` (same skeleton as the map, if any)."""
+        if self.skeleton is None:
+            self.skeleton = motion.skeleton
+        if not motion.skeleton.same_as(self.skeleton):
+            raise UserError(name, "skeleton differs from the other clips (joints, hierarchy or channels)")
+        if self._root is None:
+            self._root, self._up = root_index(motion), up_axis(motion)
+        self._chain = np.array(_ancestors(self.skeleton.parents, self._root), dtype=np.int64)
+        space = self.model.space_ if self.model is not None else None
+        tr = make_track(motion, self._root, self._up, space)
+        self.tracks[name] = tr
+        return tr
+
+    # -- key posture ------------------------------------------------------------------------
+    def key_features(self, xa: np.ndarray, xb: np.ndarray, alpha: float, path: bool = False):
+        """Key posture vector (D,) and the chosen neuron per class, between ``xa`` and ``xb``."""
+        space = self.model.space_
+        if self._circular is None:
+            blend = xa + alpha * (xb - xa)
+        else:
+            circ = self._circular
+            blend = xa + alpha * np.where(circ, np.mod(xb - xa + np.pi, TWO_PI) - np.pi, xb - xa)
+            blend = np.where(circ, np.mod(blend, TWO_PI), blend)
+        key = space.fill.copy()
+        chosen = []
+        for c, m in enumerate(self.model.maps_):
+            dims = space.class_dims[c]
+            if path:
+                k = self._path_neuron(c, xa[dims], xb[dims], alpha)
+            else:
+                k = self._nearest(c, blend[dims])
+            chosen.append(k)
+            key[dims] = m.weights_[k]
+        return key, chosen
+
+    def _nearest(self, c: int, x: np.ndarray) -> int:
+        m = self.model.maps_[c]
+        return kernels.nearest(m.weights_, x, m.period_)
+
+    def _path_neuron(self, c: int, xa: np.ndarray, xb: np.ndarray, alpha: float) -> int:
+        """Neuron at fraction ``alpha`` of the shortest graph path from A's winner to B's."""
+        from scipy.sparse import csr_matrix
+        from scipy.sparse.csgraph import dijkstra
+
+        m = self.model.maps_[c]
+        wa, wb = self._nearest(c, xa), self._nearest(c, xb)
+        if wa == wb or len(m.edges_) == 0:
+            return wa if alpha < 0.5 else wb
+        if self._paths[c] is None:
+            e = m.edges_
+            d = m.distances(m.weights_[e[:, 0]])[np.arange(len(e)), e[:, 1]]
+            n = m.n_neurons
+            self._paths[c] = csr_matrix((np.maximum(d, 1e-12), (e[:, 0], e[:, 1])), shape=(n, n))
+        dist, pred = dijkstra(self._paths[c], directed=False, indices=wa, return_predecessors=True)
+        if not np.isfinite(dist[wb]):  # B's winner not reachable: fall back to the blend key
+            blend = xa + alpha * (xb - xa)
+            return self._nearest(c, np.where(np.isinf(m.period_), blend, np.mod(blend, TWO_PI)))
+        path = [wb]
+        while path[-1] != wa:
+            path.append(int(pred[path[-1]]))
+        path = path[::-1]
+        target = alpha * dist[wb]
+        return min(path, key=lambda k: abs(dist[k] - target))
+
+    # -- transition ---------------------------------------------------------------------------
+    def alignment(self, a: Track, b: Track, a_end: int, b_start: int, length: int) -> tuple[float, np.ndarray]:
+        """Turn (radians about up) and translation (3,) that make B continue A."""
+        up = self._up
+        h1, h2 = (up + 1) % 3, (up + 2) % 3
+        d = length + 1.0
+        a0, b1 = max(a_end - 1, 0), min(b_start + 1, len(b.gpos) - 1)
+        pa, pa0, pb, pb1 = a.gpos[a_end], a.gpos[a0], b.gpos[b_start], b.gpos[b1]
+        wa = a.heading[a_end] - a.heading[a0]
+        wb = b.heading[b1] - b.heading[b_start]
+        dtheta = float(a.heading[a_end] + 0.5 * (wa + wb) * d - b.heading[b_start])
+        c, s = math.cos(dtheta), math.sin(dtheta)
+        # B's seam velocity and start, turned by dtheta in the horizontal plane (h1, h2).
+        vb1, vb2 = pb1[h1] - pb[h1], pb1[h2] - pb[h2]
+        vb1, vb2 = c * vb1 - s * vb2, s * vb1 + c * vb2
+        sb1, sb2 = c * pb[h1] - s * pb[h2], s * pb[h1] + c * pb[h2]
+        shift = np.zeros(3)
+        shift[h1] = pa[h1] + 0.5 * (pa[h1] - pa0[h1] + vb1) * d - sb1
+        shift[h2] = pa[h2] + 0.5 * (pa[h2] - pa0[h2] + vb2) * d - sb2
+        return dtheta, shift
+
+    def generate(self, a: str, b: str, length: int = 20, key_at: int | None = None, alpha: float = 0.5,
+                 a_end: int | None = None, b_start: int = 0, align: bool = True, method: str = "upm"):
+        """The in-between frames: local rotations (length, J, 4) and positions (length, J, 3).
+
+        Also sets ``self.last`` (key posture, chosen neurons, alignment) for inspection.
+        The returned arrays are buffers reused by the next call with the same ``length``.
+        """
+        ta, tb = self.tracks[a], self.tracks[b]
+        a_end = len(ta.gpos) - 1 if a_end is None else a_end
+        key_at = (length // 2) if key_at is None else key_at
+        check_args(len(ta.gpos), len(tb.gpos), length, key_at, alpha, a_end, b_start, method)
+        if method in KEYED and self.model is None:
+            raise UserError("--method", f"method {method!r} needs a posture map")
+        up, root = self._up, self._root
+        parents = self.skeleton.parents
+
+        # Seam frames: A at a_end-2..a_end, B at b_start..b_start+1 (clamped inside the clips).
+        ia = [max(a_end - 2, 0), max(a_end - 1, 0), a_end]
+        ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+        if align:
+            dtheta, shift = self.alignment(ta, tb, a_end, b_start, length)
+        else:
+            dtheta, shift = 0.0, np.zeros(3)
+        b_head = tb.heading[ib] + dtheta
+        b_head += TWO_PI * round((ta.heading[a_end] - b_head[0]) / TWO_PI)
+        b_pos = rotate_about_up(tb.gpos[ib], dtheta, up) + shift
+
+        rots_a, rots_b = ta.rots[ia], tb.rots[ib]
+        j_count = self.skeleton.num_joints
+        space = self.model.space_ if self.model is not None else None
+        key = chosen = None
+        # Reference rotation per joint: the key's for keyed joints, otherwise B's first frame.
+        ref = rots_b[0].copy()
+        if method in KEYED:
+            key_vec, chosen = self.key_features(ta.features[a_end], tb.features[b_start], alpha,
+                                                path=method == "upm-path")
+            key = self._decode_key(key_vec)
+            ref[space.joints] = key[0]
+        # Seam values as one row each: rotation vectors about ref, then root position,
+        # heading and local translations. Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1].
+        seam = np.empty((5, 3 * j_count + 4 + 3 * j_count))
+        kernels.log_relative(np.concatenate([rots_a, rots_b]), ref, seam[:, : 3 * j_count].reshape(5, j_count, 3))
+        s0 = 3 * j_count
+        seam[:3, s0: s0 + 3] = ta.gpos[ia]
+        seam[:3, s0 + 3] = ta.heading[ia]
+        seam[:3, s0 + 4:] = ta.motion.positions[ia].reshape(3, -1)
+        seam[3:, s0: s0 + 3] = b_pos
+        seam[3:, s0 + 3] = b_head
+        seam[3:, s0 + 4:] = tb.motion.positions[ib].reshape(2, -1)
+        # Inputs of the bases: pA, vA, pB, vB, aA (per-frame differences at the seams).
+        inputs = np.empty((5, seam.shape[1]))
+        inputs[0] = seam[2]
+        np.subtract(seam[2], seam[1], out=inputs[1])
+        inputs[2] = seam[3]
+        np.subtract(seam[4], seam[3], out=inputs[3])
+        if method == "slerp":
+            frames = linear_basis(length) @ inputs[[0, 2]]
+        elif method == "inertialize":
+            inputs[4] = seam[2] - 2.0 * seam[1] + seam[0]
+            frames = inertialize_basis(length) @ inputs
+        elif method == "spline":
+            frames = hermite_basis(length) @ inputs[:4]
+        else:
+            # One clamped B-spline through the key for every column: keyed columns (feature
+            # joints' rotations, 0 about the key, and the root height) take the key's value,
+            # the others the Hermite curve's own value there, which leaves them on that curve.
+            inputs[4] = hermite_basis(length)[key_at - 1] @ inputs[:4]
+            kcols = self._keyed_columns()
+            inputs[4, kcols[:-1]] = 0.0
+            inputs[4, kcols[-1]] = key[1]
+            frames = key_spline_basis(length, key_at) @ inputs
+
+        out_r, out_p = self._buffers.get(length) or (np.empty((length, j_count, 4)), np.empty((length, j_count, 3)))
+        self._buffers[length] = (out_r, out_p)
+        kernels.exp_relative(frames[:, :s0].reshape(length, j_count, 3), ref, out_r)
+        out_p[:] = frames[:, s0 + 4:].reshape(length, j_count, 3)
+        kernels.compose_root(self._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
+        self.last = {"key": key, "neurons": chosen, "dtheta": dtheta, "shift": shift}
+        return out_r, out_p
+
+    def _decode_key(self, key_vec: np.ndarray) -> tuple[np.ndarray, float]:
+        """Rotations (K, 4) of the feature joints (root tilt first) and root height of a key."""
+        space = self.model.space_
+        if space.mode != "logmap":
+            rots, height = space.decode(key_vec)
+            return rots, float(height)
+        k = len(space.joints)
+        rots = np.empty((1, k, 4))
+        kernels.exp_relative(key_vec[: 3 * k].reshape(1, k, 3), space.reference, rots)
+        return rots[0], float(key_vec[-1] * space.height_scale)
+
+    def _keyed_columns(self) -> np.ndarray:
+        if not hasattr(self, "_kcols"):
+            j_count = self.skeleton.num_joints
+            joints = self.model.space_.joints
+            rot_cols = (3 * joints[:, None] + np.arange(3)).ravel()
+            self._kcols = np.concatenate([rot_cols, [3 * j_count + self._up]])
+        return self._kcols
+
+
+def check_args(len_a: int, len_b: int, length: int, key_at: int, alpha: float, a_end: int,
+               b_start: int, method: str):
+    """Validate transition arguments; raises :class:`UserError` naming the option."""
+    if method not in METHODS:
+        raise UserError("--method", f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+    if not 1 <= length <= 10_000:
+        raise UserError("--length", f"must be between 1 and 10000 frames, got {length}")
+    if method in KEYED and not 1 <= key_at <= length:
+        raise UserError("--key-at", f"must be between 1 and the length {length}, got {key_at}")
+    if not 0.0 <= alpha <= 1.0:
+        raise UserError("--alpha", f"must be between 0 and 1, got {alpha}")
+    if not 0 <= a_end < len_a:
+        raise UserError("--a-end", f"frame {a_end} is outside clip A (frames 0..{len_a - 1})")
+    if not 0 <= b_start < len_b:
+        raise UserError("--b-start", f"frame {b_start} is outside clip B (frames 0..{len_b - 1})")
+
+
+def aligned(track: Track, engine: TransitionEngine, start: int, dtheta: float, shift: np.ndarray) -> Motion:
+    """Frames ``start:`` of a clip, turned by ``dtheta`` about up and moved by ``shift``."""
+    m = track.motion
+    up = engine._up
+    rots = track.rots[start:].copy()
+    positions = m.positions[start:].copy()
+    gpos = rotate_about_up(track.gpos[start:], dtheta, up) + shift
+    kernels.compose_root(engine._chain, engine._root, up, rots, positions, gpos, track.heading[start:] + dtheta)
+    return Motion(m.skeleton, rots, positions, m.fps)
+
+
+def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int | None = None,
+               alpha: float = 0.5, a_end: int | None = None, b_start: int = 0, align: bool = True,
+               method: str = "upm") -> Motion:
+    """A[:a_end+1], then ``length`` new frames, then B[b_start:] (moved to continue A).
+
+    Parameters
+    ----------
+    a, b : Motion with one skeleton (and the map's, when ``model`` is given)
+    model : PostureMap or None; needed for ``upm`` and ``upm-path``
+    length : number of in-between frames (paper: 20)
+    key_at : position of the key among the in-between frames, 1..length (default length // 2;
+        the paper puts it at the 10th of 20)
+    alpha : control parameter in [0, 1]: 0 keys near A's posture, 1 near B's
+    a_end : last frame of A used (default: A's last frame)
+    b_start : first frame of B used
+    align : move and turn B to continue A; False leaves B's root exactly where it is
+    method : one of :data:`METHODS`
+
+    Returns
+    -------
+    Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
+    """
+    engine = TransitionEngine(model, a.skeleton if model is None else None)
+    engine.add("a", a)
+    engine.add("b", b)
+    rots, pos = engine.generate("a", "b", length, key_at, alpha, a_end, b_start, align, method)
+    a_end = len(a) - 1 if a_end is None else a_end
+    mid = Motion(a.skeleton, rots.copy(), pos.copy(), a.fps)
+    if align:
+        b_part = aligned(engine.tracks["b"], engine, b_start, engine.last["dtheta"], engine.last["shift"])
+    else:
+        b_part = b[b_start:]
+    return concatenate([a[: a_end + 1], mid, Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
