@@ -24,12 +24,208 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+class _Progress:
+    """One status line per training run: epoch and neurons per class (stderr)."""
+
+    def __init__(self, epochs: int, stream=sys.stderr):
+        self.epochs, self.stream = epochs, stream
+        self.state: dict[str, tuple[int, int]] = {}
+        self.tty = stream.isatty()
+
+    def __call__(self, cls: str, epoch: int, epochs: int, neurons: int):
+        self.state[cls] = (epoch, neurons)
+        done = min(e for e, _ in self.state.values()) if len(self.state) == 4 else 0
+        if not self.tty and done == getattr(self, "_shown", -1):
+            return
+        self._shown = done
+        width = 20
+        bar = "#" * int(width * done / self.epochs) + "-" * (width - int(width * done / self.epochs))
+        parts = "  ".join(f"{c} {n}" for c, (_, n) in sorted(self.state.items()))
+        line = f"training [{bar}] epoch {done}/{self.epochs}  neurons: {parts}"
+        self.stream.write("\r" + line if self.tty else line + "\n")
+        self.stream.flush()
+
+    def close(self):
+        if self.tty:
+            self.stream.write("\n")
+
+
+def _radius(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number or 'auto', got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number or 'auto', got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {value}")
+    return value
+
+
+def _cmd_train(args) -> int:
+    from .features import load_class_overrides, read_inputs
+    from .model import PostureMap
+
+    clips = read_inputs(args.inputs)
+    classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
+    progress = _Progress(args.epochs)
+    pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
+                    args.features, classes)
+    try:
+        pm.fit([m for _, m in clips], [p for p, _ in clips], progress=progress)
+    finally:
+        progress.close()
+    _check_output(args.output)
+    pm.save(args.output)
+    info = pm.info_
+    print(f"{args.output}: {info['clips']} clips, {info['frames']} frames, "
+          f"{sum(pm.neuron_counts())} neurons ("
+          + ", ".join(f"{c} {q['neurons']}" for c, q in info["quality"].items())
+          + f"), trained in {info['train_seconds']:.1f} s")
+    return 0
+
+
+def _check_output(path: str):
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UserError(path, "output folder does not exist")
+    if os.path.isdir(path):
+        raise UserError(path, "is a folder, expected a file name")
+
+
+def _cmd_transition(args) -> int:
+    from . import bvh
+    from .model import PostureMap
+    from .transition import KEYED, transition
+
+    a, b = bvh.read(args.a), bvh.read(args.b)
+    if not b.skeleton.same_as(a.skeleton):
+        raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
+    _check_output(args.output)
+    model = None
+    if args.map:
+        model = PostureMap.load(args.map)
+        model.check_skeleton(a.skeleton, args.a)
+    elif args.method in KEYED:
+        model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
+    out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
+                     a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method)
+    bvh.write(args.output, out)
+    a_end = len(a) - 1 if args.a_end is None else args.a_end
+    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {args.method} frames "
+          f"+ B[{args.b_start}..{len(b) - 1}]")
+    return 0
+
+
+def _cmd_inspect(args) -> int:
+    import json
+
+    from .features import CLASSES, assign_classes
+    from .model import PostureMap
+
+    if args.path.lower().endswith(".bvh"):
+        from . import bvh
+        from .motion import root_index, summary
+
+        m = bvh.read(args.path)
+        jc = assign_classes(m.skeleton, root_index(m))
+        info = {"file": args.path, "summary": summary(m),
+                "assignment": {c: [n for n, k in zip(m.skeleton.names, jc) if k == i]
+                               for i, c in enumerate(CLASSES)}}
+        if args.json:
+            print(json.dumps(info, indent=2))
+        else:
+            print(f"{args.path}: {info['summary']}")
+            for c, names in info["assignment"].items():
+                print(f"  {c:7s} {', '.join(names) or '-'}")
+        return 0
+    d = PostureMap.load(args.path).describe()
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    t = d["training"]
+    print(f"{args.path}: posture map, features {d['features']}, skeleton of {d['skeleton']['joints']} joints "
+          f"(root {d['skeleton']['root']}, up {d['skeleton']['up']})")
+    if t:
+        print(f"  trained on {t.get('clips')} clips, {t.get('frames')} frames in {t.get('train_seconds')} s")
+    p = d["params"]
+    print(f"  parameters: radius {p['radius']}, neighborhood {p['neighborhood']}, learning rate "
+          f"{p['learning_rate']}, epochs {p['epochs']}, seed {p['seed']}")
+    print(f"  {'class':7s} {'neurons':>7s} {'dims':>4s} {'radius':>7s} {'edges':>6s} {'q.error':>8s} "
+          f"{'topo.err':>8s} {'invalid':>7s}")
+    for c, q in d["classes"].items():
+        print(f"  {c:7s} {q['neurons']:7d} {q['dims']:4d} {q['radius']:7.3f} {q['edges']:6d} "
+              f"{q.get('quantization_error', float('nan')):8.3f} {q.get('topographic_error', float('nan')):8.3f} "
+              f"{q.get('invalid_neurons', float('nan')):7.3f}")
+    for c, names in d["assignment"].items():
+        print(f"  {c:7s} {', '.join(names) or '-'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="posturemap",
                 description="Natural, real-time motion transitions between motion-capture clips "
                             "with a Uniform Posture Map.")
     p.add_argument("--version", action="version", version=f"posturemap {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    t = sub.add_parser("train", help="learn a posture map (four class UPMs) from BVH files or folders")
+    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files")
+    t.add_argument("-o", "--output", required=True, metavar="MAP", help="map file to write (.npz)")
+    t.add_argument("--radius", type=_radius, default="auto",
+                   help="maximum distance from a posture to its neuron, or 'auto' (default) to derive it "
+                        "from the data")
+    t.add_argument("--neighborhood", type=_nonneg_int, default=2, help="initial neighbourhood in graph hops (2)")
+    t.add_argument("--epochs", type=_positive_int, default=4, help="passes over the data (4)")
+    t.add_argument("--learning-rate", type=float, default=0.5, help="initial gain, falls to 0 (0.5)")
+    t.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    t.add_argument("--features", choices=("logmap", "euler"), default="logmap",
+                   help="posture features: logmap (default, rotation vectors) or euler (the paper's angles)")
+    t.add_argument("--classes", metavar="FILE.json", help='bone class overrides {"Joint": "body|global|medium|detail"}')
+    t.set_defaults(func=_cmd_train)
+
+    from .transition import DEFAULT_METHOD, METHODS
+
+    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH")
+    r.add_argument("a", metavar="A.bvh")
+    r.add_argument("b", metavar="B.bvh")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.bvh")
+    r.add_argument("--map", metavar="MAP", help="posture map from `posturemap train` (default: learn one from A and B)")
+    r.add_argument("--length", type=_positive_int, default=20, help="in-between frames (20)")
+    r.add_argument("--key-at", type=_positive_int, default=None,
+                   help="position of the key among the in-between frames, 1..length (default length/2)")
+    r.add_argument("--alpha", type=float, default=0.5, help="control parameter: 0 keys near A, 1 near B (0.5)")
+    r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
+    r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
+    r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
+    r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                   help=f"transition method ({DEFAULT_METHOD})")
+    r.set_defaults(func=_cmd_transition)
+
+    i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
+    i.add_argument("path", metavar="MAP", help="map file (.npz) or BVH file")
+    i.add_argument("--json", action="store_true", help="print JSON")
+    i.set_defaults(func=_cmd_inspect)
 
     d = sub.add_parser("demo", help="run the whole pipeline on the bundled sample (or --data DIR)")
     d.add_argument("--out", default="out", help="output folder (default: out)")

@@ -97,7 +97,7 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
     out = fallback.copy()
     for c in range(j_count):
         name = _clean(sk.names[c])
-        for k, (cls, pattern) in enumerate(_NAME_RULES):
+        for cls, pattern in _NAME_RULES:
             if re.search(pattern, name):
                 out[c] = CLASSES.index(cls)
                 break

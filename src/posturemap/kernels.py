@@ -13,6 +13,8 @@ import numba as nb
 import numpy as np
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
+# Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
+_FAST = {"nsz", "arcp", "contract", "reassoc"}
 
 
 @nb.njit(**_OPTS)
@@ -96,7 +98,7 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
         positions[n, root, 0], positions[n, root, 1], positions[n, root, 2] = px, py, pz
 
 
-@nb.njit(cache=True, nogil=True, fastmath={"nsz", "arcp", "contract", "reassoc"})
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
 def nearest(W, x, period):
     """Index of the row of ``W (n, d)`` nearest ``x (d,)``; ``period`` per dimension (inf: linear)."""
     best = np.inf
@@ -111,3 +113,146 @@ def nearest(W, x, period):
             best = acc
             best_i = i
     return best_i
+
+
+# -- Uniform Posture Map training (see posturemap.upm) ------------------------------------
+@nb.njit(cache=True, fastmath=_FAST, nogil=True)
+def sqdist(x, W, n, period, out):
+    d_count = x.shape[0]
+    for j in range(n):
+        acc = 0.0
+        for k in range(d_count):
+            d = abs(x[k] - W[j, k])
+            d = min(d, period[k] - d)
+            acc += d * d
+        out[j] = acc
+
+@nb.njit(cache=True, nogil=True)
+def move(w, x, gain, period):
+    for k in range(x.shape[0]):
+        d = x[k] - w[k]
+        p = period[k]
+        if p < np.inf:
+            d -= p * np.floor(d / p + 0.5)
+            v = w[k] + gain * d
+            w[k] = v - p * np.floor(v / p)
+        else:
+            w[k] += gain * d
+
+@nb.njit(cache=True, nogil=True)
+def upm_epoch(X, order, start, W, n, witness, ptr, idx, period, r2, eta0, step0, total,
+          hops, win, second, dist, stamp, queue, qhop):
+    """Run samples ``order[start:]``; returns (next start, neuron count, steps done).
+
+    Stops early (next start < len(order)) when the weight array is full.
+    """
+    cap = W.shape[0]
+    n_graph = ptr.shape[0] - 1
+    step = step0
+    for s in range(start, order.shape[0]):
+        if n >= cap:
+            return s, n, step - step0
+        i = order[s]
+        x = X[i]
+        eta = eta0 * max(0.0, 1.0 - step / total)
+        step += 1
+        if n == 0:
+            W[0, :] = x
+            witness[0] = i
+            win[i] = 0
+            second[i] = -1
+            n = 1
+            continue
+        sqdist(x, W, n, period, dist)
+        b = 0
+        c = -1
+        for j in range(1, n):
+            if dist[j] < dist[b]:
+                c = b
+                b = j
+            elif c < 0 or dist[j] < dist[c]:
+                c = j
+        if dist[b] > r2:
+            W[n, :] = x
+            witness[n] = i
+            win[i] = n
+            second[i] = b
+            n += 1
+            continue
+        win[i] = b
+        second[i] = c
+        move(W[b], x, eta, period)
+        witness[b] = i
+        if hops > 0 and b < n_graph:
+            # Breadth-first walk over the graph up to `hops` edges from the winner.
+            tag = step
+            stamp[b] = tag
+            head = 0
+            tail = 0
+            queue[tail] = b
+            qhop[tail] = 0
+            tail += 1
+            while head < tail:
+                u = queue[head]
+                h = qhop[head]
+                head += 1
+                if h >= hops or u >= n_graph:
+                    continue
+                for e in range(ptr[u], ptr[u + 1]):
+                    v = idx[e]
+                    if stamp[v] == tag:
+                        continue
+                    stamp[v] = tag
+                    queue[tail] = v
+                    qhop[tail] = h + 1
+                    tail += 1
+                    if dist[v] <= r2:  # only neurons that x lies within R of
+                        move(W[v], x, eta * (1.0 - (h + 1) / (hops + 1.0)), period)
+                        witness[v] = i
+    return order.shape[0], n, step - step0
+
+@nb.njit(cache=True, nogil=True)
+def two_nearest(X, W, n, period, win, second, err):
+    dist = np.empty(n)
+    for i in range(X.shape[0]):
+        sqdist(X[i], W, n, period, dist)
+        b = 0
+        c = -1
+        for j in range(1, n):
+            if dist[j] < dist[b]:
+                c = b
+                b = j
+            elif c < 0 or dist[j] < dist[c]:
+                c = j
+        win[i] = b
+        second[i] = c
+        err[i] = math.sqrt(dist[b])
+
+@nb.njit(cache=True, nogil=True)
+def nearest_sample_dist(W, X, period, hint):
+    """Distance from each neuron to its nearest sample (starting from a hint sample)."""
+    out = np.empty(W.shape[0])
+    d_count = W.shape[1]
+    for j in range(W.shape[0]):
+        best = np.inf
+        h = hint[j]
+        if h >= 0:
+            acc = 0.0
+            for k in range(d_count):
+                d = abs(X[h, k] - W[j, k])
+                d = min(d, period[k] - d)
+                acc += d * d
+            best = acc
+        for i in range(X.shape[0]):
+            acc = 0.0
+            for k in range(d_count):
+                d = abs(X[i, k] - W[j, k])
+                d = min(d, period[k] - d)
+                acc += d * d
+                if acc >= best:
+                    break
+            if acc < best:
+                best = acc
+        out[j] = math.sqrt(best)
+    return out
+

@@ -111,8 +111,8 @@ class PostureMap:
             "quality": {CLASSES[c]: {
                 "neurons": m.n_neurons, "dims": int(parts[c].shape[1]), "radius": m.radius_,
                 "quantization_error": m.quantization_error_,
-                "topographic_error": m.topographic_error(parts[c]),
-                "invalid_neurons": m.invalid_fraction(parts[c]),
+                "topographic_error": m.topographic_error_,
+                "invalid_neurons": m.invalid_fraction_,
                 "edges": int(len(m.edges_)),
             } for c, m in enumerate(maps)},
         }

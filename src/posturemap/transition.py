@@ -44,6 +44,7 @@ from .motion import Motion, concatenate, root_index, up_axis, up_vector
 
 METHODS = ("upm", "upm-path", "spline", "slerp", "inertialize")
 KEYED = ("upm", "upm-path")
+DEFAULT_METHOD = "upm"
 
 
 # -- bases: the in-between frames as linear maps of the seam values ------------------------
@@ -303,7 +304,6 @@ class TransitionEngine:
         if method in KEYED and self.model is None:
             raise UserError("--method", f"method {method!r} needs a posture map")
         up, root = self._up, self._root
-        parents = self.skeleton.parents
 
         # Seam frames: A at a_end-2..a_end, B at b_start..b_start+1 (clamped inside the clips).
         ia = [max(a_end - 2, 0), max(a_end - 1, 0), a_end]
@@ -419,7 +419,7 @@ def aligned(track: Track, engine: TransitionEngine, start: int, dtheta: float, s
 
 def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int | None = None,
                alpha: float = 0.5, a_end: int | None = None, b_start: int = 0, align: bool = True,
-               method: str = "upm") -> Motion:
+               method: str = DEFAULT_METHOD) -> Motion:
     """A[:a_end+1], then ``length`` new frames, then B[b_start:] (moved to continue A).
 
     Parameters

@@ -25,7 +25,6 @@ The kernels are compiled with numba on first use (and cached on disk).
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -35,162 +34,11 @@ MIN_EDGE_SUPPORT = 2
 
 
 def _kernels():
-    """Compile (or load from numba's cache) the training kernels on first use."""
-    global _K
-    if _K is None:
-        _K = _build_kernels()
-    return _K
+    """The compiled training kernels (numba; compiled once and cached on disk)."""
+    from . import kernels
 
-
-_K = None
-
-
-def _build_kernels():
-    import numba as nb
-
-    # Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
-    @nb.njit(cache=True, fastmath={"nsz", "arcp", "contract", "reassoc"}, nogil=True)
-    def sqdist(x, W, n, period, out):
-        d_count = x.shape[0]
-        for j in range(n):
-            acc = 0.0
-            for k in range(d_count):
-                d = abs(x[k] - W[j, k])
-                d = min(d, period[k] - d)
-                acc += d * d
-            out[j] = acc
-
-    @nb.njit(cache=True, nogil=True)
-    def move(w, x, gain, period):
-        for k in range(x.shape[0]):
-            d = x[k] - w[k]
-            p = period[k]
-            if p < np.inf:
-                d -= p * np.floor(d / p + 0.5)
-                v = w[k] + gain * d
-                w[k] = v - p * np.floor(v / p)
-            else:
-                w[k] += gain * d
-
-    @nb.njit(cache=True, nogil=True)
-    def epoch(X, order, start, W, n, witness, ptr, idx, period, r2, eta0, step0, total,
-              hops, win, second, dist, stamp, queue, qhop):
-        """Run samples ``order[start:]``; returns (next start, neuron count, steps done).
-
-        Stops early (next start < len(order)) when the weight array is full.
-        """
-        cap = W.shape[0]
-        n_graph = ptr.shape[0] - 1
-        step = step0
-        for s in range(start, order.shape[0]):
-            if n >= cap:
-                return s, n, step - step0
-            i = order[s]
-            x = X[i]
-            eta = eta0 * max(0.0, 1.0 - step / total)
-            step += 1
-            if n == 0:
-                W[0, :] = x
-                witness[0] = i
-                win[i] = 0
-                second[i] = -1
-                n = 1
-                continue
-            sqdist(x, W, n, period, dist)
-            b = 0
-            c = -1
-            for j in range(1, n):
-                if dist[j] < dist[b]:
-                    c = b
-                    b = j
-                elif c < 0 or dist[j] < dist[c]:
-                    c = j
-            if dist[b] > r2:
-                W[n, :] = x
-                witness[n] = i
-                win[i] = n
-                second[i] = b
-                n += 1
-                continue
-            win[i] = b
-            second[i] = c
-            move(W[b], x, eta, period)
-            witness[b] = i
-            if hops > 0 and b < n_graph:
-                # Breadth-first walk over the graph up to `hops` edges from the winner.
-                tag = step
-                stamp[b] = tag
-                head = 0
-                tail = 0
-                queue[tail] = b
-                qhop[tail] = 0
-                tail += 1
-                while head < tail:
-                    u = queue[head]
-                    h = qhop[head]
-                    head += 1
-                    if h >= hops or u >= n_graph:
-                        continue
-                    for e in range(ptr[u], ptr[u + 1]):
-                        v = idx[e]
-                        if stamp[v] == tag:
-                            continue
-                        stamp[v] = tag
-                        queue[tail] = v
-                        qhop[tail] = h + 1
-                        tail += 1
-                        if dist[v] <= r2:  # only neurons that x lies within R of
-                            move(W[v], x, eta * (1.0 - (h + 1) / (hops + 1.0)), period)
-                            witness[v] = i
-        return order.shape[0], n, step - step0
-
-    @nb.njit(cache=True, nogil=True)
-    def two_nearest(X, W, n, period, win, second, err):
-        dist = np.empty(n)
-        for i in range(X.shape[0]):
-            sqdist(X[i], W, n, period, dist)
-            b = 0
-            c = -1
-            for j in range(1, n):
-                if dist[j] < dist[b]:
-                    c = b
-                    b = j
-                elif c < 0 or dist[j] < dist[c]:
-                    c = j
-            win[i] = b
-            second[i] = c
-            err[i] = math.sqrt(dist[b])
-
-    @nb.njit(cache=True, nogil=True)
-    def nearest_sample_dist(W, X, period, hint):
-        """Distance from each neuron to its nearest sample (starting from a hint sample)."""
-        out = np.empty(W.shape[0])
-        d_count = W.shape[1]
-        for j in range(W.shape[0]):
-            best = np.inf
-            h = hint[j]
-            if h >= 0:
-                acc = 0.0
-                for k in range(d_count):
-                    d = abs(X[h, k] - W[j, k])
-                    d = min(d, period[k] - d)
-                    acc += d * d
-                best = acc
-            for i in range(X.shape[0]):
-                acc = 0.0
-                for k in range(d_count):
-                    d = abs(X[i, k] - W[j, k])
-                    d = min(d, period[k] - d)
-                    acc += d * d
-                    if acc >= best:
-                        break
-                if acc < best:
-                    best = acc
-            out[j] = math.sqrt(best)
-        return out
-
-    return {"epoch": epoch, "two_nearest": two_nearest, "nearest_sample_dist": nearest_sample_dist,
-            "sqdist": sqdist}
+    return {"epoch": kernels.upm_epoch, "two_nearest": kernels.two_nearest,
+            "nearest_sample_dist": kernels.nearest_sample_dist, "sqdist": kernels.sqdist}
 
 
 def graph_csr(edges: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -268,6 +116,7 @@ class UniformPostureMap:
     weights_ : ndarray (n_neurons, D)
     edges_ : ndarray (E, 2), undirected neighbour graph
     hits_ : ndarray (n_neurons,), training samples each neuron wins
+    quantization_error_, topographic_error_, invalid_fraction_ : float, on the training data
     radius_ : float, the radius used
     witness_ : ndarray (n_neurons,), index of a training sample within ``radius_`` of each neuron
     """
@@ -401,6 +250,8 @@ class UniformPostureMap:
         self.edges_ = _unique_edges(np.concatenate([win[strong], a1]), np.concatenate([second[strong], b1]))
         self.hits_ = np.bincount(win, minlength=self.n_neurons)
         self.quantization_error_ = float(err.mean())
+        self.topographic_error_ = self._topographic_error(win, second)
+        self.invalid_fraction_ = self.invalid_fraction(X)
 
     def _two_nearest(self, X):
         X = np.ascontiguousarray(np.atleast_2d(X), dtype=np.float64)
@@ -432,9 +283,12 @@ class UniformPostureMap:
 
     def topographic_error(self, X) -> float:
         """Fraction of samples whose nearest and second-nearest neurons share no graph edge."""
+        win, second, _ = self._two_nearest(X)
+        return self._topographic_error(win, second)
+
+    def _topographic_error(self, win, second) -> float:
         if self.n_neurons < 2:
             return 0.0
-        win, second, _ = self._two_nearest(X)
         edge_keys = _pair_key(self.edges_[:, 0], self.edges_[:, 1], self.n_neurons)
         return float(1.0 - np.isin(_pair_key(win, second, self.n_neurons), edge_keys).mean())
 
