@@ -18,6 +18,16 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def _cmd_bench(args) -> int:
+    from . import evaluate
+    return evaluate.run_cli(args)
+
+
+def _cmd_serve(args) -> int:
+    from .web import server
+    return server.run_cli(args)
+
+
 def _cmd_demo(args) -> int:
     from . import demo
     demo.run(args.out, data=args.data, log=print)
@@ -226,6 +236,21 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("path", metavar="MAP", help="map file (.npz) or BVH file")
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=_cmd_inspect)
+
+    e = sub.add_parser("bench", help="evaluate every method (in-betweening accuracy, realism, speed) and "
+                                     "write results.md, results.json and plots")
+    e.add_argument("--quick", action="store_true", help="small run for CI (under 3 minutes)")
+    e.add_argument("--data", default=None, help="data folder (default: $POSTUREMAP_DATA or ../shared/data)")
+    e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")
+    e.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    e.set_defaults(func=_cmd_bench)
+
+    v = sub.add_parser("serve", help="interactive transition studio in the browser")
+    v.add_argument("inputs", nargs="*", metavar="INPUT", help="BVH files or folders (default: the bundled sample)")
+    v.add_argument("--map", metavar="MAP", help="posture map to use (default: learn one from the clips)")
+    v.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    v.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    v.set_defaults(func=_cmd_serve)
 
     d = sub.add_parser("demo", help="run the whole pipeline on the bundled sample (or --data DIR)")
     d.add_argument("--out", default="out", help="output folder (default: out)")

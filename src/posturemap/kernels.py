@@ -256,3 +256,40 @@ def nearest_sample_dist(W, X, period, hint):
         out[j] = math.sqrt(best)
     return out
 
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def nearest_many(W, X, period, out):
+    """``out[i]`` = index of the row of ``W (n, d)`` nearest ``X[i]`` (see :func:`nearest`)."""
+    for i in range(X.shape[0]):
+        out[i] = nearest(W, X[i], period)
+
+
+@nb.njit(cache=True, nogil=True)
+def project_to_map(W, X, period, limit, out, idx):
+    """Project each row of ``X (m, d)`` into the union of balls of radius ``limit`` around the
+    rows of ``W``: kept where within ``limit`` of its nearest row, else moved onto that ball's
+    surface. Writes the results into ``out (m, d)`` and the nearest rows into ``idx (m,)``.
+    Periodic dimensions (finite ``period``) are wrapped into [0, period).
+    """
+    d_count = X.shape[1]
+    diff = np.empty(d_count)
+    for i in range(X.shape[0]):
+        k = nearest(W, X[i], period)
+        idx[i] = k
+        acc = 0.0
+        for j in range(d_count):
+            dj = X[i, j] - W[k, j]
+            p = period[j]
+            if p < np.inf:
+                dj -= p * np.floor(dj / p + 0.5)
+            diff[j] = dj
+            acc += dj * dj
+        dist = math.sqrt(acc)
+        scale = 1.0 if dist <= limit else limit / dist
+        for j in range(d_count):
+            v = W[k, j] + diff[j] * scale
+            p = period[j]
+            if p < np.inf:
+                v -= p * np.floor(v / p)
+            out[i, j] = v

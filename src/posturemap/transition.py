@@ -42,31 +42,79 @@ from .errors import UserError
 from .features import TWO_PI, root_global
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
 
-METHODS = ("upm", "upm-path", "spline", "slerp", "inertialize")
-KEYED = ("upm", "upm-path")
+METHODS = ("upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
+KEYED = ("upm", "upm-path", "upm-valid")
 DEFAULT_METHOD = "upm"
+# upm-valid (see TransitionEngine.valid_keys and the README's evaluation section):
+KEY_SPACING_S = 0.2  # at most this many seconds between keys
+VELOCITY_HORIZON_S = 0.1  # time constant (s) over which the seam velocities fade from the keys
+ACCEPT = 3.0  # estimates within ACCEPT * R of a neuron count as valid (on bandai1, 99% of unseen
+#               real postures lie within 2.8 R of the map trained without them)
 
 
 # -- bases: the in-between frames as linear maps of the seam values ------------------------
-@lru_cache(maxsize=256)
 def key_spline_basis(length: int, key_at: int) -> np.ndarray:
     """Clamped cubic B-spline through (0: pA, vA), (key_at: key), (length+1: pB, vB).
 
     Returns the matrix (length, 5) mapping ``[pA, vA, pB, vB, key]`` to frames 1..length.
     """
+    return keys_spline_basis(length, (float(key_at),))
+
+
+@lru_cache(maxsize=256)
+def keys_spline_basis(length: int, times: tuple[float, ...]) -> np.ndarray:
+    """Clamped cubic B-spline through A's end, keys at ``times`` (0 < t < length+1), B's start.
+
+    Returns the matrix (length, 4 + K) mapping ``[pA, vA, pB, vB, key_1..key_K]`` to frames
+    1..length; the curve has value and velocity ``pA, vA`` at 0 and ``pB, vB`` at length+1.
+    """
     from scipy.interpolate import make_interp_spline
 
-    x = np.array([0.0, key_at, length + 1.0])
+    n = 4 + len(times)
+    x = np.concatenate([[0.0], times, [length + 1.0]])
     t = np.arange(1, length + 1, dtype=float)
-    out = np.empty((length, 5))
-    for col in range(5):
-        e = np.zeros(5)
+    out = np.empty((length, n))
+    for col in range(n):
+        e = np.zeros(n)
         e[col] = 1.0
-        y = np.array([e[0], e[4], e[2]])
+        y = np.concatenate([[e[0]], e[4:], [e[2]]])
         spl = make_interp_spline(x, y, k=3, bc_type=([(1, e[1])], [(1, e[3])]))
         out[:, col] = spl(t)
     out.setflags(write=False)
     return out
+
+
+def hermite_rows(length: int, times: np.ndarray) -> np.ndarray:
+    """Rows (n, 4) of the cubic Hermite of :func:`hermite_basis` at any ``times`` in [0, length+1]."""
+    d = length + 1.0
+    s = np.asarray(times, dtype=float) / d
+    return np.stack([2 * s**3 - 3 * s**2 + 1, (s**3 - 2 * s**2 + s) * d,
+                     -2 * s**3 + 3 * s**2, (s**3 - s**2) * d], axis=1)
+
+
+def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """How far (in frames of velocity) each side's seam velocity carries at ``times``.
+
+    A's continuation after ``t`` frames and B's before ``d - t`` frames, each
+    ``t * exp(-t / tau)``: the full velocity near the seam, an offset that peaks at ``tau``
+    frames and then fades back onto the blend path.
+    """
+    if tau <= 0:
+        return np.zeros_like(times), np.zeros_like(times)
+    return times * np.exp(-times / tau), (d - times) * np.exp(-(d - times) / tau)
+
+
+@lru_cache(maxsize=256)
+def key_times(length: int, key_at: int, spacing: float) -> tuple[float, ...]:
+    """Key times for ``upm-valid``: ``key_at`` plus evenly spread keys, gaps at most ``spacing``."""
+    d = length + 1.0
+    times = []
+    for lo, hi in ((0.0, float(key_at)), (float(key_at), d)):
+        pieces = max(1, int(np.ceil((hi - lo) / spacing - 1e-9)))
+        times.extend(lo + (hi - lo) * k / pieces for k in range(1, pieces))
+        if hi < d:
+            times.append(hi)
+    return tuple(times)
 
 
 @lru_cache(maxsize=256)
@@ -240,6 +288,46 @@ class TransitionEngine:
             key[dims] = m.weights_[k]
         return key, chosen
 
+    def valid_keys(self, ta: Track, tb: Track, a_end: int, b_start: int, length: int, key_at: int,
+                   alpha: float) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
+        """Keys of ``upm-valid``: times (K,), key vectors (K, D), index of the key at ``key_at``,
+        and the neuron per class nearest that key.
+
+        Each key starts from an estimate of the posture at its time: the blend of A's last and
+        B's first posture, at a fraction that runs linearly from 0 to ``alpha`` at ``key_at`` and
+        on to 1 at B, plus the cubic's velocity terms with the seam velocities counted for at
+        most ``VELOCITY_HORIZON_S``. Per class, the estimate is then projected into the map's
+        valid region (the postures within the radius R of a neuron): kept if it lies within R
+        of its nearest neuron, otherwise moved onto that neuron's R-sphere.
+        """
+        space = self.model.space_
+        fps = ta.motion.fps
+        d = length + 1.0
+        times = np.array(key_times(length, key_at, KEY_SPACING_S * fps))
+        main = int(np.argmin(np.abs(times - key_at)))
+        warp = np.where(times <= key_at, alpha * times / key_at, alpha + (1 - alpha) * (times - key_at) / (d - key_at))
+        xa, xb = ta.features[a_end], tb.features[b_start]
+        fa, fb = ta.features[max(a_end - 1, 0)], tb.features[min(b_start + 1, len(tb.features) - 1)]
+        if self._circular is None:
+            delta, va, vb = xb - xa, xa - fa, fb - xb
+        else:
+            circ = self._circular
+            delta = np.where(circ, np.mod(xb - xa + np.pi, TWO_PI) - np.pi, xb - xa)
+            va = np.where(circ, np.mod(xa - fa + np.pi, TWO_PI) - np.pi, xa - fa)
+            vb = np.where(circ, np.mod(fb - xb + np.pi, TWO_PI) - np.pi, fb - xb)
+        ga, gb = damped_reach(times, d, VELOCITY_HORIZON_S * fps)
+        est = xa + warp[:, None] * delta + ((1 - warp) * ga)[:, None] * va - (warp * gb)[:, None] * vb
+        keys = np.broadcast_to(space.fill, est.shape).copy()
+        chosen = []
+        idx = np.empty(len(times), dtype=np.int64)
+        for c, m in enumerate(self.model.maps_):
+            dims = space.class_dims[c]
+            x = np.ascontiguousarray(est[:, dims])
+            kernels.project_to_map(m.weights_, x, m.period_, ACCEPT * m.radius_, x, idx)
+            keys[:, dims] = x
+            chosen.append(int(idx[main]))
+        return times, keys, main, chosen
+
     def _nearest(self, c: int, x: np.ndarray) -> int:
         m = self.model.maps_[c]
         return kernels.nearest(m.weights_, x, m.period_)
@@ -322,7 +410,12 @@ class TransitionEngine:
         key = chosen = None
         # Reference rotation per joint: the key's for keyed joints, otherwise B's first frame.
         ref = rots_b[0].copy()
-        if method in KEYED:
+        if method == "upm-valid":
+            times, key_vecs, main, chosen = self.valid_keys(ta, tb, a_end, b_start, length, key_at, alpha)
+            key_rots, key_heights = self._decode_keys(key_vecs)
+            key = (key_rots[main], float(key_heights[main]))
+            ref[space.joints] = key[0]
+        elif method in KEYED:
             key_vec, chosen = self.key_features(ta.features[a_end], tb.features[b_start], alpha,
                                                 path=method == "upm-path")
             key = self._decode_key(key_vec)
@@ -351,6 +444,22 @@ class TransitionEngine:
             frames = inertialize_basis(length) @ inputs
         elif method == "spline":
             frames = hermite_basis(length) @ inputs[:4]
+        elif method == "upm-valid":
+            # Keys at several times: keyed columns take the keys' values (rotation vectors about
+            # the main key), the others stay on the Hermite curve.
+            kcols = self._keyed_columns()
+            # Free columns (trajectory, joints outside the map): keys on the straight line plus
+            # the seam velocities' terms, counted for at most the velocity horizon.
+            warp = times / (length + 1.0)
+            ga, gb = damped_reach(times, length + 1.0, VELOCITY_HORIZON_S * ta.motion.fps)
+            keyrows = (inputs[0] + warp[:, None] * (inputs[2] - inputs[0])
+                       + ((1 - warp) * ga)[:, None] * inputs[1] - (warp * gb)[:, None] * inputs[3])
+            jk = space.joints
+            krot = np.empty((len(times), len(jk), 3))
+            kernels.log_relative(key_rots, ref[jk], krot)
+            keyrows[:, kcols[:-1]] = krot.reshape(len(times), -1)
+            keyrows[:, kcols[-1]] = key_heights
+            frames = keys_spline_basis(length, tuple(times)) @ np.concatenate([inputs[:4], keyrows])
         else:
             # One clamped B-spline through the key for every column: keyed columns (feature
             # joints' rotations, 0 about the key, and the root height) take the key's value,
@@ -371,14 +480,18 @@ class TransitionEngine:
 
     def _decode_key(self, key_vec: np.ndarray) -> tuple[np.ndarray, float]:
         """Rotations (K, 4) of the feature joints (root tilt first) and root height of a key."""
+        rots, heights = self._decode_keys(key_vec[None])
+        return rots[0], float(heights[0])
+
+    def _decode_keys(self, key_vecs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (N, K, 4) of the feature joints and root heights (N,) of key vectors (N, D)."""
         space = self.model.space_
         if space.mode != "logmap":
-            rots, height = space.decode(key_vec)
-            return rots, float(height)
+            return space.decode(key_vecs)
         k = len(space.joints)
-        rots = np.empty((1, k, 4))
-        kernels.exp_relative(key_vec[: 3 * k].reshape(1, k, 3), space.reference, rots)
-        return rots[0], float(key_vec[-1] * space.height_scale)
+        rots = np.empty((len(key_vecs), k, 4))
+        kernels.exp_relative(np.ascontiguousarray(key_vecs[:, : 3 * k]).reshape(-1, k, 3), space.reference, rots)
+        return rots, key_vecs[:, -1] * space.height_scale
 
     def _keyed_columns(self) -> np.ndarray:
         if not hasattr(self, "_kcols"):
