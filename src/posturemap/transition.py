@@ -343,7 +343,9 @@ class TransitionEngine:
             return wa if alpha < 0.5 else wb
         if self._paths[c] is None:
             e = m.edges_
-            d = m.distances(m.weights_[e[:, 0]])[np.arange(len(e)), e[:, 1]]
+            diff = np.abs(m.weights_[e[:, 0]] - m.weights_[e[:, 1]])
+            diff = np.minimum(diff, m.period_ - diff)
+            d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
             n = m.n_neurons
             self._paths[c] = csr_matrix((np.maximum(d, 1e-12), (e[:, 0], e[:, 1])), shape=(n, n))
         dist, pred = dijkstra(self._paths[c], directed=False, indices=wa, return_predecessors=True)
