@@ -273,6 +273,9 @@ def main(argv=None) -> int:
     except FileNotFoundError as e:
         sys.stderr.write(f"posturemap: error: {e.filename}: no such file or folder\n")
         return 2
+    except OSError as e:  # permissions, a file where a folder should be, a full disk...
+        sys.stderr.write(f"posturemap: error: {e.filename or ''}: {e.strerror or e}\n")
+        return 2
     except KeyboardInterrupt:
         sys.stderr.write("posturemap: interrupted\n")
         return 130

@@ -73,43 +73,67 @@ def concatenate(motions: list[Motion]) -> Motion:
                   np.concatenate([m.positions for m in motions]), first.fps)
 
 
-def root_index(motion: Motion) -> int:
-    """The joint that carries the trajectory: the first joint whose translation changes.
+def root_index(motion_or_skeleton) -> int:
+    """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 
-    Bandai files keep ``joint_Root`` fixed at the origin and move ``Hips``; most files move
-    joint 0. Falls back to 0 for a clip with no moving translation.
+    The deepest joint with position channels whose subtree holds at least 90% of the joints:
+    ``Hips`` for Bandai (its ``joint_Root`` above it is a reference node, fixed in most clips
+    and sliding in a few) and for CMU; joint 0 for a skeleton with a single moving root.
+    Motion of the joints above it is kept: features and alignment use the root's *global*
+    transform through them.
     """
-    moving = np.ptp(motion.positions, axis=0).max(axis=-1) > 1e-6
-    moving &= np.array([motion.skeleton.has_position(j) for j in range(motion.skeleton.num_joints)])
-    return int(np.argmax(moving)) if moving.any() else 0
+    sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
+    j_count = sk.num_joints
+    size = np.ones(j_count, dtype=np.int64)
+    for j in range(j_count - 1, 0, -1):
+        if sk.parents[j] >= 0:
+            size[sk.parents[j]] += size[j]
+    depth = sk.depth()
+    best = 0
+    for j in range(j_count):
+        if sk.has_position(j) and size[j] >= 0.9 * j_count and depth[j] >= depth[best]:
+            best = j
+    return int(best)
+
+
+def _body_positions(motion: Motion, sample: int) -> np.ndarray:
+    """Global positions (S, K, 3) of the root and its descendants at up to ``sample`` frames."""
+    frames = np.unique(np.linspace(0, motion.num_frames - 1, min(sample, motion.num_frames)).astype(int))
+    gpos = motion[frames].global_positions()
+    root = root_index(motion)
+    parents = motion.skeleton.parents
+    keep = np.zeros(motion.skeleton.num_joints, dtype=bool)
+    keep[root] = True
+    for j in range(root + 1, len(parents)):
+        keep[j] = parents[j] >= 0 and keep[parents[j]]
+    return gpos[:, keep]
 
 
 def up_axis(motion: Motion, sample: int = 32) -> int:
     """Index (0=X, 1=Y, 2=Z) of the world's up axis, read from the data.
 
-    The body is taller than it is wide or deep: the axis with the largest median spread of
-    the joints is up. Uses up to ``sample`` frames spread over the clip.
+    The body is taller than it is wide or deep: the axis along which the root and its
+    descendants spread most (median over up to ``sample`` frames spread over the clip).
     """
-    frames = np.unique(np.linspace(0, motion.num_frames - 1, min(sample, motion.num_frames)).astype(int))
-    gpos = motion[frames].global_positions()
-    spread = np.median(np.ptp(gpos, axis=1), axis=0)
+    spread = np.median(np.ptp(_body_positions(motion, sample), axis=1), axis=0)
     return int(np.argmax(spread))
 
 
 def body_height(motion: Motion, sample: int = 32) -> float:
-    """Median extent of the skeleton along the up axis, in the clip's unit."""
-    frames = np.unique(np.linspace(0, motion.num_frames - 1, min(sample, motion.num_frames)).astype(int))
-    gpos = motion[frames].global_positions()
-    return float(np.median(np.ptp(gpos[..., up_axis(motion, sample)], axis=1)))
+    """Median extent of the body (root and descendants) along the up axis, in the clip's unit."""
+    gpos = _body_positions(motion, sample)
+    up = int(np.argmax(np.median(np.ptp(gpos, axis=1), axis=0)))
+    return float(np.median(np.ptp(gpos[..., up], axis=1)))
 
 
 def length_unit(motion: Motion) -> str:
-    """The clip's length unit guessed from the body height ("m", "cm", "inch" or "unknown").
+    """The clip's length unit guessed from the body height: "m", "cm", "mm", "inch" or "unknown".
 
-    A guess for display only: posturemap never rescales a clip.
+    A guess for display only: posturemap never rescales a clip. CMU's BVH conversions use
+    the ASF unit (1/0.45 inch; a body about 24-30 units tall) and come out "unknown".
     """
     h = body_height(motion)
-    for unit, lo, hi in (("m", 0.8, 2.5), ("cm", 80.0, 250.0), ("inch", 30.0, 80.0), ("dm", 8.0, 25.0)):
+    for unit, lo, hi in (("m", 0.8, 2.5), ("cm", 80.0, 250.0), ("mm", 800.0, 2500.0), ("inch", 32.0, 80.0)):
         if lo <= h <= hi:
             return unit
     return "unknown"
@@ -128,14 +152,3 @@ def up_vector(axis: int) -> np.ndarray:
     v = np.zeros(3)
     v[axis] = 1.0
     return v
-
-
-def heading_angle(rotations: np.ndarray, up: int, forward: np.ndarray) -> np.ndarray:
-    """Heading angle (radians, about the up axis) of global rotations (..., 4).
-
-    ``forward`` is the joint's local direction (3,) that points forward; the angle is that
-    of its horizontal projection measured about ``up`` (right-handed).
-    """
-    f = quat.mul_vec(rotations, np.broadcast_to(forward, rotations.shape[:-1] + (3,)))
-    a, b = (up + 1) % 3, (up + 2) % 3
-    return np.arctan2(f[..., a], f[..., b])

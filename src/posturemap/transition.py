@@ -389,7 +389,7 @@ class TransitionEngine:
         """
         ta, tb = self.tracks[a], self.tracks[b]
         a_end = len(ta.gpos) - 1 if a_end is None else a_end
-        key_at = (length // 2) if key_at is None else key_at
+        key_at = max(1, length // 2) if key_at is None else key_at
         check_args(len(ta.gpos), len(tb.gpos), length, key_at, alpha, a_end, b_start, method)
         if method in KEYED and self.model is None:
             raise UserError("--method", f"method {method!r} needs a posture map")
@@ -542,8 +542,8 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     a, b : Motion with one skeleton (and the map's, when ``model`` is given)
     model : PostureMap or None; needed for ``upm`` and ``upm-path``
     length : number of in-between frames (paper: 20)
-    key_at : position of the key among the in-between frames, 1..length (default length // 2;
-        the paper puts it at the 10th of 20)
+    key_at : position of the key among the in-between frames, 1..length (default
+        max(1, length // 2); the paper puts it at the 10th of 20)
     alpha : control parameter in [0, 1]: 0 keys near A's posture, 1 near B's
     a_end : last frame of A used (default: A's last frame)
     b_start : first frame of B used
