@@ -5,11 +5,12 @@ channel layout (any rotation order per joint, 3- or 6-channel joints, End Sites)
 position channels take their translation from the channels (the OFFSET is kept for writing
 back); the others use their OFFSET.
 
-The frame data is read in one pass without per-line Python work: a numba kernel parses the
-numbers straight from the bytes and another turns Euler angles into quaternions. Text the
-kernel does not recognise (unusual whitespace or number syntax, a wrong line) goes through
-the general numpy path, which is the reference for what is accepted and for the error
-messages; numbers the kernel does parse come out bit-identical to Python's ``float``.
+The frame data is read in one pass without per-line Python work: only the header of a large
+ASCII file is decoded, a numba kernel parses the numbers straight from the bytes and another
+turns Euler angles into quaternions. Text the kernel does not recognise (unusual whitespace or
+number syntax, a wrong line) goes through the general numpy path, which is the reference for
+what is accepted and for the error messages; numbers the kernel parses come out bit-identical
+to Python's ``float``.
 
 Every problem with a file raises :class:`BVHError` naming the file, the line and what is wrong.
 """
@@ -32,6 +33,7 @@ from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 MAX_JOINTS = 10_000
 MAX_VALUES = 500_000_000  # frames * channels; beyond this a file is not motion capture
 
+_CHANNEL_NAMES = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}  # any case
 # The line breaks of str.splitlines(), so that line numbers match what editors show.
 _LINE_BREAK = re.compile("\r\n|[\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
 
@@ -57,38 +59,78 @@ def read(path: str | os.PathLike) -> Motion:
 
 def loads(raw: bytes | str, path: str = "<string>") -> Motion:
     """Parse BVH text (bytes or str); ``path`` is only used in error messages."""
-    text = _decode(raw, path)
-    lines = _lines(text)
-    skeleton, motion_lineno = _parse_hierarchy(lines, path)
-    num_frames, fps, last_lineno, offset = _parse_motion_header(lines, motion_lineno, skeleton, path)
-    ascii_raw = raw if isinstance(raw, bytes) and raw.isascii() else None
-    values = _parse_frames(text, ascii_raw, offset, last_lineno, num_frames, skeleton, path)
+    if isinstance(raw, (bytearray, memoryview)):
+        raw = bytes(raw)
+    if (b"\x00" if isinstance(raw, bytes) else "\x00") in raw[:65536]:
+        raise BVHError(path, None, "binary data, not a BVH text file")
+    header = _ascii_header(raw, path) if isinstance(raw, bytes) else None
+    text = None
+    if header is None:  # small, non-ASCII or str input: decode it all
+        text = _decode(raw, path)
+        lines = _lines(text)
+        skeleton, motion_lineno = _parse_hierarchy(lines, path)
+        header = (skeleton, *_parse_motion_header(lines, motion_lineno, skeleton, path))
+    skeleton, num_frames, fps, last_lineno, offset = header
+    values = _parse_frames(raw, text, offset, last_lineno, num_frames, skeleton, path)
     rotations, positions, unwrapped = _channels_to_pose(skeleton, values)
     if unwrapped:
         skeleton = dataclasses.replace(skeleton, euler_style="continuous")
     return Motion(skeleton, rotations, positions, fps)
 
 
+class _NeedMore(Exception):
+    """The header runs past the decoded prefix of the file (internal)."""
+
+
+def _ascii_header(raw: bytes, path: str):
+    """Parse the header from an ASCII prefix of ``raw``, without decoding the frame data.
+
+    Returns ``(skeleton, frames, fps, frame-time line number, byte offset of the frames)``,
+    or None when the file is small, has no LF line breaks or a non-ASCII header (then the
+    caller decodes the whole file). The prefix ends at a line break, so its lines and line
+    numbers are those of the whole file and errors read the same.
+    """
+    size = 1 << 16
+    while size < len(raw):
+        cut = raw.rfind(b"\n", 0, size) + 1
+        head = raw[:cut]
+        if cut and head.isascii():
+            lines = _lines(head.decode("ascii"), complete=False)
+            try:
+                skeleton, motion_lineno = _parse_hierarchy(lines, path)
+                return (skeleton, *_parse_motion_header(lines, motion_lineno, skeleton, path))
+            except _NeedMore:
+                pass
+        elif cut:
+            return None
+        size *= 4
+    return None
+
+
 def _decode(raw: bytes | str, path: str) -> str:
-    """Text of a file: UTF-8 (a byte-order mark dropped), else Latin-1; binary data refused."""
+    """Text of a file: UTF-8 (a byte-order mark dropped), else Latin-1."""
     if isinstance(raw, str):
         return raw[1:] if raw.startswith("\ufeff") else raw
-    if b"\x00" in raw[:65536]:
-        raise BVHError(path, None, "binary data, not a BVH text file")
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         return raw.decode("latin-1")
 
 
-def _lines(text: str):
-    """Lazily yield ``(line number, line, offset after its line break)`` as splitlines() cuts."""
+def _lines(text: str, complete: bool = True):
+    """Lazily yield ``(line number, line, offset after its line break)`` as splitlines() cuts.
+
+    With ``complete=False`` the text is a prefix of the file: running out of it raises
+    :class:`_NeedMore` instead of ending.
+    """
     start = 0
     lineno = 0
     for m in _LINE_BREAK.finditer(text):
         lineno += 1
         yield lineno, text[start:m.start()], m.end()
         start = m.end()
+    if not complete:
+        raise _NeedMore
     if start < len(text):
         yield lineno + 1, text[start:], len(text)
 
@@ -201,12 +243,11 @@ def _channels(tokens: list[str], path: str, lineno: int) -> tuple[str, ...]:
     names = tuple(tokens[2:])
     if n != len(names):
         raise BVHError(path, lineno, f"CHANNELS says {n} but lists {len(names)}")
-    valid = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}
     out = []
     for c in names:
-        if c.lower() not in valid:
+        if c.lower() not in _CHANNEL_NAMES:
             raise BVHError(path, lineno, f"unknown channel {c[:40]!r}")
-        out.append(valid[c.lower()])
+        out.append(_CHANNEL_NAMES[c.lower()])
     if len(set(out)) != len(out):
         raise BVHError(path, lineno, "a channel is listed twice")
     rot = [c for c in out if c in ROTATION_CHANNELS]
@@ -216,11 +257,13 @@ def _channels(tokens: list[str], path: str, lineno: int) -> tuple[str, ...]:
 
 
 def _header_value(line: str, keys: tuple[str, ...], path: str, lineno: int) -> str:
-    low = line.strip().lower()
+    """The text after a header such as 'Frame Time:' (any case, any spaces or tabs)."""
+    words = " ".join(line.split())
+    low = words.lower()
     for k in keys:
         if low.startswith(k):
-            return line.strip()[len(k):].strip()
-    raise BVHError(path, lineno, f"expected '{keys[0].title()}', found {line.strip()[:40]!r}")
+            return words[len(k):].strip()
+    raise BVHError(path, lineno, f"expected '{keys[0].title()}', found {words[:40]!r}")
 
 
 def _next_nonblank(lines):
@@ -267,71 +310,87 @@ def _parse_motion_header(lines, motion_lineno: int, sk: Skeleton,
     return num_frames, 1.0 / frame_time, lineno, offset
 
 
-def _parse_frames(text: str, ascii_raw: bytes | None, offset: int, last_lineno: int,
+def _parse_frames(raw: bytes | str, text: str | None, offset: int, last_lineno: int,
                   num_frames: int, sk: Skeleton, path: str) -> np.ndarray:
     """Frame values (F, C) in file order from the text after the 'Frame Time' line.
 
-    ``ascii_raw`` is the file's bytes when they are pure ASCII (then byte and character
-    offsets agree and the kernel reads them without a copy); ``last_lineno`` is the line
-    number of the 'Frame Time' line.
+    ``raw`` is the input as given; ``text`` its decoded text, or None when only the (ASCII)
+    header was decoded, so that ``offset`` is a byte offset into ``raw`` too; ``last_lineno``
+    is the line number of the 'Frame Time' line.
     """
     num_channels = sum(len(c) for c in sk.channels)
     kernels = _fast_kernels()
     if kernels is not None and num_channels > 0:
-        if ascii_raw is not None:
-            buf = np.frombuffer(ascii_raw, dtype=np.uint8, offset=offset)
-        else:
-            try:
-                buf = np.frombuffer(text[offset:].encode("ascii"), dtype=np.uint8)
-            except UnicodeEncodeError:
-                buf = None
-        if buf is not None:
-            out = np.empty(num_frames * num_channels)
-            if kernels.parse_frames(buf, num_frames, num_channels, out) == 0:
-                return out.reshape(num_frames, num_channels)
+        values = _parse_frames_fast(kernels, raw, text, offset, num_frames, num_channels)
+        if values is not None:
+            return values
+    if text is None:
+        text = _decode(raw, path)
     return _parse_frames_general(text[offset:], last_lineno, num_frames, num_channels, path)
+
+
+def _parse_frames_fast(kernels, raw: bytes | str, text: str | None, offset: int,
+                       num_frames: int, num_channels: int) -> np.ndarray | None:
+    """The kernel's parse, or None when the text needs the general parser."""
+    if text is None or (isinstance(raw, bytes) and text.isascii() and len(text) == len(raw)):
+        buf = np.frombuffer(raw, dtype=np.uint8, offset=offset)  # byte offset = text offset
+    else:
+        try:
+            buf = np.frombuffer(text[offset:].encode("ascii"), dtype=np.uint8)
+        except UnicodeEncodeError:
+            return None
+    if num_frames * num_channels > (buf.size + 1) // 2:
+        return None  # too short for the count (a value takes 2 bytes): no huge allocation
+    if buf[-1] not in _WHITESPACE:  # the kernel needs a whitespace at the end
+        buf = np.concatenate([buf, np.array([10], dtype=np.uint8)])
+    out = np.empty(num_frames * num_channels)
+    slow = np.empty((_MAX_SLOW_TOKENS, 3), dtype=np.int64)
+    status, num_slow = kernels.parse_frames(buf, num_frames, num_channels, out, slow)
+    if status != 0:
+        return None
+    for k, start, end in slow[:num_slow]:  # numbers beyond the exact fast path: Python's float
+        out[k] = float(buf[start:end].tobytes())
+    if num_slow and not np.all(np.isfinite(out[slow[:num_slow, 0]])):
+        return None  # 1e999 and the like: the general parser says where
+    return out.reshape(num_frames, num_channels)
 
 
 def _parse_frames_general(body_text: str, last_lineno: int, num_frames: int, num_channels: int,
                           path: str) -> np.ndarray:
-    """The reference frame parser (numpy): any whitespace, any number Python's float reads."""
-    first = last_lineno  # frame line k (from 0) is line first + k + 1
-    body = body_text.splitlines()
-    while body and not body[-1].strip():
-        body.pop()
-    if len(body) < num_frames:
-        raise BVHError(path, first + len(body),
-                       f"truncated: {len(body)} frame lines but 'Frames: {num_frames}'")
-    if len(body) > num_frames:
-        raise BVHError(path, first + num_frames + 1,
-                       f"{len(body) - num_frames} frame lines beyond 'Frames: {num_frames}'")
-    rows = [line.split() for line in body]
-    if any(len(r) != num_channels for r in rows):
-        _locate_bad_line(body, first, num_channels, path)
+    """The reference frame parser: any whitespace, any number Python's ``float`` reads.
+
+    Blank lines among the frames are skipped; ``last_lineno`` is the line number of the
+    'Frame Time' line (error messages give the file's own line numbers).
+    """
+    numbered = [(last_lineno + k + 1, line) for k, line in enumerate(body_text.splitlines())
+                if line.strip()]
+    if len(numbered) < num_frames:
+        raise BVHError(path, numbered[-1][0] if numbered else last_lineno,
+                       f"truncated: {len(numbered)} frame lines but 'Frames: {num_frames}'")
+    if len(numbered) > num_frames:
+        raise BVHError(path, numbered[num_frames][0],
+                       f"{len(numbered) - num_frames} frame lines beyond 'Frames: {num_frames}'")
+    rows = [line.split() for _, line in numbered]
+    for (lineno, _), row in zip(numbered, rows):
+        if len(row) != num_channels:
+            raise BVHError(path, lineno, f"frame has {len(row)} values, expected {num_channels}")
     try:
         values = np.array(rows, dtype=np.float64).reshape(num_frames, num_channels)
-    except ValueError:
-        _locate_bad_line(body, first, num_channels, path)
+    except ValueError:  # numpy is stricter than float() on a few spellings; say which token
+        values = np.array([[_float(t, path, lineno) for t in row]
+                           for (lineno, _), row in zip(numbered, rows)]).reshape(num_frames, num_channels)
     bad = ~np.isfinite(values)
     if bad.any():
         f = int(np.argmax(bad.any(axis=1)))
-        raise BVHError(path, first + f + 1, "NaN or infinite value in frame data")
+        raise BVHError(path, numbered[f][0], "NaN or infinite value in frame data")
     return values
 
 
-def _locate_bad_line(body: list[str], first: int, num_channels: int, path: str):
-    """Slow path, only on error: find the first frame line that is wrong and say why."""
-    for k, line in enumerate(body):
-        tokens = line.split()
-        if len(tokens) != num_channels:
-            raise BVHError(path, first + k + 1,
-                           f"frame has {len(tokens)} values, expected {num_channels}")
-        for t in tokens:
-            try:
-                float(t)
-            except ValueError:
-                raise BVHError(path, first + k + 1, f"non-numeric value {t[:40]!r}") from None
-    raise BVHError(path, first, "malformed frame data")
+def _float(token: str, path: str, lineno: int) -> float:
+    try:
+        return float(token)
+    except ValueError:
+        raise BVHError(path, lineno, f"non-numeric value {token[:40]!r}") from None
 
 
 def _layout(sk: Skeleton):
@@ -358,9 +417,9 @@ def _channels_to_pose(sk: Skeleton, values: np.ndarray) -> tuple[np.ndarray, np.
     positions = np.broadcast_to(sk.offsets, (num_frames, sk.num_joints, 3)).copy()
     jj, aa = np.nonzero(pos_cols >= 0)
     positions[:, jj, aa] = values[:, pos_cols[jj, aa]]
-    rotations = np.zeros((num_frames, sk.num_joints, 4))
-    rotations[..., 0] = 1.0
+    rotations = np.empty((num_frames, sk.num_joints, 4))
     joints = [j for j in range(sk.num_joints) if rot_cols[j]]
+    rotations[:, [j for j in range(sk.num_joints) if not rot_cols[j]]] = quat.identity()
     if not joints:
         return rotations, positions, False
     kernels = _fast_kernels()
@@ -381,19 +440,29 @@ def _channels_to_pose(sk: Skeleton, values: np.ndarray) -> tuple[np.ndarray, np.
 
 # --- Kernels: plain Python here, compiled with numba on first use (cached on disk) ----------
 
-def _parse_frames_kernel(buf, num_frames, num_channels, out):
-    """Parse frame lines of plain decimal numbers from ASCII bytes ``buf`` into ``out``.
+_WHITESPACE = (32, 9, 10, 13)  # space, tab, LF, CR: the separators the kernel accepts
+_MAX_SLOW_TOKENS = 4096  # numbers the kernel hands to Python's float; more: general parser
+_POW10 = np.array([10.0 ** k for k in range(23)])  # exact doubles
+_SCALE_MUL = np.concatenate([np.ones(22), _POW10])  # index exponent + 22, exponent in [-22, 22]
+_SCALE_DIV = np.concatenate([_POW10[:0:-1], np.ones(23)])
 
-    Returns 0 when ``buf`` holds exactly ``num_frames`` lines of ``num_channels`` numbers
-    (then blank lines only) and ``out`` (size F * C) is filled; otherwise a code > 0 and the
-    caller uses the general parser. Accepted: spaces, tabs, line breaks (LF, CRLF, CR) and
-    numbers ``[+-]digits[.digits][(e|E)[+-]digits]`` with at most 18 digits, a mantissa (the
-    digits as an integer) up to 2**53 and a decimal exponent within +-22. Such a number is an
-    exact double times an exact power of ten, so one correctly rounded multiplication or
-    division gives exactly Python's ``float`` (Clinger's fast path).
+
+def _parse_frames_kernel(buf, num_frames, num_channels, out, slow):
+    """Parse frame lines of decimal numbers from ASCII bytes ``buf`` into ``out`` (F * C).
+
+    ``buf`` must end with a whitespace byte. Returns ``(status, num_slow)``: status 0 when
+    ``buf`` holds exactly ``num_frames`` lines of ``num_channels`` numbers (blank lines are
+    skipped), otherwise a code > 0 and the caller uses the general parser. Accepted: spaces,
+    tabs, line breaks (LF, CRLF, CR) and numbers ``[+-]digits[.digits][(e|E)[+-]digits]``.
+    A number with at most 18 digits, a mantissa (the digits as an integer) up to 2**53 and
+    a decimal exponent within +-22 is an exact double times an exact power of ten, so one
+    correctly rounded multiplication or division gives exactly Python's ``float``
+    (Clinger's fast path); the others are listed in ``slow`` as (index, start, end) for the
+    caller to convert (at most ``len(slow)``).
     """
     n = buf.size
     total = num_frames * num_channels
+    num_slow = 0
     k = 0  # values written
     line = 0  # complete frame lines
     on_line = 0  # values on the current line
@@ -408,88 +477,123 @@ def _parse_frames_kernel(buf, num_frames, num_channels, out):
             if on_line == num_channels:
                 line += 1
                 on_line = 0
-            elif on_line > 0 or line < num_frames:
-                return 1  # short line, or a blank line among the frames
+            elif on_line > 0:
+                return 1, num_slow  # a short line
             continue
         if k >= total or on_line >= num_channels:
-            return 2  # extra values or lines
-        negative = c == 45
-        if c == 45 or c == 43:
-            i += 1
-        # Digits before and after the point; leading zeros add nothing to the mantissa.
-        mantissa = 0
+            return 2, num_slow  # extra values or lines
         start = i
-        while i < n and 48 <= buf[i] <= 57:
-            mantissa = mantissa * 10 + (buf[i] - 48)
+        sign = 1.0 - 2.0 * (c == 45)
+        i += (c == 45) | (c == 43)
+        # Digits, a point, digits; the whitespace at the end of buf stops every loop.
+        mantissa = 0
+        first = i
+        d = np.int64(buf[i]) - 48
+        while np.uint64(d) < 10:
+            mantissa = mantissa * 10 + d
             i += 1
-        digits = i - start
+            d = np.int64(buf[i]) - 48
+        digits = i - first
         exponent = 0
-        if i < n and buf[i] == 46:
+        if d == -2:  # "."
             i += 1
-            start = i
-            while i < n and 48 <= buf[i] <= 57:
-                mantissa = mantissa * 10 + (buf[i] - 48)
+            first = i
+            d = np.int64(buf[i]) - 48
+            while np.uint64(d) < 10:
+                mantissa = mantissa * 10 + d
                 i += 1
-            exponent = start - i
-            digits += i - start
+                d = np.int64(buf[i]) - 48
+            exponent = first - i
+            digits -= exponent
         if digits == 0:
-            return 3
-        if digits > 18 or mantissa > 9007199254740992:  # 2**53: beyond, float(mantissa) rounds
-            return 3
-        if i < n and (buf[i] == 101 or buf[i] == 69):
+            return 3, num_slow
+        c = buf[i]
+        if c == 101 or c == 69:  # "e" or "E"
             i += 1
-            e_negative = i < n and buf[i] == 45
-            if i < n and (buf[i] == 45 or buf[i] == 43):
-                i += 1
+            e_negative = buf[i] == 45
+            i += (buf[i] == 45) | (buf[i] == 43)
             e = 0
-            e_digits = 0
-            while i < n and 48 <= buf[i] <= 57:
+            first = i
+            d = np.int64(buf[i]) - 48
+            while np.uint64(d) < 10:
                 if e < 100000:
-                    e = e * 10 + (buf[i] - 48)
-                e_digits += 1
+                    e = e * 10 + d
                 i += 1
-            if e_digits == 0:
-                return 3
+                d = np.int64(buf[i]) - 48
+            if i == first:
+                return 3, num_slow
             exponent += -e if e_negative else e
-        if i < n and not (buf[i] == 32 or buf[i] == 9 or buf[i] == 10 or buf[i] == 13):
-            return 3
-        v = float(mantissa)
-        if mantissa != 0:
-            if exponent < -22 or exponent > 22:
-                return 4
-            if exponent < 0:
-                v = v / _POW10[-exponent]
-            elif exponent > 0:
-                v = v * _POW10[exponent]
-        out[k] = -v if negative else v
+            c = buf[i]
+        if not (c == 32 or c == 9 or c == 10 or c == 13):
+            return 3, num_slow
+        if mantissa == 0 and digits <= 18:
+            exponent = 0
+        if digits <= 18 and mantissa <= 9007199254740992 and -22 <= exponent <= 22:
+            out[k] = sign * (float(mantissa) * _SCALE_MUL[exponent + 22] / _SCALE_DIV[exponent + 22])
+        elif num_slow < slow.shape[0]:
+            slow[num_slow, 0], slow[num_slow, 1], slow[num_slow, 2] = k, start, i
+            num_slow += 1
+        else:
+            return 4, num_slow
         k += 1
         on_line += 1
     if on_line == num_channels:
         line += 1
     elif on_line > 0:
-        return 1
-    return 0 if line == num_frames and k == total else 5
+        return 1, num_slow
+    return (0 if line == num_frames and k == total else 5), num_slow
+
+
+# fdlibm's kernel coefficients: sin and cos on [-pi/4, pi/4] to within an ulp.
+_S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
+_S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
+_C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05
+_C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
 
 
 def _euler_to_quat_kernel(values, joints, cols, axes, out):
     """Quaternions ``out[f, joints[n]]`` of intrinsic Euler angles in degrees.
 
     The angles of joint ``joints[n]`` are ``values[f, cols[n]]`` about the axes ``axes[n]``
-    (0 = X, 1 = Y, 2 = Z), composed as :func:`quat.from_euler` does (bit-identical result).
-    Returns True when some angle leaves [-180, 180] degrees (a continuous exporter).
+    (0 = X, 1 = Y, 2 = Z), composed as :func:`quat.from_euler` does. Works frame by frame
+    with small buffers (no frame-sized temporaries). Returns True when some angle leaves
+    [-180, 180] degrees (a continuous exporter).
     """
-    half = np.pi / 360.0
-    unwrapped = False
-    for f in range(values.shape[0]):
-        for n in range(joints.shape[0]):
-            w, x, y, z = 1.0, 0.0, 0.0, 0.0
+    num_joints = joints.shape[0]
+    deg = np.empty(3 * num_joints)
+    cos_half = np.empty(3 * num_joints)
+    sin_half = np.empty(3 * num_joints)
+    largest = 0.0
+    for f in range(out.shape[0]):
+        for n in range(num_joints):
             for r in range(3):
                 d = values[f, cols[n, r]]
-                if abs(d) > 180.0 + 1e-9:
-                    unwrapped = True
-                if d == 0.0:
-                    continue
-                c, s = np.cos(d * half), np.sin(d * half)
+                largest = max(largest, abs(d))
+                # Beyond 1e15 degrees reduce exactly first (a half-angle period is 720).
+                deg[3 * n + r] = np.fmod(d, 720.0) if abs(d) > 1e15 else d
+        # Half-angle cosines and sines in one branch-free (vectorised) loop: each angle is
+        # reduced exactly in degrees to within 90 of a multiple of 180 (180 * quarter is an
+        # integer below 2**53), then fdlibm's polynomials give the result within an ulp or two
+        # of np.cos / np.sin.
+        for p in range(deg.size):
+            quarter = np.rint(deg[p] * (1.0 / 180.0))  # quarter turns of the half angle
+            t = (deg[p] - 180.0 * quarter) * (np.pi / 360.0)  # |t| <= pi/4; exact subtraction
+            tt = t * t
+            sin_t = t + t * tt * (_S1 + tt * (_S2 + tt * (_S3 + tt * (_S4 + tt * (_S5 + tt * _S6)))))
+            half_tt = 0.5 * tt
+            one_minus = 1.0 - half_tt
+            cos_t = one_minus + (((1.0 - one_minus) - half_tt) + tt * tt * (
+                _C1 + tt * (_C2 + tt * (_C3 + tt * (_C4 + tt * (_C5 + tt * _C6))))))
+            m = quarter - 4.0 * np.floor(quarter * 0.25)  # 0, 1, 2 or 3
+            odd = m == 1.0 or m == 3.0
+            sin_q = cos_t if odd else sin_t
+            cos_q = sin_t if odd else cos_t
+            cos_half[p] = -cos_q if (m == 1.0 or m == 2.0) else cos_q
+            sin_half[p] = -sin_q if m >= 2.0 else sin_q
+        for n in range(num_joints):
+            w, x, y, z = 1.0, 0.0, 0.0, 0.0
+            for r in range(3):
+                c, s = cos_half[3 * n + r], sin_half[3 * n + r]
                 a = axes[n, r]
                 if a == 0:
                     w, x, y, z = w * c - x * s, x * c + w * s, y * c + z * s, z * c - y * s
@@ -499,15 +603,14 @@ def _euler_to_quat_kernel(values, joints, cols, axes, out):
                     w, x, y, z = w * c - z * s, x * c + y * s, y * c - x * s, z * c + w * s
             j = joints[n]
             out[f, j, 0], out[f, j, 1], out[f, j, 2], out[f, j, 3] = w, x, y, z
-    return unwrapped
+    return largest > 180.0 + 1e-9
 
 
-_POW10 = np.array([10.0 ** k for k in range(23)])  # exact doubles
 _KERNELS: list = []  # [namespace or None] once _fast_kernels() has run
 
 
 def _fast_kernels():
-    """The compiled kernels (``parse_frames``, ``euler_to_quat``), or None without numba.
+    """The compiled kernels (see :class:`_Kernels`), or None without numba.
 
     numba is imported on first use only, so ``import posturemap`` stays light; compiled code
     is cached on disk, so only the very first read on a machine pays for compilation.
@@ -576,6 +679,9 @@ def continuous_euler(euler: np.ndarray, order: str) -> np.ndarray:
     return out
 
 
+_MAX_INDENT = 32  # indentation levels the writer shows; deeper joints share the last one
+
+
 def dumps(motion: Motion) -> str:
     """BVH text of ``motion`` with its skeleton's hierarchy and channel layout."""
     sk = motion.skeleton
@@ -591,7 +697,7 @@ def dumps(motion: Motion) -> str:
     todo = [("open", j, 0) for j in reversed(range(sk.num_joints)) if sk.parents[j] < 0]
     while todo:
         kind, j, depth = todo.pop()
-        pad = "  " * depth
+        pad = "  " * min(depth, _MAX_INDENT)  # capped: a deep chain must not grow quadratically
         if kind == "close":
             out.write(f"{pad}}}\n")
             continue
@@ -612,8 +718,16 @@ def dumps(motion: Motion) -> str:
 
 
 def write(path: str | os.PathLike, motion: Motion) -> None:
-    """Write ``motion`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    write_bytes_atomic(path, dumps(motion).encode("utf-8"))
+    """Write ``motion`` to ``path`` atomically (temporary file in the same folder, then rename).
+
+    A folder that is missing or not writable, a full disk and the like raise :class:`BVHError`
+    naming the file; no temporary file is left behind and an existing file stays as it was.
+    """
+    data = dumps(motion).encode("utf-8")
+    try:
+        write_bytes_atomic(path, data)
+    except OSError as e:
+        raise BVHError(os.fspath(path), None, f"cannot write file ({e.strerror or e})") from None
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:

@@ -117,8 +117,10 @@ def to_euler(q: np.ndarray, order: str) -> np.ndarray:
     eps = 1e-7
     lock0 = np.abs(theta2) <= eps
     lock_pi = np.abs(theta2 - np.pi) <= eps
-    theta1 = np.where(lock0, 2.0 * half_sum, np.where(lock_pi, -2.0 * half_diff, half_sum - half_diff))
-    theta3 = np.where(lock0 | lock_pi, 0.0, half_sum + half_diff)
+    # At gimbal lock only a sum (or difference) of the outer angles is known: the intrinsic
+    # third angle (theta1 of the extrinsic form) is set to zero, as scipy does.
+    theta1 = np.where(lock0 | lock_pi, 0.0, half_sum - half_diff)
+    theta3 = np.where(lock0, 2.0 * half_sum, np.where(lock_pi, 2.0 * half_diff, half_sum + half_diff))
     if not symmetric:
         theta3 = theta3 * sign
         theta2 = theta2 - np.pi / 2
