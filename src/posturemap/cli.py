@@ -37,10 +37,10 @@ def _cmd_demo(args) -> int:
 class _Progress:
     """One status line per training run: epoch and neurons per class (stderr)."""
 
-    def __init__(self, epochs: int, stream=sys.stderr):
-        self.epochs, self.stream = epochs, stream
+    def __init__(self, epochs: int, stream=None):
+        self.epochs, self.stream = epochs, stream or sys.stderr
         self.state: dict[str, tuple[int, int]] = {}
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
 
     def __call__(self, cls: str, epoch: int, epochs: int, neurons: int):
         self.state[cls] = (epoch, neurons)
@@ -82,6 +82,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _gain(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text!r}")
+    return value
+
+
 def _nonneg_int(text: str) -> int:
     try:
         value = int(text)
@@ -96,6 +106,7 @@ def _cmd_train(args) -> int:
     from .features import load_class_overrides, read_inputs
     from .model import PostureMap
 
+    _check_output(args.output)
     clips = read_inputs(args.inputs)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
@@ -105,7 +116,6 @@ def _cmd_train(args) -> int:
         pm.fit([m for _, m in clips], [p for p, _ in clips], progress=progress)
     finally:
         progress.close()
-    _check_output(args.output)
     pm.save(args.output)
     info = pm.info_
     print(f"{args.output}: {info['clips']} clips, {info['frames']} frames, "
@@ -207,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "from the data")
     t.add_argument("--neighborhood", type=_nonneg_int, default=2, help="initial neighbourhood in graph hops (2)")
     t.add_argument("--epochs", type=_positive_int, default=4, help="passes over the data (4)")
-    t.add_argument("--learning-rate", type=float, default=0.5, help="initial gain, falls to 0 (0.5)")
+    t.add_argument("--learning-rate", type=_gain, default=0.5, help="initial gain in (0, 1), falls to 0 (0.5)")
     t.add_argument("--seed", type=int, default=0, help="random seed (0)")
     t.add_argument("--features", choices=("logmap", "euler"), default="logmap",
                    help="posture features: logmap (default, rotation vectors) or euler (the paper's angles)")

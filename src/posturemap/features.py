@@ -198,7 +198,7 @@ class FeatureSpace:
             for order in set(self.orders):
                 idx = [k for k, o in enumerate(self.orders) if o == order]
                 ang[:, idx] = quat.to_euler(rots[:, idx], order)
-            rot_part = np.mod(ang, TWO_PI)
+            rot_part = wrap_angle(ang)
         else:
             rot_part = quat.log(quat.mul(quat.inv(self.reference), rots))
         return np.concatenate([rot_part.reshape(len(rots), -1), (height / self.height_scale)[:, None]], axis=1)
@@ -319,9 +319,15 @@ def mean_rotation(q: np.ndarray) -> np.ndarray:
     return mean * np.where(mean[..., :1] < 0, -1.0, 1.0)
 
 
+def wrap_angle(x: np.ndarray) -> np.ndarray:
+    """Angles in [0, 2*pi). (np.mod alone returns 2*pi for tiny negative angles.)"""
+    m = np.mod(x, TWO_PI)
+    return np.where(m >= TWO_PI, 0.0, m)
+
+
 def circular_mean(x: np.ndarray) -> np.ndarray:
     """Mean angle in [0, 2*pi) over axis 0."""
-    return np.mod(np.arctan2(np.sin(x).mean(0), np.cos(x).mean(0)), TWO_PI)
+    return wrap_angle(np.arctan2(np.sin(x).mean(0), np.cos(x).mean(0)))
 
 
 def circular_range(x: np.ndarray) -> np.ndarray:

@@ -135,7 +135,8 @@ def move(w, x, gain, period):
         if p < np.inf:
             d -= p * np.floor(d / p + 0.5)
             v = w[k] + gain * d
-            w[k] = v - p * np.floor(v / p)
+            v -= p * np.floor(v / p)
+            w[k] = v if v < p else 0.0  # [0, p): -1e-16 would round to p
         else:
             w[k] += gain * d
 
@@ -292,4 +293,6 @@ def project_to_map(W, X, period, limit, out, idx):
             p = period[j]
             if p < np.inf:
                 v -= p * np.floor(v / p)
+                if v >= p:
+                    v = 0.0
             out[i, j] = v

@@ -13,6 +13,7 @@ import io
 import json
 import os
 import zipfile
+import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -165,10 +166,12 @@ class PostureMap:
         path = os.fspath(path)
         if not os.path.exists(path):
             raise MapFileError(path, "no such map file")
+        if not zipfile.is_zipfile(path):
+            raise MapFileError(path, "not a posturemap map file (not an .npz archive)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+        except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError, TypeError) as e:
             raise MapFileError(path, f"not a posturemap map file (unreadable archive: {e})") from None
         try:
             meta = json.loads(bytes(arrays.pop("meta")).decode("utf-8"))

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quat
 from .skeleton import Skeleton, fk
 
 AXES = "XYZ"

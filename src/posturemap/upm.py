@@ -75,9 +75,11 @@ def auto_radius(X: np.ndarray, period: np.ndarray, seed: int = 0) -> float:
     """The data-driven radius used for ``radius='auto'``.
 
     ``AUTO_FACTOR`` (3) times the median distance from a sample to its nearest neighbour
-    among ``AUTO_SUBSAMPLE`` (2000) seeded random samples: a neuron then stands for a
-    neighbourhood a few typical sample spacings wide at that resolution, so the map grows
-    with the variety of the data, not with its amount.
+    among ``AUTO_SUBSAMPLE`` (2000) seeded random samples: the map resolves the data at the
+    scale of a 2000-posture sample, so it holds a comparable number of neurons (one to three
+    thousand per class on the Bandai set) whatever the amount of data, and R follows the
+    spread of the data: 10k frames of few motions give a finer radius than 32k frames of
+    many. No tuning needed; pass a number to choose the resolution yourself.
     """
     rng = np.random.default_rng(seed)
     m = min(len(X), AUTO_SUBSAMPLE)
@@ -178,15 +180,25 @@ class UniformPostureMap:
         """Grow an existing map with new samples (same radius); returns ``self``.
 
         Existing neurons adapt to the new data with the same schedule; samples farther than
-        the radius from every neuron become new neurons. ``witness_`` of a neuron refers to
-        the samples of the call that last placed or moved it.
+        the radius from every neuron become new neurons. The graph and hit counts add to the
+        old ones. ``witness_`` refers to the samples of this call for the neurons it placed or
+        moved and is -1 for the others, which keep the validity their earlier data gave them;
+        ``invalid_fraction_`` counts only the former.
         """
         if not hasattr(self, "weights_"):
             return self.fit(X, sequences, progress)
         X = self._check(X)
         if X.shape[1] != self.weights_.shape[1]:
             raise ValueError(f"X has {X.shape[1]} dimensions, the map {self.weights_.shape[1]}")
+        old_edges, old_hits = self.edges_, self.hits_
         self._train(X, sequences, progress, witness_offset=None)
+        self.edges_ = _unique_edges(np.concatenate([old_edges[:, 0], self.edges_[:, 0]]),
+                                    np.concatenate([old_edges[:, 1], self.edges_[:, 1]]))
+        self.hits_ = self.hits_ + np.pad(old_hits, (0, self.n_neurons - len(old_hits)))
+        win, second, _ = self._two_nearest(X)
+        self.topographic_error_ = self._topographic_error(win, second)
+        far = self.neuron_sample_distance(X) > self.radius_ * (1 + 1e-9)
+        self.invalid_fraction_ = float(np.mean(far & (self.witness_ >= 0)))
         return self
 
     def _train(self, X, sequences, progress, witness_offset):
