@@ -31,7 +31,7 @@ def few_bandai(bandai_files, count=3):
 def feature_rotations(space, motion):
     """What a posture vector stands for: root tilt + local rotations of ``space.joints`` and height."""
     grot, gpos = space.root_frames(motion)
-    _, tilt = quat.heading_twist(grot, up_vector(space.up))
+    _, tilt = quat.heading_tilt(grot, up_vector(space.up), space.rest)
     rots = motion.rotations[:, space.joints].copy()
     rots[:, 0] = tilt
     return rots, gpos[:, space.up]

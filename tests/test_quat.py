@@ -498,3 +498,30 @@ def test_functions_do_not_mutate_inputs(rng):
         for a, b in zip(args, before):
             if isinstance(a, np.ndarray):
                 assert np.array_equal(a, b), f"{fn.__name__} modified its input"
+
+
+def test_between_takes_a_onto_b(rng):
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b = rng.normal(size=(200, 3))
+    b /= np.linalg.norm(b, axis=-1, keepdims=True)
+    b[0] = -a[0]  # opposite vectors: a half turn
+    b[1] = a[1]  # equal vectors: identity
+    q = quat.between(a, b)
+    np.testing.assert_allclose(quat.mul_vec(q, a), b, atol=1e-12)
+    np.testing.assert_allclose(np.abs(q[1, 0]), 1.0, atol=1e-12)
+
+
+def test_heading_tilt_ignores_a_bend_of_an_upright_body(rng):
+    # A root whose rest pose lies along X (as Bandai's Hips): rest turns X onto Y (up).
+    up = np.array([0.0, 1.0, 0.0])
+    rest = quat.between(np.array([1.0, 0.0, 0.0]), up)
+    yaw = quat.from_axis_angle(up, np.float64(0.7))
+    for bend in (0.0, 0.4, 1.0):  # bend forward about the body's own right axis
+        pose = quat.mul(quat.mul(yaw, quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.float64(bend))), rest)
+        heading, tilt = quat.heading_tilt(pose, up, rest)
+        assert abs(abs(quat.dot(heading, yaw)) - 1.0) < 1e-12, bend
+        assert abs(abs(quat.dot(quat.mul(heading, tilt), pose)) - 1.0) < 1e-12
+    # heading_twist on the raw rotation lets the bend leak into the heading: the reason for rest.
+    bent = quat.mul(quat.mul(yaw, quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.float64(1.0))), rest)
+    assert quat.angle_between(quat.heading_twist(bent, up)[0], yaw) > 0.1

@@ -151,6 +151,7 @@ class FeatureSpace:
     joint_class : ndarray (J,), class index per joint
     fill : ndarray (3K + 1,), value of every full dimension (used for dropped ones)
     active : ndarray (3K + 1,), bool, dimensions kept
+    rest : ndarray (4,), the root's upright orientation (see :func:`upright_rest`)
     """
 
     mode: str
@@ -163,6 +164,7 @@ class FeatureSpace:
     joint_class: np.ndarray
     fill: np.ndarray
     active: np.ndarray
+    rest: np.ndarray = field(default_factory=lambda: quat.identity())
     class_dims: tuple = field(init=False)
 
     def __post_init__(self):
@@ -186,7 +188,7 @@ class FeatureSpace:
     def encode(self, motion: Motion) -> np.ndarray:
         """Full posture vectors, shape (F, 3K + 1)."""
         grot, gpos = self.root_frames(motion)
-        _, tilt = quat.heading_twist(grot, up_vector(self.up))
+        _, tilt = quat.heading_tilt(grot, up_vector(self.up), self.rest)
         rots = motion.rotations[:, self.joints].copy()
         rots[:, 0] = tilt
         return self.encode_parts(rots, gpos[:, self.up])
@@ -237,14 +239,15 @@ class FeatureSpace:
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {"reference": self.reference, "fill": self.fill, "active": self.active}
+        return {"reference": self.reference, "fill": self.fill, "active": self.active, "rest": self.rest}
 
     @classmethod
     def from_parts(cls, meta: dict, arrays: dict) -> "FeatureSpace":
         return cls(meta["mode"], int(meta["root"]), int(meta["up"]), float(meta["height_scale"]),
                    np.asarray(meta["joints"], dtype=np.int64), tuple(meta["orders"]),
                    np.asarray(arrays["reference"], dtype=float), np.asarray(meta["joint_class"], dtype=np.int64),
-                   np.asarray(arrays["fill"], dtype=float), np.asarray(arrays["active"], dtype=bool))
+                   np.asarray(arrays["fill"], dtype=float), np.asarray(arrays["active"], dtype=bool),
+                   np.asarray(arrays.get("rest", quat.identity()), dtype=float).reshape(4))
 
 
 def root_global(motion: Motion, root: int) -> tuple[np.ndarray, np.ndarray]:
@@ -259,6 +262,22 @@ def root_global(motion: Motion, root: int) -> tuple[np.ndarray, np.ndarray]:
         pos = pos + quat.mul_vec(rot, motion.positions[:, j])
         rot = quat.mul(rot, motion.rotations[:, j])
     return rot, pos
+
+
+def upright_rest(grot: np.ndarray, up: int) -> np.ndarray:
+    """The root's upright orientation (4,) from its global rotations (F, 4).
+
+    The root's own axis that points up on average, ``u = mean(grot^-1 up)``, and the
+    shortest turn taking ``u`` onto the world's up axis: for Bandai's Hips (bones along X) a
+    quarter turn about Z, for a Y-up Hips the identity. Headings are measured on
+    ``grot * rest^-1`` (see :func:`posturemap.quat.heading_tilt`).
+    """
+    upv = up_vector(up)
+    u = quat.mul_vec(quat.inv(grot), np.broadcast_to(upv, grot.shape[:-1] + (3,))).mean(axis=0)
+    norm = np.linalg.norm(u)
+    if norm < 1e-9:
+        return quat.identity()
+    return quat.between(u / norm, upv)
 
 
 def leg_length(motion: Motion, root: int, up: int) -> float:
@@ -287,12 +306,13 @@ def fit_space(motions: list[Motion], mode: str = "logmap", classes: dict[str, st
     joints = np.array([root] + [j for j in below if j != root], dtype=np.int64)
     orders = tuple(sk.rotation_order(int(j)) or "ZXY" for j in joints)
     k = len(joints)
+    rest = upright_rest(np.concatenate([root_global(m, root)[0] for m in motions]), up)
     provisional = FeatureSpace(mode, root, up, leg_length(first, root, up), joints, orders,
-                               quat.identity((k,)), jc, np.zeros(3 * k + 1), np.ones(3 * k + 1, bool))
+                               quat.identity((k,)), jc, np.zeros(3 * k + 1), np.ones(3 * k + 1, bool), rest)
     if mode == "logmap":
         rots = np.concatenate([_feature_rotations(provisional, m) for m in motions])
         provisional = FeatureSpace(mode, root, up, provisional.height_scale, joints, orders,
-                                   mean_rotation(rots), jc, provisional.fill, provisional.active)
+                                   mean_rotation(rots), jc, provisional.fill, provisional.active, rest)
     x = np.concatenate([provisional.encode(m) for m in motions])
     circ = provisional.circular
     spread = np.where(circ, circular_range(x), np.ptp(x, axis=0))
@@ -300,12 +320,12 @@ def fit_space(motions: list[Motion], mode: str = "logmap", classes: dict[str, st
     active[-1] = True  # the root height always counts
     fill = np.where(circ, circular_mean(x), x.mean(axis=0))
     return FeatureSpace(mode, root, up, provisional.height_scale, joints, orders,
-                        provisional.reference, jc, fill, active)
+                        provisional.reference, jc, fill, active, rest)
 
 
 def _feature_rotations(space: FeatureSpace, motion: Motion) -> np.ndarray:
     grot, _ = space.root_frames(motion)
-    _, tilt = quat.heading_twist(grot, up_vector(space.up))
+    _, tilt = quat.heading_tilt(grot, up_vector(space.up), space.rest)
     rots = motion.rotations[:, space.joints].copy()
     rots[:, 0] = tilt
     return rots

@@ -233,6 +233,27 @@ def swing_twist(q: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return mul(q, inv(twist)), twist
 
 
+def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotations (..., 4) taking unit vectors ``a`` onto ``b`` (..., 3)."""
+    d = np.sum(a * b, axis=-1, keepdims=True)
+    q = np.concatenate([1.0 + d, np.cross(a, b)], axis=-1)
+    # Opposite vectors: any half turn about an axis perpendicular to a.
+    perp = np.where(np.abs(a[..., :1]) < 0.9, np.cross(a, [1.0, 0.0, 0.0]), np.cross(a, [0.0, 1.0, 0.0]))
+    q = np.where(d > -1.0 + 1e-12, q, np.concatenate([np.zeros_like(d), perp], axis=-1))
+    return normalize(q)
+
+
+def heading_tilt(q: np.ndarray, up: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split ``q = heading * tilt``, measuring the heading of ``q * rest^-1``.
+
+    ``rest`` (4,) is the joint's upright orientation relative to the world (for Bandai's Hips
+    a quarter turn about Z, since its bones run along X): the heading is then the turn about
+    ``up`` of the upright body, and a forward bend stays in ``tilt`` instead of leaking into it.
+    """
+    heading, _ = heading_twist(mul(q, inv(rest)), up)
+    return heading, mul(inv(heading), q)
+
+
 def heading_twist(q: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split ``q = heading * tilt`` with ``heading`` a rotation about ``up``.
 

@@ -39,7 +39,7 @@ import numpy as np
 
 from . import kernels, quat
 from .errors import UserError
-from .features import TWO_PI, root_global
+from .features import TWO_PI, root_global, upright_rest
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
 
 METHODS = ("upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
@@ -204,9 +204,10 @@ def rotate_about_up(v: np.ndarray, angle: float, up: int) -> np.ndarray:
     return out
 
 
-def make_track(motion: Motion, root: int, up: int, space=None) -> Track:
+def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
+    """Split a clip into trajectory and posture (see :class:`Track`)."""
     grot, gpos = root_global(motion, root)
-    head_q, tilt = quat.heading_twist(grot, up_vector(up))
+    head_q, tilt = quat.heading_tilt(grot, up_vector(up), rest)
     heading = np.unwrap(heading_of(head_q, up))
     rots = motion.rotations.copy()
     rots[:, root] = tilt
@@ -245,9 +246,10 @@ class TransitionEngine:
         self._root = self._up = None
         self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._chain = np.zeros(0, dtype=np.int64)
+        self._rest = None
         if model is not None:
             space = model.space_
-            self._root, self._up = space.root, space.up
+            self._root, self._up, self._rest = space.root, space.up, space.rest
             self._chain = np.array(_ancestors(skeleton.parents, self._root), dtype=np.int64)
             self._circular = space.circular if space.circular.any() else None
             self._paths = [None] * len(model.maps_)
@@ -262,7 +264,9 @@ class TransitionEngine:
             self._root, self._up = root_index(motion), up_axis(motion)
         self._chain = np.array(_ancestors(self.skeleton.parents, self._root), dtype=np.int64)
         space = self.model.space_ if self.model is not None else None
-        tr = make_track(motion, self._root, self._up, space)
+        if self._rest is None:
+            self._rest = upright_rest(root_global(motion, self._root)[0], self._up)
+        tr = make_track(motion, self._root, self._up, self._rest, space)
         self.tracks[name] = tr
         return tr
 

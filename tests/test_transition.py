@@ -1,0 +1,889 @@
+"""Motion transitions on real motion capture: what the issue "Motion transitions" must show.
+
+Real clips come from Bandai-Namco dataset 1 (``bandai_files``; skipped with a reason when the
+data folder is absent): one PostureMap is trained once per module on five clips (walk, run,
+bow, dance, walk-back; about a second). Kernels and spline bases are checked on seeded random
+data against the numpy reference in :mod:`posturemap.quat`. The CLI runs in-process.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from posturemap import bvh, cli, kernels, quat
+from posturemap.errors import UserError
+from posturemap.features import root_global, upright_rest, wrap_diff
+from posturemap.model import PostureMap
+from posturemap.motion import Motion, concatenate, root_index, up_axis
+from posturemap.skeleton import fk
+from posturemap.transition import (
+    ACCEPT,
+    KEYED,
+    METHODS,
+    TransitionEngine,
+    aligned,
+    hermite_basis,
+    inertialize_basis,
+    key_spline_basis,
+    linear_basis,
+    transition,
+)
+
+UP = 1  # Bandai dataset 1 is Y up (data README): the checks below use the known axis
+WALK, RUN, BOW, DANCE, BACK = ("walk_normal_001", "run_normal_001", "bow_normal_001",
+                               "dance-short_normal_001", "walk-back_normal_001")
+CLIPS = (WALK, RUN, BOW, DANCE, BACK)
+PAIRS = [(WALK, RUN), (BOW, DANCE), (RUN, BACK)]
+NEURON_KEYS = ("upm", "upm-path")  # keys made of map neurons (upm-valid projects estimates)
+WINDOW = 10  # clip frames beside a seam that the seam is compared with
+
+
+# -- fixtures ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def paths(bandai_files):
+    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
+    missing = [n for n in CLIPS if n not in by_name]
+    if missing:
+        pytest.skip(f"bandai1 lacks {', '.join(missing)}")
+    return by_name
+
+
+@pytest.fixture(scope="module")
+def clips(paths):
+    return {n: bvh.read(paths[n]) for n in CLIPS}
+
+
+@pytest.fixture(scope="module")
+def model(clips):
+    return PostureMap(seed=0).fit([clips[n] for n in CLIPS], list(CLIPS))
+
+
+@pytest.fixture(scope="module")
+def euler_model(clips):
+    names = [WALK, RUN, BOW, BACK]
+    return PostureMap(seed=0, features="euler").fit([clips[n] for n in names], names)
+
+
+@pytest.fixture(scope="module")
+def map_file(model, tmp_path_factory):
+    path = tmp_path_factory.mktemp("map") / "map.npz"
+    model.save(str(path))
+    return str(path)
+
+
+# -- helpers ------------------------------------------------------------------------------
+def up_vec() -> np.ndarray:
+    v = np.zeros(3)
+    v[UP] = 1.0
+    return v
+
+
+def root_state(m: Motion, rest=None):
+    """Root (Hips) global position (F, 3), heading about up (F,) and tilt (F, 4), via quat.py.
+
+    The heading is measured on the upright body (``rest``: the engine's, from the map or the
+    first clip; by default the clip's own), as the library defines it.
+    """
+    grot, gpos = root_global(m, m.skeleton.index("Hips"))
+    if rest is None:
+        rest = upright_rest(grot, UP)
+    head_q, tilt = quat.heading_tilt(grot, up_vec(), rest)
+    return gpos, 2.0 * np.arctan2(head_q[..., 1 + UP], head_q[..., 0]), tilt
+
+
+def wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def about_up(v: np.ndarray, angle: float) -> np.ndarray:
+    """Vectors (..., 3) turned by ``angle`` about the up axis (quat.py reference)."""
+    q = quat.from_axis_angle(up_vec(), np.float64(angle))
+    return quat.mul_vec(np.broadcast_to(q, v.shape[:-1] + (4,)), v)
+
+
+def horizontal(v: np.ndarray) -> np.ndarray:
+    out = np.array(v, dtype=float, copy=True)
+    out[..., UP] = 0.0
+    return out
+
+
+def key_vector(model, key) -> np.ndarray:
+    """Full posture vector (D,) of a decoded key ``(rotations (K, 4), height)``."""
+    rots, height = key
+    return model.space_.encode_parts(rots[None], np.array([height]))[0]
+
+
+def seam_cases(clips, seed: int, count: int):
+    """Named pairs at their natural seams plus seeded random pairs, seams and lengths.
+
+    Each case is (A, B, a_end, b_start, length) with ``WINDOW`` clip frames on both sides.
+    """
+    cases = [(a, b, len(clips[a]) - 1, 0, length) for a, b in PAIRS for length in (10, 20)]
+    rng = np.random.default_rng(seed)
+    names = list(CLIPS)
+    for _ in range(count):
+        a, b = rng.choice(names, 2, replace=False)
+        a_end = int(rng.integers(WINDOW + 2, len(clips[a])))
+        b_start = int(rng.integers(0, len(clips[b]) - WINDOW - 2))
+        cases.append((str(a), str(b), a_end, b_start, int(rng.choice([10, 20, 30]))))
+    return cases
+
+
+def around_seams(out: Motion, a_end: int, length: int) -> tuple[Motion, int, int]:
+    """Frames from ``WINDOW + 1`` before A's last to ``WINDOW + 1`` after B's first.
+
+    Returns the slice and the indices (in it) of A's last frame and B's first frame.
+    """
+    lo = a_end - WINDOW - 1
+    hi = a_end + 1 + length + WINDOW + 2
+    return out[lo:hi], WINDOW + 1, WINDOW + 2 + length
+
+
+def seam_ratios(part: Motion, i0: int, i1: int) -> dict[str, float]:
+    """How much each seam stands out from its surroundings (1 = as rough as the roughest frame there).
+
+    ``step`` is the largest distance any joint moves between two frames (global positions,
+    cm); ``acc`` the largest change of a joint's per-frame displacement (velocity change).
+    Each seam (A's last -> first new frame; last new frame -> B's first) is compared with the
+    ``WINDOW`` clip frames on its side and with the in-between frames.
+    """
+    g = part.global_positions()
+    step = np.linalg.norm(np.diff(g, axis=0), axis=-1).max(axis=-1)           # step[i]: frame i -> i+1
+    acc = np.linalg.norm(g[2:] - 2 * g[1:-1] + g[:-2], axis=-1).max(axis=-1)  # acc[i]: at frame i+1
+    inner_step = step[i0 + 1: i1 - 1].max()
+    inner_acc = acc[i0 + 1: i1 - 2].max()
+    return {
+        "step_a": step[i0] / max(step[i0 - WINDOW: i0].max(), inner_step),
+        "step_b": step[i1 - 1] / max(step[i1: i1 + WINDOW].max(), inner_step),
+        "acc_a": acc[i0 - 1: i0 + 1].max() / max(acc[i0 - WINDOW - 1: i0 - 1].max(), inner_acc),
+        "acc_b": acc[i1 - 2: i1].max() / max(acc[i1: i1 + WINDOW].max(), inner_acc),
+    }
+
+
+def run_cli(argv, capsys) -> tuple[int, str, str]:
+    try:
+        code = cli.main(argv)
+    except SystemExit as e:  # argparse errors
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# -- the data itself ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def every_clip(bandai_files):
+    return {p.stem.removeprefix("dataset-1_"): bvh.read(p) for p in bandai_files}
+
+
+def test_up_axis_of_every_bandai_clip_is_y(every_clip, model):
+    # Bandai's joint_Root mostly stays at the origin while Hips walks away: a joint spread that
+    # includes joint_Root measures the distance walked, not the body (walk_normal_001: 425 cm
+    # along Z against a body height of 138 cm along Y).
+    found = {n: up_axis(m) for n, m in every_clip.items()}
+    wrong = {n: "XYZ"[u] for n, u in found.items() if u != UP}
+    assert not wrong, f"{len(wrong)} of {len(found)} clips get a wrong up axis: {wrong}"
+    assert model.space_.up == UP
+
+
+def test_root_of_every_bandai_clip_is_hips(every_clip):
+    # One skeleton, one root: in four clips joint_Root moves too (run_normal_001: 200 cm along
+    # Z, with Hips moving on top of it), yet Hips is still what turns and tilts the body.
+    found = {n: m.skeleton.names[root_index(m)] for n, m in every_clip.items()}
+    wrong = {n: r for n, r in found.items() if r != "Hips"}
+    assert not wrong, f"{len(wrong)} of {len(found)} clips get another root: {wrong}"
+
+
+def test_mapless_alignment_turns_b_to_a_heading(clips, paths):
+    # run_normal_001 and walk-back_normal_001 are clips whose joint_Root moves; walk-left
+    # faces about 80 degrees away from them. Aligned, B must face A's heading plus the carried
+    # turning, with or without a map.
+    left = bvh.read(paths["walk-left_normal_001"])
+    for name in (RUN, BACK):
+        a = clips[name]
+        out = transition(a, left, None, length=20, method="spline")
+        i0, i1 = len(a) - 1, len(a) + 20
+        rest = upright_rest(root_global(a, a.skeleton.index("Hips"))[0], UP)
+        _, head_o, _ = root_state(out, rest)
+        _, head_a, _ = root_state(a, rest)
+        _, head_b, _ = root_state(left, rest)
+        carried = 0.5 * ((head_a[i0] - head_a[i0 - 1]) + (head_b[1] - head_b[0])) * 21
+        assert abs(wrap(head_o[i1] - head_o[i0] - carried)) < 1e-6, (
+            f"{name} -> walk-left: B faces {np.degrees(wrap(head_o[i1] - head_o[i0])):.0f} deg from A")
+
+
+# -- output layout --------------------------------------------------------------------------
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("a_end, b_start, length, key_at", [
+    (None, 0, 20, None), (50, 5, 7, 1), (0, 23, 45, 45), (120, 10, 2, 2),
+])
+def test_frame_count_and_clip_parts(clips, model, method, a_end, b_start, length, key_at):
+    a, b = clips[WALK], clips[RUN]
+    out = transition(a, b, model, length=length, key_at=key_at, a_end=a_end, b_start=b_start, method=method)
+    last = len(a) - 1 if a_end is None else a_end
+    assert len(out) == last + 1 + length + len(b) - b_start
+    assert out.skeleton is a.skeleton and out.fps == a.fps
+    assert np.array_equal(out.rotations[: last + 1], a.rotations[: last + 1])
+    assert np.array_equal(out.positions[: last + 1], a.positions[: last + 1])
+    assert np.all(np.isfinite(out.rotations)) and np.all(np.isfinite(out.positions))
+
+
+@pytest.mark.parametrize("length", [1, 2, 3])
+@pytest.mark.parametrize("method", KEYED)
+def test_default_key_at_works_for_short_transitions(clips, model, method, length):
+    # key_at defaults to length // 2, which is 0 (outside 1..length) for length 1.
+    a, b = clips[RUN], clips[BACK]
+    out = transition(a, b, model, length=length, method=method)
+    assert len(out) == len(a) + length + len(b)
+
+
+# -- the key posture ------------------------------------------------------------------------
+def assert_frame_is_key(frame: Motion, model, key, neurons, method, where=""):
+    """The one-frame motion ``frame`` shows the decoded ``key`` = (rotations (K, 4), height)."""
+    space = model.space_
+    key_rots, key_height = key
+    # Local rotations of the feature joints below the root are the key's.
+    err = quat.angle_between(frame.rotations[0, space.joints[1:]], key_rots[1:])
+    assert err.max() < 1e-6, f"{where}: key joints off by {np.degrees(err.max()):.3g} deg"
+    # The root's global rotation is the key's tilt turned about the up axis only, and its
+    # height is the key's. (A key's tilt, an average of tilts, may itself turn a little about
+    # up; that part then reads as heading, so compare rotations rather than decompositions.)
+    grot, gpos = root_global(frame, space.root)
+    turn = quat.mul(grot[0], quat.inv(key_rots[0]))
+    assert np.abs(np.delete(turn[1:], UP)).max() < 1e-7, f"{where}: root tilt is not the key's"
+    assert gpos[0, UP] == pytest.approx(key_height, abs=1e-6)
+    if method in NEURON_KEYS:  # the key is made of the chosen neurons, class by class
+        x = space.fill.copy()
+        for c, k in enumerate(neurons):
+            x[space.class_dims[c]] = model.maps_[c].weights_[k]
+        rots, height = space.decode(x)
+        assert quat.angle_between(rots, key_rots).max() < 1e-6
+        assert float(height) == pytest.approx(key_height, abs=1e-9)
+
+
+@pytest.mark.parametrize("method", KEYED)
+def test_frame_at_key_at_is_the_key_posture(clips, model, method):
+    space = model.space_
+    for (a, b), (a_end, b_start, length, key_at, alpha) in zip(
+            PAIRS + [(WALK, RUN)], [(None, 0, 20, 10, 0.5), (100, 40, 12, 3, 0.2),
+                                    (20, 5, 30, 30, 0.8), (150, 0, 9, 1, 1.0)]):
+        engine = TransitionEngine(model)
+        engine.add("a", clips[a])
+        engine.add("b", clips[b])
+        engine.generate("a", "b", length, key_at, alpha, a_end, b_start, method=method)
+        out = transition(clips[a], clips[b], model, length=length, key_at=key_at, alpha=alpha,
+                         a_end=a_end, b_start=b_start, method=method)
+        last = len(clips[a]) - 1 if a_end is None else a_end
+        where = f"{a}[..{last}] -> {b}[{b_start}..], key at {key_at} of {length}"
+        assert_frame_is_key(out[last + 1 + key_at - 1], model, engine.last["key"], engine.last["neurons"],
+                            method, where)
+        # The posture vector of that frame is the key's, but for the root tilt (see above).
+        x = model.encode(out[last + key_at])[0]
+        key_x = key_vector(model, engine.last["key"])
+        rest = space.active.copy()
+        rest[:3] = False
+        np.testing.assert_allclose(wrap_diff(x, key_x, space.circular)[rest], 0.0, atol=1e-6)
+        # The neighbours are not the key: the spline passes through it, it does not stop there.
+        if 1 < key_at < length:
+            before = out[last + key_at - 1].rotations[0, space.joints[1:]]
+            assert quat.angle_between(before, engine.last["key"][0][1:]).max() > 1e-4
+
+
+@pytest.mark.parametrize("method", NEURON_KEYS)
+@pytest.mark.parametrize("alpha", [0.0, 0.3, 0.5, 1.0])
+def test_each_partial_key_is_a_map_neuron(clips, model, method, alpha):
+    engine = TransitionEngine(model)
+    for a, b in PAIRS:
+        engine.add(a, clips[a])
+        engine.add(b, clips[b])
+        engine.generate(a, b, alpha=alpha, method=method)
+        neurons = engine.last["neurons"]
+        assert len(neurons) == len(model.maps_) == 4
+        x = key_vector(model, engine.last["key"])
+        for c, k in enumerate(neurons):
+            assert 0 <= k < model.maps_[c].n_neurons
+            np.testing.assert_allclose(x[model.space_.class_dims[c]], model.maps_[c].weights_[k], atol=1e-9)
+
+
+def test_upm_path_keys_lie_on_the_shortest_map_path(clips, model):
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    space = model.space_
+    engine = TransitionEngine(model)
+    rng = np.random.default_rng(9)
+    checked = 0
+    for a, b in PAIRS + [(DANCE, WALK), (BACK, BOW)]:
+        engine.add(a, clips[a])
+        engine.add(b, clips[b])
+        a_end, b_start = int(rng.integers(len(clips[a]))), int(rng.integers(len(clips[b])))
+        xa, xb = model.encode(clips[a][a_end])[0], model.encode(clips[b][b_start])[0]
+        chosen = {}
+        for alpha in (0.0, 0.5, 1.0):
+            engine.generate(a, b, alpha=alpha, a_end=a_end, b_start=b_start, method="upm-path")
+            chosen[alpha] = engine.last["neurons"]
+        for c, m in enumerate(model.maps_):
+            dims = space.class_dims[c]
+            circ = space.circular[dims]
+            w = m.weights_
+            wa = int(np.argmin(np.linalg.norm(wrap_diff(w, xa[dims], circ), axis=1)))
+            wb = int(np.argmin(np.linalg.norm(wrap_diff(w, xb[dims], circ), axis=1)))
+            e = m.edges_
+            lengths = np.linalg.norm(wrap_diff(w[e[:, 0]], w[e[:, 1]], circ), axis=1)
+            graph = csr_matrix((np.maximum(lengths, 1e-12), (e[:, 0], e[:, 1])), shape=(len(w), len(w)))
+            da, db = dijkstra(graph, directed=False, indices=[wa, wb])
+            if wa == wb or not np.isfinite(da[wb]):
+                continue
+            assert chosen[0.0][c] == wa and chosen[1.0][c] == wb, f"{a}->{b} class {c}"
+            k = chosen[0.5][c]
+            assert da[k] + db[k] == pytest.approx(da[wb], rel=1e-9), f"{a}->{b} class {c}: key off the path"
+            checked += 1
+    assert checked >= 10
+
+
+def test_upm_path_graph_memory_grows_with_edges_not_edges_times_neurons(clips, model):
+    # The path graph needs one length per edge, O(E * D) memory (under 1 MB here). Measuring
+    # each edge's first neuron against every neuron builds an E x n x D array: 180 MB for this
+    # small map, gigabytes and about 10 s per transition() call on the map of all bandai1.
+    import tracemalloc
+
+    engine = TransitionEngine(model)
+    engine.add("a", clips[WALK])
+    engine.add("b", clips[RUN])
+    engine.generate("a", "b", method="upm")  # imports and compiled kernels out of the way
+    tracemalloc.start()
+    try:
+        engine.generate("a", "b", method="upm-path")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    sizes = [(m.n_neurons, len(m.edges_), m.weights_.shape[1]) for m in model.maps_]
+    assert peak < 20e6, f"first upm-path call peaks at {peak / 1e6:.0f} MB; (neurons, edges, dims): {sizes}"
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.5, 1.0])
+def test_upm_valid_keys_lie_in_the_maps_valid_region(clips, model, alpha):
+    # upm-valid keys are estimates projected into the valid region: within ACCEPT * R of their
+    # nearest neuron (reported in last["neurons"]), class by class.
+    space = model.space_
+    engine = TransitionEngine(model)
+    rng = np.random.default_rng(4)
+    for a, b in PAIRS + [(DANCE, BOW)]:
+        engine.add(a, clips[a])
+        engine.add(b, clips[b])
+        a_end = int(rng.integers(1, len(clips[a])))
+        engine.generate(a, b, alpha=alpha, a_end=a_end, method="upm-valid")
+        x = key_vector(model, engine.last["key"])
+        for c, k in enumerate(engine.last["neurons"]):
+            m = model.maps_[c]
+            part = x[space.class_dims[c]]
+            d = np.linalg.norm(wrap_diff(m.weights_, part, space.circular[space.class_dims[c]]), axis=1)
+            assert k == int(np.argmin(d))
+            assert d[k] <= ACCEPT * m.radius_ * (1 + 1e-9), f"{a}->{b} class {c}: {d[k]:.3f} > {ACCEPT} R"
+
+
+@pytest.mark.parametrize("method", KEYED)
+def test_alpha_0_keys_lie_nearer_a_than_alpha_1_keys(clips, model, method):
+    space = model.space_
+    circ = space.circular
+    rng = np.random.default_rng(7)
+    pairs = PAIRS + [(DANCE, WALK), (BACK, BOW), (WALK, DANCE)]
+    engine = TransitionEngine(model)
+    for n in CLIPS:
+        engine.add(n, clips[n])
+
+    def dist(x, y):  # feature distance per class, summed
+        d = wrap_diff(x, y, circ)
+        return sum(np.linalg.norm(d[dims]) for dims in space.class_dims)
+
+    for a, b in pairs:
+        a_end = int(rng.integers(0, len(clips[a])))
+        b_start = int(rng.integers(0, len(clips[b])))
+        xa = model.encode(clips[a][a_end])[0]
+        xb = model.encode(clips[b][b_start])[0]
+        keys = {}
+        for alpha in (0.0, 1.0):
+            engine.generate(a, b, alpha=alpha, a_end=a_end, b_start=b_start, method=method)
+            keys[alpha] = key_vector(model, engine.last["key"])
+        assert dist(keys[0.0], xa) < dist(keys[1.0], xa), f"{a}[{a_end}] -> {b}[{b_start}]"
+        assert dist(keys[1.0], xb) < dist(keys[0.0], xb), f"{a}[{a_end}] -> {b}[{b_start}]"
+
+
+# -- smoothness -----------------------------------------------------------------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_no_joint_turns_more_than_90_degrees_between_frames(clips, model, method):
+    engine_cases = seam_cases(clips, seed=11, count=8)
+    for a, b, a_end, b_start, length in engine_cases:
+        out = transition(clips[a], clips[b], model, length=length, a_end=a_end, b_start=b_start,
+                         alpha=0.5, method=method)
+        rots = out.rotations[a_end: a_end + length + 2]  # A's last, the new frames, B's first
+        turn = quat.angle_between(rots[1:], rots[:-1])
+        worst = np.unravel_index(np.argmax(turn), turn.shape)
+        assert turn.max() < np.pi / 2, (
+            f"{a}[..{a_end}] -> {b}[{b_start}..], {length} frames: {out.skeleton.names[worst[1]]} "
+            f"turns {np.degrees(turn.max()):.0f} deg after frame {worst[0]}")
+
+
+# Seam bounds. A transition has to move between two different postures, often faster or slower
+# than either clip near the seam (bow -> dance: the dance starts at rest while the arms must
+# travel), so the clips alone cannot bound it. A seam is continuous when it stands out from
+# neither side: the step across it (C0) is at most 1.5x the largest step of the 10 clip frames
+# beside it or of the new frames, and the change of velocity across it (C1) at most 2x the
+# largest such change there. A pop or a velocity kink is exactly one step or acceleration that
+# stands out. Measured on these cases: steps <= 1.04x, velocity changes <= 1.7x (upm-valid); a
+# hard cut gives 7x to 41x (test_seam_bound_catches_a_hard_cut). slerp matches no velocities by
+# design (its velocity changes reach 25x to 42x here), so only its C0 is checked.
+STEP_BOUND = 1.5
+ACC_BOUND = 2.0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_seams_are_continuous_in_position_and_velocity(clips, model, method):
+    for a, b, a_end, b_start, length in seam_cases(clips, seed=3, count=10):
+        out = transition(clips[a], clips[b], model, length=length, a_end=a_end, b_start=b_start,
+                         method=method)
+        r = seam_ratios(*around_seams(out, a_end, length))
+        where = f"{a}[..{a_end}] -> {b}[{b_start}..], {length} frames: " + \
+            ", ".join(f"{k} {v:.2f}" for k, v in r.items())
+        assert r["step_a"] <= STEP_BOUND and r["step_b"] <= STEP_BOUND, where
+        if method != "slerp":
+            assert r["acc_a"] <= ACC_BOUND and r["acc_b"] <= ACC_BOUND, where
+
+
+def test_seam_bound_catches_a_hard_cut(clips, model):
+    # The same measure on A followed directly by (aligned) B must flag the cut.
+    flagged = 0
+    for a, b in PAIRS:
+        ta = clips[a]
+        out = transition(ta, clips[b], model, length=20, method="spline")
+        b_part = out[len(ta) + 20:]
+        cut = concatenate([ta, b_part])
+        g = cut[len(ta) - WINDOW - 1: len(ta) + WINDOW + 1].global_positions()
+        step = np.linalg.norm(np.diff(g, axis=0), axis=-1).max(axis=-1)
+        flagged += step[WINDOW] > STEP_BOUND * max(step[:WINDOW].max(), step[WINDOW + 1:].max())
+    assert flagged == len(PAIRS)
+
+
+# -- root alignment ----------------------------------------------------------------------------
+def test_no_align_keeps_b_exactly(clips, model):
+    for method in METHODS:
+        for (a, b), (a_end, b_start) in zip(PAIRS, [(None, 0), (60, 300), (10, 7)]):
+            out = transition(clips[a], clips[b], model, length=15, a_end=a_end, b_start=b_start,
+                             align=False, method=method)
+            last = len(clips[a]) - 1 if a_end is None else a_end
+            tail = out[last + 16:]
+            assert np.array_equal(tail.rotations, clips[b].rotations[b_start:]), (method, a, b)
+            assert np.array_equal(tail.positions, clips[b].positions[b_start:]), (method, a, b)
+
+
+@pytest.mark.parametrize("a, b, a_end, b_start, length", [
+    (WALK, RUN, None, 0, 20), (RUN, BACK, 15, 5, 12), (WALK, RUN, 120, 4, 10),
+    (DANCE, WALK, 700, 30, 25), (BACK, DANCE, 20, 400, 8),
+])
+def test_alignment_makes_b_continue_a(clips, a, b, a_end, b_start, length, model):
+    ca, cb = clips[a], clips[b]
+    out = transition(ca, cb, model, length=length, a_end=a_end, b_start=b_start, method="spline")
+    i0 = len(ca) - 1 if a_end is None else a_end
+    i1 = i0 + 1 + length
+    d = length + 1.0
+    rest = model.space_.rest
+    pos_o, head_o, tilt_o = root_state(out, rest)
+    pos_a, head_a, _ = root_state(ca, rest)
+    pos_b, head_b, tilt_b = root_state(cb, rest)
+    n_b = len(cb) - b_start
+
+    # B is moved rigidly: one turn about up and one shift for all of its frames.
+    dtheta = wrap(head_o[i1] - head_b[b_start])
+    np.testing.assert_allclose(wrap(head_o[i1:] - head_b[b_start:] - dtheta), 0.0, atol=1e-9)
+    turned = about_up(pos_b[b_start:], dtheta)
+    shift = pos_o[i1] - turned[0]
+    assert abs(shift[UP]) < 1e-9, "alignment must not move B up or down"
+    np.testing.assert_allclose(pos_o[i1:], turned + shift, atol=1e-6)
+    assert np.max(quat.angle_between(tilt_o[i1:], tilt_b[b_start:])) < 1e-6
+    below = list(range(cb.skeleton.index("Hips") + 1, cb.skeleton.num_joints))
+    assert np.array_equal(out.rotations[i1:, below], cb.rotations[b_start:, below])
+    assert len(out) - i1 == n_b
+
+    # B starts where A's root gets to, moving at the mean of the two seam velocities (B's
+    # turned with it), and faces A's last heading advanced by the mean turning rate.
+    v_a = horizontal(pos_a[i0] - pos_a[i0 - 1])
+    v_b = about_up(horizontal(pos_b[b_start + 1] - pos_b[b_start]), dtheta)
+    np.testing.assert_allclose(horizontal(pos_o[i1] - pos_o[i0]), 0.5 * (v_a + v_b) * d, atol=1e-6)
+    w_a = head_a[i0] - head_a[i0 - 1]
+    w_b = head_b[b_start + 1] - head_b[b_start]
+    assert abs(wrap(head_o[i1] - head_o[i0] - 0.5 * (w_a + w_b) * d)) < 1e-6
+
+
+def test_alignment_faces_b_the_way_a_walks(clips, model):
+    # Walk and run both go straight ahead. Aligned, the runner keeps the walker's direction of
+    # travel (within 15 degrees) and starts about 21 frames of travel ahead of the walker;
+    # without alignment it runs where it was captured, 300+ cm from the walk's end.
+    a, b = clips[WALK], clips[RUN]
+    i0, i1 = len(a) - 1, len(a) + 20
+    for align in (True, False):
+        out = transition(a, b, model, length=20, align=align, method="spline")
+        pos, _, _ = root_state(out)
+        travel_a = horizontal(pos[i0] - pos[i0 - 10]) / 10
+        travel_b = horizontal(pos[i1 + 10] - pos[i1]) / 10
+        cos = travel_a @ travel_b / (np.linalg.norm(travel_a) * np.linalg.norm(travel_b))
+        gap = np.linalg.norm(horizontal(pos[i1] - pos[i0]))
+        if align:
+            assert cos > math.cos(math.radians(15))
+            speeds = sorted([np.linalg.norm(travel_a), np.linalg.norm(travel_b)])
+            assert 21 * 0.8 * speeds[0] < gap < 21 * 1.2 * speeds[1]
+        else:
+            assert gap > 300.0
+
+
+def test_alignment_faces_a_heading_even_when_a_ends_bent(clips, model):
+    # Facing measured physically: the horizontal direction of the hip line (left thigh joint
+    # minus right). Ending a bow upright or at its deepest bend, the aligned walk must face
+    # where the bowing body faces (10 degrees allowed for the carried turning and for the hip
+    # line's own sway; the walk's first frames turn by under 1 degree per frame).
+    bow, walk = clips[BOW], clips[WALK]
+    sk = bow.skeleton
+    left, right, head = sk.index("UpperLeg_L"), sk.index("UpperLeg_R"), sk.index("Head")
+
+    def facing(m):
+        g = m.global_positions()
+        v = g[:, left] - g[:, right]
+        return np.degrees(np.arctan2(v[:, (UP + 2) % 3], v[:, (UP + 1) % 3])), g
+
+    _, g_bow = facing(bow)
+    deepest = int(np.argmin(g_bow[:, head, UP]))  # the head lowest: the deepest bend
+    assert 20 < deepest < len(bow) - 20
+    for mdl in (None, model):
+        for a_end in (0, deepest, len(bow) - 1):
+            out = transition(bow, walk, mdl, length=20, a_end=a_end, method="spline")
+            f, _ = facing(out[[a_end, a_end + 21]])
+            turn = (f[1] - f[0] + 180) % 360 - 180
+            assert abs(turn) < 10, (f"bow ending at frame {a_end} ({'map' if mdl else 'no map'}): "
+                                    f"the walk faces {turn:.0f} deg away")
+
+
+# -- every method, arguments, errors -------------------------------------------------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_runs_with_finite_output(clips, model, method):
+    for a, b in PAIRS:
+        for alpha in (0.0, 0.5, 1.0):
+            out = transition(clips[a], clips[b], model, alpha=alpha, method=method)
+            assert len(out) == len(clips[a]) + 20 + len(clips[b])
+            assert np.all(np.isfinite(out.rotations)) and np.all(np.isfinite(out.positions))
+            np.testing.assert_allclose(np.linalg.norm(out.rotations, axis=-1), 1.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("method", sorted(set(METHODS) - set(KEYED)))
+def test_methods_without_a_key_need_no_map(clips, method):
+    out = transition(clips[WALK], clips[RUN], None, method=method)
+    assert len(out) == len(clips[WALK]) + 20 + len(clips[RUN])
+
+
+@pytest.mark.parametrize("method", KEYED)
+def test_keyed_methods_without_a_map_raise(clips, method):
+    with pytest.raises(UserError) as e:
+        transition(clips[WALK], clips[RUN], None, method=method)
+    assert e.value.where == "--method" and method in str(e.value)
+    engine = TransitionEngine(skeleton=clips[WALK].skeleton)
+    engine.add("a", clips[WALK])
+    engine.add("b", clips[RUN])
+    with pytest.raises(UserError, match="needs a posture map"):
+        engine.generate("a", "b", method=method)
+
+
+@pytest.mark.parametrize("kwargs, option", [
+    ({"a_end": 195}, "--a-end"), ({"a_end": -1}, "--a-end"),
+    ({"b_start": 24}, "--b-start"), ({"b_start": -3}, "--b-start"),
+    ({"key_at": 0}, "--key-at"), ({"key_at": 21}, "--key-at"),
+    ({"length": 5, "key_at": 6}, "--key-at"),
+    ({"alpha": -0.01}, "--alpha"), ({"alpha": 1.5}, "--alpha"), ({"alpha": float("nan")}, "--alpha"),
+    ({"method": "cubic"}, "--method"), ({"length": 0}, "--length"),
+])
+def test_argument_errors_name_the_option(clips, model, kwargs, option):
+    assert (len(clips[WALK]), len(clips[RUN])) == (195, 24)  # the values above rely on these
+    with pytest.raises(UserError) as e:
+        transition(clips[WALK], clips[RUN], model, **kwargs)
+    assert e.value.where == option and str(e.value).startswith(option)
+
+
+def test_different_skeletons_raise(clips, model, sample_clips):
+    other = sample_clips["walk"]
+    with pytest.raises(UserError, match="skeleton differs"):
+        transition(clips[WALK], other, None, method="spline")
+    with pytest.raises(UserError, match="skeleton differs"):
+        transition(clips[WALK], other, model)
+    with pytest.raises(UserError, match="skeleton differs"):
+        transition(other, sample_clips["run"], model)  # both alike, but not the map's skeleton
+    engine = TransitionEngine(model)
+    with pytest.raises(UserError, match="skeleton differs"):
+        engine.add("x", other)
+    assert "x" not in engine.tracks
+
+
+# -- the reusable engine ------------------------------------------------------------------------
+def test_engine_reuses_buffers_and_matches_the_functional_api(clips, model):
+    engine = TransitionEngine(model)
+    for n in CLIPS:
+        engine.add(n, clips[n])
+    rng = np.random.default_rng(5)
+    first = None
+    for i, (a, b) in enumerate(PAIRS * 2):
+        method = METHODS[i % len(METHODS)]
+        a_end = int(rng.integers(1, len(clips[a])))
+        b_start = int(rng.integers(0, len(clips[b]) - 1))
+        alpha = float(rng.random())
+        rots, pos = engine.generate(a, b, 20, 7, alpha, a_end, b_start, method=method)
+        if first is None:
+            first = (rots, pos)
+        assert rots is first[0] and pos is first[1], "a call of the same length must reuse the buffers"
+        out = transition(clips[a], clips[b], model, length=20, key_at=7, alpha=alpha, a_end=a_end,
+                         b_start=b_start, method=method)
+        np.testing.assert_array_equal(out.rotations[a_end + 1: a_end + 21], rots)
+        np.testing.assert_array_equal(out.positions[a_end + 1: a_end + 21], pos)
+        b_part = aligned(engine.tracks[b], engine, b_start, engine.last["dtheta"], engine.last["shift"])
+        np.testing.assert_array_equal(out.rotations[a_end + 21:], b_part.rotations)
+    # Another length has its own buffers; the first ones stay.
+    short = engine.generate(WALK, RUN, 10)
+    assert short[0] is not first[0] and short[0].shape[0] == 10
+    assert engine.generate(RUN, WALK, 20)[0] is first[0]
+
+
+# -- compiled kernels against the numpy reference (quat.py) ----------------------------------------
+def random_quats(rng, shape) -> np.ndarray:
+    q = quat.normalize(rng.normal(size=tuple(shape) + (4,)))
+    return q * np.where(rng.random(tuple(shape) + (1,)) < 0.5, -1.0, 1.0)  # both hemispheres
+
+
+def test_log_and_exp_relative_match_quat():
+    rng = np.random.default_rng(0)
+    n, j = 64, 9
+    ref = random_quats(rng, (j,))
+    q = random_quats(rng, (n, j))
+    # Cases near the identity relative to ref (the series branch) and near 180 degrees.
+    tiny = quat.exp(rng.normal(size=(4, j, 3)) * 1e-10)
+    axis = quat.normalize(rng.normal(size=(4, j, 3)))
+    near_pi = quat.exp(axis * (np.pi - 1e-6))
+    q = np.concatenate([q, quat.mul(ref, tiny), -quat.mul(ref, near_pi)])
+    out = np.empty(q.shape[:-1] + (3,))
+    kernels.log_relative(q, ref, out)
+    expected = quat.log(quat.mul(quat.inv(ref), q))
+    np.testing.assert_allclose(out[:n + 4], expected[:n + 4], atol=1e-12)
+    # At 180 degrees both signs of the axis are the same rotation: compare rotations there.
+    assert np.all(quat.angle_between(quat.exp(out[n + 4:]), quat.exp(expected[n + 4:])) < 1e-6)
+    assert np.all(np.linalg.norm(out, axis=-1) <= np.pi + 1e-12)
+
+    r = np.concatenate([rng.normal(size=(n, j, 3)), rng.normal(size=(4, j, 3)) * 1e-10])
+    back = np.empty(r.shape[:-1] + (4,))
+    kernels.exp_relative(r, ref, back)
+    np.testing.assert_allclose(back, quat.mul(ref, quat.exp(r)), atol=1e-12)
+    # Round trip: exp(log(q)) is q (up to sign).
+    again = np.empty(q.shape)
+    kernels.exp_relative(out, ref, again)
+    assert np.all(quat.angle_between(again, q) < 1e-6)
+
+
+@pytest.mark.parametrize("up", [0, 1, 2])
+@pytest.mark.parametrize("chain_len", [0, 1, 2])
+def test_compose_root_matches_forward_kinematics(up, chain_len):
+    rng = np.random.default_rng(10 * up + chain_len)
+    n = 50
+    root = chain_len
+    parents = np.array([-1] + list(range(chain_len + 1)))  # ancestors, root, one child
+    j_count = len(parents)
+    rots = random_quats(rng, (n, j_count))
+    positions = rng.normal(scale=50.0, size=(n, j_count, 3))
+    tilt = rots[:, root].copy()
+    gpos = rng.normal(scale=100.0, size=(n, 3))
+    heading = rng.uniform(-4 * np.pi, 4 * np.pi, size=n)
+    chain = np.arange(chain_len, dtype=np.int64)
+    r_in, p_in = rots.copy(), positions.copy()
+    kernels.compose_root(chain, root, up, rots, positions, gpos, heading)
+    # Only the root's own rotation and translation change.
+    others = [j for j in range(j_count) if j != root]
+    assert np.array_equal(rots[:, others], r_in[:, others])
+    assert np.array_equal(positions[:, others], p_in[:, others])
+    grot, g = fk(parents, rots, positions)
+    axis = np.zeros(3)
+    axis[up] = 1.0
+    expected = quat.mul(quat.from_axis_angle(axis, heading), tilt)
+    assert np.all(quat.angle_between(grot[:, root], expected) < 1e-7)
+    np.testing.assert_allclose(g[:, root], gpos, atol=1e-9)
+
+
+def test_nearest_matches_a_numpy_scan():
+    rng = np.random.default_rng(2)
+    for trial in range(20):
+        n, dims = int(rng.integers(1, 300)), int(rng.integers(1, 20))
+        period = np.where(rng.random(dims) < 0.5, 2 * np.pi, np.inf)
+        w = np.where(np.isinf(period), rng.normal(size=(n, dims)), rng.uniform(0, 2 * np.pi, size=(n, dims)))
+        x = np.where(np.isinf(period), rng.normal(size=dims), rng.uniform(0, 2 * np.pi, size=dims))
+        d = np.abs(w - x)
+        d = np.where(np.isinf(period), d, np.minimum(d, 2 * np.pi - d))
+        assert kernels.nearest(w, x, period) == int(np.argmin((d ** 2).sum(axis=1))), trial
+    # Wrap-around counts: 359 degrees is nearest 1 degree, not 180.
+    w = np.radians([[180.0], [359.0]])
+    assert kernels.nearest(w, np.radians([1.0]), np.array([2 * np.pi])) == 1
+
+
+# -- spline bases: boundary conditions, checked numerically --------------------------------------
+def fitted(basis: np.ndarray, inputs: np.ndarray, t: np.ndarray, degree: int):
+    """Polynomial of ``degree`` through the frames ``basis @ inputs`` at times ``t`` (exact fit)."""
+    y = basis @ inputs
+    poly = np.polynomial.Polynomial.fit(t, y, degree)
+    assert np.max(np.abs(poly(t) - y)) < 1e-9 * max(1.0, np.abs(y).max()), "not a polynomial of that degree"
+    return poly
+
+
+@pytest.mark.parametrize("length", [5, 20, 45])
+def test_hermite_basis_matches_values_and_velocities(length):
+    rng = np.random.default_rng(length)
+    p_a, v_a, p_b, v_b = rng.normal(size=4) * [10, 1, 10, 1]
+    t = np.arange(1, length + 1, dtype=float)
+    poly = fitted(hermite_basis(length), np.array([p_a, v_a, p_b, v_b]), t, 3)
+    d = length + 1.0
+    np.testing.assert_allclose([poly(0), poly.deriv()(0), poly(d), poly.deriv()(d)], [p_a, v_a, p_b, v_b],
+                               atol=1e-8)
+
+
+@pytest.mark.parametrize("length, key_at", [(20, 10), (15, 4), (30, 25), (20, 1), (20, 20), (1, 1)])
+def test_key_spline_basis_passes_through_the_key(length, key_at):
+    rng = np.random.default_rng(100 * length + key_at)
+    inputs = rng.normal(size=5) * [10, 1, 10, 1, 10]  # pA, vA, pB, vB, key
+    basis = key_spline_basis(length, key_at)
+    assert basis.shape == (length, 5) and not basis.flags.writeable
+    frames = basis @ inputs
+    assert frames[key_at - 1] == pytest.approx(inputs[4], abs=1e-9)
+    d = length + 1.0
+    if key_at >= 4 and length - key_at + 1 >= 4:  # enough frames to recover both cubic pieces
+        t = np.arange(1, length + 1, dtype=float)
+        left = fitted(basis[:key_at], inputs, t[:key_at], 3)
+        right = fitted(basis[key_at - 1:], inputs, t[key_at - 1:], 3)
+        np.testing.assert_allclose([left(0), left.deriv()(0), right(d), right.deriv()(d)], inputs[:4], atol=1e-8)
+        # Twice continuously differentiable through the key.
+        for k in (1, 2):
+            assert left.deriv(k)(key_at) == pytest.approx(right.deriv(k)(key_at), abs=1e-8)
+    # A key on the Hermite curve gives that same curve (what the engine relies on for the
+    # joints without a key).
+    herm = hermite_basis(length) @ inputs[:4]
+    on_curve = np.append(inputs[:4], herm[key_at - 1])
+    np.testing.assert_allclose(basis @ on_curve, herm, atol=1e-9)
+
+
+@pytest.mark.parametrize("length", [8, 20, 40])
+def test_inertialize_basis_decays_from_a_to_b(length):
+    rng = np.random.default_rng(length)
+    p_a, v_a, p_b, v_b, a_a = rng.normal(size=5) * [10, 1, 10, 1, 0.2]
+    t = np.arange(1, length + 1, dtype=float)
+    poly = fitted(inertialize_basis(length), np.array([p_a, v_a, p_b, v_b, a_a]), t, 5)
+    d = length + 1.0
+    np.testing.assert_allclose([poly(0), poly.deriv()(0), poly.deriv(2)(0)], [p_a, v_a, a_a], atol=1e-7)
+    np.testing.assert_allclose([poly(d), poly.deriv()(d), poly.deriv(2)(d)], [p_b, v_b, 0.0], atol=1e-7)
+
+
+@pytest.mark.parametrize("length", [1, 7, 20])
+def test_linear_basis_goes_straight(length):
+    p_a, p_b = -3.0, 11.0
+    t = np.arange(1, length + 1) / (length + 1.0)
+    np.testing.assert_allclose(linear_basis(length) @ [p_a, p_b], p_a + (p_b - p_a) * t, atol=1e-12)
+
+
+# -- euler features -----------------------------------------------------------------------------
+@pytest.mark.parametrize("method", KEYED)
+def test_euler_features_work_for_transitions(clips, euler_model, method):
+    space = euler_model.space_
+    assert space.mode == "euler" and space.circular.any()
+    for (a, b), (a_end, b_start, key_at, alpha) in zip([(WALK, RUN), (BOW, BACK), (RUN, WALK)],
+                                                        [(None, 0, 10, 0.5), (70, 3, 4, 0.2), (12, 100, 15, 0.9)]):
+        engine = TransitionEngine(euler_model)
+        engine.add("a", clips[a])
+        engine.add("b", clips[b])
+        engine.generate("a", "b", 20, key_at, alpha, a_end, b_start, method=method)
+        out = transition(clips[a], clips[b], euler_model, length=20, key_at=key_at, alpha=alpha,
+                         a_end=a_end, b_start=b_start, method=method)
+        last = len(clips[a]) - 1 if a_end is None else a_end
+        assert len(out) == last + 21 + len(clips[b]) - b_start
+        assert np.all(np.isfinite(out.rotations))
+        rots = out.rotations[last: last + 22]
+        assert quat.angle_between(rots[1:], rots[:-1]).max() < np.pi / 2
+        assert_frame_is_key(out[last + key_at], euler_model, engine.last["key"], engine.last["neurons"],
+                            method, f"{a} -> {b}")
+
+
+# -- command line ---------------------------------------------------------------------------------
+def header_layout(path) -> list[str]:
+    """Joint and channel lines of a BVH file's hierarchy, whitespace normalised."""
+    with open(path, encoding="utf-8") as f:
+        header = f.read().split("MOTION")[0]
+    keep = ("ROOT", "JOINT", "CHANNELS", "End")
+    return [" ".join(line.split()) for line in header.splitlines() if line.strip().startswith(keep)]
+
+
+def test_cli_transition_with_map(paths, clips, map_file, tmp_path, capsys):
+    out = tmp_path / "walk_to_run.bvh"
+    code, stdout, err = run_cli(["transition", str(paths[WALK]), str(paths[RUN]), "-o", str(out),
+                                 "--map", map_file, "--a-end", "120", "--b-start", "3", "--length", "12",
+                                 "--key-at", "4", "--alpha", "0.3"], capsys)
+    assert code == 0, err
+    result = bvh.read(out)
+    a = clips[WALK]
+    assert len(result) == 121 + 12 + len(clips[RUN]) - 3
+    assert result.skeleton.same_as(a.skeleton)  # names, hierarchy, channel layout
+    assert header_layout(out) == header_layout(paths[WALK])  # the same, read from the text
+    np.testing.assert_allclose(result.skeleton.offsets, a.skeleton.offsets)
+    assert result.fps == pytest.approx(a.fps)
+    assert [(j, list(o)) for j, o in result.skeleton.end_sites] == [(j, list(o)) for j, o in a.skeleton.end_sites]
+    # A's frames are written unchanged (to the text's precision); the same as the library's.
+    np.testing.assert_allclose(result[:121].global_positions(), a[:121].global_positions(), atol=1e-4)
+    model = PostureMap.load(map_file)
+    expected = transition(a, clips[RUN], model, length=12, key_at=4, alpha=0.3, a_end=120, b_start=3)
+    np.testing.assert_allclose(result.global_positions(), expected.global_positions(), atol=1e-3)
+    assert str(out) in stdout
+
+
+@pytest.mark.parametrize("extra", [[], ["--method", "slerp", "--no-align"], ["--method", "upm-path", "--length", "1"]])
+def test_cli_transition_without_map(paths, clips, tmp_path, capsys, extra):
+    out = tmp_path / "run_to_back.bvh"
+    code, _, err = run_cli(["transition", str(paths[RUN]), str(paths[BACK]), "-o", str(out)] + extra, capsys)
+    assert code == 0, err
+    result = bvh.read(out)
+    length = int(extra[extra.index("--length") + 1]) if "--length" in extra else 20
+    assert len(result) == len(clips[RUN]) + length + len(clips[BACK])
+    assert result.skeleton.same_as(clips[RUN].skeleton)
+    if "--no-align" in extra:
+        np.testing.assert_allclose(result[len(clips[RUN]) + 20:].global_positions(),
+                                   clips[BACK].global_positions(), atol=1e-4)
+
+
+@pytest.mark.parametrize("case", ["a-end", "b-start", "skeleton", "missing-a", "missing-b", "folder", "map"])
+def test_cli_transition_errors(paths, sample_clips, map_file, tmp_path, capsys, case):
+    a, b = str(paths[RUN]), str(paths[BACK])
+    out = tmp_path / "out.bvh"
+    extra, expect = [], None
+    if case == "a-end":
+        extra, expect = ["--a-end", "24"], "--a-end"
+    elif case == "b-start":
+        extra, expect = ["--b-start", "31", "--method", "spline"], "--b-start"
+    elif case == "skeleton":
+        b = str(tmp_path / "sample.bvh")
+        bvh.write(b, sample_clips["walk"])
+        expect = "skeleton differs"
+    elif case == "missing-a":
+        a = str(tmp_path / "nope.bvh")
+        expect = a
+    elif case == "missing-b":
+        b = str(tmp_path / "nope.bvh")
+        expect = b
+    elif case == "folder":
+        out = tmp_path / "missing" / "out.bvh"
+        expect = "output folder"
+    elif case == "map":
+        extra, expect = ["--map", str(tmp_path / "no-map.npz")], "no-map.npz"
+    before = set(os.listdir(tmp_path))
+    code, _, err = run_cli(["transition", a, b, "-o", str(out)] + extra, capsys)
+    assert code == 2
+    assert err.startswith("posturemap: error: ") and err.endswith("\n") and err.count("\n") == 1, err
+    assert expect in err
+    assert not out.exists()
+    assert set(os.listdir(tmp_path)) == before, "no partial or temporary file may be left"
