@@ -29,6 +29,7 @@ from posturemap.transition import (
     hermite_basis,
     inertialize_basis,
     key_spline_basis,
+    keys_spline_basis,
     linear_basis,
     transition,
 )
@@ -887,3 +888,19 @@ def test_cli_transition_errors(paths, sample_clips, map_file, tmp_path, capsys, 
     assert expect in err
     assert not out.exists()
     assert set(os.listdir(tmp_path)) == before, "no partial or temporary file may be left"
+
+
+@pytest.mark.parametrize("times, length", [((10.0,), 20), ((5.0, 10.0, 15.5), 20), ((1.0,), 3), ((45.0,), 45)])
+def test_keys_spline_basis_matches_scipy(times, length):
+    # The numpy clamped spline must be scipy's make_interp_spline(k=3) with end slopes.
+    from scipy.interpolate import make_interp_spline
+
+    rng = np.random.default_rng(len(times) + length)
+    basis = keys_spline_basis(length, times)
+    knots = np.concatenate([[0.0], times, [length + 1.0]])
+    t = np.arange(1, length + 1, dtype=float)
+    for _ in range(5):
+        inp = rng.normal(size=4 + len(times))  # pA, vA, pB, vB, keys
+        y = np.concatenate([[inp[0]], inp[4:], [inp[2]]])
+        ref = make_interp_spline(knots, y, k=3, bc_type=([(1, inp[1])], [(1, inp[3])]))(t)
+        np.testing.assert_allclose(basis @ inp, ref, atol=1e-12)

@@ -99,8 +99,30 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def nearest_linear(W, x):
+    """Index of the row of ``W (n, d)`` nearest ``x (d,)`` (Euclidean; vectorises well)."""
+    best = np.inf
+    best_i = 0
+    for i in range(W.shape[0]):
+        acc = 0.0
+        for k in range(W.shape[1]):
+            d = W[i, k] - x[k]
+            acc += d * d
+        if acc < best:
+            best = acc
+            best_i = i
+    return best_i
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
 def nearest(W, x, period):
     """Index of the row of ``W (n, d)`` nearest ``x (d,)``; ``period`` per dimension (inf: linear)."""
+    linear = True
+    for k in range(period.shape[0]):
+        if period[k] < np.inf:
+            linear = False
+    if linear:
+        return nearest_linear(W, x)
     best = np.inf
     best_i = 0
     for i in range(W.shape[0]):

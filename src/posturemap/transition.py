@@ -68,19 +68,45 @@ def keys_spline_basis(length: int, times: tuple[float, ...]) -> np.ndarray:
     Returns the matrix (length, 4 + K) mapping ``[pA, vA, pB, vB, key_1..key_K]`` to frames
     1..length; the curve has value and velocity ``pA, vA`` at 0 and ``pB, vB`` at length+1.
     """
-    from scipy.interpolate import make_interp_spline
-
-    n = 4 + len(times)
-    x = np.concatenate([[0.0], times, [length + 1.0]])
-    t = np.arange(1, length + 1, dtype=float)
-    out = np.empty((length, n))
-    for col in range(n):
-        e = np.zeros(n)
-        e[col] = 1.0
-        y = np.concatenate([[e[0]], e[4:], [e[2]]])
-        spl = make_interp_spline(x, y, k=3, bc_type=([(1, e[1])], [(1, e[3])]))
-        out[:, col] = spl(t)
+    k = len(times)
+    knots = np.concatenate([[0.0], times, [length + 1.0]])
+    spline = clamped_spline_matrix(knots, np.arange(1, length + 1, dtype=float))  # (L, k+4)
+    # Its inputs are [y_0 (pA), y_1..y_k (keys), y_k+1 (pB), slope_0 (vA), slope_end (vB)].
+    out = spline[:, [0, k + 2, k + 1, k + 3] + list(range(1, k + 1))]
     out.setflags(write=False)
+    return out
+
+
+def clamped_spline_matrix(knots: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The C2 cubic spline through values at ``knots`` (n+1,) with given end slopes, as a matrix.
+
+    Returns (len(t), n+3) mapping ``[y_0..y_n, slope_0, slope_n]`` to the curve at ``t``.
+    The interior slopes solve the usual tridiagonal C2 system; between knots the curve is
+    the cubic Hermite of the two values and slopes. (Same curve as scipy's
+    ``make_interp_spline(k=3)`` with first-derivative end conditions, without its import.)
+    """
+    n = len(knots) - 1
+    h = np.diff(knots)
+    # Slopes m (n+1,) = S @ [y, s0, sn].
+    a = np.zeros((n + 1, n + 1))
+    rhs = np.zeros((n + 1, n + 3))
+    a[0, 0] = a[n, n] = 1.0
+    rhs[0, n + 1] = rhs[n, n + 2] = 1.0
+    for i in range(1, n):
+        a[i, i - 1], a[i, i], a[i, i + 1] = 1 / h[i - 1], 2 / h[i - 1] + 2 / h[i], 1 / h[i]
+        rhs[i, i - 1] -= 3 / h[i - 1] ** 2
+        rhs[i, i] += 3 / h[i - 1] ** 2 - 3 / h[i] ** 2
+        rhs[i, i + 1] += 3 / h[i] ** 2
+    slopes = np.linalg.solve(a, rhs)
+    seg = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, n - 1)
+    hs = h[seg]
+    s = (t - knots[seg]) / hs
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, (s**3 - 2 * s**2 + s) * hs
+    h01, h11 = -2 * s**3 + 3 * s**2, (s**3 - s**2) * hs
+    out = h10[:, None] * slopes[seg] + h11[:, None] * slopes[seg + 1]
+    rows = np.arange(len(t))
+    out[rows, seg] += h00
+    out[rows, seg + 1] += h01
     return out
 
 
