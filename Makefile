@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
 
-.PHONY: demo test bench bench-quick serve clean
+.PHONY: demo test bench bench-quick serve clean web studio-docs
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,8 +18,31 @@ $(VENV)/.test-installed: $(VENV)/.installed pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/posturemap demo
 
-test: $(VENV)/.test-installed
+# three.js for the studio page, pinned in package.json/package-lock.json, copied next to the page
+# (no CDN: the page works offline). `make web` is enough after a fresh clone.
+VENDOR := src/posturemap/web/static/vendor
+THREE := node_modules/three
+
+node_modules/.package-lock.json: package.json package-lock.json
+	npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+$(VENDOR)/.stamp: node_modules/.package-lock.json
+	rm -rf $(VENDOR)
+	mkdir -p $(VENDOR)/addons/controls $(VENDOR)/addons/loaders
+	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/LICENSE $(VENDOR)/
+	cp $(THREE)/examples/jsm/controls/OrbitControls.js $(VENDOR)/addons/controls/
+	cp $(THREE)/examples/jsm/loaders/BVHLoader.js $(VENDOR)/addons/loaders/
+	touch $@
+
+web: $(VENDOR)/.stamp
+
+test: $(VENV)/.test-installed web
 	$(PY) -m pytest -q
 
+# Re-measure the studio's slider latency and retake its screenshot (docs/web-latency.md, docs/studio.png).
+studio-docs: $(VENV)/.test-installed web
+	POSTUREMAP_UPDATE_DOCS=1 $(PY) -m pytest -q tests/test_browser.py
+
 clean:
-	rm -rf $(VENV) out build src/*.egg-info
+	rm -rf $(VENV) out build src/*.egg-info node_modules $(VENDOR)

@@ -1,0 +1,678 @@
+"""Local web server of the transition studio (``posturemap serve``).
+
+One :class:`~posturemap.transition.TransitionEngine` holds every clip and the posture map in
+memory; the page asks for transitions as its sliders move and gets three.js-ready tracks back.
+
+Endpoints (JSON unless noted; every error is ``{"error": message, "field": name or null}``):
+
+``GET /``                    the studio page (``static/index.html``)
+``GET /static/...``          the page's own files, from one fixed folder
+``GET /api/status``          posture map state: ``loading``, ``training`` (with progress), ``ready``
+                             or ``error``
+``GET /api/clips``           the skeleton (names, parents, rest translations, end sites, up axis)
+                             and the clips (name, frames, fps), the methods and the limits
+``GET /api/clip/{name}``     one clip's frames as tracks
+``POST /api/transition``     body ``{a, b, a_end, b_start, length, key_at, alpha, method, align}``:
+                             A[0..a_end], ``length`` new frames, then B[b_start..] (turned and moved
+                             to continue A unless ``align`` is false), as tracks, with the segments,
+                             the seams, the key frame and key posture
+``POST /api/export``         the same body; answers the result as a BVH file (``text/plain``,
+``GET /api/export?a=..``     attachment), the body fields as query parameters for GET
+
+Tracks follow three.js: one ``<bone>.quaternion`` track per joint with local rotations in the
+order (x, y, z, w), and a ``<bone>.position`` track for each joint whose local translation moves
+(the others keep their rest translation from ``/api/clips``); ``times`` in seconds is shared.
+Bone names are the joint names made safe for three.js's ``PropertyBinding`` (``bones`` in the
+skeleton). Positions are in the clips' own length unit.
+
+Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
+:data:`MAX_BODY` bytes 413, wrong types or values out of range 422, and a keyed method asked
+for while the map is still training 503.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import math
+import re
+import socket
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import bvh
+from ..errors import UserError
+from ..motion import Motion, body_height, concatenate, length_unit, root_index, up_axis
+from ..transition import DEFAULT_METHOD, KEYED, METHODS, TransitionEngine, aligned
+
+try:  # the "web" extra
+    from starlette.applications import Starlette
+    from starlette.exceptions import HTTPException
+    from starlette.middleware import Middleware
+    from starlette.responses import FileResponse, JSONResponse, Response
+    from starlette.routing import Mount, Route
+    from starlette.staticfiles import StaticFiles
+except ImportError:  # pragma: no cover - reported by run_cli / create_app
+    Starlette = None
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+VENDOR_FILES = ("three.module.js", "three.core.js", "addons/controls/OrbitControls.js")
+MAX_BODY = 64 * 1024          # bytes of a request body
+MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
+DEFAULT_LENGTH = 20
+FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+_RESERVED = re.compile(r"[\[\]\.:/]")
+
+
+class ApiError(Exception):
+    """A request the server refuses: HTTP status, message and the field at fault (if any)."""
+
+    def __init__(self, status: int, message: str, field: str | None = None):
+        super().__init__(message)
+        self.status, self.message, self.field = status, message, field
+
+
+@dataclass(frozen=True)
+class Params:
+    """A validated transition request (frame indices into the source clips)."""
+
+    a: str
+    b: str
+    a_end: int
+    b_start: int
+    length: int
+    key_at: int
+    alpha: float
+    method: str
+    align: bool
+
+
+def bone_names(names: tuple[str, ...]) -> list[str]:
+    """Joint names made safe and unique for three.js track names (``PropertyBinding``)."""
+    out, seen = [], set()
+    for i, n in enumerate(names):
+        b = _RESERVED.sub("", re.sub(r"\s", "_", n)) or f"joint{i}"
+        base, k = b, 2
+        while b in seen:
+            b, k = f"{base}_{k}", k + 1
+        seen.add(b)
+        out.append(b)
+    return out
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+# -- the studio state ---------------------------------------------------------------------
+class Studio:
+    """Clips, the posture map and one transition engine shared by all requests.
+
+    Parameters
+    ----------
+    clips : dict of name to Motion, one skeleton (the first clip's) and, for transitions
+        between two clips, one frame rate
+    model : PostureMap or None; None learns one from the clips in a background thread
+        (when ``train``), so the page loads at once
+    train : learn a map when ``model`` is None (False: only the methods without a key)
+    epochs, seed : training parameters of that map
+    log : function taking one line of text (progress in the terminal), or None
+    """
+
+    def __init__(self, clips: dict[str, Motion], model=None, train: bool = True, epochs: int = 4,
+                 seed: int = 0, log=None):
+        if not clips:
+            raise UserError("serve", "no clips to serve")
+        self.log = log or (lambda line: None)
+        self.clips = dict(clips)
+        self.names = list(self.clips)          # listing order
+        first_name, first = next(iter(self.clips.items()))
+        self.skeleton = first.skeleton
+        for name, m in self.clips.items():
+            if not m.skeleton.same_as(self.skeleton):
+                raise UserError(name, f"skeleton differs from {first_name} (the studio needs one skeleton)")
+        if model is not None:
+            model.check_skeleton(self.skeleton, first_name)
+        self.bones = bone_names(self.skeleton.names)
+        self.rest = first.positions[0].copy()
+        self.root, self.up = root_index(first), up_axis(first)
+        self.height, self.unit = body_height(first), length_unit(first)
+        if model is not None and (model.space_.up, model.space_.root) != (self.up, self.root):
+            self.log(f"posturemap: warning: the map takes root {self.skeleton.names[model.space_.root]!r} and "
+                     f"up {'XYZ'[model.space_.up]} but the clips read as root {self.skeleton.names[self.root]!r}, "
+                     f"up {'XYZ'[self.up]}: transitions may not line up")
+        self._lock = threading.Lock()
+        self.engine = self._engine(model)
+        self._status = {"state": "ready" if model is not None else ("loading" if train else "none"),
+                        "progress": 1.0 if model is not None else 0.0, "epochs": epochs, "classes": {},
+                        "neurons": sum(model.neuron_counts()) if model is not None else 0,
+                        "seconds": None, "message": ""}
+        self._started = time.perf_counter()
+        if model is None and train:
+            self._thread = threading.Thread(target=self._train, args=(epochs, seed), daemon=True,
+                                            name="posturemap-train")
+            self._thread.start()
+
+    def _engine(self, model) -> TransitionEngine:
+        engine = TransitionEngine(model, None if model is not None else self.skeleton)
+        for name, m in self.clips.items():
+            engine.add(name, m)
+        name = next(iter(self.clips))
+        # Compile the kernels now rather than on the first request.
+        engine.generate(name, name, 2, 1, 0.5, None, 0, True, KEYED[0] if model is not None else "spline")
+        return engine
+
+    # -- training ---------------------------------------------------------------------------
+    def _train(self, epochs: int, seed: int):
+        from ..model import PostureMap
+
+        frames = sum(len(m) for m in self.clips.values())
+        self._set_status(state="training", message=f"learning a posture map from {len(self.clips)} clips "
+                                                   f"({frames} frames)")
+        self.log(f"training posture map: {len(self.clips)} clips, {frames} frames, {epochs} epochs")
+        shown = [0]
+
+        def progress(cls: str, epoch: int, total: int, neurons: int):
+            with self._lock:
+                classes = self._status["classes"]
+                classes[cls] = {"epoch": epoch, "neurons": neurons}
+                self._status["progress"] = round(min(sum(c["epoch"] for c in classes.values()) / (4.0 * total), 1.0), 4)
+                self._status["neurons"] = sum(c["neurons"] for c in classes.values())
+                epoch_done = min(c["epoch"] for c in classes.values()) if len(classes) == 4 else 0
+                parts = ", ".join(f"{c} {v['neurons']}" for c, v in sorted(classes.items()))
+            if epoch_done > shown[0]:
+                shown[0] = epoch_done
+                self.log(f"training posture map: epoch {epoch_done}/{total}  neurons: {parts}")
+
+        try:
+            model = PostureMap(epochs=epochs, seed=seed).fit(list(self.clips.values()), list(self.clips),
+                                                              progress=progress)
+            engine = self._engine(model)
+        except Exception as e:  # noqa: BLE001 - reported on the page and in the terminal
+            self._set_status(state="error", message=f"training failed: {e}")
+            self.log(f"posturemap: error: training the posture map failed: {e}")
+            return
+        seconds = round(time.perf_counter() - self._started, 2)
+        with self._lock:
+            self.engine = engine
+            self._status.update(state="ready", progress=1.0, neurons=sum(model.neuron_counts()),
+                                seconds=seconds, message="")
+        self.log(f"posture map ready: {sum(model.neuron_counts())} neurons "
+                 f"({', '.join(str(n) for n in model.neuron_counts())}) in {seconds:.1f} s")
+
+    def _set_status(self, **kw):
+        with self._lock:
+            self._status.update(kw)
+
+    def status(self) -> dict:
+        with self._lock:
+            s = dict(self._status)
+            s["classes"] = {k: dict(v) for k, v in s["classes"].items()}
+        s["methods"] = {m: (m not in KEYED or s["state"] == "ready") for m in METHODS}
+        return s
+
+    def wait_ready(self, timeout: float = 60.0) -> dict:
+        """Block until the map is trained (or failed); returns the status (for tests and scripts)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            s = self.status()
+            if s["state"] in ("ready", "error", "none"):
+                return s
+            time.sleep(0.02)
+        return self.status()
+
+    # -- descriptions -------------------------------------------------------------------------
+    def clips_payload(self) -> dict:
+        sk = self.skeleton
+        return {
+            "skeleton": {
+                "names": list(sk.names), "bones": self.bones, "parents": sk.parents.tolist(),
+                "rest": np.round(self.rest, 6).tolist(),
+                "end_sites": [[int(j), np.round(o, 6).tolist()] for j, o in sk.end_sites],
+                "up": int(self.up), "root": int(self.root), "height": round(self.height, 4),
+                "unit": self.unit,
+            },
+            "clips": [{"name": n, "frames": len(self.clips[n]), "fps": float(self.clips[n].fps),
+                       "duration": round(len(self.clips[n]) / self.clips[n].fps, 6)} for n in self.names],
+            "methods": list(METHODS), "keyed": list(KEYED), "default_method": DEFAULT_METHOD,
+            "defaults": {"length": DEFAULT_LENGTH, "alpha": 0.5, "align": True},
+            "limits": {"length": [1, MAX_LENGTH], "body_bytes": MAX_BODY},
+            "status": self.status(),
+        }
+
+    def clip_payload(self, name: str) -> dict:
+        m = self._clip(name, "name")
+        return {"name": name, "frames": len(m), "fps": float(m.fps),
+                **self.tracks(m.rotations, m.positions, m.fps)}
+
+    def tracks(self, rotations: np.ndarray, positions: np.ndarray, fps: float) -> dict:
+        """three.js tracks of local rotations (F, J, 4) (w, x, y, z) and translations (F, J, 3)."""
+        n = len(rotations)
+        q = rotations[..., [1, 2, 3, 0]]
+        # One hemisphere per joint over time (three.js slerps the short way anyway; plots need it).
+        dots = np.einsum("fjc,fjc->fj", q[1:], q[:-1])
+        sign = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=0)
+        q = q.copy()
+        q[1:] *= sign[..., None]
+        qv = np.round(q, 6).transpose(1, 0, 2).reshape(len(self.bones), -1).tolist()
+        moving = np.flatnonzero(np.any(np.abs(positions - self.rest) > 1e-6, axis=(0, 2)))
+        pv = np.round(positions[:, moving], 4).transpose(1, 0, 2).reshape(len(moving), -1).tolist()
+        tracks = [{"name": f"{b}.quaternion", "type": "quaternion", "values": v} for b, v in zip(self.bones, qv)]
+        tracks += [{"name": f"{self.bones[j]}.position", "type": "vector", "values": v} for j, v in zip(moving, pv)]
+        return {"fps": float(fps), "frames": n, "duration": round(max(n - 1, 0) / fps, 6),
+                "times": (np.arange(n) / fps).tolist(), "tracks": tracks}
+
+    # -- requests -----------------------------------------------------------------------------
+    def _clip(self, name, field: str) -> Motion:
+        if not isinstance(name, str):
+            raise ApiError(422, f"{field}: must be a clip name (a string), got {_kind(name)}", field)
+        if name not in self.clips:
+            shown = name if len(name) <= 80 else name[:77] + "..."
+            raise ApiError(404, f"{field}: unknown clip {shown!r} (GET /api/clips lists them)", field)
+        return self.clips[name]
+
+    def params(self, raw: dict) -> Params:
+        """Validate a request body (a dict from JSON); raises :class:`ApiError`."""
+        if not isinstance(raw, dict):
+            raise ApiError(422, f"body must be a JSON object, got {_kind(raw)}")
+        unknown = sorted(str(k) for k in raw if k not in FIELDS)
+        if unknown:
+            shown = ", ".join(repr(k[:40]) for k in unknown[:5])
+            raise ApiError(422, f"unknown field {shown} (fields: {', '.join(FIELDS)})", unknown[0][:40])
+        for f in ("a", "b"):
+            if f not in raw:
+                raise ApiError(422, f"{f}: missing (name of clip {f.upper()})", f)
+        ma, mb = self._clip(raw["a"], "a"), self._clip(raw["b"], "b")
+        if abs(ma.fps - mb.fps) > 1e-6 * ma.fps:
+            raise ApiError(422, f"clips {raw['a']!r} ({ma.fps:g} fps) and {raw['b']!r} ({mb.fps:g} fps) "
+                                f"have different frame rates", "b")
+        a_end = _int(raw, "a_end", len(ma) - 1, 0, len(ma) - 1, f"clip A {raw['a']!r}")
+        b_start = _int(raw, "b_start", 0, 0, len(mb) - 1, f"clip B {raw['b']!r}")
+        length = _int(raw, "length", DEFAULT_LENGTH, 1, MAX_LENGTH, None)
+        key_at = _int(raw, "key_at", max(1, length // 2), 1, length, None)
+        alpha = raw.get("alpha", 0.5)
+        if alpha is None:
+            alpha = 0.5
+        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)):
+            raise ApiError(422, f"alpha: must be a number between 0 and 1, got {_kind(alpha)}", "alpha")
+        if not (math.isfinite(alpha) and 0.0 <= alpha <= 1.0):
+            raise ApiError(422, f"alpha: must be between 0 and 1, got {alpha!r}", "alpha")
+        method = raw.get("method", DEFAULT_METHOD)
+        if method is None:
+            method = DEFAULT_METHOD
+        if not isinstance(method, str) or method not in METHODS:
+            got = repr(method[:40]) if isinstance(method, str) else _kind(method)
+            raise ApiError(422, f"method: unknown method {got} (choose from {', '.join(METHODS)})", "method")
+        align = raw.get("align", True)
+        if align is None:
+            align = True
+        if not isinstance(align, bool):
+            raise ApiError(422, f"align: must be true or false, got {_kind(align)}", "align")
+        return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align)
+
+    def generate(self, p: Params):
+        """The whole result: rotations (N, J, 4), positions (N, J, 3) and the engine's ``last``."""
+        with self._lock:
+            engine = self.engine
+            if p.method in KEYED and engine.model is None:
+                s = self._status
+                if s["state"] == "training":
+                    raise ApiError(503, f"method: {p.method!r} needs the posture map, still training "
+                                        f"({100 * s['progress']:.0f}%); try again in a moment", "method")
+                raise ApiError(503, f"method: {p.method!r} needs a posture map and none is available"
+                                    + (f" ({s['message']})" if s["message"] else ""), "method")
+            try:
+                rots, pos = engine.generate(p.a, p.b, p.length, p.key_at, p.alpha, p.a_end, p.b_start,
+                                            p.align, p.method)
+            except UserError as e:
+                raise ApiError(422, str(e).lstrip("-")) from None
+            rots, pos = rots.copy(), pos.copy()
+            last = dict(engine.last)
+            keyed_joints = engine.model.space_.joints.copy() if engine.model is not None else None
+            if p.align:
+                b_part = aligned(engine.tracks[p.b], engine, p.b_start, last["dtheta"], last["shift"])
+            else:
+                b_part = self.clips[p.b][p.b_start:]
+        a = self.clips[p.a]
+        out = concatenate([a[: p.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
+                           Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
+        return out, last, keyed_joints
+
+    def transition(self, p: Params) -> dict:
+        out, last, keyed_joints = self.generate(p)
+        t0, t1 = p.a_end + 1, p.a_end + p.length
+        key = None
+        if last.get("key") is not None:
+            rots, height = last["key"]
+            key = {"frame": p.a_end + p.key_at, "index": p.key_at,
+                   "joints": [self.skeleton.names[j] for j in keyed_joints],
+                   "bones": [self.bones[j] for j in keyed_joints],
+                   "quaternions": np.round(rots[:, [1, 2, 3, 0]], 6).tolist(),
+                   "root_height": round(float(height), 4),
+                   "neurons": [int(k) for k in last["neurons"]]}
+        return {
+            "a": p.a, "b": p.b, "method": p.method,
+            "params": {"a_end": p.a_end, "b_start": p.b_start, "length": p.length, "key_at": p.key_at,
+                       "alpha": p.alpha, "align": p.align},
+            "segments": {"a": [0, p.a_end], "transition": [t0, t1], "b": [t1 + 1, len(out) - 1]},
+            "transition": [t0, t1],
+            "seams": [p.a_end, t1 + 1],
+            "key_frame": key["frame"] if key else None,
+            "key": key,
+            "source": {"a": [0, p.a_end], "b": [p.b_start, len(self.clips[p.b]) - 1]},
+            "alignment": {"turn": round(float(last["dtheta"]), 6),
+                          "shift": np.round(last["shift"], 4).tolist()},
+            **self.tracks(out.rotations, out.positions, out.fps),
+        }
+
+    def export(self, p: Params) -> tuple[str, str]:
+        """BVH text of the result and a file name for it."""
+        out, _, _ = self.generate(p)
+        name = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120] + ".bvh"
+        return bvh.dumps(out), name
+
+
+def _kind(v) -> str:
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return "an array"
+    if isinstance(v, dict):
+        return "an object"
+    return type(v).__name__
+
+
+def _int(raw: dict, field: str, default: int, lo: int, hi: int, where: str | None) -> int:
+    v = raw.get(field)
+    if v is None:
+        return default
+    if isinstance(v, float) and math.isfinite(v) and v == int(v):
+        v = int(v)
+    if not _is_int(v):
+        raise ApiError(422, f"{field}: must be a whole number, got {_kind(v)}", field)
+    if not lo <= v <= hi:
+        what = f"frame {v} is outside {where} (frames {lo}..{hi})" if where else \
+               f"must be between {lo} and {hi}, got {v}"
+        raise ApiError(422, f"{field}: {what}", field)
+    return v
+
+
+def query_params(query) -> dict:
+    """Request fields from a query string (numbers and booleans parsed from text)."""
+    raw = {}
+    for k, v in query.multi_items():
+        if k in raw:
+            raise ApiError(422, f"{k[:40]}: given more than once", k[:40])
+        if k in ("a_end", "b_start", "length", "key_at"):
+            if not re.fullmatch(r"[+-]?\d{1,12}", v.strip()):
+                raise ApiError(422, f"{k}: must be a whole number, got {v[:40]!r}", k)
+            raw[k] = int(v)
+        elif k == "alpha":
+            try:
+                raw[k] = float(v)
+            except ValueError:
+                raise ApiError(422, f"alpha: must be a number between 0 and 1, got {v[:40]!r}", k) from None
+        elif k == "align":
+            if v.lower() not in ("true", "false", "1", "0"):
+                raise ApiError(422, f"align: must be true or false, got {v[:40]!r}", k)
+            raw[k] = v.lower() in ("true", "1")
+        else:
+            raw[k] = v
+    return raw
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+async def read_json(request) -> object:
+    """The request body as JSON: 413 over :data:`MAX_BODY` bytes, 400 when not valid JSON."""
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        if not declared.strip().isdigit():
+            raise ApiError(400, "bad Content-Length header")
+        if int(declared) > MAX_BODY:
+            raise ApiError(413, f"request body too large ({int(declared)} bytes; at most {MAX_BODY})")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise ApiError(413, f"request body too large (at most {MAX_BODY} bytes)")
+    if not body.strip():
+        raise ApiError(400, "empty body: send a JSON object")
+    try:
+        return json.loads(bytes(body), parse_constant=_reject_constant)
+    except RecursionError:
+        raise ApiError(400, "body is not valid JSON (nested too deeply)") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ApiError(400, f"body is not valid JSON ({str(e)[:120]})") from None
+
+
+# -- the application ----------------------------------------------------------------------
+def _page_policy() -> str:
+    """Content-Security-Policy of the page: own files only, plus the page's inline import map."""
+    hashes = ""
+    index = STATIC_DIR / "index.html"
+    if index.is_file():
+        for block in re.findall(r'<script type="importmap">(.*?)</script>', index.read_text("utf-8"), re.DOTALL):
+            digest = base64.b64encode(hashlib.sha256(block.encode("utf-8")).digest()).decode()
+            hashes += f" 'sha256-{digest}'"
+    return ("default-src 'self'; script-src 'self'" + hashes + "; style-src 'self'; "
+            "img-src 'self' data: blob:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
+            "form-action 'none'; frame-ancestors 'none'")
+
+
+class _Guard:
+    """ASGI middleware: refuses foreign Host headers (DNS rebinding) and adds security headers."""
+
+    def __init__(self, app, allowed_hosts=None):
+        self.app = app
+        self.allowed = None if allowed_hosts is None else {h.lower() for h in allowed_hosts}
+        self.headers = [(b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer"),
+                        (b"x-frame-options", b"DENY"),
+                        (b"content-security-policy", _page_policy().encode())]
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        if self.allowed is not None:
+            host = dict(scope["headers"]).get(b"host", b"").decode("latin-1").lower()
+            name = host[1:].split("]")[0] if host.startswith("[") else host.rsplit(":", 1)[0]
+            if name not in self.allowed:
+                resp = JSONResponse({"error": f"unexpected Host header {host[:80]!r}", "field": None}, 400)
+                return await resp(scope, receive, send)
+        extra = self.headers
+
+        async def send_with_headers(message):
+            if message["type"] == "http.response.start":
+                message = dict(message)
+                message["headers"] = list(message.get("headers", [])) + extra
+            await send(message)
+
+        return await self.app(scope, receive, send_with_headers)
+
+
+def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epochs: int = 4, seed: int = 0,
+               allowed_hosts=None, log=None):
+    """The studio as an ASGI app (Starlette), for ``uvicorn`` or a test client.
+
+    Parameters
+    ----------
+    clips : dict of name to Motion (one skeleton)
+    model : PostureMap or None (None: learn one in a background thread when ``train``)
+    train, epochs, seed : see :class:`Studio`
+    allowed_hosts : Host header names to accept (None: any); ``run_cli`` passes the loopback
+        names when bound to this machine only
+    log : function taking one line of text, or None
+
+    The :class:`Studio` is ``app.state.studio``.
+    """
+    if Starlette is None:
+        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]'")
+    studio = Studio(clips, model, train=train, epochs=epochs, seed=seed, log=log)
+    from starlette.concurrency import run_in_threadpool
+
+    async def index(request):
+        if not (STATIC_DIR / "index.html").is_file():
+            raise ApiError(404, "the studio page is missing from this installation")
+        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+    async def status(request):
+        return JSONResponse(studio.status())
+
+    async def clips_list(request):
+        return JSONResponse(studio.clips_payload())
+
+    async def clip_one(request):
+        return JSONResponse(await run_in_threadpool(studio.clip_payload, request.path_params["name"]))
+
+    async def transition(request):
+        p = studio.params(await read_json(request))
+        return JSONResponse(await run_in_threadpool(studio.transition, p))
+
+    async def export(request):
+        raw = query_params(request.query_params) if request.method == "GET" else await read_json(request)
+        text, name = await run_in_threadpool(studio.export, studio.params(raw))
+        return Response(text, media_type="text/plain; charset=utf-8",
+                        headers={"Content-Disposition": f'attachment; filename="{name}"',
+                                 "Cache-Control": "no-store"})
+
+    async def api_error(request, exc: ApiError):
+        return JSONResponse({"error": exc.message, "field": exc.field}, exc.status)
+
+    async def http_error(request, exc: HTTPException):
+        return JSONResponse({"error": exc.detail, "field": None}, exc.status_code, headers=exc.headers)
+
+    async def server_error(request, exc: Exception):
+        studio.log("posturemap: internal error:\n" + "".join(traceback.format_exception(exc)).rstrip())
+        return JSONResponse({"error": f"internal error ({type(exc).__name__})", "field": None}, 500)
+
+    routes = [
+        Route("/", index, methods=["GET", "HEAD"]),
+        Route("/api/status", status, methods=["GET"]),
+        Route("/api/clips", clips_list, methods=["GET"]),
+        Route("/api/clip/{name:path}", clip_one, methods=["GET"]),
+        Route("/api/transition", transition, methods=["POST"]),
+        Route("/api/export", export, methods=["GET", "POST"]),
+        Mount("/static", app=StaticFiles(directory=STATIC_DIR, check_dir=False), name="static"),
+    ]
+    app = Starlette(routes=routes, middleware=[Middleware(_Guard, allowed_hosts=allowed_hosts)],
+                    exception_handlers={ApiError: api_error, HTTPException: http_error, Exception: server_error})
+    app.state.studio = studio
+    return app
+
+
+# -- command line -------------------------------------------------------------------------
+def load_clips(inputs: list[str], log=None) -> dict[str, Motion]:
+    """Clips by name from BVH files and folders (default: the bundled sample).
+
+    Names are the file names without ``.bvh`` (made unique). Clips whose skeleton differs from
+    the first one's are left out with a note through ``log``.
+    """
+    log = log or (lambda line: None)
+    if not inputs:
+        from .. import sample
+        return sample.clips()
+    from ..features import read_inputs
+
+    out: dict[str, Motion] = {}
+    first = None
+    for path, m in read_inputs(inputs):
+        if first is None:
+            first = (path, m.skeleton)
+        elif not m.skeleton.same_as(first[1]):
+            log(f"posturemap: note: {path}: left out, its skeleton differs from {first[0]}")
+            continue
+        name = base = Path(path).stem
+        k = 2
+        while name in out:
+            name, k = f"{base}-{k}", k + 1
+        out[name] = m
+    return out
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    if not 0 <= port <= 65535:
+        raise UserError("--port", f"must be between 0 and 65535, got {port}")
+    try:
+        info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        raise UserError("--host", f"cannot resolve {host!r} ({e.strerror})") from None
+    family, kind, proto, _, addr = info[0]
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(addr)
+        sock.listen(128)
+    except OSError as e:
+        sock.close()
+        raise UserError(f"{host}:{port}", f"cannot listen ({e.strerror or e})") from None
+    sock.set_inheritable(True)
+    return sock
+
+
+def run_cli(args) -> int:
+    """``posturemap serve``: load the clips, the map (or learn one in the background) and serve."""
+    if Starlette is None:
+        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]'")
+    import uvicorn
+
+    def log(line: str):
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+    missing = [f for f in VENDOR_FILES if not (STATIC_DIR / "vendor" / f).is_file()]
+    if missing:
+        log(f"posturemap: warning: {STATIC_DIR / 'vendor'} lacks three.js ({', '.join(missing)}); "
+            "run `make web` in the repository (the page cannot draw without it)")
+    clips = load_clips(args.inputs, log)
+    model = None
+    if args.map:
+        from ..model import PostureMap
+        model = PostureMap.load(args.map)
+        model.check_skeleton(next(iter(clips.values())).skeleton, next(iter(clips)))
+    sock = _listen(args.host, args.port)
+    local = args.host in LOOPBACK_HOSTS
+    app = create_app(clips, model, allowed_hosts=LOOPBACK_HOSTS if local else None, log=log)
+    port = sock.getsockname()[1]
+    shown = f"[{args.host}]" if ":" in args.host else args.host
+    frames = sum(len(m) for m in clips.values())
+    print(f"posturemap studio: {len(clips)} clips ({frames} frames), "
+          f"map {'from ' + args.map if args.map else 'learning in the background'}", flush=True)
+    if not local:
+        log(f"posturemap: warning: listening on {args.host}: other machines can reach the studio")
+    print(f"open http://{shown}:{port}/  (Ctrl+C to stop)", flush=True)
+    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
+    server = uvicorn.Server(config)
+    try:
+        server.run(sockets=[sock])
+    finally:
+        sock.close()
+    return 0
+
+
+__all__ = [
+    "MAX_BODY",
+    "MAX_LENGTH",
+    "ApiError",
+    "Params",
+    "Studio",
+    "bone_names",
+    "create_app",
+    "load_clips",
+    "run_cli",
+]
