@@ -275,7 +275,7 @@ def test_frame_at_key_at_is_the_key_posture(clips, model, method):
         engine.add("a", clips[a])
         engine.add("b", clips[b])
         engine.generate("a", "b", length, key_at, alpha, a_end, b_start, method=method)
-        out = transition(clips[a], clips[b], model, length=length, key_at=key_at, alpha=alpha,
+        out = transition(clips[a], clips[b], model, length=length, key_at=key_at, alpha=alpha, foot_lock=False,
                          a_end=a_end, b_start=b_start, method=method)
         last = len(clips[a]) - 1 if a_end is None else a_end
         where = f"{a}[..{last}] -> {b}[{b_start}..], key at {key_at} of {length}"
@@ -639,7 +639,7 @@ def test_engine_reuses_buffers_and_matches_the_functional_api(clips, model):
         if first is None:
             first = (rots, pos)
         assert rots is first[0] and pos is first[1], "a call of the same length must reuse the buffers"
-        out = transition(clips[a], clips[b], model, length=20, key_at=7, alpha=alpha, a_end=a_end,
+        out = transition(clips[a], clips[b], model, length=20, key_at=7, alpha=alpha, foot_lock=False, a_end=a_end,
                          b_start=b_start, method=method)
         np.testing.assert_array_equal(out.rotations[a_end + 1: a_end + 21], rots)
         np.testing.assert_array_equal(out.positions[a_end + 1: a_end + 21], pos)
@@ -801,7 +801,7 @@ def test_euler_features_work_for_transitions(clips, euler_model, method):
         engine.add("a", clips[a])
         engine.add("b", clips[b])
         engine.generate("a", "b", 20, key_at, alpha, a_end, b_start, method=method)
-        out = transition(clips[a], clips[b], euler_model, length=20, key_at=key_at, alpha=alpha,
+        out = transition(clips[a], clips[b], euler_model, length=20, key_at=key_at, alpha=alpha, foot_lock=False,
                          a_end=a_end, b_start=b_start, method=method)
         last = len(clips[a]) - 1 if a_end is None else a_end
         assert len(out) == last + 21 + len(clips[b]) - b_start

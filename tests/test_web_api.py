@@ -28,7 +28,7 @@ with warnings.catch_warnings():  # starlette 1.x prefers httpx2 for its test cli
 
 from posturemap import bvh
 from posturemap.model import PostureMap
-from posturemap.transition import KEYED, METHODS, transition
+from posturemap.transition import DEFAULT_METHOD, KEYED, METHODS, transition
 from posturemap.web import server
 from posturemap.web.server import LOOPBACK_HOSTS, MAX_BODY, MAX_LENGTH, create_app
 
@@ -98,7 +98,7 @@ def test_bone_names_are_safe_for_three_js():
 def test_transition_shape_segments_and_key(client, sample_clips, method):
     walk, run = sample_clips["walk"], sample_clips["run"]
     body = {"a": "walk", "b": "run", "a_end": 70, "b_start": 5, "length": 16, "key_at": 6, "alpha": 0.3,
-            "method": method, "align": True}
+            "method": method, "align": True, "foot_lock": False}  # the key frame exactly as keyed
     r = post(client, body)
     assert r.status_code == 200, r.text
     d = r.json()
@@ -149,8 +149,8 @@ def test_defaults_and_alpha_moves_the_key(client, sample_clips):
     d = post(client, {"a": "run", "b": "walk"}).json()
     run, walk = sample_clips["run"], sample_clips["walk"]
     assert d["params"] == {"a_end": len(run) - 1, "b_start": 0, "length": 20, "key_at": 10, "alpha": 0.5,
-                           "align": True}
-    assert d["method"] == "upm" and d["frames"] == len(run) + 20 + len(walk)
+                           "align": True, "foot_lock": True}
+    assert d["method"] == DEFAULT_METHOD and d["frames"] == len(run) + 20 + len(walk)
     keys = [np.array(post(client, {"a": "walk", "b": "wave", "alpha": a}).json()["key"]["quaternions"])
             for a in (0.0, 1.0)]
     assert np.abs(keys[0] - keys[1]).max() > 1e-3

@@ -39,12 +39,14 @@ import numpy as np
 
 from . import kernels, quat
 from .errors import UserError
+from .feet import leg_chains, lock_feet
 from .features import TWO_PI, root_global, upright_rest
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
+from .skeleton import fk
 
 METHODS = ("upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
 KEYED = ("upm", "upm-path", "upm-valid")
-DEFAULT_METHOD = "upm"
+DEFAULT_METHOD = "upm-valid"  # chosen by `posturemap bench`: see the README
 # upm-valid (see TransitionEngine.valid_keys and the README's evaluation section):
 KEY_SPACING_S = 0.2  # at most this many seconds between keys
 VELOCITY_HORIZON_S = 0.1  # time constant (s) over which the seam velocities fade from the keys
@@ -197,6 +199,7 @@ class Track:
     heading : (F,) root heading about the up axis, radians, continuous over time
     rots : (F, J, 4) local rotations, with the root's replaced by its tilt
     features : (F, D) posture vectors for a map, or None
+    feet : (F, n_legs, 3) global ankle positions (for foot locking)
     """
 
     motion: Motion
@@ -204,6 +207,7 @@ class Track:
     heading: np.ndarray
     rots: np.ndarray
     features: np.ndarray | None
+    feet: np.ndarray
 
 
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
@@ -238,7 +242,9 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
     rots = motion.rotations.copy()
     rots[:, root] = tilt
     feats = space.encode(motion) if space is not None else None
-    return Track(motion, gpos, heading, rots, feats)
+    ankles = [c[2] for c in leg_chains(motion.skeleton)]
+    feet = motion.global_positions()[:, ankles] if ankles else np.zeros((len(motion), 0, 3))
+    return Track(motion, gpos, heading, rots, feats, feet)
 
 
 def _ancestors(parents: np.ndarray, root: int) -> list[int]:
@@ -273,6 +279,7 @@ class TransitionEngine:
         self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._chain = np.zeros(0, dtype=np.int64)
         self._rest = None
+        self._legs = []
         if model is not None:
             space = model.space_
             self._root, self._up, self._rest = space.root, space.up, space.rest
@@ -292,6 +299,8 @@ class TransitionEngine:
         space = self.model.space_ if self.model is not None else None
         if self._rest is None:
             self._rest = upright_rest(root_global(motion, self._root)[0], self._up)
+        if not self._legs:
+            self._legs = leg_chains(self.skeleton)
         tr = make_track(motion, self._root, self._up, self._rest, space)
         self.tracks[name] = tr
         return tr
@@ -411,8 +420,12 @@ class TransitionEngine:
         return dtheta, shift
 
     def generate(self, a: str, b: str, length: int = 20, key_at: int | None = None, alpha: float = 0.5,
-                 a_end: int | None = None, b_start: int = 0, align: bool = True, method: str = "upm"):
+                 a_end: int | None = None, b_start: int = 0, align: bool = True, method: str = "upm",
+                 foot_lock: bool = False):
         """The in-between frames: local rotations (length, J, 4) and positions (length, J, 3).
+
+        ``foot_lock`` keeps planted feet still (:mod:`posturemap.feet`; costs a forward
+        kinematics pass, about a millisecond).
 
         Also sets ``self.last`` (key posture, chosen neurons, alignment) for inspection.
         The returned arrays are buffers reused by the next call with the same ``length``.
@@ -507,6 +520,10 @@ class TransitionEngine:
         kernels.exp_relative(frames[:, :s0].reshape(length, j_count, 3), ref, out_r)
         out_p[:] = frames[:, s0 + 4:].reshape(length, j_count, 3)
         kernels.compose_root(self._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
+        if foot_lock and self._legs:
+            b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
+            lock_feet(self.skeleton, self._legs, out_r, out_p, lambda r: fk(self.skeleton.parents, r, out_p),
+                      up, ta.feet[ia[1:]], b_feet, ta.motion.fps)
         self.last = {"key": key, "neurons": chosen, "dtheta": dtheta, "shift": shift}
         return out_r, out_p
 
@@ -564,7 +581,7 @@ def aligned(track: Track, engine: TransitionEngine, start: int, dtheta: float, s
 
 def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int | None = None,
                alpha: float = 0.5, a_end: int | None = None, b_start: int = 0, align: bool = True,
-               method: str = DEFAULT_METHOD) -> Motion:
+               method: str = DEFAULT_METHOD, foot_lock: bool = True) -> Motion:
     """A[:a_end+1], then ``length`` new frames, then B[b_start:] (moved to continue A).
 
     Parameters
@@ -579,6 +596,7 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     b_start : first frame of B used
     align : move and turn B to continue A; False leaves B's root exactly where it is
     method : one of :data:`METHODS`
+    foot_lock : keep planted feet still in the new frames (:mod:`posturemap.feet`)
 
     Returns
     -------
@@ -587,7 +605,7 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)
     engine.add("b", b)
-    rots, pos = engine.generate("a", "b", length, key_at, alpha, a_end, b_start, align, method)
+    rots, pos = engine.generate("a", "b", length, key_at, alpha, a_end, b_start, align, method, foot_lock)
     a_end = len(a) - 1 if a_end is None else a_end
     mid = Motion(a.skeleton, rots.copy(), pos.copy(), a.fps)
     if align:

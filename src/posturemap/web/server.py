@@ -67,7 +67,7 @@ VENDOR_FILES = ("three.module.js", "three.core.js", "addons/controls/OrbitContro
 MAX_BODY = 64 * 1024          # bytes of a request body
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
 DEFAULT_LENGTH = 20
-FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align")
+FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align", "foot_lock")
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 _RESERVED = re.compile(r"[\[\]\.:/]")
 
@@ -93,6 +93,7 @@ class Params:
     alpha: float
     method: str
     align: bool
+    foot_lock: bool = True
 
 
 def bone_names(names: tuple[str, ...]) -> list[str]:
@@ -243,7 +244,7 @@ class Studio:
             "clips": [{"name": n, "frames": len(self.clips[n]), "fps": float(self.clips[n].fps),
                        "duration": round(len(self.clips[n]) / self.clips[n].fps, 6)} for n in self.names],
             "methods": list(METHODS), "keyed": list(KEYED), "default_method": DEFAULT_METHOD,
-            "defaults": {"length": DEFAULT_LENGTH, "alpha": 0.5, "align": True},
+            "defaults": {"length": DEFAULT_LENGTH, "alpha": 0.5, "align": True, "foot_lock": True},
             "limits": {"length": [1, MAX_LENGTH], "body_bytes": MAX_BODY},
             "status": self.status(),
         }
@@ -316,7 +317,12 @@ class Studio:
             align = True
         if not isinstance(align, bool):
             raise ApiError(422, f"align: must be true or false, got {_kind(align)}", "align")
-        return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align)
+        foot_lock = raw.get("foot_lock", True)
+        if foot_lock is None:
+            foot_lock = True
+        if not isinstance(foot_lock, bool):
+            raise ApiError(422, f"foot_lock: must be true or false, got {_kind(foot_lock)}", "foot_lock")
+        return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align, foot_lock)
 
     def generate(self, p: Params):
         """The whole result: rotations (N, J, 4), positions (N, J, 3) and the engine's ``last``."""
@@ -331,7 +337,7 @@ class Studio:
                                     + (f" ({s['message']})" if s["message"] else ""), "method")
             try:
                 rots, pos = engine.generate(p.a, p.b, p.length, p.key_at, p.alpha, p.a_end, p.b_start,
-                                            p.align, p.method)
+                                            p.align, p.method, p.foot_lock)
             except UserError as e:
                 raise ApiError(422, str(e).lstrip("-")) from None
             rots, pos = rots.copy(), pos.copy()
@@ -361,7 +367,7 @@ class Studio:
         return {
             "a": p.a, "b": p.b, "method": p.method,
             "params": {"a_end": p.a_end, "b_start": p.b_start, "length": p.length, "key_at": p.key_at,
-                       "alpha": p.alpha, "align": p.align},
+                       "alpha": p.alpha, "align": p.align, "foot_lock": p.foot_lock},
             "segments": {"a": [0, p.a_end], "transition": [t0, t1], "b": [t1 + 1, len(out) - 1]},
             "transition": [t0, t1],
             "seams": [p.a_end, t1 + 1],

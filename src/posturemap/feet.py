@@ -1,0 +1,178 @@
+"""Foot-skate cleanup: keep planted feet still during a transition (two-bone IK on the legs).
+
+The paper leaves the "skidding effect between ground and foot" open. Here, after the
+in-between frames are made:
+
+1. each ankle's height and speed tell when it is on the ground (in the frames around the seams
+   and in the new frames);
+2. every run of ground frames gets one spot: A's last foot position if the run starts at A's
+   end with the foot planted there, B's first if it ends at B's start with the foot planted,
+   otherwise the foot's position in the middle of the run;
+3. the ankle is pulled onto that spot (height kept), fading in and out over a few frames at
+   the ends of a run, by analytic two-bone IK on thigh and shin (Holden's formulation); the
+   foot keeps its global orientation.
+
+Joints are found by name: an ankle ("foot"/"ankle", not a toe) whose parent and grandparent are
+the shin and the thigh.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from . import quat
+from .skeleton import Skeleton
+
+# Thresholds in leg lengths (thigh + shin bone, from the skeleton's offsets; 80 cm for Bandai).
+CONTACT_HEIGHT = 0.042  # above its floor (about 3.4 cm)
+CONTACT_SPEED = 0.75  # leg lengths per second (about 60 cm/s)
+FADE = 3  # frames to fade the lock in and out
+MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther than the
+#                           first fades out, and is gone at the second (the leg would stretch)
+
+
+def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
+    """(thigh, shin, ankle) joint indices of each leg, found by name."""
+    out = []
+    for j, name in enumerate(sk.names):
+        n = name.split(":")[-1].lower()
+        if re.search(r"foot|ankle", n) and not re.search(r"toe|end", n):
+            shin = int(sk.parents[j])
+            thigh = int(sk.parents[shin]) if shin >= 0 else -1
+            if thigh >= 0:
+                out.append((thigh, shin, j))
+    return out
+
+
+def leg_length(sk: Skeleton, chains) -> float:
+    """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit."""
+    if not chains:
+        return 1.0
+    return float(np.mean([np.linalg.norm(sk.offsets[shin]) + np.linalg.norm(sk.offsets[ankle])
+                          for _, shin, ankle in chains]))
+
+
+def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
+    """Local rotations of joints a (thigh) and b (shin) that put c (ankle) on target t.
+
+    Positions (N, 3), global rotations ``a_gr``/``b_gr`` and local rotations ``a_lr``/``b_lr``
+    (N, 4). Returns the new ``(a_lr, b_lr)``; the knee stays in its current bending plane.
+    """
+    def norm(v):
+        return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+    def angle(u, v):
+        return np.arccos(np.clip(np.sum(norm(u) * norm(v), axis=-1), -1.0, 1.0))
+
+    lab = np.linalg.norm(b - a, axis=-1)
+    lcb = np.linalg.norm(b - c, axis=-1)
+    lat = np.clip(np.linalg.norm(t - a, axis=-1), eps, lab + lcb - eps)
+    ac_ab_0, ba_bc_0, ac_at_0 = angle(c - a, b - a), angle(a - b, c - b), angle(c - a, t - a)
+    ac_ab_1 = np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0))
+    ba_bc_1 = np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0))
+    axis0 = norm(np.cross(c - a, b - a))
+    axis1 = norm(np.cross(c - a, t - a))
+    r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
+    r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
+    r2 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis1), ac_at_0)
+    return quat.mul(a_lr, quat.mul(r0, r2)), quat.mul(b_lr, r1)
+
+
+def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
+    """Runs ``[start, stop)`` of True in a bool array."""
+    edges = np.diff(np.concatenate([[0], on.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
+                             speed_tol=np.inf):
+    """Per frame of the new frames: lock weight (L,) and horizontal target (L, 3).
+
+    ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
+    ``a_on``/``b_on`` whether the foot is planted at A's end / B's start and ``a_spot``/``b_spot``
+    where (up coordinate zeroed). A frame is on the ground when the ankle is low and, given
+    ``speed`` (L,) per frame, slow (a low foot that swings through is not planted). Inside a run
+    of ground frames the weight is 1; it fades over ``FADE`` frames before and after the run,
+    while the foot is in the air, so the foot never slides along the ground to catch up.
+    """
+    length = len(h)
+    on = h < floor + height_tol
+    if speed is not None:
+        on &= speed < speed_tol
+    weight = np.zeros(length)
+    target = horiz.copy()
+    for start, stop in contact_runs(on):
+        from_a = start == 0 and a_on
+        to_b = stop == length and b_on
+        spot = np.empty((stop - start, 3))
+        if from_a and to_b:
+            # Planted all through: stay on A's spot, then B's, meeting half way.
+            mid = (stop - start) // 2
+            spot[:mid], spot[mid:] = a_spot, b_spot
+        elif from_a:
+            spot[:] = a_spot
+        elif to_b:
+            spot[:] = b_spot
+        else:
+            spot[:] = horiz[(start + stop - 1) // 2]
+        weight[start:stop] = 1.0
+        target[start:stop] = spot
+        for k in range(1, FADE + 1):
+            w = 1.0 - k / (FADE + 1.0)
+            for t, where in ((start - k, spot[0]), (stop - 1 + k, spot[-1])):
+                if 0 <= t < length and not on[t] and w > weight[t]:
+                    weight[t] = w
+                    target[t] = where
+    return weight, target
+
+
+def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float) -> None:
+    """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
+
+    ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
+    translations; ``gpos_fn(rots)`` gives their global rotations and positions (L, J, 4/3).
+    ``a_feet``/``b_feet`` (2, n_legs, 3) are the ankle positions in A's last two frames and
+    B's first two (B as aligned), for the planted test.
+    """
+    if not chains or len(rots) == 0:
+        return
+    body = leg_length(sk, chains)
+    grot, gpos = gpos_fn(rots)
+    flat = np.ones(3)
+    flat[up] = 0.0
+    height_tol = CONTACT_HEIGHT * body
+    speed_tol = CONTACT_SPEED * body / fps  # per frame
+    for leg, (thigh, shin, ankle) in enumerate(chains):
+        h = gpos[:, ankle, up]
+        context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
+        floor = min(context_h.min(), h.min())
+        a_on = (a_feet[1, leg, up] < floor + height_tol
+                and np.linalg.norm((a_feet[1, leg] - a_feet[0, leg]) * flat) < speed_tol)
+        b_on = (b_feet[0, leg, up] < floor + height_tol
+                and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
+        horiz = gpos[:, ankle] * flat
+        speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
+        weight, target = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
+                                                  b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol)
+        drift = np.linalg.norm(target - horiz, axis=-1) / body
+        lo, hi = MAX_DRIFT
+        weight *= np.clip((hi - drift) / (hi - lo), 0.0, 1.0)
+        frames = np.flatnonzero(weight > 0)
+        if len(frames) == 0:
+            continue
+        goal = gpos[frames, ankle] * flat
+        goal = goal + weight[frames, None] * (target[frames] - goal)
+        goal[:, up] = gpos[frames, ankle, up]
+        foot_global = grot[frames, ankle]
+        new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
+                                          grot[frames, thigh], grot[frames, shin],
+                                          rots[frames, thigh], rots[frames, shin])
+        rots[frames, thigh] = new_thigh
+        rots[frames, shin] = new_shin
+        # Keep the foot's global orientation: its parent chain turned.
+        shin_parent = grot[frames, int(sk.parents[thigh])]
+        shin_global = quat.mul(quat.mul(shin_parent, new_thigh), new_shin)
+        rots[frames, ankle] = quat.mul(quat.inv(shin_global), foot_global)
+        # The legs share no joint: the next leg's chain is unchanged, no new FK needed.

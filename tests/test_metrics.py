@@ -1,0 +1,139 @@
+"""Metrics against hand-computed cases (and LaFAN1's own formulas where they apply)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from posturemap import metrics, quat
+
+S2 = math.sqrt(0.5)
+
+
+def test_align_signs_flips_only_the_other_hemisphere_and_leaves_input():
+    q = np.array([[-1.0, 0, 0, 0], [S2, 0, 0, S2]])
+    ref = np.array([[1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+    before = q.copy()
+    out = metrics.align_signs(q, ref)
+    np.testing.assert_array_equal(out, [[1.0, 0, 0, 0], [S2, 0, 0, S2]])
+    np.testing.assert_array_equal(q, before)
+
+
+def test_l2q_hand_case():
+    # One window, two frames, two joints; truth is the identity everywhere.
+    true = np.zeros((1, 2, 2, 4))
+    true[..., 0] = 1.0
+    pred = true.copy()
+    pred[0, 0, 0] = [-1.0, 0, 0, 0]      # same rotation, other sign: costs nothing
+    pred[0, 0, 1] = [S2, 0, 0, S2]       # 90 degrees about z: |q - 1|^2 = 2 - sqrt(2)
+    expected = math.sqrt(2 - math.sqrt(2)) / 2  # frame 0 and frame 1 (0) averaged
+    assert metrics.l2q(pred, true) == pytest.approx(expected, abs=1e-12)
+    assert metrics.l2q(true, true) == 0.0
+
+
+def test_normalize_windows_centres_and_turns_to_the_reference_facing():
+    # Root (joint 0) at x = 10 then 20 (height 5); it faces +90 degrees about y at frame 0.
+    gpos = np.zeros((1, 2, 2, 3))
+    gpos[0, :, 0] = [[10.0, 5.0, 0.0], [20.0, 5.0, 0.0]]
+    gpos[0, :, 1] = [[10.0, 5.0, 1.0], [20.0, 5.0, 1.0]]
+    grot = np.zeros((1, 2, 2, 4))
+    grot[..., 0] = 1.0
+    grot[0, 0, 0] = [S2, 0, S2, 0]
+    pos, rot = metrics.normalize_windows(gpos, grot, root=0, up=1, frame=0)
+    # Mean horizontal root position (15, _, 0) to the origin, then -90 degrees about y:
+    # (x, z) -> (-z, x): (-5, 0) -> (0, -5); (-5, 1) -> (-1, -5).
+    np.testing.assert_allclose(pos[0, 0, 0], [0.0, 5.0, -5.0], atol=1e-12)
+    np.testing.assert_allclose(pos[0, 1, 0], [0.0, 5.0, 5.0], atol=1e-12)
+    np.testing.assert_allclose(pos[0, 0, 1], [-1.0, 5.0, -5.0], atol=1e-12)
+    np.testing.assert_allclose(rot[0, 0, 0], [1.0, 0, 0, 0], atol=1e-12)
+    # A prediction put in the truth's frame moves exactly as the truth does.
+    shifted = gpos + np.array([0.0, 0.0, 3.0])
+    p2, _ = metrics.normalize_windows(shifted, grot, 0, 1, 0, ref_pos=gpos, ref_rot=grot)
+    np.testing.assert_allclose(p2 - pos, np.broadcast_to([-3.0, 0.0, 0.0], pos.shape), atol=1e-12)
+
+
+def test_position_stats_and_l2p_hand_case():
+    x = np.zeros((1, 2, 1, 3))
+    x[0, 1, 0] = [2.0, 4.0, 6.0]
+    mean, std = metrics.position_stats(x)
+    np.testing.assert_allclose(mean, [[1.0, 2.0, 3.0]])
+    np.testing.assert_allclose(std, [[1.0, 2.0, 3.0]])
+    # Two joints; joint 1's y never varies in training (std 0) and never differs.
+    std = np.array([[2.0, 1.0, 1.0], [1.0, 0.0, 1.0]])
+    true = np.zeros((1, 2, 2, 3))
+    pred = true.copy()
+    pred[0, 0, 0] = [2.0, 0.0, 0.0]  # (2 / 2) -> 1
+    pred[0, 1, 1] = [0.0, 0.0, 3.0]  # 3 / 1 -> 3
+    assert metrics.l2p(pred, true, std) == pytest.approx(2.0)
+
+
+def test_mpjpe_hand_case():
+    true = np.zeros((2, 1, 3))
+    pred = np.array([[[3.0, 4.0, 0.0]], [[0.0, 0.0, 0.0]]])
+    assert metrics.mpjpe(pred, true) == pytest.approx(2.5)
+
+
+def _lafan1_fast_npss(gt_seq, pred_seq):
+    """LaFAN1 benchmarks.fast_npss, restated (features with nonzero power only)."""
+    gt_power = np.square(np.real(np.fft.fft(gt_seq, axis=1)))
+    pred_power = np.square(np.real(np.fft.fft(pred_seq, axis=1)))
+    gt_total, pred_total = gt_power.sum(axis=1), pred_power.sum(axis=1)
+    cdf_gt = np.cumsum(gt_power / gt_total[:, None, :], axis=1)
+    cdf_pred = np.cumsum(pred_power / pred_total[:, None, :], axis=1)
+    emd = np.linalg.norm(cdf_pred - cdf_gt, ord=1, axis=1)
+    return np.average(emd, weights=gt_total)
+
+
+def test_npss_hand_case_and_zero_power_feature():
+    # true [1, 0]: FFT [1, 1], power [1, 1] -> cdf [.5, 1]; pred [1, 1]: FFT [2, 0] -> cdf [1, 1].
+    true = np.array([[[1.0, 0.0], [0.0, 0.0]]])  # (N=1, T=2, D=2); feature 1 has no power
+    pred = np.array([[[1.0, 5.0], [1.0, -5.0]]])
+    assert metrics.npss(pred, true) == pytest.approx(0.5)
+    assert metrics.npss(true, true) == 0.0
+
+
+def test_npss_matches_lafan1_formula():
+    rng = np.random.default_rng(3)
+    true = rng.normal(size=(4, 15, 6))
+    pred = true + 0.3 * rng.normal(size=true.shape)
+    assert metrics.npss(pred, true) == pytest.approx(_lafan1_fast_npss(true, pred), rel=1e-12)
+
+
+def test_foot_contacts_and_skate_hand_case():
+    fps, up = 10.0, 1
+    # One foot joint, 5 frames: x steps 0.5, 0.5, 10 cm; last frame lifted 5 cm.
+    pos = np.zeros((5, 1, 3))
+    pos[:, 0, 0] = [0.0, 0.5, 1.0, 11.0, 11.0]
+    pos[4, 0, 1] = 5.0
+    np.testing.assert_allclose(metrics.horizontal_speed(pos, fps, up)[:, 0], [5.0, 5.0, 100.0, 0.0])
+    contacts = metrics.foot_contacts(pos, fps, up, floor=np.array([0.0]))
+    # steps: slow+low, slow+low, too fast (100 >= 50 cm/s), ends 5 cm up (>= 3 cm)
+    np.testing.assert_array_equal(contacts[:, 0], [True, True, False, False])
+    skate, n = metrics.foot_skate(pos, fps, up, contacts)
+    assert (skate, n) == (pytest.approx(5.0), 2)
+    # With no contact at all the skate is 0 over 0 steps.
+    assert metrics.foot_skate(pos, fps, up, np.zeros_like(contacts)) == (0.0, 0)
+
+
+def test_pose_validity_hand_case():
+    index = metrics.build_posture_index(np.array([[0.0, 0.0], [3.0, 4.0]]))
+    d = metrics.pose_validity(np.array([[0.0, 1.0], [3.0, 0.0], [3.0, 4.0]]), index)
+    np.testing.assert_allclose(d, [1.0, 3.0, 0.0])
+
+
+def test_jerk_of_a_cubic():
+    # x = t^3 (t in frames) at 2 fps: x(s) = 8 s^3 cm, third derivative 48 cm/s^3 everywhere.
+    pos = np.zeros((6, 2, 3))
+    pos[:, 0, 0] = np.arange(6.0) ** 3
+    assert metrics.jerk(pos, 2.0) == pytest.approx(24.0)  # joint 1 is still: (48 + 0) / 2
+    assert metrics.jerk(pos[:, :1], 2.0) == pytest.approx(48.0)
+
+
+def test_l2q_is_invariant_to_a_common_turn():
+    rng = np.random.default_rng(0)
+    a = quat.normalize(rng.normal(size=(2, 3, 4, 4)))
+    b = quat.normalize(rng.normal(size=(2, 3, 4, 4)))
+    turn = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.7)
+    assert metrics.l2q(quat.mul(turn, a), quat.mul(turn, b)) == pytest.approx(metrics.l2q(a, b), rel=1e-12)
