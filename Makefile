@@ -40,6 +40,16 @@ web: $(VENDOR)/.stamp
 test: $(VENV)/.test-installed web
 	$(PY) -m pytest -q
 
+# The evaluation (docs/results.md is a full run's output) and the studio.
+bench: $(VENV)/.test-installed
+	$(VENV)/bin/posturemap bench --out bench-results
+
+bench-quick: $(VENV)/.test-installed
+	$(VENV)/bin/posturemap bench --quick --out bench-results
+
+serve: $(VENV)/.test-installed web
+	$(VENV)/bin/posturemap serve
+
 # Re-measure the studio's slider latency and retake its screenshot (docs/web-latency.md, docs/studio.png).
 studio-docs: $(VENV)/.test-installed web
 	POSTUREMAP_UPDATE_DOCS=1 $(PY) -m pytest -q tests/test_browser.py

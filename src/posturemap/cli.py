@@ -149,7 +149,8 @@ def _cmd_transition(args) -> int:
     elif args.method in KEYED:
         model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
     out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
-                     a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method)
+                     a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method,
+                     foot_lock=not args.no_foot_lock)
     bvh.write(args.output, out)
     a_end = len(a) - 1 if args.a_end is None else args.a_end
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {args.method} frames "
@@ -238,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
+    r.add_argument("--no-foot-lock", action="store_true", help="do not pin planted feet (foot-skate cleanup)")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"transition method ({DEFAULT_METHOD})")
     r.set_defaults(func=_cmd_transition)

@@ -293,7 +293,8 @@ const tmp = new THREE.Vector3();
 
 const ui = {
   clipA: $('clip-a'), clipB: $('clip-b'), aEnd: $('a-end'), bStart: $('b-start'), method: $('method'),
-  alpha: $('alpha'), length: $('length'), keyAt: $('key-at'), align: $('align'), compare: $('compare'),
+  alpha: $('alpha'), length: $('length'), keyAt: $('key-at'), align: $('align'), footLock: $('foot-lock'),
+  compare: $('compare'),
   ghost: $('ghost'), follow: $('follow'), speed: $('speed'), plotJoint: $('plot-joint'),
 };
 
@@ -305,6 +306,7 @@ function currentParams() {
     a_end: Number(ui.aEnd.value), b_start: Number(ui.bStart.value),
     length: Number(ui.length.value), key_at: Number(ui.keyAt.value),
     alpha: Number(ui.alpha.value), method: ui.method.value, align: ui.align.checked,
+    foot_lock: ui.footLock.checked,
   };
 }
 
@@ -827,6 +829,7 @@ async function init() {
   });
   ui.method.addEventListener('change', () => request('method'));
   ui.align.addEventListener('change', () => request('align'));
+  ui.footLock.addEventListener('change', () => request('foot_lock'));
   ui.compare.addEventListener('change', () => request('compare'));
   ui.ghost.addEventListener('change', () => {
     ghost.group.visible = !!(result && result.key) && ui.ghost.checked;

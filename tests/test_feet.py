@@ -1,0 +1,109 @@
+"""Foot-skate cleanup: leg detection, two-bone IK, lock runs, and the effect on transitions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posturemap import bvh, quat
+from posturemap.feet import (FADE, contact_runs, leg_chains, leg_length, lock_weights_and_targets,
+                             two_bone_ik)
+from posturemap.skeleton import fk
+from posturemap.transition import TransitionEngine
+
+
+def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
+    sk = sample_clips["walk"].skeleton
+    names = [tuple(sk.names[j] for j in c) for c in leg_chains(sk)]
+    assert names == [("UpperLeg_L", "LowerLeg_L", "Foot_L"), ("UpperLeg_R", "LowerLeg_R", "Foot_R")]
+    bandai = bvh.read(bandai_files[0]).skeleton
+    assert [bandai.names[c[2]] for c in leg_chains(bandai)] == ["Foot_L", "Foot_R"]
+    assert leg_length(bandai, leg_chains(bandai)) == pytest.approx(80.0, rel=0.05)  # centimetres
+    cmu = bvh.read(cmu_file).skeleton
+    assert [tuple(cmu.names[j] for j in c) for c in leg_chains(cmu)] == [
+        ("LeftUpLeg", "LeftLeg", "LeftFoot"), ("RightUpLeg", "RightLeg", "RightFoot")]
+
+
+def test_two_bone_ik_reaches_reachable_targets():
+    rng = np.random.default_rng(0)
+    n = 200
+    # A chain hip (origin) -> knee -> ankle, bones of length 1 along -Y, random local rotations.
+    parents = np.array([-1, 0, 1])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    local = quat.normalize(np.concatenate([rng.normal(size=(n, 2, 4)) * [1, 0.3, 0.3, 0.3] + [1, 0, 0, 0],
+                                           np.tile(quat.identity(), (n, 1, 1))], axis=1))
+    pos = np.broadcast_to(offsets, (n, 3, 3)).copy()
+    grot, gpos = fk(parents, local, pos)
+    # Targets within reach: a random point at distance 0.5..1.9 from the hip.
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    target = direction * rng.uniform(0.5, 1.9, size=(n, 1))
+    a_lr, b_lr = two_bone_ik(gpos[:, 0], gpos[:, 1], gpos[:, 2], target, grot[:, 0], grot[:, 1],
+                             local[:, 0], local[:, 1])
+    new = local.copy()
+    new[:, 0], new[:, 1] = a_lr, b_lr
+    _, gpos2 = fk(parents, new, pos)
+    np.testing.assert_allclose(gpos2[:, 2], target, atol=1e-6)
+    # Bone lengths are kept (rotations only).
+    np.testing.assert_allclose(np.linalg.norm(gpos2[:, 1] - gpos2[:, 0], axis=-1), 1.0, atol=1e-9)
+
+
+def test_contact_runs():
+    on = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
+    assert contact_runs(on) == [(1, 3), (5, 6), (7, 10)]
+    assert contact_runs(np.zeros(4, bool)) == []
+
+
+def test_lock_targets_from_a_and_b_and_fades_in_the_air():
+    length = 20
+    h = np.full(length, 30.0)
+    h[:5] = 0.5   # planted at the start (A's end)
+    h[15:] = 0.5  # planted at the end (B's start)
+    h[9:11] = 0.5  # a short touch in the middle
+    horiz = np.zeros((length, 3))
+    horiz[:, 0] = np.arange(length) * 2.0  # the free foot slides along x
+    a_spot, b_spot = np.array([-1.0, 0, 0]), np.array([45.0, 0, 0])
+    w, target = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
+    assert np.all(w[:5] == 1) and np.all(w[15:] == 1) and np.all(w[9:11] == 1)
+    np.testing.assert_array_equal(target[:5], np.tile(a_spot, (5, 1)))
+    np.testing.assert_array_equal(target[15:], np.tile(b_spot, (5, 1)))
+    np.testing.assert_array_equal(target[9:11], np.tile(horiz[9], (2, 1)))  # the run's middle
+    # Fades happen in the air next to the runs, decreasing away from them.
+    assert 0 < w[5] < 1 and w[5] > w[6] > w[7] >= 0 and w[5 + FADE] == 0
+    # Not planted at A's end: the first run gets its own spot and fades in.
+    w2, t2 = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
+    np.testing.assert_array_equal(t2[:5], np.tile(horiz[2], (5, 1)))
+    # A fast low foot is swinging, not planted.
+    w3, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
+                                     speed=np.full(length, 5.0), speed_tol=1.0)
+    assert not w3.any()
+
+
+def _ground_speed(e: TransitionEngine, rots, pos, floor_tol=4.0):
+    g = fk(e.skeleton.parents, rots, pos)[1][:, [c[2] for c in e._legs]]
+    speed = np.linalg.norm(np.diff(g[..., [0, 2]], axis=0), axis=-1) * 30.0  # cm/s, Y up
+    low = g[1:, :, 1] < g[..., 1].min() + floor_tol
+    return speed[low]
+
+
+@pytest.mark.parametrize("pair", [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "walk_happy_001")])
+def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
+    by_name = {p.name: p for p in bandai_files}
+    a = bvh.read(by_name[f"dataset-1_{pair[0]}.bvh"])
+    b = bvh.read(by_name[f"dataset-1_{pair[1]}.bvh"])
+    e = TransitionEngine(None, a.skeleton)
+    e.add("a", a)
+    e.add("b", b)
+    kw = dict(length=20, a_end=len(a) // 2, b_start=10, method="spline")
+    r0, p0 = (x.copy() for x in e.generate("a", "b", foot_lock=False, **kw))
+    r1, p1 = (x.copy() for x in e.generate("a", "b", foot_lock=True, **kw))
+    free, locked = _ground_speed(e, r0, p0), _ground_speed(e, r1, p1)
+    assert locked.mean() < 0.5 * free.mean(), (free.mean(), locked.mean())
+    legs = sorted({j for c in e._legs for j in c})
+    others = [j for j in range(a.skeleton.num_joints) if j not in legs]
+    np.testing.assert_array_equal(r1[:, others], r0[:, others])
+    np.testing.assert_array_equal(p1, p0)
+    # The feet keep their global orientation.
+    g0, g1 = fk(e.skeleton.parents, r0, p0)[0], fk(e.skeleton.parents, r1, p1)[0]
+    ankles = [c[2] for c in e._legs]
+    assert np.max(quat.angle_between(g0[:, ankles], g1[:, ankles])) < 1e-6
