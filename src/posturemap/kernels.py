@@ -318,3 +318,36 @@ def project_to_map(W, X, period, limit, out, idx):
                 if v >= p:
                     v = 0.0
             out[i, j] = v
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def key_from_blend(weights, offsets, counts, dim_index, dim_offsets, blend, key, chosen):
+    """The paper's key for all bone classes at once (Euclidean maps).
+
+    Class ``c`` has ``counts[c]`` neurons stored row-major in ``weights`` from ``offsets[c]``,
+    over the feature dimensions ``dim_index[dim_offsets[c]:dim_offsets[c + 1]]``. For each class
+    the neuron nearest ``blend`` (full feature vector) is found, its index written to
+    ``chosen[c]`` and its weights into those dimensions of ``key``.
+    """
+    q = np.empty(dim_index.shape[0])
+    for c in range(counts.shape[0]):
+        d0, d1 = dim_offsets[c], dim_offsets[c + 1]
+        d = d1 - d0
+        for k in range(d):
+            q[k] = blend[dim_index[d0 + k]]
+        base = offsets[c]
+        best = np.inf
+        best_i = 0
+        for i in range(counts[c]):
+            w = weights[base + i * d: base + (i + 1) * d]
+            acc = 0.0
+            for k in range(d):
+                diff = w[k] - q[k]
+                acc += diff * diff
+            if acc < best:
+                best = acc
+                best_i = i
+        chosen[c] = best_i
+        row = base + best_i * d
+        for k in range(d):
+            key[dim_index[d0 + k]] = weights[row + k]

@@ -229,11 +229,11 @@ def turn(angle: np.ndarray, up: int) -> np.ndarray:
 def rotate_about_up(v: np.ndarray, angle: float, up: int) -> np.ndarray:
     """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis."""
     a, b = (up + 1) % 3, (up + 2) % 3
-    c, s = np.cos(angle), np.sin(angle)
-    out = np.array(v, dtype=float, copy=True)
-    out[..., a] = c * v[..., a] - s * v[..., b]
-    out[..., b] = s * v[..., a] + c * v[..., b]
-    return out
+    c, s = math.cos(angle), math.sin(angle)
+    m = np.zeros((3, 3))
+    m[up, up] = 1.0
+    m[a, a], m[a, b], m[b, a], m[b, b] = c, -s, s, c
+    return v @ m.T
 
 
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
@@ -287,6 +287,13 @@ class TransitionEngine:
             self._root, self._up, self._rest = space.root, space.up, space.rest
             self._chain = np.array(_ancestors(skeleton.parents, self._root), dtype=np.int64)
             self._circular = space.circular if space.circular.any() else None
+            # All class maps in one flat array, for the one-call key of the Euclidean case.
+            self._wflat = np.concatenate([m.weights_.ravel() for m in model.maps_])
+            sizes = [m.weights_.size for m in model.maps_]
+            self._woff = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+            self._wn = np.array([m.n_neurons for m in model.maps_], dtype=np.int64)
+            self._dim_index = np.concatenate(space.class_dims).astype(np.int64)
+            self._dim_off = np.concatenate([[0], np.cumsum([len(d) for d in space.class_dims])]).astype(np.int64)
             self._paths = [None] * len(model.maps_)
 
     def add(self, name: str, motion: Motion) -> Track:
@@ -311,6 +318,12 @@ class TransitionEngine:
     def key_features(self, xa: np.ndarray, xb: np.ndarray, alpha: float, path: bool = False):
         """Key posture vector (D,) and the chosen neuron per class, between ``xa`` and ``xb``."""
         space = self.model.space_
+        if self._circular is None and not path:
+            key = space.fill.copy()
+            chosen = np.empty(len(self.model.maps_), dtype=np.int64)
+            kernels.key_from_blend(self._wflat, self._woff, self._wn, self._dim_index, self._dim_off,
+                                   xa + alpha * (xb - xa), key, chosen)
+            return key, chosen.tolist()
         if self._circular is None:
             blend = xa + alpha * (xb - xa)
         else:
@@ -336,10 +349,11 @@ class TransitionEngine:
 
         Each key starts from an estimate of the posture at its time: the blend of A's last and
         B's first posture, at a fraction that runs linearly from 0 to ``alpha`` at ``key_at`` and
-        on to 1 at B, plus the cubic's velocity terms with the seam velocities counted for at
-        most ``VELOCITY_HORIZON_S``. Per class, the estimate is then projected into the map's
-        valid region (the postures within the radius R of a neuron): kept if it lies within R
-        of its nearest neuron, otherwise moved onto that neuron's R-sphere.
+        on to 1 at B, plus each side's seam velocity carried over ``t * exp(-t / tau)`` frames
+        (``tau`` = ``VELOCITY_HORIZON_S``: the velocity near the seam, fading back onto the blend;
+        :func:`damped_reach`). Per class, the estimate is then projected into the map's
+        valid region (the postures within ``ACCEPT`` * R of a neuron): kept if it lies that
+        close to its nearest neuron, otherwise moved onto that neuron's sphere.
         """
         space = self.model.space_
         fps = ta.motion.fps
@@ -493,10 +507,9 @@ class TransitionEngine:
             frames = hermite_basis(length) @ inputs[:4]
         elif method == "upm-valid":
             # Keys at several times: keyed columns take the keys' values (rotation vectors about
-            # the main key), the others stay on the Hermite curve.
+            # the main key); the free columns (trajectory, joints outside the map) take the same
+            # kind of estimate: the straight line plus the damped seam velocities.
             kcols = self._keyed_columns()
-            # Free columns (trajectory, joints outside the map): keys on the straight line plus
-            # the seam velocities' terms, counted for at most the velocity horizon.
             warp = times / (length + 1.0)
             ga, gb = damped_reach(times, length + 1.0, VELOCITY_HORIZON_S * ta.motion.fps)
             keyrows = (inputs[0] + warp[:, None] * (inputs[2] - inputs[0])
