@@ -25,7 +25,7 @@ import uvicorn
 
 from posturemap import bvh
 from posturemap.model import PostureMap
-from posturemap.transition import KEYED
+from posturemap.transition import DEFAULT_METHOD, KEYED
 from posturemap.web.server import LOOPBACK_HOSTS, create_app
 
 CHROMIUM = "/usr/bin/chromium"
@@ -218,7 +218,7 @@ def test_export_downloads_the_shown_result(studio, clips):
     with page.expect_download() as info:
         page.click("#export")
     download = info.value
-    assert download.suggested_filename == "run_normal_001_to_walk_normal_001_upm.bvh"
+    assert download.suggested_filename == f"run_normal_001_to_walk_normal_001_{DEFAULT_METHOD}.bvh"
     m = bvh.loads(Path(download.path()).read_bytes())
     assert len(m) == expected
     assert m.skeleton.same_as(clips["run_normal_001"].skeleton)
