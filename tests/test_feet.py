@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posturemap import bvh, quat
+from posturemap import bvh, metrics, quat
 from posturemap.feet import (FADE, contact_runs, leg_chains, leg_length, lock_weights_and_targets,
                              two_bone_ik)
 from posturemap.skeleton import fk
@@ -59,17 +59,18 @@ def test_lock_targets_from_a_and_b_and_fades_in_the_air():
     h = np.full(length, 30.0)
     h[:5] = 0.5   # planted at the start (A's end)
     h[15:] = 0.5  # planted at the end (B's start)
-    h[9:11] = 0.5  # a short touch in the middle
+    h[10:12] = 0.5  # a short touch in the middle
     horiz = np.zeros((length, 3))
     horiz[:, 0] = np.arange(length) * 2.0  # the free foot slides along x
     a_spot, b_spot = np.array([-1.0, 0, 0]), np.array([45.0, 0, 0])
     w, target = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
-    assert np.all(w[:5] == 1) and np.all(w[15:] == 1) and np.all(w[9:11] == 1)
+    assert np.all(w[:5] == 1) and np.all(w[15:] == 1) and np.all(w[10:12] == 1)
     np.testing.assert_array_equal(target[:5], np.tile(a_spot, (5, 1)))
     np.testing.assert_array_equal(target[15:], np.tile(b_spot, (5, 1)))
-    np.testing.assert_array_equal(target[9:11], np.tile(horiz[9], (2, 1)))  # the run's middle
+    np.testing.assert_array_equal(target[10:12], np.tile(horiz[10], (2, 1)))  # the run's middle
     # Fades happen in the air next to the runs, decreasing away from them.
-    assert 0 < w[5] < 1 and w[5] > w[6] > w[7] >= 0 and w[5 + FADE] == 0
+    assert w[5] == pytest.approx(1 - 1 / (FADE + 1)) and w[6] == pytest.approx(1 - 2 / (FADE + 1))
+    np.testing.assert_array_equal(target[5:7], np.tile(a_spot, (2, 1)))  # fading out of A's spot
     # Not planted at A's end: the first run gets its own spot and fades in.
     w2, t2 = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
     np.testing.assert_array_equal(t2[:5], np.tile(horiz[2], (5, 1)))
@@ -77,13 +78,6 @@ def test_lock_targets_from_a_and_b_and_fades_in_the_air():
     w3, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
                                      speed=np.full(length, 5.0), speed_tol=1.0)
     assert not w3.any()
-
-
-def _ground_speed(e: TransitionEngine, rots, pos, floor_tol=4.0):
-    g = fk(e.skeleton.parents, rots, pos)[1][:, [c[2] for c in e._legs]]
-    speed = np.linalg.norm(np.diff(g[..., [0, 2]], axis=0), axis=-1) * 30.0  # cm/s, Y up
-    low = g[1:, :, 1] < g[..., 1].min() + floor_tol
-    return speed[low]
 
 
 @pytest.mark.parametrize("pair", [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "walk_happy_001")])
@@ -94,16 +88,28 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
     e = TransitionEngine(None, a.skeleton)
     e.add("a", a)
     e.add("b", b)
-    kw = dict(length=20, a_end=len(a) // 2, b_start=10, method="spline")
-    r0, p0 = (x.copy() for x in e.generate("a", "b", foot_lock=False, **kw))
-    r1, p1 = (x.copy() for x in e.generate("a", "b", foot_lock=True, **kw))
-    free, locked = _ground_speed(e, r0, p0), _ground_speed(e, r1, p1)
-    assert locked.mean() < 0.5 * free.mean(), (free.mean(), locked.mean())
-    legs = sorted({j for c in e._legs for j in c})
-    others = [j for j in range(a.skeleton.num_joints) if j not in legs]
-    np.testing.assert_array_equal(r1[:, others], r0[:, others])
-    np.testing.assert_array_equal(p1, p0)
-    # The feet keep their global orientation.
-    g0, g1 = fk(e.skeleton.parents, r0, p0)[0], fk(e.skeleton.parents, r1, p1)[0]
     ankles = [c[2] for c in e._legs]
-    assert np.max(quat.angle_between(g0[:, ankles], g1[:, ankles])) < 1e-6
+    rng = np.random.default_rng(1)
+    free_steps, locked_steps = [], []
+    for _ in range(12):  # seeded seams anywhere in the clips, with A's last 2 frames as context
+        kw = dict(length=20, a_end=int(rng.integers(2, len(a))), b_start=int(rng.integers(0, len(b) - 2)),
+                  method="spline")
+        r0, p0 = (x.copy() for x in e.generate("a", "b", foot_lock=False, **kw))
+        r1, p1 = (x.copy() for x in e.generate("a", "b", foot_lock=True, **kw))
+        g0 = fk(e.skeleton.parents, r0, p0)[1][:, ankles]
+        g1 = fk(e.skeleton.parents, r1, p1)[1][:, ankles]
+        # Skate as the benchmark measures it: ankles low (within 4 cm of the floor, 11 cm for
+        # Bandai's ankles) and slow (under 50 cm/s) in the free motion, their speed there.
+        contacts = metrics.foot_contacts(g0, a.fps, 1, np.full(len(ankles), 11.0), 4.0, 50.0)
+        free_steps.append(metrics.horizontal_speed(g0, a.fps, 1)[contacts])
+        locked_steps.append(metrics.horizontal_speed(g1, a.fps, 1)[contacts])
+        # Only the legs change; the feet keep their global orientation.
+        legs = sorted({j for c in e._legs for j in c})
+        others = [j for j in range(a.skeleton.num_joints) if j not in legs]
+        np.testing.assert_array_equal(r1[:, others], r0[:, others])
+        np.testing.assert_array_equal(p1, p0)
+        q0, q1 = fk(e.skeleton.parents, r0, p0)[0], fk(e.skeleton.parents, r1, p1)[0]
+        assert np.max(quat.angle_between(q0[:, ankles], q1[:, ankles])) < 1e-6
+    free, locked = np.concatenate(free_steps), np.concatenate(locked_steps)
+    assert len(free) > 10
+    assert locked.mean() < 0.5 * free.mean(), (free.mean(), locked.mean())

@@ -77,7 +77,9 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
     r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
     r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
     r2 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis1), ac_at_0)
-    return quat.mul(a_lr, quat.mul(r0, r2)), quat.mul(b_lr, r1)
+    # r0 (and the knee's r1) set the reach along the old thigh-ankle line, then r2 turns that
+    # line onto the target; in the thigh's local frame the later rotation stands on the left.
+    return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
 
 
 def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:

@@ -287,13 +287,9 @@ class TransitionEngine:
             self._root, self._up, self._rest = space.root, space.up, space.rest
             self._chain = np.array(_ancestors(skeleton.parents, self._root), dtype=np.int64)
             self._circular = space.circular if space.circular.any() else None
-            # All class maps in one flat array, for the one-call key of the Euclidean case.
-            self._wflat = np.concatenate([m.weights_.ravel() for m in model.maps_])
-            sizes = [m.weights_.size for m in model.maps_]
-            self._woff = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-            self._wn = np.array([m.n_neurons for m in model.maps_], dtype=np.int64)
             self._dim_index = np.concatenate(space.class_dims).astype(np.int64)
             self._dim_off = np.concatenate([[0], np.cumsum([len(d) for d in space.class_dims])]).astype(np.int64)
+            self._flat_of = None
             self._paths = [None] * len(model.maps_)
 
     def add(self, name: str, motion: Motion) -> Track:
@@ -319,6 +315,8 @@ class TransitionEngine:
         """Key posture vector (D,) and the chosen neuron per class, between ``xa`` and ``xb``."""
         space = self.model.space_
         if self._circular is None and not path:
+            if self._flat_of != [id(m.weights_) for m in self.model.maps_]:
+                self._flatten_maps()
             key = space.fill.copy()
             chosen = np.empty(len(self.model.maps_), dtype=np.int64)
             kernels.key_from_blend(self._wflat, self._woff, self._wn, self._dim_index, self._dim_off,
@@ -382,6 +380,17 @@ class TransitionEngine:
             keys[:, dims] = x
             chosen.append(int(idx[main]))
         return times, keys, main, chosen
+
+    def _flatten_maps(self):
+        """All class maps in one flat array, for the one-call key of the Euclidean case.
+
+        Rebuilt when a map's weights array is replaced (the engine reads the model live).
+        """
+        maps = self.model.maps_
+        self._wflat = np.concatenate([m.weights_.ravel() for m in maps])
+        self._woff = np.concatenate([[0], np.cumsum([m.weights_.size for m in maps])[:-1]]).astype(np.int64)
+        self._wn = np.array([m.n_neurons for m in maps], dtype=np.int64)
+        self._flat_of = [id(m.weights_) for m in maps]
 
     def _nearest(self, c: int, x: np.ndarray) -> int:
         m = self.model.maps_[c]
