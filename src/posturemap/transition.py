@@ -16,6 +16,10 @@ Each method is then a fixed linear map from the seam values to the in-between fr
 ``upm-path``
     As ``upm``, with each class key the neuron at fraction ``alpha`` of the way along the
     shortest path between the two postures' winners in the map graph.
+``upm-valid`` (default)
+    Keys every ``KEY_SPACING_S`` seconds, each estimated from the blend of the seam postures and
+    the fading seam velocities and projected into the map's valid region (within ``ACCEPT`` * R of
+    a neuron); one clamped B-spline through all of them (see :meth:`TransitionEngine.valid_keys`).
 ``spline``
     The same cubic (Hermite) spline without a key: matches values and velocities at both ends.
 ``slerp``
@@ -23,6 +27,8 @@ Each method is then a fixed linear map from the seam values to the in-between fr
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
+
+Foot locking (:mod:`posturemap.feet`, on by default in :func:`transition`) pins planted feet.
 
 Root alignment (default): B is turned about the up axis and moved so that it continues A:
 its start lies where A's root, moving at the mean of the two clips' seam velocities, gets to
