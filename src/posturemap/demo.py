@@ -63,15 +63,16 @@ def run(out: str, data: str | None = None, log=print) -> dict:
     log(f"map   {map_path}: learned in {time.perf_counter() - t0:.1f} s; neurons "
         + ", ".join(f"{c} {v['neurons']}" for c, v in q.items())
         + f"; invalid neurons {max(v['invalid_neurons'] for v in q.values()):.0%}")
-    for a, b in pairs:
+    for i, (a, b) in enumerate(pairs):
         t0 = time.perf_counter()
         result = transition(clips[a], clips[b], model, method=DEFAULT_METHOD)
         ms = (time.perf_counter() - t0) * 1e3
+        note = " (the first call also compiles or loads the kernels)" if i == 0 else ""
         short = lambda p: os.path.splitext(os.path.basename(p))[0].replace("dataset-1_", "")  # noqa: E731
         path = os.path.join(out, f"{short(a)}_to_{short(b)}.bvh")
         bvh.write(path, result)
         written[f"{short(a)}->{short(b)}"] = path
         log(f"out   {path}: {len(result)} frames ({len(clips[a])} of A + 20 {DEFAULT_METHOD} frames "
-            f"+ {len(clips[b])} of B) in {ms:.1f} ms")
+            f"+ {len(clips[b])} of B) in {ms:.1f} ms{note}")
     log(f"done: open the .bvh files in {out}/ with Blender or any BVH viewer, or run `posturemap serve`")
     return written
