@@ -904,3 +904,12 @@ def test_keys_spline_basis_matches_scipy(times, length):
         y = np.concatenate([[inp[0]], inp[4:], [inp[2]]])
         ref = make_interp_spline(knots, y, k=3, bc_type=([(1, inp[1])], [(1, inp[3])]))(t)
         np.testing.assert_allclose(basis @ inp, ref, atol=1e-12)
+
+
+def test_fk_kernel_matches_skeleton_fk(clips):
+    m = clips[WALK][:30]
+    grot, gpos = np.empty(m.rotations.shape), np.empty(m.positions.shape)
+    kernels.fk(m.skeleton.parents, m.rotations, m.positions, grot, gpos)
+    ref_r, ref_p = fk(m.skeleton.parents, m.rotations, m.positions)
+    np.testing.assert_allclose(grot, ref_r, atol=1e-12)
+    np.testing.assert_allclose(gpos, ref_p, atol=1e-9)

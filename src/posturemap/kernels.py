@@ -351,3 +351,28 @@ def key_from_blend(weights, offsets, counts, dim_index, dim_offsets, blend, key,
         row = base + best_i * d
         for k in range(d):
             key[dim_index[d0 + k]] = weights[row + k]
+
+
+@nb.njit(**_OPTS)
+def fk(parents, rots, positions, grot, gpos):
+    """Forward kinematics of (N, J) local rotations/translations into ``grot``/``gpos``.
+
+    Same as :func:`posturemap.skeleton.fk` (parents before children, -1 for roots).
+    """
+    for n in range(rots.shape[0]):
+        for j in range(parents.shape[0]):
+            p = parents[j]
+            if p < 0:
+                for k in range(4):
+                    grot[n, j, k] = rots[n, j, k]
+                for k in range(3):
+                    gpos[n, j, k] = positions[n, j, k]
+            else:
+                w, x, y, z = _mul(grot[n, p, 0], grot[n, p, 1], grot[n, p, 2], grot[n, p, 3],
+                                  rots[n, j, 0], rots[n, j, 1], rots[n, j, 2], rots[n, j, 3])
+                grot[n, j, 0], grot[n, j, 1], grot[n, j, 2], grot[n, j, 3] = w, x, y, z
+                dx, dy, dz = _rotate(grot[n, p, 0], grot[n, p, 1], grot[n, p, 2], grot[n, p, 3],
+                                     positions[n, j, 0], positions[n, j, 1], positions[n, j, 2])
+                gpos[n, j, 0] = gpos[n, p, 0] + dx
+                gpos[n, j, 1] = gpos[n, p, 1] + dy
+                gpos[n, j, 2] = gpos[n, p, 2] + dz

@@ -48,7 +48,6 @@ from .errors import UserError
 from .feet import leg_chains, lock_feet
 from .features import TWO_PI, root_global, upright_rest
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
-from .skeleton import fk
 
 METHODS = ("upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
 KEYED = ("upm", "upm-path", "upm-valid")
@@ -552,10 +551,17 @@ class TransitionEngine:
         kernels.compose_root(self._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
         if foot_lock and self._legs:
             b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
-            lock_feet(self.skeleton, self._legs, out_r, out_p, lambda r: fk(self.skeleton.parents, r, out_p),
-                      up, ta.feet[ia[1:]], b_feet, ta.motion.fps)
+            lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, up, ta.feet[ia[1:]], b_feet,
+                      ta.motion.fps)
         self.last = {"key": key, "neurons": chosen, "dtheta": dtheta, "shift": shift}
         return out_r, out_p
+
+    def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Global rotations and positions of the new frames (compiled FK, output buffers)."""
+        out_p = self._buffers[len(rots)][1]
+        grot, gpos = np.empty(rots.shape), np.empty(out_p.shape)
+        kernels.fk(self.skeleton.parents, rots, out_p, grot, gpos)
+        return grot, gpos
 
     def _decode_key(self, key_vec: np.ndarray) -> tuple[np.ndarray, float]:
         """Rotations (K, 4) of the feature joints (root tilt first) and root height of a key."""
