@@ -119,14 +119,6 @@ def clamped_spline_matrix(knots: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def hermite_rows(length: int, times: np.ndarray) -> np.ndarray:
-    """Rows (n, 4) of the cubic Hermite of :func:`hermite_basis` at any ``times`` in [0, length+1]."""
-    d = length + 1.0
-    s = np.asarray(times, dtype=float) / d
-    return np.stack([2 * s**3 - 3 * s**2 + 1, (s**3 - 2 * s**2 + s) * d,
-                     -2 * s**3 + 3 * s**2, (s**3 - s**2) * d], axis=1)
-
-
 def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, np.ndarray]:
     """How far (in frames of velocity) each side's seam velocity carries at ``times``.
 
@@ -220,15 +212,6 @@ class Track:
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
     """Angle (radians) of rotations ``q (..., 4)`` about the up axis (they must be pure turns)."""
     return 2.0 * np.arctan2(q[..., 1 + up], q[..., 0])
-
-
-def turn(angle: np.ndarray, up: int) -> np.ndarray:
-    """Rotations (..., 4) by ``angle`` (radians) about the up axis."""
-    angle = np.asarray(angle, dtype=float)
-    q = np.zeros(angle.shape + (4,))
-    q[..., 0] = np.cos(0.5 * angle)
-    q[..., 1 + up] = np.sin(0.5 * angle)
-    return q
 
 
 def rotate_about_up(v: np.ndarray, angle: float, up: int) -> np.ndarray:
