@@ -233,7 +233,11 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
     rots[:, root] = tilt
     feats = space.encode(motion) if space is not None else None
     ankles = [c[2] for c in leg_chains(motion.skeleton)]
-    feet = motion.global_positions()[:, ankles] if ankles else np.zeros((len(motion), 0, 3))
+    feet = np.zeros((len(motion), 0, 3))
+    if ankles:
+        grot_all, gpos_all = np.empty(motion.rotations.shape), np.empty(motion.positions.shape)
+        kernels.fk(motion.skeleton.parents, motion.rotations, motion.positions, grot_all, gpos_all)
+        feet = gpos_all[:, ankles]
     return Track(motion, gpos, heading, rots, feats, feet)
 
 
