@@ -33,6 +33,7 @@ for while the map is still training 503.
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import json
 import math
@@ -622,6 +623,9 @@ def _listen(host: str, port: int) -> socket.socket:
     sock = socket.socket(family, kind, proto)
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        # Answers go out at once: without TCP_NODELAY (which asyncio sets only on sockets made
+        # with proto IPPROTO_TCP) a small answer can wait 40 ms for the client's delayed ACK.
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.bind(addr)
         sock.listen(128)
     except OSError as e:
@@ -629,6 +633,33 @@ def _listen(host: str, port: int) -> socket.socket:
         raise UserError(f"{host}:{port}", f"cannot listen ({e.strerror or e})") from None
     sock.set_inheritable(True)
     return sock
+
+
+@contextlib.contextmanager
+def running(app, host: str = "127.0.0.1", port: int = 0):
+    """Serve ``app`` with uvicorn in a background thread; yields the base URL (``http://host:port``).
+
+    For tests, benchmarks and notebooks; port 0 takes a free port. The server stops on exit.
+    """
+    import uvicorn
+
+    sock = _listen(host, port)
+    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off"))
+    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True, name="posturemap-serve")
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not srv.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            sock.close()
+            raise RuntimeError(f"the studio server did not start on {host}:{port}")
+        time.sleep(0.01)
+    try:
+        shown = f"[{host}]" if ":" in host else host
+        yield f"http://{shown}:{sock.getsockname()[1]}"
+    finally:
+        srv.should_exit = True
+        thread.join(10)
+        sock.close()
 
 
 def run_cli(args) -> int:
@@ -681,4 +712,5 @@ __all__ = [
     "create_app",
     "load_clips",
     "run_cli",
+    "running",
 ]
