@@ -52,7 +52,8 @@ serve: $(VENV)/.test-installed web
 
 # Re-measure the studio's slider latency and retake its screenshot (docs/web-latency.md, docs/studio.png).
 studio-docs: $(VENV)/.test-installed web
-	POSTUREMAP_UPDATE_DOCS=1 $(PY) -m pytest -q tests/test_browser.py
+	$(PY) bench/studio_latency.py --doc docs/web-latency.md
+	POSTUREMAP_UPDATE_DOCS=1 $(PY) -m pytest -q tests/test_browser.py -k screenshot
 
 clean:
 	rm -rf $(VENV) out build src/*.egg-info node_modules $(VENDOR)

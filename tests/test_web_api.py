@@ -26,8 +26,9 @@ with warnings.catch_warnings():  # starlette 1.x prefers httpx2 for its test cli
     warnings.simplefilter("ignore")
     from starlette.testclient import TestClient
 
-from posturemap import bvh
+from posturemap import bvh, quat
 from posturemap.model import PostureMap
+from posturemap.motion import Motion
 from posturemap.transition import DEFAULT_METHOD, KEYED, METHODS, transition
 from posturemap.web import server
 from posturemap.web.server import LOOPBACK_HOSTS, MAX_BODY, MAX_LENGTH, create_app
@@ -50,6 +51,44 @@ def post(client, body, url="/api/transition"):
 
 def expected_frames(a_len, b_len, a_end, length, b_start):
     return a_end + 1 + length + b_len - b_start
+
+
+def local_arrays(payload, bones, rest):
+    """Local rotations (F, J, 4) (w, x, y, z) and translations (F, J, 3) from a tracks payload."""
+    n = payload["frames"]
+    rots = np.empty((n, len(bones), 4))
+    pos = np.repeat(np.asarray(rest, dtype=np.float64)[None], n, axis=0)
+    for t in payload["tracks"]:
+        bone, kind = t["name"].rsplit(".", 1)
+        j = bones.index(bone)
+        if kind == "quaternion":
+            rots[:, j] = np.array(t["values"]).reshape(n, 4)[:, [3, 0, 1, 2]]
+        else:
+            pos[:, j] = np.array(t["values"]).reshape(n, 3)
+    return rots, pos
+
+
+def assemble(client, d, skeleton) -> Motion:
+    """The whole result of a transition answer, put together as its docstring says (and the page does):
+    A's frames 0..a_end, the in-between frames, B's frames b_start.. with the alignment applied."""
+    sk = client.get("/api/clips").json()["skeleton"]
+    bones, rest = sk["bones"], sk["rest"]
+    ra, pa = local_arrays(client.get(f"/api/clip/{d['a']}").json(), bones, rest)
+    rb, pb = local_arrays(client.get(f"/api/clip/{d['b']}").json(), bones, rest)
+    rt, pt = local_arrays(d["inbetween"], bones, rest)
+    a_end, b_start = d["params"]["a_end"], d["params"]["b_start"]
+    rb, pb = rb[b_start:].copy(), pb[b_start:].copy()
+    al = d["alignment"]
+    axis = np.zeros(3)
+    axis[al["up"]] = 1.0
+    turn = quat.from_axis_angle(axis, np.array(al["turn"]))
+    top = bones.index(al["joint"])
+    rb[:, top] = quat.mul(turn, rb[:, top])
+    pb[:, top] = quat.mul_vec(turn, pb[:, top]) + np.array(al["shift"])
+    rots = np.concatenate([ra[: a_end + 1], rt, rb])
+    pos = np.concatenate([pa[: a_end + 1], pt, pb])
+    assert len(rots) == d["frames"]
+    return Motion(skeleton, rots, pos, d["fps"])
 
 
 # -- listing ----------------------------------------------------------------------------------
@@ -103,19 +142,22 @@ def test_transition_shape_segments_and_key(client, sample_clips, method):
     assert r.status_code == 200, r.text
     d = r.json()
     n = expected_frames(len(walk), len(run), 70, 16, 5)
-    assert d["frames"] == n and len(d["times"]) == n
+    assert d["frames"] == n
     assert d["fps"] == pytest.approx(30.0)
-    assert d["times"][1] == pytest.approx(1 / 30.0)
     assert d["duration"] == pytest.approx((n - 1) / 30.0)
     assert d["segments"] == {"a": [0, 70], "transition": [71, 86], "b": [87, n - 1]}
     assert d["transition"] == [71, 86] and d["seams"] == [70, 87]
+    # Only the 16 new frames travel; the clips' frames come from /api/clip.
+    new = d["inbetween"]
+    assert new["frames"] == 16 and len(new["times"]) == 16 and new["times"][1] == pytest.approx(1 / 30.0)
     j = walk.skeleton.num_joints
-    quats = [t for t in d["tracks"] if t["type"] == "quaternion"]
+    quats = [t for t in new["tracks"] if t["type"] == "quaternion"]
     assert [t["name"] for t in quats] == [f"{b}.quaternion" for b in walk.skeleton.names]
-    assert all(len(t["values"]) == 4 * n for t in d["tracks"] if t["type"] == "quaternion")
-    assert all(len(t["values"]) == 3 * n for t in d["tracks"] if t["type"] == "vector")
-    q = np.array([t["values"] for t in quats]).reshape(j, n, 4)
+    assert all(len(t["values"]) == 4 * 16 for t in new["tracks"] if t["type"] == "quaternion")
+    assert all(len(t["values"]) == 3 * 16 for t in new["tracks"] if t["type"] == "vector")
+    q = np.array([t["values"] for t in quats]).reshape(j, 16, 4)
     assert np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-5)
+    assert d["alignment"]["joint"] == "Hips" and d["alignment"]["up"] == 1
     if method in KEYED:
         key = d["key"]
         assert key["frame"] == d["key_frame"] == 70 + 6 and key["index"] == 6
@@ -125,7 +167,7 @@ def test_transition_shape_segments_and_key(client, sample_clips, method):
         # The in-between frame at the key carries the key's rotations (joints below the root).
         names = list(walk.skeleton.names)
         for name, k in zip(key["joints"][1:], kq[1:]):
-            got = q[names.index(name), key["frame"]]
+            got = q[names.index(name), key["index"] - 1]
             assert abs(np.dot(got, k)) == pytest.approx(1.0, abs=1e-4)
     else:
         assert d["key"] is None and d["key_frame"] is None
@@ -137,12 +179,10 @@ def test_transition_frames_match_the_library(client, sample_clips, model):
     d = post(client, body).json()
     ref = transition(walk, wave, model, length=12, key_at=4, alpha=0.7, a_end=50, b_start=3)
     assert d["frames"] == len(ref)
-    tracks = {t["name"]: np.array(t["values"]) for t in d["tracks"]}
-    for j, name in enumerate(walk.skeleton.names):
-        q = tracks[f"{name}.quaternion"].reshape(-1, 4)
-        assert np.allclose(np.abs(np.sum(q * ref.rotations[:, j, [1, 2, 3, 0]], axis=1)), 1.0, atol=1e-5)
-    hips = tracks["Hips.position"].reshape(-1, 3)
-    assert np.allclose(hips, ref.positions[:, 0], atol=1e-3)
+    got = assemble(client, d, walk.skeleton)
+    assert np.allclose(np.abs(np.sum(got.rotations * ref.rotations, axis=-1)), 1.0, atol=1e-5)
+    assert np.allclose(got.positions[:, 0], ref.positions[:, 0], atol=1e-3)
+    assert np.abs(got.global_positions() - ref.global_positions()).max() < 1e-3
 
 
 def test_defaults_and_alpha_moves_the_key(client, sample_clips):
@@ -160,7 +200,8 @@ def test_length_one_and_no_align(client, sample_clips):
     d = post(client, {"a": "walk", "b": "run", "length": 1, "align": False}).json()
     assert d["key"]["index"] == 1 and d["transition"] == [90, 90]
     run = sample_clips["run"]
-    hips = np.array(next(t["values"] for t in d["tracks"] if t["name"] == "Hips.position")).reshape(-1, 3)
+    assert d["alignment"]["turn"] == 0 and d["alignment"]["shift"] == [0, 0, 0]
+    hips = assemble(client, d, run.skeleton).positions[:, 0]
     assert np.allclose(hips[91:], run.positions[:, 0], atol=1e-3)  # B left where it is
 
 
@@ -206,6 +247,11 @@ def test_export_matches_transition_on_bandai(bandai):
             ref = transition(clips["bow_normal_001"], clips["walk_normal_001"], model, length=24, alpha=0.4,
                              a_end=100, b_start=20, method=method)
             assert np.allclose(m.global_positions(), ref.global_positions(), atol=1e-3)
+            # The page's assembly: B's turn and shift go on joint_Root (the top of Hips' chain),
+            # the export's on Hips; every joint from Hips down lands in the same place.
+            assert d["alignment"]["joint"] == "joint_Root"
+            shown = assemble(c, d, m.skeleton).global_positions()[:, 1:]
+            assert np.abs(shown - ref.global_positions()[:, 1:]).max() < 1e-2, method
         sk = c.get("/api/clips").json()["skeleton"]
         assert sk["up"] == 1 and sk["names"][sk["root"]] == "Hips"
 
@@ -277,23 +323,8 @@ def test_path_traversal_is_404(client, path):
 
 def test_raw_traversal_requests_are_404(sample_clips, model):
     """The paths as sent on the wire (no client normalisation), against a real server."""
-    import threading
-
-    import uvicorn
-
-    app = create_app(sample_clips, model)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen()
-    port = sock.getsockname()[1]
-    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
-    th = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
-    th.start()
-    try:
-        for _ in range(200):
-            if srv.started:
-                break
-            time.sleep(0.02)
+    with server.running(create_app(sample_clips, model)) as url:
+        port = int(url.rsplit(":", 1)[1])
         for path in ("/static/../../../../etc/passwd", "/static/..%2F..%2F..%2F..%2Fetc%2Fpasswd",
                      "/static/%2e%2e/%2e%2e/%2e%2e/%2e%2e/etc/passwd", "/static/vendor/../../server.py"):
             conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
@@ -308,10 +339,19 @@ def test_raw_traversal_requests_are_404(sample_clips, model):
         conn.request("GET", "/static/app.js")
         assert conn.getresponse().status == 200
         conn.close()
+
+
+def test_accepted_connections_send_at_once():
+    """TCP_NODELAY on the studio's connections: a small answer does not wait for the client's
+    delayed ACK (40 ms on Linux) behind Nagle's algorithm."""
+    listener = server._listen("127.0.0.1", 0)
+    try:
+        with socket.create_connection(listener.getsockname()[:2], timeout=5):
+            conn, _ = listener.accept()
+            with conn:
+                assert conn.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
     finally:
-        srv.should_exit = True
-        th.join(10)
-        sock.close()
+        listener.close()
 
 
 def test_page_and_security_headers(client):

@@ -12,10 +12,12 @@ Endpoints (JSON unless noted; every error is ``{"error": message, "field": name 
 ``GET /api/clips``           the skeleton (names, parents, rest translations, end sites, up axis)
                              and the clips (name, frames, fps), the methods and the limits
 ``GET /api/clip/{name}``     one clip's frames as tracks
-``POST /api/transition``     body ``{a, b, a_end, b_start, length, key_at, alpha, method, align}``:
-                             A[0..a_end], ``length`` new frames, then B[b_start..] (turned and moved
-                             to continue A unless ``align`` is false), as tracks, with the segments,
-                             the seams, the key frame and key posture
+``POST /api/transition``     body ``{a, b, a_end, b_start, length, key_at, alpha, method, align,
+                             foot_lock}``: the result is A[0..a_end], ``length`` new frames, then
+                             B[b_start..] (turned and moved to continue A unless ``align`` is
+                             false). The answer carries the new frames as tracks (``inbetween``),
+                             the ``alignment`` to apply to B's frames, the segments, the seams and
+                             the key posture; the clips' own frames come from ``/api/clip``
 ``POST /api/export``         the same body; answers the result as a BVH file (``text/plain``,
 ``GET /api/export?a=..``     attachment), the body fields as query parameters for GET
 
@@ -24,6 +26,12 @@ order (x, y, z, w), and a ``<bone>.position`` track for each joint whose local t
 (the others keep their rest translation from ``/api/clips``); ``times`` in seconds is shared.
 Bone names are the joint names made safe for three.js's ``PropertyBinding`` (``bones`` in the
 skeleton). Positions are in the clips' own length unit.
+
+``alignment`` is ``{joint, up, turn, shift}``: on each of B's frames the joint ``joint`` (the top
+of the root joint's chain) is turned by ``turn`` radians about the axis ``up`` (0, 1, 2 for x, y,
+z): its rotation is premultiplied by that turn and its translation turned, then ``shift`` is
+added to the translation. The export writes the same change into the root joint instead; the
+world pose of every joint from the root down is the same.
 
 Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
 :data:`MAX_BODY` bytes 413, wrong types or values out of range 422, and a keyed method asked
@@ -325,8 +333,13 @@ class Studio:
             raise ApiError(422, f"foot_lock: must be true or false, got {_kind(foot_lock)}", "foot_lock")
         return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align, foot_lock)
 
-    def generate(self, p: Params):
-        """The whole result: rotations (N, J, 4), positions (N, J, 3) and the engine's ``last``."""
+    def _new_frames(self, p: Params):
+        """The in-between frames and how B continues A.
+
+        Returns rotations (L, J, 4) and positions (L, J, 3) of the new frames, the engine's
+        ``last``, the map's keyed joints (or None), B's part (a Motion, turned and moved when
+        ``align``) and the alignment ``(top joint, up axis, turn, shift)``.
+        """
         with self._lock:
             engine = self.engine
             if p.method in KEYED and engine.model is None:
@@ -344,45 +357,63 @@ class Studio:
             rots, pos = rots.copy(), pos.copy()
             last = dict(engine.last)
             keyed_joints = engine.model.space_.joints.copy() if engine.model is not None else None
+            top = int(engine._chain[0]) if len(engine._chain) else int(engine._root)
+            up = int(engine._up)
             if p.align:
-                b_part = aligned(engine.tracks[p.b], engine, p.b_start, last["dtheta"], last["shift"])
+                turn, shift = float(last["dtheta"]), np.asarray(last["shift"], dtype=np.float64)
+                b_part = aligned(engine.tracks[p.b], engine, p.b_start, turn, shift)
             else:
+                turn, shift = 0.0, np.zeros(3)
                 b_part = self.clips[p.b][p.b_start:]
+        return rots, pos, last, keyed_joints, b_part, (top, up, turn, shift)
+
+    def generate(self, p: Params):
+        """The whole result as one Motion: A[0..a_end], the new frames, then B's part."""
+        rots, pos, _, _, b_part, _ = self._new_frames(p)
         a = self.clips[p.a]
-        out = concatenate([a[: p.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
-                           Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
-        return out, last, keyed_joints
+        return concatenate([a[: p.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
+                            Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
 
     def transition(self, p: Params) -> dict:
-        out, last, keyed_joints = self.generate(p)
+        """The answer to ``POST /api/transition``: the new frames as tracks, plus how to join them.
+
+        The result is A's frames 0..a_end, the ``inbetween`` frames, then B's frames b_start..
+        with ``alignment`` applied: the joint ``alignment.joint`` (the top of the root's chain)
+        turned by ``turn`` radians about the up axis, then moved by ``shift``. Clip frames come
+        from ``GET /api/clip/{name}``, so an answer stays small however long the clips are.
+        """
+        rots, pos, last, keyed_joints, _, (top, up, turn, shift) = self._new_frames(p)
         t0, t1 = p.a_end + 1, p.a_end + p.length
+        fps = float(self.clips[p.a].fps)
+        frames = p.a_end + 1 + p.length + len(self.clips[p.b]) - p.b_start
         key = None
         if last.get("key") is not None:
-            rots, height = last["key"]
+            krots, height = last["key"]
             key = {"frame": p.a_end + p.key_at, "index": p.key_at,
                    "joints": [self.skeleton.names[j] for j in keyed_joints],
                    "bones": [self.bones[j] for j in keyed_joints],
-                   "quaternions": np.round(rots[:, [1, 2, 3, 0]], 6).tolist(),
+                   "quaternions": np.round(krots[:, [1, 2, 3, 0]], 6).tolist(),
                    "root_height": round(float(height), 4),
                    "neurons": [int(k) for k in last["neurons"]]}
         return {
             "a": p.a, "b": p.b, "method": p.method,
             "params": {"a_end": p.a_end, "b_start": p.b_start, "length": p.length, "key_at": p.key_at,
                        "alpha": p.alpha, "align": p.align, "foot_lock": p.foot_lock},
-            "segments": {"a": [0, p.a_end], "transition": [t0, t1], "b": [t1 + 1, len(out) - 1]},
+            "fps": fps, "frames": frames, "duration": round((frames - 1) / fps, 6),
+            "segments": {"a": [0, p.a_end], "transition": [t0, t1], "b": [t1 + 1, frames - 1]},
             "transition": [t0, t1],
             "seams": [p.a_end, t1 + 1],
             "key_frame": key["frame"] if key else None,
             "key": key,
             "source": {"a": [0, p.a_end], "b": [p.b_start, len(self.clips[p.b]) - 1]},
-            "alignment": {"turn": round(float(last["dtheta"]), 6),
-                          "shift": np.round(last["shift"], 4).tolist()},
-            **self.tracks(out.rotations, out.positions, out.fps),
+            "alignment": {"joint": self.bones[top], "up": up, "turn": round(turn, 9),
+                          "shift": np.round(shift, 6).tolist()},
+            "inbetween": self.tracks(rots, pos, fps),
         }
 
     def export(self, p: Params) -> tuple[str, str]:
         """BVH text of the result and a file name for it."""
-        out, _, _ = self.generate(p)
+        out = self.generate(p)
         name = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120] + ".bvh"
         return bvh.dumps(out), name
 

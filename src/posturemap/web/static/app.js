@@ -33,8 +33,21 @@ const studio = {
   requests: 0,               // transition requests sent
   renders: 0,
   renderScale: 1,            // fraction of the full resolution of the last frame drawn
+  profile: null,             // render profile: 'full' (GPU) or 'lite' (software WebGL)
   displayedKey: () => (ghost ? ghost.pose() : null),   // the ghost skeleton's bone quaternions
+  // A promise resolved once `latencies` holds n entries (a driver waits without polling the page).
+  latencyCount: (n) => new Promise((resolve) => {
+    const check = () => { if (studio.latencies.length >= n) resolve(n); else latencyWaiters.push(check); };
+    check();
+  }),
   setFrame: (f) => { setFrame(f); },
+  // The main character's joint positions at frame f as drawn, in the clips' space and unit.
+  jointPositions: (f) => {
+    setFrame(f);
+    main.setTime(time);
+    scene.updateMatrixWorld(true);
+    return main.bones.map((b) => world.worldToLocal(b.getWorldPosition(new THREE.Vector3())).toArray());
+  },
   play: (on) => setPlaying(on),
   // Camera around its target: azimuth from +Z and elevation in degrees, distance in metres.
   setView: (azimuth, elevation, distance) => {
@@ -45,12 +58,32 @@ const studio = {
     needsRender = true;
   },
 };
+const latencyWaiters = [];
 window.__studio = studio;
+setTimeout(() => { window.__dbg = { renderer, scene, camera, sun, ground, quality, THREE, world, main, cmp, ghost }; }, 3000);
 
 // ---- scene ---------------------------------------------------------------------------------
+// Two render profiles. "full" (a GPU): antialiasing and shadow maps. "lite" (software WebGL such
+// as SwiftShader or llvmpipe, which the browser reports as a major performance caveat): neither,
+// and a soft disc under each character instead of a shadow map; a frame costs about a third.
+// ?render=full or ?render=lite in the address overrides the choice.
+function softwareWebGL() {
+  const c = document.createElement('canvas');
+  const gl = c.getContext('webgl2', { failIfMajorPerformanceCaveat: true });
+  if (!gl) return true;
+  const dbg = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = dbg ? String(gl.getParameter(dbg.UNMASKED_RENDERER_WEBGL)) : '';
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return /swiftshader|llvmpipe|softpipe|software|basic render/i.test(name);
+}
+const asked = new URLSearchParams(location.search).get('render');
+const PROFILE = asked === 'full' || asked === 'lite' ? asked : softwareWebGL() ? 'lite' : 'full';
+const FULL = PROFILE === 'full';
+studio.profile = PROFILE;
+
 const canvas = $('view');
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
-renderer.shadowMap.enabled = true;
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: FULL });
+renderer.shadowMap.enabled = FULL;
 renderer.shadowMap.type = THREE.PCFShadowMap;
 renderer.toneMapping = THREE.ACESFilmicToneMapping;
 renderer.toneMappingExposure = 1.05;
@@ -71,7 +104,7 @@ controls.maxDistance = 30;
 scene.add(new THREE.HemisphereLight(0xdfe8f5, 0x202633, 1.6));
 const sun = new THREE.DirectionalLight(0xffffff, 2.4);
 sun.position.set(2.5, 5, 3);
-sun.castShadow = true;
+sun.castShadow = FULL;
 sun.shadow.mapSize.set(1024, 1024);
 Object.assign(sun.shadow.camera, { left: -3, right: 3, top: 3, bottom: -3, near: 0.5, far: 14 });
 sun.shadow.bias = -0.0005;
@@ -81,33 +114,56 @@ const rim = new THREE.DirectionalLight(0x88aaff, 0.6);
 rim.position.set(-3, 2.5, -4);
 scene.add(rim);
 
-// Ground: a 1 m grid drawn into a tiling texture (crisp at any distance, no line primitives).
-function gridTexture() {
-  const c = document.createElement('canvas');
-  c.width = c.height = 256;
-  const g = c.getContext('2d');
-  g.fillStyle = '#151c26';
-  g.fillRect(0, 0, 256, 256);
-  g.strokeStyle = '#1f2836';
-  g.lineWidth = 2;
-  for (const p of [64, 128, 192]) {
-    g.beginPath(); g.moveTo(p, 0); g.lineTo(p, 256); g.moveTo(0, p); g.lineTo(256, p); g.stroke();
-  }
-  g.strokeStyle = '#2e3a4d';
-  g.lineWidth = 4;
-  g.strokeRect(0, 0, 256, 256);
-  const t = new THREE.CanvasTexture(c);
-  t.wrapS = t.wrapT = THREE.RepeatWrapping;
-  t.repeat.set(200, 200);
-  t.anisotropy = renderer.capabilities.getMaxAnisotropy();
-  t.colorSpace = THREE.SRGBColorSpace;
-  return t;
+// Ground: a 1 m grid with 25 cm subdivisions computed in the fragment shader (anti-aliased with
+// screen-space derivatives; a tiled texture costs several times more to sample in software).
+function groundMaterial() {
+  const m = new THREE.MeshLambertMaterial({ color: '#151c26' });
+  const glsl = (hex) => `vec3(${new THREE.Color(hex).toArray().map((x) => x.toFixed(5)).join(', ')})`;  // linear
+  m.onBeforeCompile = (sh) => {
+    sh.vertexShader = sh.vertexShader
+      .replace('#include <common>', '#include <common>\nvarying vec2 vGround;')
+      .replace('#include <begin_vertex>', '#include <begin_vertex>\nvGround = (modelMatrix * vec4(position, 1.0)).xz;');
+    sh.fragmentShader = sh.fragmentShader
+      .replace('#include <common>', `#include <common>
+varying vec2 vGround;
+float gridLine(vec2 p, float width) {
+  vec2 d = abs(fract(p - 0.5) - 0.5) / max(fwidth(p) * width, 1e-5);
+  return 1.0 - min(min(d.x, d.y), 1.0);
+}`)
+      .replace('#include <color_fragment>', `#include <color_fragment>
+vec2 fine = vGround * 4.0;
+float near = 1.0 - clamp(length(fwidth(fine)) - 0.3, 0.0, 1.0);
+diffuseColor.rgb = mix(diffuseColor.rgb, ${glsl('#1f2836')}, gridLine(fine, 1.0) * near);
+diffuseColor.rgb = mix(diffuseColor.rgb, ${glsl('#2e3a4d')}, gridLine(vGround, 1.5));`);
+  };
+  return m;
 }
-const ground = new THREE.Mesh(new THREE.PlaneGeometry(200, 200),
-  new THREE.MeshStandardMaterial({ map: gridTexture(), roughness: 1, metalness: 0 }));
+const ground = new THREE.Mesh(new THREE.PlaneGeometry(200, 200), groundMaterial());
 ground.rotation.x = -Math.PI / 2;
-ground.receiveShadow = true;
+ground.receiveShadow = FULL;
 scene.add(ground);
+
+// In the lite profile: a soft dark disc on the ground under a character's root.
+function blobShadow() {
+  const c = document.createElement('canvas');
+  c.width = c.height = 64;
+  const g = c.getContext('2d');
+  const grad = g.createRadialGradient(32, 32, 0, 32, 32, 32);
+  grad.addColorStop(0, 'rgba(0,0,0,0.55)');
+  grad.addColorStop(0.55, 'rgba(0,0,0,0.3)');
+  grad.addColorStop(1, 'rgba(0,0,0,0)');
+  g.fillStyle = grad;
+  g.fillRect(0, 0, 64, 64);
+  const mesh = new THREE.Mesh(new THREE.PlaneGeometry(0.9, 0.9), new THREE.MeshBasicMaterial({
+    map: new THREE.CanvasTexture(c), transparent: true, depthWrite: false, fog: false,
+    polygonOffset: true, polygonOffsetFactor: -2, polygonOffsetUnits: -2,
+  }));
+  mesh.rotation.x = -Math.PI / 2;
+  mesh.renderOrder = 1;
+  mesh.visible = false;
+  scene.add(mesh);
+  return mesh;
+}
 
 // Clip space (the clips' own unit and up axis) inside a group scaled to metres.
 const world = new THREE.Group();
@@ -148,6 +204,7 @@ class Character {
     this.group.traverse((o) => { if (o.isMesh) { o.castShadow = shadows; o.receiveShadow = false; } });
     this.mixer = new THREE.AnimationMixer(this.group);
     this.clip = null;
+    this.blob = null;          // disc under the root in the lite profile
     this.action = null;
     this.duration = 0;
   }
@@ -281,6 +338,82 @@ function makeClip(res, name) {
   return new THREE.AnimationClip(name, res.duration, tracks);
 }
 
+// ---- clip frames and the whole result ------------------------------------------------------
+// A transition answer carries only the new frames; the clips' frames are fetched once per clip
+// (GET /api/clip/<name>) and the result is put together here: A's frames 0..a_end, the new
+// frames, then B's frames from b_start with the alignment applied to one joint.
+const clipFrames = new Map();   // name -> Promise of {frames, quat: [Float32Array per bone], pos: Map}
+
+function framesOf(payload) {
+  // Tracks as typed arrays: quat[j] (4 per frame, x y z w), pos.get(j) (3 per frame) for moving joints.
+  const index = new Map(info.skeleton.bones.map((b, j) => [b, j]));
+  const quat = new Array(info.skeleton.bones.length), pos = new Map();
+  for (const t of payload.tracks) {
+    const dot = t.name.lastIndexOf('.');
+    const j = index.get(t.name.slice(0, dot));
+    if (t.type === 'quaternion') quat[j] = Float32Array.from(t.values);
+    else pos.set(j, Float32Array.from(t.values));
+  }
+  return { frames: payload.frames, quat, pos };
+}
+
+function clipFramesOf(name) {
+  if (!clipFrames.has(name)) {
+    const p = fetch(`/api/clip/${encodeURIComponent(name)}`).then(async (r) => {
+      if (!r.ok) {
+        let msg = `HTTP ${r.status}`;
+        try { msg = (await r.json()).error || msg; } catch { /* not JSON */ }
+        throw new Error(`clip ${name}: ${msg}`);
+      }
+      return framesOf(await r.json());
+    });
+    p.catch(() => clipFrames.delete(name));   // a failed fetch is tried again next time
+    clipFrames.set(name, p);
+  }
+  return clipFrames.get(name);
+}
+
+function assemble(res, ca, cb) {
+  // The whole result as tracks (same shape as a clip payload, typed arrays for values).
+  const skel = info.skeleton, J = skel.bones.length;
+  const nb = res.inbetween.frames, na = res.params.a_end + 1, b0 = res.params.b_start;
+  const n = res.frames, nB = n - na - nb;
+  const mid = framesOf(res.inbetween);
+  const al = res.alignment, top = skel.bones.indexOf(al.joint);
+  const turn = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3().setComponent(al.up, 1), al.turn);
+  const shift = new THREE.Vector3().fromArray(al.shift);
+  const q = new THREE.Quaternion(), v = new THREE.Vector3();
+  const tracks = [];
+  for (let j = 0; j < J; j++) {
+    const out = new Float32Array(4 * n);
+    out.set(ca.quat[j].subarray(0, 4 * na), 0);
+    out.set(mid.quat[j], 4 * na);
+    out.set(cb.quat[j].subarray(4 * b0, 4 * (b0 + nB)), 4 * (na + nb));
+    if (j === top) {
+      for (let f = na + nb; f < n; f++) q.fromArray(out, 4 * f).premultiply(turn).toArray(out, 4 * f);
+    }
+    tracks.push({ name: `${skel.bones[j]}.quaternion`, type: 'quaternion', values: out });
+  }
+  const moving = new Set([...ca.pos.keys(), ...cb.pos.keys(), ...mid.pos.keys(), top]);
+  for (const j of [...moving].sort((x, y) => x - y)) {
+    const out = new Float32Array(3 * n);
+    const part = (src, from, count, at) => {
+      if (src) out.set(src.subarray(3 * from, 3 * (from + count)), 3 * at);
+      else for (let f = at; f < at + count; f++) out.set(skel.rest[j], 3 * f);
+    };
+    part(ca.pos.get(j), 0, na, 0);
+    part(mid.pos.get(j), 0, nb, na);
+    part(cb.pos.get(j), b0, nB, na + nb);
+    if (j === top) {
+      for (let f = na + nb; f < n; f++) v.fromArray(out, 3 * f).applyQuaternion(turn).add(shift).toArray(out, 3 * f);
+    }
+    tracks.push({ name: `${skel.bones[j]}.position`, type: 'vector', values: out });
+  }
+  const times = new Float32Array(n);
+  for (let f = 0; f < n; f++) times[f] = f / res.fps;
+  return { ...res, times, tracks };
+}
+
 // ---- state -------------------------------------------------------------------------------
 let info = null;          // /api/clips
 let main = null, cmp = null, ghost = null, trail = null;
@@ -333,6 +466,14 @@ function request(kind) {
   send();
 }
 
+let shownCmp = { key: null, res: null };   // the comparison on screen and its inputs
+
+function resultKey(params, method) {
+  // What a result depends on: every parameter, less alpha and the key position for a keyless method.
+  const keyed = info.keyed.includes(method);
+  return JSON.stringify({ ...params, method, alpha: keyed ? params.alpha : null, key_at: keyed ? params.key_at : null });
+}
+
 async function postJSON(url, body) {
   const r = await fetch(url, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) });
   let data = null;
@@ -352,18 +493,28 @@ async function send() {
   const sentAt = performance.now();
   const cmpMethod = ui.compare.value && ui.compare.value !== params.method ? ui.compare.value : null;
   studio.requests++;
+  // The comparison is asked for again only when its own inputs changed (a method without a key
+  // ignores alpha and the key position).
+  const cmpKey = cmpMethod ? resultKey(params, cmpMethod) : null;
+  const cmpKept = cmpKey !== null && shownCmp.key === cmpKey ? shownCmp.res : null;
   try {
-    const jobs = [postJSON('/api/transition', params)];
-    if (cmpMethod) jobs.push(postJSON('/api/transition', { ...params, method: cmpMethod }).catch((e) => e));
-    const [res, cres] = await Promise.all(jobs);
+    const clips = Promise.all([clipFramesOf(params.a), clipFramesOf(params.b)]);
+    const jobs = [postJSON('/api/transition', params), clips];
+    if (cmpMethod && !cmpKept) jobs.push(postJSON('/api/transition', { ...params, method: cmpMethod }).catch((e) => e));
+    const [answer, [ca, cb], cmpAnswer] = await Promise.all(jobs);
     if (mine < applied) return;   // an answer to older parameters
     applied = mine;
     const receivedAt = performance.now();
-    apply(res, cres instanceof Error ? null : cres || null, params, kind);
+    const res = assemble(answer, ca, cb);
+    const cmpError = cmpAnswer instanceof Error ? cmpAnswer : null;
+    let cres = cmpKept;
+    if (cmpAnswer && !cmpError) cres = assemble(cmpAnswer, ca, cb);
+    shownCmp = { key: cres ? cmpKey : null, res: cres };
+    apply(res, cres, params, kind);
     if (started !== null) {
       pendingTiming = { input: started, sent: sentAt, received: receivedAt, applied: performance.now() };
     }
-    if (cres instanceof Error) note(`Compare (${methodName(cmpMethod)}): ${cres.message}`, 'info');
+    if (cmpError) note(`Compare (${methodName(cmpMethod)}): ${cmpError.message}`, 'info');
     else hideMessage();
   } catch (e) {
     if (e.status === 503) {
@@ -381,10 +532,9 @@ async function send() {
 
 function apply(res, cres, params, kind) {
   result = res;
-  cmpResult = cres;
   main.setClip(makeClip(res, `${res.a} → ${res.b} (${res.method})`));
-  if (cres) cmp.setClip(makeClip(cres, `${cres.a} → ${cres.b} (${cres.method})`));
-  else cmp.setClip(null);
+  if (cres !== cmpResult) cmp.setClip(cres ? makeClip(cres, `${cres.a} → ${cres.b} (${cres.method})`) : null);
+  cmpResult = cres;
   cmp.group.visible = !!cres;
   if (res.key) {
     ghost.setClip(main.clip);
@@ -461,12 +611,12 @@ function currentFrame() {
 // while something changes use half the pixels and the view is redrawn at full resolution once
 // things have been still for a moment.
 const quality = { scale: 1, slow: false, lastChange: 0, refined: true, renderedAt: null, renderedScale: 1 };
-const SLOW_FRAME_MS = 80, SETTLE_MS = 800;
+const SLOW_FRAME_MS = 40, SETTLE_MS = 800;
 
 function setScale(s) {
   if (s === quality.scale) return;
   quality.scale = s;
-  resize();
+  sizeView();   // the caller draws next
 }
 
 let last = performance.now();
@@ -475,7 +625,7 @@ function tick(now) {
   const dt = Math.min((now - last) / 1000, 0.1);
   last = now;
   if (quality.renderedAt !== null) {   // the previous frame's cost shows in this callback's delay
-    if (quality.renderedScale === 1) quality.slow = now - quality.renderedAt > SLOW_FRAME_MS;
+    if (quality.renderedScale === 1) quality.slow = !FULL || now - quality.renderedAt > SLOW_FRAME_MS;
     quality.renderedAt = null;
   }
   if (playing && result) {
@@ -485,23 +635,28 @@ function tick(now) {
     needsRender = true;
   }
   if (!main) return;
-  if (needsRender) {
-    needsRender = false;
-    quality.lastChange = now;
-    setScale(quality.slow ? 0.5 : 1);
-  } else if (!quality.refined && now - quality.lastChange > SETTLE_MS) {
-    setScale(1);
-  } else {
-    return;
-  }
-  quality.refined = quality.scale === 1;
+  if (needsRender) redraw(now);
+  else if (!quality.refined && now - quality.lastChange > SETTLE_MS) render(1);
+}
+
+// Draw after a change, at once: at half resolution when full-resolution frames are slow.
+function redraw(now = performance.now()) {
+  needsRender = false;
+  quality.lastChange = now;
+  render(quality.slow ? 0.5 : 1);
+}
+
+function render(scale) {
+  setScale(scale);
+  quality.refined = scale === 1;
   draw();
   quality.renderedAt = performance.now();
-  quality.renderedScale = quality.scale;
-  studio.renderScale = quality.scale;
+  quality.renderedScale = scale;
+  studio.renderScale = scale;
 }
 
 function draw() {
+  const started = performance.now();
   if (result) {
     main.setTime(time);
     if (cmpResult) cmp.setTime(time);
@@ -510,6 +665,11 @@ function draw() {
     const dist = f < t0 ? t0 - f : f > t1 ? f - t1 : 0;
     main.tint(orange, 0.8 * clamp(1 - dist / 3, 0, 1));
     if (ui.follow.checked) follow();
+  }
+  for (const ch of [main, cmp]) {
+    if (!ch.blob) continue;
+    ch.blob.visible = ch.group.visible && ch.clip !== null;
+    if (ch.blob.visible) ch.blob.position.copy(ch.rootWorld(tmp)).setY(0.002);
   }
   sun.target.position.copy(controls.target).setY(0);
   sun.position.copy(sun.target.position).add(tmp.set(2.5, 5, 3));
@@ -520,25 +680,29 @@ function draw() {
   studio.renders++;
   studio.frame = currentFrame();
   studio.time = time;
+  const rendered = performance.now();
+  drawHud();
+  drawTimeline();
+  drawPlot();
   if (pendingTiming !== null) {
     // The pose is submitted; the update counts as shown at the next frame (after the browser
     // has painted this one): requestAnimationFrame, then a task.
     const t = pendingTiming;
     pendingTiming = null;
-    t.rendered = performance.now();
+    t.frame = started;
+    t.rendered = rendered;
+    t.drawn = performance.now();
     requestAnimationFrame(() => {
       const ch = new MessageChannel();
       ch.port1.onmessage = () => {
         t.painted = performance.now();
         studio.timings.push(Object.fromEntries(Object.entries(t).map(([k, v]) => [k, v - t.input])));
         studio.latencies.push(t.painted - t.input);
+        for (const w of latencyWaiters.splice(0)) w();
       };
       ch.port2.postMessage(null);
     });
   }
-  drawHud();
-  drawTimeline();
-  drawPlot();
 }
 
 function follow() {
@@ -766,13 +930,17 @@ function pick(names, patterns, fallback) {
 }
 
 function resize() {
+  sizeView();
+  needsRender = true;
+}
+
+function sizeView() {
   const vp = $('viewport');
   const w = vp.clientWidth, h = vp.clientHeight;
   renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2) * quality.scale);
   renderer.setSize(w, h, false);
   camera.aspect = w / Math.max(h, 1);
   camera.updateProjectionMatrix();
-  needsRender = true;
 }
 
 async function init() {
@@ -796,6 +964,7 @@ async function init() {
   world.add(main.group, cmp.group, ghost.group, trail.mesh);
   cmp.group.visible = false;
   ghost.group.visible = false;
+  if (!FULL) { main.blob = blobShadow(); cmp.blob = blobShadow(); }
 
   // Labels without the prefix every clip name shares (e.g. "dataset-1_").
   let prefix = names.length > 1 ? names.reduce((p, n) => { while (!n.startsWith(p)) p = p.slice(0, -1); return p; }) : '';
