@@ -60,7 +60,6 @@ const studio = {
 };
 const latencyWaiters = [];
 window.__studio = studio;
-setTimeout(() => { window.__dbg = { renderer, scene, camera, sun, ground, quality, THREE, world, main, cmp, ghost }; }, 3000);
 
 // ---- scene ---------------------------------------------------------------------------------
 // Two render profiles. "full" (a GPU): antialiasing and shadow maps. "lite" (software WebGL such
@@ -607,10 +606,10 @@ function currentFrame() {
   return result ? clamp(Math.round(time * result.fps), 0, result.frames - 1) : 0;
 }
 
-// Resolution: when a full-resolution frame is slow (software WebGL, weak GPU), frames drawn
-// while something changes use half the pixels and the view is redrawn at full resolution once
-// things have been still for a moment.
-const quality = { scale: 1, slow: false, lastChange: 0, refined: true, renderedAt: null, renderedScale: 1 };
+// Resolution: in the lite profile, or when a full-resolution frame takes over SLOW_FRAME_MS (a
+// weak GPU), frames drawn while something changes use half the pixels, and the view is redrawn
+// at full resolution once things have been still for SETTLE_MS.
+const quality = { scale: 1, slow: !FULL, lastChange: 0, refined: true, renderedAt: null, renderedScale: 1 };
 const SLOW_FRAME_MS = 40, SETTLE_MS = 800;
 
 function setScale(s) {
@@ -639,8 +638,8 @@ function tick(now) {
   else if (!quality.refined && now - quality.lastChange > SETTLE_MS) render(1);
 }
 
-// Draw after a change, at once: at half resolution when full-resolution frames are slow.
-function redraw(now = performance.now()) {
+// Draw after a change (at half resolution in the lite profile or when full frames are slow).
+function redraw(now) {
   needsRender = false;
   quality.lastChange = now;
   render(quality.slow ? 0.5 : 1);
