@@ -212,17 +212,21 @@ def markdown(result: dict, command: str) -> str:
 
 
 def write_doc(path: Path, result: dict, command: str) -> None:
+    requests = [r["steps_ms"][STEPS[0][0]] for r in result["profiles"].values()]
+    lo, hi = min(requests), max(requests)
+    paint = {k: r["steps_ms"][STEPS[-1][0]] for k, r in result["profiles"].items()}
+    extra = paint["full, drag"] - paint["lite, drag"]
     text = ("# Studio slider latency\n\n"
             "Measured by `bench/studio_latency.py` (its docstring describes the method).\n\n"
             + markdown(result, command) + "\n"
-            "Where the time goes: the request (9 to 13 ms: the server computes the 20 new frames in "
+            f"Where the time goes: the request ({lo:.0f} to {hi:.0f} ms: the server computes the 20 new frames in "
             "about a millisecond and sends only those; HTTP and JSON in the browser take the rest), then "
             "the browser's frame pipeline: the update waits for the next animation frame, and one more "
             "frame passes before it is on screen. A drag's mouse moves arrive with the animation frames, "
             "so the answer is back before the next frame starts; a key press arrives mid-frame and its "
             "update often waits for the frame after. The scene itself draws in about a millisecond of "
             "script. The `full` rows show what antialiasing and shadow maps cost a software rasteriser "
-            "(about 40 ms a frame); the page uses them only when the browser has a GPU (not measured "
+            f"(about {extra:.0f} ms more to paint a frame); the page uses them only when the browser has a GPU (not measured "
             "here: this machine has none).\n\n"
             "Re-measure with `make studio-docs`.\n")
     tmp = path.with_suffix(path.suffix + ".tmp")
