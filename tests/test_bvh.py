@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from posturemap import bvh, cli, motion as motion_mod, quat, sample
 from posturemap.bvh import BVHError
+from posturemap.errors import UserError
 from posturemap.motion import Motion, concatenate
 from posturemap.skeleton import Skeleton
 
@@ -398,6 +399,25 @@ def test_round_trip_of_sample_clips(sample_clips, tmp_path):
         assert np.allclose(back.global_positions(), clip.global_positions(), atol=1e-6)
         # and a second round trip reproduces the text exactly
         assert bvh.dumps(back) == bvh.dumps(bvh.loads(bvh.dumps(back)))
+
+
+def test_read_inputs_files_and_folders(sample_clips, tmp_path):
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name in ("walk", "run"):
+        bvh.write(folder / f"{name}.bvh", sample_clips[name])
+    (folder / "notes.txt").write_text("not a clip")
+    single = tmp_path / "wave.BVH"
+    bvh.write(single, sample_clips["wave"])
+    got = bvh.read_inputs([str(folder), str(single)])
+    assert [Path(p).name for p, _ in got] == ["run.bvh", "walk.bvh", "wave.BVH"]  # a folder's files sorted
+    assert [len(m) for _, m in got] == [len(sample_clips[n]) for n in ("run", "walk", "wave")]
+    with pytest.raises(UserError, match="no such file or folder"):
+        bvh.read_inputs([str(tmp_path / "missing")])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(UserError, match="holds no .bvh files"):
+        bvh.read_inputs([str(empty)])
 
 
 def test_continuous_euler_style_survives_round_trip(cmu_file):

@@ -505,7 +505,7 @@ def test_cli_bad_learning_rate(bvh_dir, tmp_path, rate):
 
 
 def test_cli_output_folder_checked_before_training(bvh_dir, tmp_path):
-    # Fix: in cli._cmd_train call _check_output(args.output) first, before read_inputs.
+    # Fix: in cli._cmd_train call _check_output(args.output) first, before bvh.read_inputs.
     out = tmp_path / "no" / "such" / "map.npz"
     code, _, err = run_cli("train", bvh_dir / "walk.bvh", "-o", out)
     check_one_error_line(code, err, str(out), "output folder does not exist")

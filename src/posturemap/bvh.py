@@ -57,6 +57,26 @@ def read(path: str | os.PathLike) -> Motion:
     return loads(raw, path)
 
 
+def read_inputs(inputs: list[str]) -> list[tuple[str, Motion]]:
+    """Read BVH files and folders of them (a folder's ``.bvh`` files sorted by name).
+
+    Returns ``(path, Motion)`` pairs; raises :class:`UserError` for a missing path or a folder
+    without BVH files and :class:`BVHError` for a bad file.
+    """
+    paths = []
+    for item in inputs:
+        if os.path.isdir(item):
+            found = sorted(os.path.join(item, f) for f in os.listdir(item) if f.lower().endswith(".bvh"))
+            if not found:
+                raise UserError(item, "folder holds no .bvh files")
+            paths.extend(found)
+        elif os.path.exists(item):
+            paths.append(item)
+        else:
+            raise UserError(item, "no such file or folder")
+    return [(p, read(p)) for p in paths]
+
+
 def loads(raw: bytes | str, path: str = "<string>") -> Motion:
     """Parse BVH text (bytes or str); ``path`` is only used in error messages."""
     if isinstance(raw, (bytearray, memoryview)):

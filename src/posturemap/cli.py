@@ -84,7 +84,8 @@ def _radius(text: str):
 
 
 def _cmd_train(args) -> int:
-    from .features import load_class_overrides, read_inputs
+    from .bvh import read_inputs
+    from .features import load_class_overrides
     from .model import PostureMap
 
     _check_output(args.output)

@@ -11,7 +11,6 @@ import os
 import time
 
 from . import bvh, sample
-from .features import read_inputs
 from .model import PostureMap
 from .motion import summary
 from .transition import DEFAULT_METHOD, transition
@@ -43,7 +42,7 @@ def run(out: str, data: str | None = None, log=print) -> dict:
             log(f"clip  {path}: {summary(clips[name])}")
         pairs = SAMPLE_PAIRS
     else:
-        loaded = read_inputs([data])
+        loaded = bvh.read_inputs([data])
         clips = {p: m for p, m in loaded}
         log(f"clips {data}: {len(clips)} BVH files, {sum(len(m) for m in clips.values())} frames")
         names = list(clips)

@@ -26,7 +26,6 @@ joint that never moves) are dropped; the inverse puts their constant value back.
 from __future__ import annotations
 
 import json
-import os
 import re
 from dataclasses import dataclass, field
 
@@ -360,21 +359,3 @@ def wrap_diff(a: np.ndarray, b: np.ndarray, circular: np.ndarray) -> np.ndarray:
     """``a - b`` with circular dimensions wrapped into [-pi, pi)."""
     d = a - b
     return np.where(circular, np.mod(d + np.pi, TWO_PI) - np.pi, d)
-
-
-def read_inputs(inputs: list[str]) -> list[tuple[str, Motion]]:
-    """Read BVH files and folders of them (sorted); clear errors for missing or empty input."""
-    from . import bvh
-
-    paths = []
-    for item in inputs:
-        if os.path.isdir(item):
-            found = sorted(os.path.join(item, f) for f in os.listdir(item) if f.lower().endswith(".bvh"))
-            if not found:
-                raise UserError(item, "folder holds no .bvh files")
-            paths.extend(found)
-        elif os.path.exists(item):
-            paths.append(item)
-        else:
-            raise UserError(item, "no such file or folder")
-    return [(p, bvh.read(p)) for p in paths]

@@ -625,11 +625,10 @@ def load_clips(inputs: list[str], log=None) -> dict[str, Motion]:
     if not inputs:
         from .. import sample
         return sample.clips()
-    from ..features import read_inputs
 
     out: dict[str, Motion] = {}
     first = None
-    for path, m in read_inputs(inputs):
+    for path, m in bvh.read_inputs(inputs):
         if first is None:
             first = (path, m.skeleton)
         elif not m.skeleton.same_as(first[1]):
