@@ -108,30 +108,35 @@ def _body_positions(motion: Motion, sample: int) -> np.ndarray:
     return gpos[:, keep]
 
 
+def _up_and_height(motion: Motion, sample: int) -> tuple[int, float]:
+    """Up axis and body height from one forward-kinematics pass (see :func:`up_axis`)."""
+    spread = np.median(np.ptp(_body_positions(motion, sample), axis=1), axis=0)
+    up = int(np.argmax(spread))
+    return up, float(spread[up])
+
+
 def up_axis(motion: Motion, sample: int = 32) -> int:
     """Index (0=X, 1=Y, 2=Z) of the world's up axis, read from the data.
 
     The body is taller than it is wide or deep: the axis along which the root and its
     descendants spread most (median over up to ``sample`` frames spread over the clip).
     """
-    spread = np.median(np.ptp(_body_positions(motion, sample), axis=1), axis=0)
-    return int(np.argmax(spread))
+    return _up_and_height(motion, sample)[0]
 
 
 def body_height(motion: Motion, sample: int = 32) -> float:
     """Median extent of the body (root and descendants) along the up axis, in the clip's unit."""
-    gpos = _body_positions(motion, sample)
-    up = int(np.argmax(np.median(np.ptp(gpos, axis=1), axis=0)))
-    return float(np.median(np.ptp(gpos[..., up], axis=1)))
+    return _up_and_height(motion, sample)[1]
 
 
-def length_unit(motion: Motion) -> str:
+def length_unit(motion: Motion, height: float | None = None) -> str:
     """The clip's length unit guessed from the body height: "m", "cm", "mm", "inch" or "unknown".
 
     A guess for display only: posturemap never rescales a clip. CMU's BVH conversions use
     the ASF unit (1/0.45 inch; a body about 24-30 units tall) and come out "unknown".
+    ``height`` is :func:`body_height` when already known.
     """
-    h = body_height(motion)
+    h = body_height(motion) if height is None else height
     for unit, lo, hi in (("m", 0.8, 2.5), ("cm", 80.0, 250.0), ("mm", 800.0, 2500.0), ("inch", 32.0, 80.0)):
         if lo <= h <= hi:
             return unit
@@ -141,10 +146,11 @@ def length_unit(motion: Motion) -> str:
 def summary(motion: Motion) -> str:
     """A short human-readable description of a clip."""
     sk = motion.skeleton
+    up, height = _up_and_height(motion, 32)
     return (f"{motion.num_frames} frames at {motion.fps:g} fps ({motion.num_frames / motion.fps:.2f} s), "
             f"{sk.num_joints} joints, {sum(len(c) for c in sk.channels)} channels, "
-            f"up axis {AXES[up_axis(motion)]}, body height {body_height(motion):.3g} "
-            f"({length_unit(motion)}), root joint {sk.names[root_index(motion)]!r}")
+            f"up axis {AXES[up]}, body height {height:.3g} "
+            f"({length_unit(motion, height)}), root joint {sk.names[root_index(motion)]!r}")
 
 
 def up_vector(axis: int) -> np.ndarray:

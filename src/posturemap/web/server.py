@@ -154,7 +154,8 @@ class Studio:
         self.bones = bone_names(self.skeleton.names)
         self.rest = first.positions[0].copy()
         self.root, self.up = root_index(first), up_axis(first)
-        self.height, self.unit = body_height(first), length_unit(first)
+        self.height = body_height(first)
+        self.unit = length_unit(first, self.height)
         if model is not None and (model.space_.up, model.space_.root) != (self.up, self.root):
             self.log(f"posturemap: warning: the map takes root {self.skeleton.names[model.space_.root]!r} and "
                      f"up {'XYZ'[model.space_.up]} but the clips read as root {self.skeleton.names[self.root]!r}, "
