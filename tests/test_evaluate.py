@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import evaluate
+from posturemap import evaluate, report
 from posturemap.evaluate import LENGTHS, METHODS, N_PAST, VARIANTS, Settings
 
 TINY = Settings(quick=True, train_stride=10, max_windows=4, pairs=3, som_epochs=1, latency_calls=5,
@@ -80,6 +80,7 @@ def test_quick_run_writes_every_file(quick):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
     md = (out / "results.md").read_text()
+    assert report.markdown(json.loads((out / "results.json").read_text())) == md  # rebuilt from the JSON alone
     for m in METHODS:
         assert f"| {m} |" in md
     assert "| truth |" in md and "L=45" in md and "angry, old, proud" in md
