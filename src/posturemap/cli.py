@@ -243,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("inputs", nargs="*", metavar="INPUT", help="BVH files or folders (default: the bundled sample)")
     v.add_argument("--map", metavar="MAP", help="posture map to use (default: learn one from the clips)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
-    v.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    v.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 takes a free one)")
     v.set_defaults(func=_cmd_serve)
 
     d = sub.add_parser("demo", help="run the whole pipeline on the bundled sample (or --data DIR)")
