@@ -106,6 +106,15 @@ class Page:
                   " && p.length === Number(v('length').value) && p.key_at === Number(v('key-at').value)"
                   " && p.a_end === Number(v('a-end').value) && p.b_start === Number(v('b-start').value); })()")
 
+    def choose(self, a, b, **ranges):
+        """Pick clips A and B, then set range inputs by id (``a_end=60`` sets ``#a-end``), in
+        order, as a user would; waits until the shown result reflects them."""
+        self.page.select_option("#clip-a", a)
+        self.page.select_option("#clip-b", b)
+        for name, value in ranges.items():
+            set_range(self, "#" + name.replace("_", "-"), value)
+        self.wait_requests_settled()
+
     def close(self):
         self.context.close()
 
@@ -160,13 +169,8 @@ def test_page_loads_without_console_errors_and_draws(studio, clips):
 
 
 def test_picking_clips_and_alpha_change_the_key_posture(studio, clips):
-    page = studio.page
-    page.select_option("#clip-a", "bow_normal_001")
-    page.select_option("#clip-b", "bye_normal_001")
     # Mid-clip seams: both clips start and end standing still, where every alpha gives one key.
-    set_range(studio, "#a-end", 60)
-    set_range(studio, "#b-start", 40)
-    studio.wait_requests_settled()
+    studio.choose("bow_normal_001", "bye_normal_001", a_end=60, b_start=40)
     s = studio.js("__studio.result")
     assert (s["a"], s["b"]) == ("bow_normal_001", "bye_normal_001")
     assert studio.js("__studio.frameCount") == 61 + 20 + len(clips["bye_normal_001"]) - 40
@@ -192,12 +196,7 @@ def test_picking_clips_and_alpha_change_the_key_posture(studio, clips):
 
 def test_export_downloads_the_shown_result(studio, clips):
     page = studio.page
-    page.select_option("#clip-a", "run_normal_001")
-    page.select_option("#clip-b", "walk_normal_001")
-    set_range(studio, "#a-end", 15)
-    set_range(studio, "#b-start", 30)
-    set_range(studio, "#length", 24)
-    studio.wait_requests_settled()
+    studio.choose("run_normal_001", "walk_normal_001", a_end=15, b_start=30, length=24)
     expected = 16 + 24 + len(clips["walk_normal_001"]) - 30
     assert studio.js("__studio.frameCount") == expected
     with page.expect_download() as info:
@@ -276,14 +275,8 @@ def test_screenshot(browser, base_url, tmp_path):
     studio = Page(browser, base_url, "?render=full")
     assert studio.js("__studio.profile") == "full"
     page = studio.page
-    page.select_option("#clip-a", "walk_normal_001")
-    page.select_option("#clip-b", "bow_normal_001")
     page.select_option("#compare", "slerp")
-    set_range(studio, "#a-end", 150)
-    set_range(studio, "#length", 30)
-    set_range(studio, "#key-at", 20)
-    set_range(studio, "#alpha", 0.6)
-    studio.wait_requests_settled()
+    studio.choose("walk_normal_001", "bow_normal_001", a_end=150, length=30, key_at=20, alpha=0.6)
     studio.wait("__studio.compare === 'slerp'")
     t0 = studio.js("__studio.result.transition[0]")
     page.evaluate(f"__studio.setFrame({t0 + 2})")
