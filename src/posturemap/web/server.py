@@ -334,12 +334,13 @@ class Studio:
             raise ApiError(422, f"foot_lock: must be true or false, got {_kind(foot_lock)}", "foot_lock")
         return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align, foot_lock)
 
-    def _new_frames(self, p: Params):
+    def _new_frames(self, p: Params, with_b: bool = False):
         """The in-between frames and how B continues A.
 
         Returns rotations (L, J, 4) and positions (L, J, 3) of the new frames, the engine's
         ``last``, the map's keyed joints (or None), B's part (a Motion, turned and moved when
-        ``align``) and the alignment ``(top joint, up axis, turn, shift)``.
+        ``align``; only ``with_b``, else None) and the alignment ``(top joint, up axis, turn,
+        shift)``.
         """
         with self._lock:
             engine = self.engine
@@ -362,15 +363,17 @@ class Studio:
             up = int(engine._up)
             if p.align:
                 turn, shift = float(last["dtheta"]), np.asarray(last["shift"], dtype=np.float64)
-                b_part = aligned(engine.tracks[p.b], engine, p.b_start, turn, shift)
             else:
                 turn, shift = 0.0, np.zeros(3)
-                b_part = self.clips[p.b][p.b_start:]
+            b_part = None
+            if with_b:
+                b_part = (aligned(engine.tracks[p.b], engine, p.b_start, turn, shift) if p.align
+                          else self.clips[p.b][p.b_start:])
         return rots, pos, last, keyed_joints, b_part, (top, up, turn, shift)
 
     def generate(self, p: Params):
         """The whole result as one Motion: A[0..a_end], the new frames, then B's part."""
-        rots, pos, _, _, b_part, _ = self._new_frames(p)
+        rots, pos, _, _, b_part, _ = self._new_frames(p, with_b=True)
         a = self.clips[p.a]
         return concatenate([a[: p.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
                             Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
