@@ -46,6 +46,21 @@ def bandai_files(data_dir) -> list[Path]:
 
 
 @pytest.fixture(scope="session")
+def bandai_paths(bandai_files):
+    """A function: Bandai clip names (without ``dataset-1_``) to ``{name: path}``; skips the
+    test, naming the clips, when the data lacks some."""
+    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
+
+    def paths(names) -> dict[str, Path]:
+        missing = sorted(set(names) - set(by_name))
+        if missing:
+            pytest.skip(f"Bandai clips missing from {bandai_files[0].parent}: {', '.join(missing)}")
+        return {n: by_name[n] for n in names}
+
+    return paths
+
+
+@pytest.fixture(scope="session")
 def cmu_file(data_dir) -> Path:
     """CMU subject 1, trial 1 (120 fps, ZYX rotations, root with 6 channels)."""
     path = data_dir / "cmu" / "01_01.bvh"

@@ -41,12 +41,8 @@ from playwright.sync_api import sync_playwright
 
 # -- fixtures -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def clips(bandai_files):
-    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
-    missing = [n for n in CLIPS if n not in by_name]
-    if missing:
-        pytest.skip(f"Bandai clips missing: {', '.join(missing)}")
-    return {n: bvh.read(by_name[n]) for n in CLIPS}
+def clips(bandai_paths):
+    return {n: bvh.read(p) for n, p in bandai_paths(CLIPS).items()}
 
 
 @pytest.fixture(scope="module")

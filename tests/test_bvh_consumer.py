@@ -74,12 +74,9 @@ window.__results = out;
 
 
 @pytest.fixture(scope="module")
-def outputs(bandai_files, tmp_path_factory):
+def outputs(bandai_paths, tmp_path_factory):
     """The three transitions as BVH files: {name: (path, Motion written)}."""
-    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
-    missing = sorted({n for pair in PAIRS for n in pair} - set(by_name))
-    if missing:
-        pytest.skip(f"Bandai clips missing: {', '.join(missing)}")
+    by_name = bandai_paths({n for pair in PAIRS for n in pair})
     folder = tmp_path_factory.mktemp("consumer")
     out = {}
     for a_name, b_name in PAIRS:

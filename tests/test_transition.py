@@ -38,6 +38,7 @@ UP = 1  # Bandai dataset 1 is Y up (data README): the checks below use the known
 WALK, RUN, BOW, DANCE, BACK = ("walk_normal_001", "run_normal_001", "bow_normal_001",
                                "dance-short_normal_001", "walk-back_normal_001")
 CLIPS = (WALK, RUN, BOW, DANCE, BACK)
+LEFT = "walk-left_normal_001"  # read where needed, not part of the map
 PAIRS = [(WALK, RUN), (BOW, DANCE), (RUN, BACK)]
 NEURON_KEYS = ("upm", "upm-path")  # keys made of map neurons (upm-valid projects estimates)
 WINDOW = 10  # clip frames beside a seam that the seam is compared with
@@ -45,12 +46,8 @@ WINDOW = 10  # clip frames beside a seam that the seam is compared with
 
 # -- fixtures ---------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def paths(bandai_files):
-    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
-    missing = [n for n in CLIPS if n not in by_name]
-    if missing:
-        pytest.skip(f"bandai1 lacks {', '.join(missing)}")
-    return by_name
+def paths(bandai_paths):
+    return bandai_paths(CLIPS + (LEFT,))
 
 
 @pytest.fixture(scope="module")
@@ -202,7 +199,7 @@ def test_mapless_alignment_turns_b_to_a_heading(clips, paths):
     # run_normal_001 and walk-back_normal_001 are clips whose joint_Root moves; walk-left
     # faces about 80 degrees away from them. Aligned, B must face A's heading plus the carried
     # turning, with or without a map.
-    left = bvh.read(paths["walk-left_normal_001"])
+    left = bvh.read(paths[LEFT])
     for name in (RUN, BACK):
         a = clips[name]
         out = transition(a, left, None, length=20, method="spline")

@@ -224,10 +224,8 @@ def test_export_post_and_get_give_bvh(client, sample_clips):
 
 
 @pytest.fixture(scope="module")
-def bandai(bandai_files):
-    by_name = {p.stem.removeprefix("dataset-1_"): p for p in bandai_files}
-    names = ["walk_normal_001", "run_normal_001", "bow_normal_001"]
-    return {n: bvh.read(by_name[n]) for n in names}
+def bandai(bandai_paths):
+    return {n: bvh.read(p) for n, p in bandai_paths(["walk_normal_001", "run_normal_001", "bow_normal_001"]).items()}
 
 
 def test_export_matches_transition_on_bandai(bandai):
