@@ -166,6 +166,7 @@ def test_page_loads_without_console_errors_and_draws(studio, clips):
 
 def test_picking_clips_and_alpha_change_the_key_posture(studio, clips):
     # Mid-clip seams: both clips start and end standing still, where every alpha gives one key.
+    studio.page.select_option("#method", "upm-valid")
     studio.choose("bow_normal_001", "bye_normal_001", a_end=60, b_start=40)
     s = studio.js("__studio.result")
     assert (s["a"], s["b"]) == ("bow_normal_001", "bye_normal_001")

@@ -22,6 +22,7 @@ from posturemap.motion import Motion, concatenate, root_index, up_axis
 from posturemap.skeleton import fk
 from posturemap.transition import (
     ACCEPT,
+    KEY_POSTURE,
     KEYED,
     METHODS,
     TransitionEngine,
@@ -262,7 +263,7 @@ def assert_frame_is_key(frame: Motion, model, key, neurons, method, where=""):
         assert float(height) == pytest.approx(key_height, abs=1e-9)
 
 
-@pytest.mark.parametrize("method", KEYED)
+@pytest.mark.parametrize("method", KEY_POSTURE)
 def test_frame_at_key_at_is_the_key_posture(clips, model, method):
     space = model.space_
     for (a, b), (a_end, b_start, length, key_at, alpha) in zip(
@@ -383,7 +384,7 @@ def test_upm_valid_keys_lie_in_the_maps_valid_region(clips, model, alpha):
             assert d[k] <= ACCEPT * m.radius_ * (1 + 1e-9), f"{a}->{b} class {c}: {d[k]:.3f} > {ACCEPT} R"
 
 
-@pytest.mark.parametrize("method", KEYED)
+@pytest.mark.parametrize("method", KEY_POSTURE)
 def test_alpha_0_keys_lie_nearer_a_than_alpha_1_keys(clips, model, method):
     space = model.space_
     circ = space.circular

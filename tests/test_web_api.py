@@ -197,7 +197,7 @@ def test_defaults_and_alpha_moves_the_key(client, sample_clips):
 
 
 def test_length_one_and_no_align(client, sample_clips):
-    d = post(client, {"a": "walk", "b": "run", "length": 1, "align": False}).json()
+    d = post(client, {"a": "walk", "b": "run", "length": 1, "align": False, "method": "upm-valid"}).json()
     assert d["key"]["index"] == 1 and d["transition"] == [90, 90]
     run = sample_clips["run"]
     assert d["alignment"]["turn"] == 0 and d["alignment"]["shift"] == [0, 0, 0]

@@ -130,14 +130,29 @@ def _cmd_transition(args) -> int:
         model.check_skeleton(a.skeleton, args.a)
     elif args.method in KEYED:
         model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
+    report = {}
     out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
                      a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method,
-                     foot_lock=not args.no_foot_lock)
+                     foot_lock=not args.no_foot_lock, report=report)
     bvh.write(args.output, out)
     a_end = len(a) - 1 if args.a_end is None else args.a_end
-    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {args.method} frames "
-          f"+ B[{args.b_start}..{len(b) - 1}]")
+    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {report.get('method', args.method)} "
+          f"frames + B[{args.b_start}..{len(b) - 1}]")
+    if "retrieval" in report:
+        print(describe_retrieval(report["retrieval"]))
     return 0
+
+
+def describe_retrieval(info) -> str:
+    """One line per body part: which library clip and frames were replayed, and how confidently."""
+    if not info:
+        return "  retrieval: no library segment fits; interpolated instead (fallback)"
+    lines = []
+    for part, r in info["parts"].items():
+        lines.append(f"  {part}: {r['clip']} frames {r['frames'][0]}..{r['frames'][1]} "
+                     f"(warp {r['warp']:.2f}), match {r['cost_radii']:.2f} map radii, "
+                     f"confidence {r['confidence']:.2f}")
+    return "\n".join(lines)
 
 
 def _cmd_inspect(args) -> int:

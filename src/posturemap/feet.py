@@ -89,7 +89,7 @@ def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
 
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
-                             speed_tol=np.inf):
+                             speed_tol=np.inf, on=None):
     """Per frame of the new frames: lock weight (L,) and horizontal target (L, 3).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -98,11 +98,14 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``speed`` (L,) per frame, slow (a low foot that swings through is not planted). Inside a run
     of ground frames the weight is 1; it fades over ``FADE`` frames before and after the run,
     while the foot is in the air, so the foot never slides along the ground to catch up.
+    ``on`` (L,) bool, when given, says which frames are planted instead (e.g. the contacts of
+    a retrieved real segment).
     """
     length = len(h)
-    on = h < floor + height_tol
-    if speed is not None:
-        on &= speed < speed_tol
+    if on is None:
+        on = h < floor + height_tol
+        if speed is not None:
+            on &= speed < speed_tol
     weight = np.zeros(length)
     target = horiz.copy()
     for start, stop in contact_runs(on):
@@ -130,13 +133,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     return weight, target
 
 
-def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float) -> None:
+def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
+              contacts=None) -> None:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
     translations; ``gpos_fn(rots)`` gives their global rotations and positions (L, J, 4/3).
     ``a_feet``/``b_feet`` (2, n_legs, 3) are the ankle positions in A's last two frames and
-    B's first two (B as aligned), for the planted test.
+    B's first two (B as aligned), for the planted test. ``contacts`` (L, n_legs) bool, when
+    given, are the planted frames (otherwise they are detected from height and speed).
     """
     if not chains or len(rots) == 0:
         return
@@ -156,8 +161,16 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                 and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
         horiz = gpos[:, ankle] * flat
         speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
+        on = None
+        if contacts is not None:  # a run at a seam where that clip's foot is not planted would jump
+            on = contacts[:, leg].copy()
+            runs = contact_runs(on)
+            if runs and runs[0][0] == 0 and not a_on:
+                on[: runs[0][1]] = False
+            if runs and runs[-1][1] == len(on) and not b_on:
+                on[runs[-1][0]:] = False
         weight, target = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
-                                                  b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol)
+                                                  b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol, on)
         drift = np.linalg.norm(target - horiz, axis=-1) / body
         lo, hi = MAX_DRIFT
         weight *= np.clip((hi - drift) / (hi - lo), 0.0, 1.0)

@@ -50,6 +50,8 @@ class PostureMap:
         Posture feature mode (see :mod:`posturemap.features`).
     classes : dict or None
         Joint name to class name overrides.
+    library : bool
+        Keep the training motion for retrieval transitions (:mod:`posturemap.library`).
 
     Attributes (after ``fit``)
     --------------------------
@@ -57,10 +59,11 @@ class PostureMap:
     space_ : FeatureSpace
     maps_ : list of 4 UniformPostureMap
     info_ : dict, training summary (clips, frames, seconds, quality per class)
+    library_ : MotionLibrary or None, the training motion indexed by the ``global`` map
     """
 
     def __init__(self, radius="auto", neighborhood=2, learning_rate=0.5, epochs=4, seed=0,
-                 features="logmap", classes=None):
+                 features="logmap", classes=None, library=True):
         self.radius = radius
         self.neighborhood = neighborhood
         self.learning_rate = learning_rate
@@ -68,6 +71,7 @@ class PostureMap:
         self.seed = seed
         self.features = features
         self.classes = classes
+        self.library = library
 
     def fit(self, motions: list[Motion], names: list[str] | None = None, progress=None) -> "PostureMap":
         """Learn the four class maps from training motions (one skeleton); returns ``self``.
@@ -106,6 +110,7 @@ class PostureMap:
         self.skeleton_ = first
         self.space_ = space
         self.maps_ = maps
+        self.library_ = self._build_library(motions, names) if self.library else None
         self.info_ = {
             "clips": len(motions), "frames": int(len(x)), "fps": float(motions[0].fps),
             "train_seconds": round(time.perf_counter() - t0, 3),
@@ -118,6 +123,14 @@ class PostureMap:
             } for c, m in enumerate(maps)},
         }
         return self
+
+    def _build_library(self, motions, names):
+        from .library import build_library
+        from .transition import TransitionEngine
+
+        engine = TransitionEngine(self)
+        tracks = [engine.add(str(i), m) for i, m in enumerate(motions)]
+        return build_library(tracks, self, [str(n) for n in names])
 
     # -- use ------------------------------------------------------------------------------
     def encode(self, motion: Motion) -> np.ndarray:
@@ -147,6 +160,9 @@ class PostureMap:
             "radius": [m.radius_ for m in self.maps_],
             "info": self.info_,
         }
+        lib = getattr(self, "library_", None)
+        if lib is not None:
+            meta["library"] = lib.meta()
         arrays = {"meta": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
         for k, v in self.space_.arrays().items():
             arrays[f"space_{k}"] = v
@@ -156,6 +172,9 @@ class PostureMap:
             arrays[f"c{c}_hits"] = m.hits_
             arrays[f"c{c}_witness"] = m.witness_
             arrays[f"c{c}_period"] = m.period_
+        if lib is not None:
+            for k, v in lib.arrays().items():
+                arrays[f"library_{k}"] = v
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         write_bytes_atomic(path, buf.getvalue())
@@ -224,6 +243,16 @@ class PostureMap:
             m.radius_ = float(meta["radius"][c])
             self.maps_.append(m)
         self.info_ = meta.get("info", {})
+        self.library_ = None
+        if "library" in meta:
+            from .library import MotionLibrary
+
+            if not isinstance(meta["library"], dict):
+                raise ValueError("library metadata is not an object")
+            lib_arrays = {k[8:]: v for k, v in arrays.items() if k.startswith("library_")}
+            self.library_ = MotionLibrary.from_parts(meta["library"], lib_arrays, self.skeleton_,
+                                                     self.maps_[1].n_neurons)
+        self.library = self.library_ is not None
         return self
 
     def describe(self) -> dict:

@@ -7,8 +7,17 @@ Every frame is split into a *trajectory* (root horizontal position, heading abou
 axis) and a *posture* (root height, root tilt, local rotations). Rotations are handled as
 rotation vectors ``log(ref^-1 q)`` relative to a per-joint reference rotation (the key's,
 or B's first), a space without sign flips or seams for the short arcs of a transition.
-Each method is then a fixed linear map from the seam values to the in-between frames:
+The interpolating methods are each a fixed linear map from the seam values to the in-between
+frames; retrieval replays real motion:
 
+``auto`` (default)
+    ``spline`` for gaps shorter than ``AUTO_SHORT_S`` seconds (too short for a step, where
+    matching the seam velocities is what counts), ``retrieval`` otherwise.
+``retrieval``
+    Real motion from the map's motion library, found through the map's index, replayed between
+    the seams with smooth seam corrections and its planted feet kept planted, falling back to
+    ``upm-valid`` by confidence (:mod:`posturemap.retrieval`). ``alpha`` weighs the match at A's
+    end (0: continue A's motion) against the match at B's start (1: arrive in B's motion).
 ``upm`` (paper)
     Key posture from the four class maps: per class, the neuron nearest the ``alpha``-blend of
     A's last and B's first posture (an O(n) scan). A clamped cubic B-spline passes through A's
@@ -16,7 +25,7 @@ Each method is then a fixed linear map from the seam values to the in-between fr
 ``upm-path``
     As ``upm``, with each class key the neuron at fraction ``alpha`` of the way along the
     shortest path between the two postures' winners in the map graph.
-``upm-valid`` (default)
+``upm-valid``
     Keys every ``KEY_SPACING_S`` seconds, each estimated from the blend of the seam postures and
     the fading seam velocities and projected into the map's valid region (within ``ACCEPT`` * R of
     a neuron); one clamped B-spline through all of them (see :meth:`TransitionEngine.valid_keys`).
@@ -49,9 +58,11 @@ from .feet import leg_chains, lock_feet
 from .features import TWO_PI, root_global, upright_rest
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
 
-METHODS = ("upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
-KEYED = ("upm", "upm-path", "upm-valid")
-DEFAULT_METHOD = "upm-valid"  # chosen by `posturemap bench`: see the README
+METHODS = ("auto", "retrieval", "upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
+KEYED = ("auto", "retrieval", "upm", "upm-path", "upm-valid")  # need a map; alpha steers them
+KEY_POSTURE = ("upm", "upm-path", "upm-valid")  # interpolate through key postures (key_at)
+DEFAULT_METHOD = "auto"  # chosen by `posturemap bench`: see the README
+AUTO_SHORT_S = 0.25  # auto: gaps shorter than this (seconds) use `spline`, longer ones `retrieval`
 # upm-valid (see TransitionEngine.valid_keys and the README's evaluation section):
 KEY_SPACING_S = 0.2  # at most this many seconds between keys
 VELOCITY_HORIZON_S = 0.1  # time constant (s) over which the seam velocities fade from the keys
@@ -453,6 +464,13 @@ class TransitionEngine:
         check_args(len(ta.gpos), len(tb.gpos), length, key_at, alpha, a_end, b_start, method)
         if method in KEYED and self.model is None:
             raise UserError("--method", f"method {method!r} needs a posture map")
+        if method == "auto":
+            method = "spline" if (length + 1) / ta.motion.fps < AUTO_SHORT_S else "retrieval"
+            out = self.generate(a, b, length, key_at, alpha, a_end, b_start, align, method, foot_lock)
+            self.last["method"] = method
+            return out
+        if method == "retrieval":
+            return self._retrieval(ta, tb, a, b, length, key_at, alpha, a_end, b_start, align, foot_lock)
         up, root = self._up, self._root
 
         # Seam frames: A at a_end-2..a_end, B at b_start..b_start+1 (clamped inside the clips).
@@ -543,6 +561,59 @@ class TransitionEngine:
         self.last = {"key": key, "neurons": chosen, "dtheta": dtheta, "shift": shift}
         return out_r, out_p
 
+    def _retrieval(self, ta, tb, a, b, length, key_at, alpha, a_end, b_start, align, foot_lock):
+        """``method="retrieval"`` (:mod:`posturemap.retrieval`), with its fallback blended by confidence."""
+        from . import retrieval
+
+        rots_fb, pos_fb = self.generate(a, b, length, key_at, alpha, a_end, b_start, align,
+                                        retrieval.FALLBACK, False)
+        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
+        fb_last = self.last
+        lib = getattr(self.model, "library_", None)
+        res = None
+        if lib is not None and len(lib):
+            if getattr(self, "_retriever", None) is None or self._retriever.lib is not lib:
+                self._retriever = retrieval.Retriever(self, lib)
+            res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align,
+                                     **getattr(self, "retrieval_options", {}))
+        out_r, out_p = self._buffers.get(length) or (np.empty((length, self.skeleton.num_joints, 4)),
+                                                     np.empty((length, self.skeleton.num_joints, 3)))
+        self._buffers[length] = (out_r, out_p)
+        if res is None or max(res.confidence) <= 0.0:
+            out_r[:], out_p[:] = rots_fb, pos_fb
+            self.last = {**fb_last, "retrieval": None if res is None else res.info}
+            dtheta, shift, contacts = fb_last["dtheta"], fb_last["shift"], None
+        else:
+            rt = self._retriever
+            out_r[:] = res.rots
+            out_r[:, self._chain] = rots_fb[:, self._chain]
+            out_p[:] = pos_fb
+            kernels.compose_root(self._chain, self._root, self._up, out_r, out_p, res.gpos, res.heading)
+            for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
+                if c < 1.0:
+                    out_r[:, mask] = quat.slerp(rots_fb[:, mask], out_r[:, mask], c)
+            if res.confidence[0] < 1.0:
+                r = self._root
+                out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
+            dtheta, shift = res.dtheta, res.shift
+            if res.confidence[0] < 1.0 and align:  # B's place blended like the trajectory
+                c = res.confidence[0]
+                g0 = tb.gpos[b_start]
+                end_fb = rotate_about_up(g0, fb_last["dtheta"], self._up) + fb_last["shift"]
+                end = rotate_about_up(g0, dtheta, self._up) + shift
+                turn = dtheta - fb_last["dtheta"]
+                dtheta = fb_last["dtheta"] + c * (turn - TWO_PI * round(turn / TWO_PI))
+                shift = end_fb + c * (end - end_fb) - rotate_about_up(g0, dtheta, self._up)
+            contacts = res.contacts if res.confidence[0] >= 0.5 else None
+            self.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
+        if foot_lock and self._legs:
+            ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+            ia = [max(a_end - 1, 0), a_end]
+            b_feet = rotate_about_up(tb.feet[ib], dtheta, self._up) + shift
+            lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, ta.feet[ia], b_feet,
+                      ta.motion.fps, contacts)
+        return out_r, out_p
+
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""
         out_p = self._buffers[len(rots)][1]
@@ -604,7 +675,7 @@ def aligned(track: Track, engine: TransitionEngine, start: int, dtheta: float, s
 
 def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int | None = None,
                alpha: float = 0.5, a_end: int | None = None, b_start: int = 0, align: bool = True,
-               method: str = DEFAULT_METHOD, foot_lock: bool = True) -> Motion:
+               method: str = DEFAULT_METHOD, foot_lock: bool = True, report: dict | None = None) -> Motion:
     """A[:a_end+1], then ``length`` new frames, then B[b_start:] (moved to continue A).
 
     Parameters
@@ -620,6 +691,9 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     align : move and turn B to continue A; False leaves B's root exactly where it is
     method : one of :data:`METHODS`
     foot_lock : keep planted feet still in the new frames (:mod:`posturemap.feet`)
+    report : a dict to fill with what was done: ``method`` (the one used, for ``auto``) and,
+        for retrieval, ``retrieval`` (source clip and frames per body part, match cost in map
+        radii, confidence; None when nothing fitted and the fallback was used)
 
     Returns
     -------
@@ -629,6 +703,10 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     engine.add("a", a)
     engine.add("b", b)
     rots, pos = engine.generate("a", "b", length, key_at, alpha, a_end, b_start, align, method, foot_lock)
+    if report is not None:
+        report["method"] = engine.last.get("method", method)
+        if "retrieval" in engine.last:
+            report["retrieval"] = engine.last["retrieval"]
     a_end = len(a) - 1 if a_end is None else a_end
     mid = Motion(a.skeleton, rots.copy(), pos.copy(), a.fps)
     if align:

@@ -12,6 +12,7 @@ const COLOR = {
 };
 const METHOD_NAMES = {
   upm: 'UPM key (paper)', 'upm-path': 'UPM key on map path', 'upm-valid': 'UPM key, validated',
+  retrieval: 'Retrieved real motion', auto: 'Auto (by gap and match)',
   spline: 'Spline, no key', slerp: 'SLERP / LERP', inertialize: 'Inertialization',
 };
 const methodName = (m) => METHOD_NAMES[m] || m;
@@ -553,7 +554,7 @@ function apply(res, cres, params, kind) {
   } : null;
   studio.result = {
     a: res.a, b: res.b, method: res.method, frames: res.frames, fps: res.fps, segments: res.segments,
-    seams: res.seams, transition: res.transition, key_frame: res.key_frame,
+    seams: res.seams, transition: res.transition, key_frame: res.key_frame, retrieval: res.retrieval || null,
   };
   if (studio.map && studio.map.state !== 'training' && studio.map.state !== 'loading') studio.state = 'ready';
 
@@ -581,12 +582,24 @@ function apply(res, cres, params, kind) {
   $('result-info').textContent = `${res.frames} frames (${d} s): A 0–${res.seams[0]}, `
     + `${params.length} new frames, B from its frame ${params.b_start}`
     + (res.key ? ` · key neurons ${res.key.neurons.join(', ')}` : '');
+  showRetrieval(res);
   drawTimeline();
   drawPlot();
   needsRender = true;
 }
 
 let waitForMap = false;
+
+// Which real motion a retrieval transition replayed, and how well it matched (one line per part).
+function showRetrieval(res) {
+  const el = $('retrieval-info');
+  const r = res.retrieval;
+  el.hidden = r === undefined;
+  if (r === undefined) return;
+  el.textContent = !r ? 'No library motion fits: interpolated (fallback).'
+    : Object.entries(r.parts).map(([part, p]) => `${part}: ${p.clip} ${p.frames[0]}–${p.frames[1]}`
+      + ` · match ${p.cost_radii.toFixed(2)} R · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
+}
 
 // ---- playback ----------------------------------------------------------------------------
 function setPlaying(on) {

@@ -1,0 +1,271 @@
+"""Motion library: the training clips kept for retrieval, with matching features and an index.
+
+The posture maps say which postures are real; the library keeps the real *motion* behind
+them, so that a transition can replay a real segment instead of interpolating (motion graphs,
+Kovar et al. 2002; motion matching, Clavet 2016 and Holden et al. 2020).
+
+Per library frame (all training clips, one after another; ``clip_start`` marks the clips):
+
+- ``rots (N, J, 4)`` local rotations, the root's replaced by its tilt (as in a transition
+  :class:`~posturemap.transition.Track`), float32;
+- ``gpos (N, 3)`` the root's global position and ``heading (N,)`` its turn about the up axis
+  (radians, continuous within a clip): the root trajectory;
+- ``contacts (N, legs)`` planted feet (low and slow ankles, thresholds of :mod:`posturemap.feet`);
+- matching features, each in the frame's own heading frame (so they do not depend on where the
+  character stands or faces): ``pose (N, K, 3)`` key joints (ankles, knees, wrists, head)
+  relative to the root, their velocities ``vel (N, K, 3)`` (per second, backward difference)
+  and the root's velocity, turning rate and height, ``root (N, 5)``;
+- ``win (N,)``: each frame's winning neuron in the index class map (the ``global`` class:
+  thighs, upper arms, clavicles). Its inverted index (neuron -> frames, CSR) is the search's
+  first stage, as an IVF index of a nearest-neighbour library is.
+
+Bytes per frame are reported by :meth:`MotionLibrary.nbytes_per_frame` (448 for Bandai's
+22 joints).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat
+from .feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains, leg_length
+from .skeleton import Skeleton, fk
+
+INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)
+FLOOR_PERCENTILE = 5.0  # a clip's floor under each ankle: this percentile of its heights
+_HAND = re.compile(r"hand|wrist", re.IGNORECASE)
+_NOT_HAND = re.compile(r"thumb|index|middle|ring|pinky|finger|end|site", re.IGNORECASE)
+_HEAD = re.compile(r"head", re.IGNORECASE)
+ARRAYS = ("clip_start", "rots", "gpos", "heading", "contacts", "pose", "vel", "root", "win")
+
+
+def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Joint indices matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
+
+    Found by name (leg chains of :func:`posturemap.feet.leg_chains`; "hand"/"wrist" without a
+    finger word; "head"); where a skeleton has no such name, the deepest joints of the part.
+    """
+    chains = leg_chains(sk)
+    lower = [c[2] for c in chains] + [c[1] for c in chains]
+    leg_joints = {j for c in chains for j in c}
+    names = [n.split(":")[-1] for n in sk.names]
+    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n)]
+    upper = [j for j in upper if not any(_HAND.search(names[p]) for p in _ancestors(sk, j))]
+    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)][:1]
+    if not upper:  # no names: the leaves outside the legs
+        leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
+        upper = leaves[:3]
+    return np.array(lower, dtype=np.int64), np.array(upper, dtype=np.int64)
+
+
+def _ancestors(sk: Skeleton, j: int) -> list[int]:
+    out = []
+    p = int(sk.parents[j])
+    while p >= 0:
+        out.append(p)
+        p = int(sk.parents[p])
+    return out
+
+
+def heading_frame(v: np.ndarray, heading: np.ndarray, up: int) -> np.ndarray:
+    """Vectors ``v (F, ..., 3)`` turned by ``-heading (F,)`` about the up axis (into the body's frame)."""
+    a, b = (up + 1) % 3, (up + 2) % 3
+    c, s = np.cos(heading), np.sin(heading)
+    shape = (len(heading),) + (1,) * (v.ndim - 2)
+    c, s = c.reshape(shape), s.reshape(shape)
+    out = v.copy()
+    out[..., a] = c * v[..., a] + s * v[..., b]
+    out[..., b] = -s * v[..., a] + c * v[..., b]
+    return out
+
+
+def clip_features(gpos_all: np.ndarray, root_pos: np.ndarray, heading: np.ndarray, joints: np.ndarray,
+                  up: int, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Matching features of one clip: ``pose (F, K, 3)``, ``vel (F, K, 3)``, ``root (F, 5)``.
+
+    gpos_all : (F, J, 3) global joint positions; root_pos : (F, 3); heading : (F,) radians;
+    joints : (K,) key joints. ``pose`` is the key joints relative to the root in the heading
+    frame; ``vel`` its backward difference per second (the first frame takes the forward one);
+    ``root`` the root's velocity in the heading frame (3, per second), its turning rate
+    (rad/s) and its height (the up coordinate).
+    """
+    rel = gpos_all[:, joints] - root_pos[:, None]
+    pose = heading_frame(rel, heading, up)
+    f = len(pose)
+    prev = np.maximum(np.arange(f) - 1, 0)
+    prev[0] = min(1, f - 1)
+    sign = np.ones(f)
+    sign[0] = -1.0
+    vel = (pose - pose[prev]) * (sign * fps)[:, None, None]
+    rv = heading_frame((root_pos - root_pos[prev]) * (sign * fps)[:, None], heading, up)
+    turn = (heading - heading[prev]) * sign * fps
+    root = np.concatenate([rv, turn[:, None], root_pos[:, up: up + 1]], axis=1)
+    return pose, vel, root
+
+
+def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.ndarray:
+    """Planted feet (F, legs) of one clip from its global ankle positions (F, legs, 3).
+
+    A foot is planted while its ankle is within :data:`posturemap.feet.CONTACT_HEIGHT` leg
+    lengths of the clip's floor under it and moves slower than ``CONTACT_SPEED`` leg lengths
+    per second horizontally (the same thresholds as the foot lock).
+    """
+    if ankles.shape[1] == 0 or len(ankles) == 0:
+        return np.zeros(ankles.shape[:2], dtype=bool)
+    h = ankles[..., up]
+    floor = np.percentile(h, FLOOR_PERCENTILE, axis=0)
+    flat = np.ones(3)
+    flat[up] = 0.0
+    step = np.linalg.norm(np.diff(ankles * flat, axis=0), axis=-1) * fps
+    speed = np.concatenate([step[:1], np.minimum(step[1:], step[:-1]), step[-1:]]) if len(step) else np.zeros_like(h)
+    return (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
+
+
+@dataclass(frozen=True, eq=False)
+class MotionLibrary:
+    """Real motion for retrieval (see the module docstring for the arrays).
+
+    Build it with :func:`build_library`; the arrays are plain and saved in the map file.
+    """
+
+    fps: float
+    up: int
+    leg: float
+    clip_start: np.ndarray
+    rots: np.ndarray
+    gpos: np.ndarray
+    heading: np.ndarray
+    contacts: np.ndarray
+    pose: np.ndarray
+    vel: np.ndarray
+    root: np.ndarray
+    win: np.ndarray
+    clip_names: tuple[str, ...] = ()
+    lower: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    upper: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    clip_of: np.ndarray = field(init=False)
+    clip_end: np.ndarray = field(init=False)
+    scale: np.ndarray = field(init=False)
+    index_ptr: np.ndarray = field(init=False)
+    index_frames: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        n = len(self.rots)
+        clip_of = np.repeat(np.arange(len(self.clip_start) - 1), np.diff(self.clip_start))
+        object.__setattr__(self, "clip_of", clip_of)
+        object.__setattr__(self, "clip_end", self.clip_start[1:][clip_of] if n else np.zeros(0, np.int64))
+        object.__setattr__(self, "scale", feature_scales(self))
+        order = np.argsort(self.win, kind="stable")
+        ptr = np.zeros(int(self.win.max()) + 2 if n else 1, dtype=np.int64)
+        np.add.at(ptr, self.win + 1, 1)
+        object.__setattr__(self, "index_ptr", np.cumsum(ptr))
+        object.__setattr__(self, "index_frames", order.astype(np.int64))
+
+    def __len__(self) -> int:
+        return len(self.rots)
+
+    @property
+    def num_clips(self) -> int:
+        return len(self.clip_start) - 1
+
+    def nbytes_per_frame(self) -> float:
+        """Stored bytes per library frame (all per-frame arrays)."""
+        n = max(len(self), 1)
+        return sum(getattr(self, k).nbytes for k in ARRAYS if k != "clip_start") / n
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays to save (names without prefix)."""
+        out = {k: getattr(self, k) for k in ARRAYS}
+        out["lower"], out["upper"] = self.lower, self.upper
+        return out
+
+    def meta(self) -> dict:
+        return {"fps": self.fps, "up": self.up, "leg": self.leg, "frames": len(self),
+                "clips": list(self.clip_names), "bytes_per_frame": round(self.nbytes_per_frame(), 1)}
+
+    @classmethod
+    def from_parts(cls, meta: dict, arrays: dict, sk: Skeleton, n_neurons: int) -> "MotionLibrary":
+        """A library from saved arrays, each checked (dtype, shape, finite, ranges); raises ValueError."""
+        n = int(meta["frames"])
+        j = sk.num_joints
+        legs = len(leg_chains(sk))
+        fps, leg, up = float(meta["fps"]), float(meta["leg"]), int(meta["up"])
+        if not (np.isfinite(fps) and fps > 0 and np.isfinite(leg) and leg > 0 and up in (0, 1, 2) and n >= 1):
+            raise ValueError("library metadata out of range")
+        lower, upper = (np.asarray(arrays[k], dtype=np.int64) for k in ("lower", "upper"))
+        k = len(lower) + len(upper)
+        if lower.ndim != 1 or upper.ndim != 1 or np.any(lower < 0) or np.any(lower >= j) \
+                or np.any(upper < 0) or np.any(upper >= j):
+            raise ValueError("library key joints do not fit the skeleton")
+        shapes = {"rots": (n, j, 4), "gpos": (n, 3), "heading": (n,), "contacts": (n, legs),
+                  "pose": (n, k, 3), "vel": (n, k, 3), "root": (n, 5), "win": (n,)}
+        out = {}
+        for name, shape in shapes.items():
+            a = arrays[name]
+            if a.shape != shape:
+                raise ValueError(f"library {name} has shape {a.shape}, expected {shape}")
+            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+                raise ValueError(f"library {name} is not finite")
+            out[name] = a
+        out["contacts"] = out["contacts"].astype(bool)
+        out["win"] = out["win"].astype(np.int64)
+        if out["win"].min() < 0 or out["win"].max() >= n_neurons:
+            raise ValueError("library index refers to neurons the map does not have")
+        starts = np.asarray(arrays["clip_start"], dtype=np.int64)
+        if starts.ndim != 1 or len(starts) < 2 or starts[0] != 0 or starts[-1] != n or np.any(np.diff(starts) < 1):
+            raise ValueError("library clip boundaries are inconsistent")
+        names = tuple(str(c) for c in meta.get("clips", []))[: len(starts) - 1]
+        return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, **out)
+
+
+def feature_scales(lib: MotionLibrary) -> np.ndarray:
+    """One scale per feature block, so that each block weighs alike (Holden et al. 2020).
+
+    Returns (5,): lower pose, lower velocity, upper pose, upper velocity, root blocks use the
+    mean standard deviation of their coordinates over the library (1 where a block is empty).
+    """
+    kl = len(lib.lower)
+
+    def spread(x):
+        return float(np.mean(np.std(x.reshape(len(x), -1), axis=0))) if x.size else 1.0
+
+    s = np.array([spread(lib.pose[:, :kl]), spread(lib.vel[:, :kl]), spread(lib.pose[:, kl:]),
+                  spread(lib.vel[:, kl:]), 1.0])
+    return np.where(s > 1e-9, s, 1.0)
+
+
+def build_library(tracks, model, names=None) -> MotionLibrary:
+    """A library of the clips behind ``tracks`` (:class:`~posturemap.transition.Track`, one skeleton).
+
+    ``model`` (a fitted :class:`~posturemap.model.PostureMap`) gives the index class map whose
+    winners index the frames.
+    """
+    sk = tracks[0].motion.skeleton
+    up = model.space_.up
+    fps = float(tracks[0].motion.fps)
+    lower, upper = key_joints(sk)
+    joints = np.concatenate([lower, upper])
+    chains = leg_chains(sk)
+    leg = leg_length(sk, chains)
+    parts = {k: [] for k in ("rots", "gpos", "heading", "contacts", "pose", "vel", "root")}
+    for tr in tracks:
+        m = tr.motion
+        _, gp = fk(sk.parents, m.rotations, m.positions)
+        pose, vel, root = clip_features(gp, tr.gpos, tr.heading, joints, up, m.fps)
+        parts["rots"].append(tr.rots.astype(np.float32))
+        parts["gpos"].append(tr.gpos)
+        parts["heading"].append(tr.heading)
+        parts["contacts"].append(clip_contacts(gp[:, [c[2] for c in chains]], up, m.fps, leg))
+        parts["pose"].append(pose.astype(np.float32))
+        parts["vel"].append(vel.astype(np.float32))
+        parts["root"].append(root.astype(np.float32))
+    arrays = {k: np.concatenate(v) for k, v in parts.items()}
+    feats = np.concatenate([tr.features for tr in tracks])
+    cmap = model.maps_[INDEX_CLASS]
+    win = cmap.predict(feats[:, model.space_.class_dims[INDEX_CLASS]]).astype(np.int32)
+    starts = np.concatenate([[0], np.cumsum([len(tr.gpos) for tr in tracks])]).astype(np.int64)
+    names = tuple(names) if names is not None else tuple(f"clip {i}" for i in range(len(tracks)))
+    return MotionLibrary(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, win=win, **arrays)

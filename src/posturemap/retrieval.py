@@ -1,0 +1,480 @@
+"""Retrieval transitions: replay real library motion between A's end and B's start.
+
+A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's start
+(``t = d = L + 1``). For each body part (``lower``: root and legs, carrying the trajectory;
+``upper``: spine, arms and head) it:
+
+1. **searches** the motion library (:mod:`posturemap.library`) for segments ``[s, e]`` of one
+   clip whose start continues A (key joint positions and velocities in the heading frame, the
+   root's velocity, turning rate and height) and whose end arrives in B, over time warps
+   ``(e - s) / d`` of :data:`WARPS` (velocities compared at the warped speed); in
+   in-betweening (B fixed, ``align=False``) also matching the root's displacement and turn
+   over the gap. Candidates come through the posture map: the frames whose winning neuron
+   (``global`` class) is among those nearest A's and B's postures (an inverted index, as
+   IVF), then an exact re-rank of every candidate. ``alpha`` weighs the two seams:
+   ``2 (1 - alpha) cost_A + 2 alpha cost_B``: 0 picks motion that continues A, 1 motion that
+   arrives in B;
+2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
+   continue A, and averages them;
+3. **removes the seam errors** with offsets that decay smoothly from each seam (value and
+   velocity, cubic Hermite over the gap), so rotations, root height and trajectory meet A and
+   B with continuous position and velocity; in in-betweening the root's horizontal error at B
+   is spread over the whole gap (smoothstep) so it lands exactly on B; in transitions B takes
+   the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
+4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
+   they touch down (A's or B's spot at a seam), fading in and out while the foot is in the air
+   (:func:`posturemap.feet.lock_feet` with the segment's contacts);
+5. **falls back** by confidence: the match cost in map radii (the posture distance between the
+   segment and A / B at the seams, over the radius of the part's maps); below ``CONF_RADII[0]``
+   the part is the retrieved motion, above ``CONF_RADII[1]`` it is the interpolating fallback
+   (:data:`FALLBACK`), in between a per-joint SLERP of the two.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kernels, quat
+from .feet import lock_feet
+from .library import MotionLibrary, key_joints
+
+WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
+TOP_K = 8  # segments averaged per part
+BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
+BUDGET = 384  # candidate frames gathered per seam from the index
+CONF_RADII = (1.5, 3.0)  # match cost (map radii): full confidence below, none above
+FALLBACK = "upm-valid"
+W_VEL = 1.0  # weight of velocities against positions in the match
+W_ROOT = (1.0, 1.0, 0.5)  # root velocity, turning rate, height
+W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
+W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
+DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
+
+
+@dataclass
+class Seams:
+    """What the search and the synthesis need of A's end and B's start.
+
+    ``pose``/``vel`` (K, 3) key joints in the heading frame and their velocity (per second,
+    A backward, B forward), ``root`` (5,) root velocity (3), turning rate, height; ``x`` (D,)
+    the posture vector; ``rots`` (2, J, 4) local rotations (A: a_end-1, a_end; B: b_start,
+    b_start+1); ``gpos`` (2, 3) and ``heading`` (2,) root trajectory (B as aligned or in place).
+    """
+
+    pose: np.ndarray
+    vel: np.ndarray
+    root: np.ndarray
+    x: np.ndarray
+    rots: np.ndarray
+    gpos: np.ndarray
+    heading: np.ndarray
+
+
+def part_joints(sk, legs) -> tuple[np.ndarray, np.ndarray]:
+    """Joint masks (J,) bool of the ``lower`` part (root and the legs' subtrees) and ``upper``."""
+    j = sk.num_joints
+    lower = np.zeros(j, dtype=bool)
+    for thigh, _, _ in legs:
+        lower[thigh] = True
+    for k in range(j):  # parents come first
+        if sk.parents[k] >= 0 and lower[sk.parents[k]]:
+            lower[k] = True
+    return lower, ~lower
+
+
+class Retriever:
+    """Search and synthesis over one library for one engine (skeleton, root, up)."""
+
+    def __init__(self, engine, library: MotionLibrary):
+        self.engine = engine
+        self.lib = library
+        sk = engine.skeleton
+        self.lower_mask, self.upper_mask = part_joints(sk, engine._legs)
+        self.lower_mask[engine._root] = True
+        self.upper_mask[engine._root] = False
+        for j in engine._chain:
+            self.lower_mask[j] = False
+            self.upper_mask[j] = False
+        lower, upper = key_joints(sk)
+        self.keys = np.concatenate([lower, upper])
+        self.kl = len(lower)
+        lib = library
+        rv = lib.root[:, :3]
+        self.root_scale = np.array([max(float(np.mean(np.std(rv, axis=0))), 1e-6),
+                                    max(float(np.std(lib.root[:, 3])), 1e-6),
+                                    max(float(np.std(lib.root[:, 4])), 1e-6)])
+        space = engine.model.space_
+        self.space = space
+        cmap = engine.model.maps_[1]
+        self.cmap = cmap
+        # Radius of each part's posture subspace: sqrt(sum_c R_c^2 * share of class c's dims).
+        jc = space.joint_class
+        dim_joint = np.concatenate([np.repeat(space.joints, 3), [space.root]])
+        radii = [m.radius_ for m in engine.model.maps_]
+        self.part_dims, self.part_radius = [], []
+        for mask in (self.lower_mask, self.upper_mask):
+            dims = np.flatnonzero(space.active & mask[dim_joint])
+            r2 = 0.0
+            for c, cd in enumerate(space.class_dims):
+                if len(cd):
+                    r2 += radii[c] ** 2 * np.isin(cd, dims).sum() / len(cd)
+            self.part_dims.append(dims)
+            self.part_radius.append(math.sqrt(max(r2, 1e-12)))
+        self._mats = None
+
+    # -- seams ----------------------------------------------------------------------------
+    def seams(self, track, frames, gpos, heading) -> Seams:
+        """Seam data of two consecutive frames ``frames`` of a track (root as given)."""
+        eng = self.engine
+        sk = eng.skeleton
+        rots = track.motion.rotations[frames]
+        pos = track.motion.positions[frames].copy()
+        grot, gp = np.empty(rots.shape), np.empty(pos.shape)
+        kernels.fk(sk.parents, rots, pos, grot, gp)
+        from .library import clip_features
+
+        # Key joints relative to the clip's own root, in its own heading frame.
+        p, v, r = clip_features(gp, track.gpos[frames], track.heading[frames], self.keys, eng._up,
+                                track.motion.fps)
+        return Seams(p, v, r, None, track.rots[frames], gpos, heading)
+
+    def seam_radii(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
+        """Match cost in map radii: the larger posture distance between the segment's ends and
+        A's end / B's start, over the part's dimensions, divided by the part's radius."""
+        lib, space = self.lib, self.space
+        rots = lib.rots[[s, e]][:, space.joints].astype(np.float64)
+        x = space.encode_parts(rots, lib.gpos[[s, e], space.up])
+        dims = self.part_dims[part]
+        da = np.linalg.norm((x[0] - xa)[dims])
+        db = np.linalg.norm((x[1] - xb)[dims])
+        return float(max(da, db) / self.part_radius[part])
+
+    # -- search ---------------------------------------------------------------------------
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """Library frames whose index neuron is among those nearest the posture ``x`` (D,).
+
+        Neurons are visited nearest first until :data:`BUDGET` frames are gathered.
+        """
+        lib, cmap = self.lib, self.cmap
+        q = x[self.space.class_dims[1]]
+        w = cmap.weights_
+        d2 = np.einsum("ij,ij->i", w - q, w - q)
+        counts = np.diff(lib.index_ptr)
+        counts = np.pad(counts, (0, max(0, len(w) - len(counts))))[: len(w)]
+        n_take = min(len(w), 64)
+        near = np.argpartition(d2, n_take - 1)[:n_take] if n_take < len(w) else np.arange(len(w))
+        near = near[np.argsort(d2[near])]
+        cum = np.cumsum(counts[near])
+        stop = int(np.searchsorted(cum, BUDGET)) + 1
+        near = near[:stop]
+        near = near[near < len(lib.index_ptr) - 1]
+        if len(near) == 0:
+            return np.zeros(0, dtype=np.int64)
+        return np.concatenate([lib.index_frames[lib.index_ptr[k]: lib.index_ptr[k + 1]] for k in near])
+
+    def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):
+        """Candidate segments ``(s, e)`` (M,) from gathered starts ``sa`` and ends ``sb``."""
+        lib = self.lib
+        ratio = lib.fps / fps
+        ns = np.unique(np.maximum(1, np.round(np.array(WARPS) * d * ratio)).astype(np.int64))
+        s1 = np.repeat(sa, len(ns))
+        e1 = s1 + np.tile(ns, len(sa))
+        e2 = np.repeat(sb, len(ns))
+        s2 = e2 - np.tile(ns, len(sb))
+        s = np.concatenate([s1, s2])
+        e = np.concatenate([e1, e2])
+        ok = (s >= 0) & (e < len(lib))
+        s, e = s[ok], e[ok]
+        ok = lib.clip_of[s] == lib.clip_of[e]
+        s, e = s[ok], e[ok]
+        key = s * (len(lib) + 1) + e
+        _, first = np.unique(key, return_index=True)
+        return s[first], e[first]
+
+    def _matrices(self):
+        """Per part, the weighted matching features of every library frame as two matrices:
+        ``P`` (N, Dp) positions (and the root's height) and ``V`` (N, Dv) velocities (and the
+        root's velocity and turning rate), so that a seam costs ``|P - p|^2 + |V / warp - v|^2``."""
+        lib, kl = self.lib, self.kl
+        out = []
+        for part, cols in ((0, slice(0, kl)), (1, slice(kl, None))):
+            sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
+            pm = [lib.pose[:, cols].reshape(len(lib), -1) / sp]
+            vm = [lib.vel[:, cols].reshape(len(lib), -1) * (math.sqrt(W_VEL) / sv)]
+            if part == 0:
+                w = np.sqrt(np.array(W_ROOT)) / self.root_scale
+                pm.append(lib.root[:, 4:5] * w[2])
+                vm += [lib.root[:, :3] * w[0], lib.root[:, 3:4] * w[1]]
+            out.append((np.ascontiguousarray(np.concatenate(pm, axis=1), dtype=np.float32),
+                        np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32)))
+        return out
+
+    def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v)."""
+        lib, kl = self.lib, self.kl
+        cols = slice(0, kl) if part == 0 else slice(kl, None)
+        sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
+        p = [q.pose[cols].ravel() / sp]
+        v = [q.vel[cols].ravel() * (math.sqrt(W_VEL) / sv)]
+        if part == 0:
+            w = np.sqrt(np.array(W_ROOT)) / self.root_scale
+            p.append(q.root[4:5] * w[2])
+            v += [q.root[:3] * w[0], q.root[3:4] * w[1]]
+        return np.concatenate(p), np.concatenate(v)
+
+    def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
+              disp=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Match costs of segments ``(s, e)`` for ``part`` (0 lower, 1 upper): (total, at A, at B).
+
+        Velocities of the library are compared at the speed they are replayed at: divided by
+        the warp ``(e - s) / lib.fps`` over ``d / fps``.
+        """
+        lib = self.lib
+        if self._mats is None:
+            self._mats = self._matrices()
+        pm, vm = self._mats[part]
+        rho = ((e - s) / lib.fps) / (d / fps)  # warp: source duration / gap duration
+        rate = 1.0 / rho
+        nxt = np.minimum(e + 1, lib.clip_end[e] - 1)
+
+        def seam_cost(f, fv, q):
+            p, v = self.query_vectors(part, q)
+            dp = pm[f] - p.astype(np.float32)
+            vv = vm[fv]
+            # |rate V - v|^2 = rate^2 |V|^2 - 2 rate V.v + |v|^2
+            return (np.einsum("ij,ij->i", dp, dp) + rate**2 * np.einsum("ij,ij->i", vv, vv)
+                    - 2 * rate * (vv @ v.astype(np.float32)) + float(v @ v))
+
+        ca = seam_cost(s, s, qa)
+        cb = seam_cost(e, nxt, qb)
+        total = 2 * (1 - alpha) * ca + 2 * alpha * cb + W_WARP * np.log(rho) ** 2
+        if disp is not None and part == 0:
+            total = total + W_DISP * self.displacement_cost(s, e, disp)
+        return total, ca, cb
+
+    def displacement_cost(self, s, e, disp) -> np.ndarray:
+        """Squared error of the root's displacement and turn over ``[s, e]`` against ``disp``.
+
+        ``disp`` = (dx, dz, dtheta): the gap's displacement in A's heading frame and turn.
+        """
+        lib = self.lib
+        up = lib.up
+        a, b = (up + 1) % 3, (up + 2) % 3
+        delta = lib.gpos[e] - lib.gpos[s]
+        h = lib.heading[s]
+        c, sn = np.cos(h), np.sin(h)
+        dx = c * delta[:, a] + sn * delta[:, b]
+        dz = -sn * delta[:, a] + c * delta[:, b]
+        turn = lib.heading[e] - lib.heading[s]
+        scale = DISP_SCALE * lib.leg
+        return ((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / scale**2 + (turn - disp[2]) ** 2 / 0.25**2
+
+    def search(self, part, qa, qb, xa, xb, d, fps, alpha, disp=None, brute=False, k=TOP_K):
+        """The ``k`` best segments of ``part``: arrays ``s, e, total, cost_a, cost_b``."""
+        lib = self.lib
+        if brute:
+            n = len(lib)
+            sa = sb = np.arange(n)
+        else:
+            sa, sb = self.gather(xa), self.gather(xb)
+        s, e = self.candidates(sa, sb, d, fps)
+        if len(s) == 0:
+            return None
+        total, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alpha, disp)
+        k = min(k, len(s))
+        best = np.argpartition(total, k - 1)[:k] if k < len(s) else np.arange(len(s))
+        best = best[np.argsort(total[best], kind="stable")]
+        return s[best], e[best], total[best], ca[best], cb[best]
+
+
+def hermite_offsets(length: int, blend: float) -> np.ndarray:
+    """Offset curves (4, length) at frames 1..length of a gap of ``d = length + 1`` frames.
+
+    Rows: A's value and velocity offsets decaying from ``t = 0`` over ``blend`` frames (at most
+    ``d``; cubic
+    Hermite ``h00``, ``h10``), B's value and velocity offsets rising into ``t = d``; each is
+    0 with zero slope where it ends, so adding them keeps the curve smooth.
+    """
+    d = length + 1.0
+    blend = min(float(blend), d)
+    t = np.arange(1, length + 1, dtype=float)
+    out = np.zeros((4, length))
+    for row, tau, sign in ((0, t, 1.0), (2, d - t, -1.0)):
+        u = np.clip(tau / blend, 0.0, 1.0)
+        out[row] = 2 * u**3 - 3 * u**2 + 1
+        out[row + 1] = sign * blend * (u**3 - 2 * u**2 + u)
+    return out
+
+
+def smoothstep(length: int) -> np.ndarray:
+    """``3 u^2 - 2 u^3`` at frames 1..length of a gap of ``d = length + 1`` frames (u = t / d)."""
+    u = np.arange(1, length + 1) / (length + 1.0)
+    return 3 * u**2 - 2 * u**3
+
+
+def sample_segments(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
+    """Library segments ``[s, e]`` (K,) resampled to output times ``t = -1 .. d + 1``.
+
+    Returns rotations (K, T, J, 4) (normalised lerp between neighbouring frames), root
+    positions (K, T, 3) and headings (K, T) (linear), and the fractional source frames (K, T),
+    with ``T = d + 3``; times before the clip's start or after its end hold its first/last frame.
+    """
+    t = np.arange(-1, d + 2, dtype=float)
+    u = s[:, None] + t[None] * ((e - s) / d)[:, None]
+    lo = lib.clip_start[lib.clip_of[s]][:, None]
+    hi = (lib.clip_end[s] - 1)[:, None]
+    u = np.clip(u, lo, hi)
+    i0 = np.floor(u).astype(np.int64)
+    i1 = np.minimum(i0 + 1, hi)
+    f = (u - i0)[..., None]
+    q0 = lib.rots[i0].astype(np.float64)
+    q1 = lib.rots[i1].astype(np.float64)
+    q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
+    rots = quat.normalize(q0 + f[..., None] * (q1 - q0))
+    gpos = lib.gpos[i0] + f * (lib.gpos[i1] - lib.gpos[i0])
+    heading = lib.heading[i0] + f[..., 0] * (lib.heading[i1] - lib.heading[i0])
+    return rots, gpos, heading, u
+
+
+def offset_rotations(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndarray) -> np.ndarray:
+    """Rotations of the new frames: ``exp(o(t)) * src(t)`` with seam offsets ``o`` (see module doc).
+
+    src : (K, T, J, 4) sampled segment at t = -1 .. d + 1; a2 : (2, J, 4) A at a_end-1, a_end;
+    b2 : (2, J, 4) B at b_start, b_start+1; curves : (4, L) from :func:`hermite_offsets`.
+    Returns (K, L, J, 4).
+    """
+    def rel(p, q):  # log(p q^-1), (..., 3)
+        return quat.log(quat.mul(p, quat.inv(q)))
+
+    r_a = rel(a2[1], src[:, 1])
+    v_a = rel(a2[1], a2[0]) - rel(src[:, 1], src[:, 0])
+    r_b = rel(b2[0], src[:, -2])
+    v_b = rel(b2[1], b2[0]) - rel(src[:, -1], src[:, -2])
+    c = curves[:, None, :, None, None]  # (4, 1, L, 1, 1)
+    o = c[0] * r_a[:, None] + c[1] * v_a[:, None] + c[2] * r_b[:, None] + c[3] * v_b[:, None]
+    return quat.mul(quat.exp(o), src[:, 2:-2])
+
+
+def offset_values(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndarray) -> np.ndarray:
+    """Values (K, L, ...) of a channel sampled at t = -1 .. d + 1, with seam offsets (value, velocity)."""
+    r_a = a2[1] - src[:, 1]
+    v_a = (a2[1] - a2[0]) - (src[:, 1] - src[:, 0])
+    r_b = b2[0] - src[:, -2]
+    v_b = (b2[1] - b2[0]) - (src[:, -1] - src[:, -2])
+    shape = (4, 1, curves.shape[1]) + (1,) * (src.ndim - 2)
+    c = curves.reshape(shape)
+    return src[:, 2:-2] + c[0] * r_a[:, None] + c[1] * v_a[:, None] + c[2] * r_b[:, None] + c[3] * v_b[:, None]
+
+
+def average_rotations(q: np.ndarray) -> np.ndarray:
+    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum)."""
+    if len(q) == 1:
+        return q[0]
+    sign = np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    return quat.normalize(np.sum(q * sign, axis=0))
+
+
+def _rotate_h(v: np.ndarray, angle, up: int) -> np.ndarray:
+    """Vectors (..., 3) turned by ``angle`` (broadcasting over the leading axes) about up."""
+    a, b = (up + 1) % 3, (up + 2) % 3
+    c, s = np.cos(angle), np.sin(angle)
+    out = v.copy()
+    out[..., a] = c * v[..., a] - s * v[..., b]
+    out[..., b] = s * v[..., a] + c * v[..., b]
+    return out
+
+
+class Result:
+    """What one retrieval transition made: frames, B's alignment, contacts and the report."""
+
+    def __init__(self, rots, gpos, heading, dtheta, shift, contacts, info, confidence):
+        self.rots, self.gpos, self.heading = rots, gpos, heading
+        self.dtheta, self.shift = dtheta, shift
+        self.contacts, self.info, self.confidence = contacts, info, confidence
+
+
+def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
+             brute: bool = False, top_k: int = TOP_K, blend: float | None = None) -> Result | None:
+    """One retrieval transition (see the module docstring); None when no segment fits at all.
+
+    Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
+    trajectory (positions (L, 3), headings (L,)), B's turn and shift, the planted feet of the
+    retrieved lower body (L, legs) and the report (source clips, frames, costs, confidence).
+    """
+    lib, eng = rt.lib, rt.engine
+    up = eng._up
+    fps = float(ta.motion.fps)
+    d = length + 1.0
+    ia = [max(a_end - 1, 0), a_end]
+    ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+    qa_all = rt.seams(ta, ia, None, None)
+    qb_all = rt.seams(tb, ib, None, None)
+    qa = Seams(qa_all.pose[1], qa_all.vel[1], qa_all.root[1], None, None, None, None)
+    qb = Seams(qb_all.pose[0], qb_all.vel[0], qb_all.root[0], None, None, None, None)
+    xa, xb = ta.features[a_end], tb.features[b_start]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    disp = None
+    if not align:
+        delta = tb.gpos[b_start] - ta.gpos[a_end]
+        h = ta.heading[a_end]
+        c, s = math.cos(h), math.sin(h)
+        turn = tb.heading[b_start] - ta.heading[a_end]
+        turn -= 2 * math.pi * round(turn / (2 * math.pi))
+        disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
+    found = [rt.search(p, qa, qb, xa, xb, d, fps, alpha, disp if p == 0 else None, brute, top_k) for p in (0, 1)]
+    if found[0] is None or found[1] is None:
+        return None
+    curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
+    j_count = eng.skeleton.num_joints
+    out = np.empty((length, j_count, 4))
+    parts, conf = {}, []
+    for p, (s, e, total, ca, cb) in enumerate(found):
+        src, gp, hd, u = sample_segments(lib, s, e, d)
+        mask = rt.lower_mask if p == 0 else rt.upper_mask
+        r = offset_rotations(src[:, :, mask], ta.rots[ia][:, mask], tb.rots[ib][:, mask], curves)
+        out[:, mask] = average_rotations(r)
+        if p == 0:
+            best_u = u[0]
+            theta0 = ta.heading[a_end] - hd[:, 1]
+            traj = np.empty(hd.shape + (3,))
+            rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
+            traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
+            traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
+            traj[..., 2] = hd + theta0[:, None]
+            a2 = np.stack([[ta.gpos[i, a_], ta.gpos[i, b_], ta.heading[i]] for i in ia])
+            if align:
+                end = traj[:, -2].mean(axis=0)
+                dtheta = float(end[2] - tb.heading[b_start])
+                turned = _rotate_h(tb.gpos[ib], dtheta, up)
+                shift = np.zeros(3)
+                shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
+            else:
+                dtheta, shift = 0.0, np.zeros(3)
+            b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
+            b_head = tb.heading[ib] + dtheta
+            b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
+            b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
+            tcurves = curves.copy()
+            tcurves[2] = smoothstep(length)
+            tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
+            height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
+            gpos = np.empty((length, 3))
+            gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
+            heading = tr[:, 2]
+        cost = rt.seam_radii(p, s[0], e[0], xa, xb)
+        c = float(np.clip((CONF_RADII[1] - cost) / (CONF_RADII[1] - CONF_RADII[0]), 0.0, 1.0))
+        conf.append(c)
+        clip = int(lib.clip_of[s[0]])
+        parts["lower" if p == 0 else "upper"] = {
+            "clip": lib.clip_names[clip] if clip < len(lib.clip_names) else f"clip {clip}",
+            "frames": [int(s[0] - lib.clip_start[clip]), int(e[0] - lib.clip_start[clip])],
+            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
+            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
+            "cost_radii": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
+    frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
+    contacts = lib.contacts[frames]
+    info = {"parts": parts, "confidence": round(min(conf), 3)}
+    return Result(out, gpos, heading, dtheta, shift, contacts, info, conf)
