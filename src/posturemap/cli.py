@@ -150,7 +150,7 @@ def describe_retrieval(info) -> str:
     lines = []
     for part, r in info["parts"].items():
         lines.append(f"  {part}: {r['clip']} frames {r['frames'][0]}..{r['frames'][1]} "
-                     f"(warp {r['warp']:.2f}), match {r['cost_radii']:.2f} map radii, "
+                     f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees, "
                      f"confidence {r['confidence']:.2f}")
     return "\n".join(lines)
 

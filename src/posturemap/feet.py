@@ -134,7 +134,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
-              contacts=None) -> None:
+              contacts=None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
@@ -142,9 +142,12 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     ``a_feet``/``b_feet`` (2, n_legs, 3) are the ankle positions in A's last two frames and
     B's first two (B as aligned), for the planted test. ``contacts`` (L, n_legs) bool, when
     given, are the planted frames (otherwise they are detected from height and speed).
+
+    Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, fading to 0.
     """
+    weights = np.zeros((len(rots), len(chains)))
     if not chains or len(rots) == 0:
-        return
+        return weights
     body = leg_length(sk, chains)
     grot, gpos = gpos_fn(rots)
     flat = np.ones(3)
@@ -174,6 +177,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         drift = np.linalg.norm(target - horiz, axis=-1) / body
         lo, hi = MAX_DRIFT
         weight *= np.clip((hi - drift) / (hi - lo), 0.0, 1.0)
+        weights[:, leg] = weight
         frames = np.flatnonzero(weight > 0)
         if len(frames) == 0:
             continue
@@ -191,3 +195,4 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         shin_global = quat.mul(quat.mul(shin_parent, new_thigh), new_shin)
         rots[frames, ankle] = quat.mul(quat.inv(shin_global), foot_global)
         # The legs share no joint: the next leg's chain is unchanged, no new FK needed.
+    return weights

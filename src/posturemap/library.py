@@ -70,6 +70,25 @@ def _ancestors(sk: Skeleton, j: int) -> list[int]:
     return out
 
 
+def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:
+    """Joint masks (J,) of the body parts retrieved separately: ``lower`` (the root and the legs'
+    subtrees: the root carries the trajectory) and ``upper`` (the root's other descendants:
+    spine, arms, head). Joints above the root (a reference node) are in neither."""
+    j = sk.num_joints
+    lower = np.zeros(j, dtype=bool)
+    for thigh, _, _ in leg_chains(sk):
+        lower[thigh] = True
+    below = np.zeros(j, dtype=bool)
+    below[root] = True
+    for k in range(j):  # parents come first
+        p = sk.parents[k]
+        if p >= 0:
+            lower[k] |= lower[p]
+            below[k] |= below[p]
+    lower[root] = True
+    return lower & below, below & ~lower
+
+
 def heading_frame(v: np.ndarray, heading: np.ndarray, up: int) -> np.ndarray:
     """Vectors ``v (F, ..., 3)`` turned by ``-heading (F,)`` about the up axis (into the body's frame)."""
     a, b = (up + 1) % 3, (up + 2) % 3

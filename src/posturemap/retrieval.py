@@ -24,10 +24,10 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), fading in and out while the foot is in the air
    (:func:`posturemap.feet.lock_feet` with the segment's contacts);
-5. **falls back** by confidence: the match cost in map radii (the posture distance between the
-   segment and A / B at the seams, over the radius of the part's maps); below ``CONF_RADII[0]``
-   the part is the retrieved motion, above ``CONF_RADII[1]`` it is the interpolating fallback
-   (:data:`FALLBACK`), in between a per-joint SLERP of the two.
+5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
+   rotations between the segment and A / B at the seams (degrees per joint, the larger seam);
+   below ``CONF_RANGE[0]`` the part is the retrieved motion, above ``CONF_RANGE[1]`` it is the
+   interpolating fallback (:data:`FALLBACK`), in between a per-joint SLERP of the two.
 """
 
 from __future__ import annotations
@@ -38,14 +38,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels, quat
+from .features import wrap_diff
 from .feet import lock_feet
-from .library import MotionLibrary, key_joints
+from .library import MotionLibrary, key_joints, part_masks
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
 TOP_K = 8  # segments averaged per part
 BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
-BUDGET = 384  # candidate frames gathered per seam from the index
-CONF_RADII = (1.5, 3.0)  # match cost (map radii): full confidence below, none above
+BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
+PREFILTER = 192  # of those, the best matches at natural speed that become segment ends
+CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
 W_VEL = 1.0  # weight of velocities against positions in the match
 W_ROOT = (1.0, 1.0, 0.5)  # root velocity, turning rate, height
@@ -73,18 +75,6 @@ class Seams:
     heading: np.ndarray
 
 
-def part_joints(sk, legs) -> tuple[np.ndarray, np.ndarray]:
-    """Joint masks (J,) bool of the ``lower`` part (root and the legs' subtrees) and ``upper``."""
-    j = sk.num_joints
-    lower = np.zeros(j, dtype=bool)
-    for thigh, _, _ in legs:
-        lower[thigh] = True
-    for k in range(j):  # parents come first
-        if sk.parents[k] >= 0 and lower[sk.parents[k]]:
-            lower[k] = True
-    return lower, ~lower
-
-
 class Retriever:
     """Search and synthesis over one library for one engine (skeleton, root, up)."""
 
@@ -92,12 +82,7 @@ class Retriever:
         self.engine = engine
         self.lib = library
         sk = engine.skeleton
-        self.lower_mask, self.upper_mask = part_joints(sk, engine._legs)
-        self.lower_mask[engine._root] = True
-        self.upper_mask[engine._root] = False
-        for j in engine._chain:
-            self.lower_mask[j] = False
-            self.upper_mask[j] = False
+        self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         lower, upper = key_joints(sk)
         self.keys = np.concatenate([lower, upper])
         self.kl = len(lower)
@@ -110,19 +95,8 @@ class Retriever:
         self.space = space
         cmap = engine.model.maps_[1]
         self.cmap = cmap
-        # Radius of each part's posture subspace: sqrt(sum_c R_c^2 * share of class c's dims).
-        jc = space.joint_class
         dim_joint = np.concatenate([np.repeat(space.joints, 3), [space.root]])
-        radii = [m.radius_ for m in engine.model.maps_]
-        self.part_dims, self.part_radius = [], []
-        for mask in (self.lower_mask, self.upper_mask):
-            dims = np.flatnonzero(space.active & mask[dim_joint])
-            r2 = 0.0
-            for c, cd in enumerate(space.class_dims):
-                if len(cd):
-                    r2 += radii[c] ** 2 * np.isin(cd, dims).sum() / len(cd)
-            self.part_dims.append(dims)
-            self.part_radius.append(math.sqrt(max(r2, 1e-12)))
+        self.part_dims = [np.flatnonzero(space.active & m[dim_joint]) for m in (self.lower_mask, self.upper_mask)]
         self._mats = None
 
     # -- seams ----------------------------------------------------------------------------
@@ -141,16 +115,17 @@ class Retriever:
                                 track.motion.fps)
         return Seams(p, v, r, None, track.rots[frames], gpos, heading)
 
-    def seam_radii(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
-        """Match cost in map radii: the larger posture distance between the segment's ends and
-        A's end / B's start, over the part's dimensions, divided by the part's radius."""
+    def seam_distance(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
+        """Match distance in degrees: the larger, over the two seams, of the RMS joint-rotation
+        difference between the segment's end posture and A's end / B's start over the part's
+        joints (posture features; the root height counts in leg lengths as one radian)."""
         lib, space = self.lib, self.space
         rots = lib.rots[[s, e]][:, space.joints].astype(np.float64)
         x = space.encode_parts(rots, lib.gpos[[s, e], space.up])
         dims = self.part_dims[part]
-        da = np.linalg.norm((x[0] - xa)[dims])
-        db = np.linalg.norm((x[1] - xb)[dims])
-        return float(max(da, db) / self.part_radius[part])
+        circ = space.circular
+        d = max(np.linalg.norm(wrap_diff(x[0], xa, circ)[dims]), np.linalg.norm(wrap_diff(x[1], xb, circ)[dims]))
+        return float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0)))
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray) -> np.ndarray:
@@ -164,7 +139,7 @@ class Retriever:
         d2 = np.einsum("ij,ij->i", w - q, w - q)
         counts = np.diff(lib.index_ptr)
         counts = np.pad(counts, (0, max(0, len(w) - len(counts))))[: len(w)]
-        n_take = min(len(w), 64)
+        n_take = min(len(w), 256)
         near = np.argpartition(d2, n_take - 1)[:n_take] if n_take < len(w) else np.arange(len(w))
         near = near[np.argsort(d2[near])]
         cum = np.cumsum(counts[near])
@@ -272,15 +247,36 @@ class Retriever:
         scale = DISP_SCALE * lib.leg
         return ((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / scale**2 + (turn - disp[2]) ** 2 / 0.25**2
 
-    def search(self, part, qa, qb, xa, xb, d, fps, alpha, disp=None, brute=False, k=TOP_K):
-        """The ``k`` best segments of ``part``: arrays ``s, e, total, cost_a, cost_b``."""
-        lib = self.lib
-        if brute:
-            n = len(lib)
-            sa = sb = np.arange(n)
+    def prefilter(self, part: int, frames: np.ndarray, q: Seams, end: bool, keep: int) -> np.ndarray:
+        """The ``keep`` frames of ``frames`` that best match the seam ``q`` at natural speed.
+
+        ``end``: match as a segment's last frame (velocity towards the next frame).
+        """
+        if len(frames) <= keep:
+            return frames
+        if self._mats is None:
+            self._mats = self._matrices()
+        pm, vm = self._mats[part]
+        p, v = self.query_vectors(part, q)
+        fv = np.minimum(frames + 1, self.lib.clip_end[frames] - 1) if end else frames
+        dp = pm[frames] - p.astype(np.float32)
+        dv = vm[fv] - v.astype(np.float32)
+        c = np.einsum("ij,ij->i", dp, dp) + np.einsum("ij,ij->i", dv, dv)
+        return frames[np.argpartition(c, keep - 1)[:keep]]
+
+    def search(self, part, qa, qb, sa, sb, d, fps, alpha, disp=None, k=None, exhaustive=False):
+        """The ``k`` best segments of ``part`` from gathered start and end frames ``sa``, ``sb``.
+
+        Returns arrays ``s, e, total, cost_a, cost_b`` (best first), or None when no segment
+        fits. ``exhaustive``: every start frame of the library with every warp (the exact
+        search the index is measured against).
+        """
+        k = TOP_K if k is None else k
+        if exhaustive:
+            s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
         else:
-            sa, sb = self.gather(xa), self.gather(xb)
-        s, e = self.candidates(sa, sb, d, fps)
+            s, e = self.candidates(self.prefilter(part, sa, qa, False, PREFILTER),
+                                   self.prefilter(part, sb, qb, True, PREFILTER), d, fps)
         if len(s) == 0:
             return None
         total, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alpha, disp)
@@ -290,23 +286,29 @@ class Retriever:
         return s[best], e[best], total[best], ca[best], cb[best]
 
 
-def hermite_offsets(length: int, blend: float) -> np.ndarray:
-    """Offset curves (4, length) at frames 1..length of a gap of ``d = length + 1`` frames.
+def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
+    """Seam offset curves (4, len(t)) at times ``t`` of a gap from 0 (A's end) to ``d`` (B's start).
 
-    Rows: A's value and velocity offsets decaying from ``t = 0`` over ``blend`` frames (at most
-    ``d``; cubic
-    Hermite ``h00``, ``h10``), B's value and velocity offsets rising into ``t = d``; each is
-    0 with zero slope where it ends, so adding them keeps the curve smooth.
+    Rows: A's value and velocity offsets, decaying from ``t = 0`` over ``blend`` frames (at
+    most ``d``; cubic Hermite ``h00``, ``h10``: value 1 / slope 0, and value 0 / slope 1, at
+    ``t = 0``; value and slope 0 from ``t = blend`` on); B's value and velocity offsets, the
+    mirror image rising into ``t = d`` (value 1 / slope 0, and value 0 / slope 1, there).
+    Adding them to a curve moves its ends onto A and B, value and velocity, and leaves it
+    untouched where both have faded.
     """
-    d = length + 1.0
     blend = min(float(blend), d)
-    t = np.arange(1, length + 1, dtype=float)
-    out = np.zeros((4, length))
+    t = np.asarray(t, dtype=float)
+    out = np.zeros((4, len(t)))
     for row, tau, sign in ((0, t, 1.0), (2, d - t, -1.0)):
         u = np.clip(tau / blend, 0.0, 1.0)
         out[row] = 2 * u**3 - 3 * u**2 + 1
         out[row + 1] = sign * blend * (u**3 - 2 * u**2 + u)
     return out
+
+
+def hermite_offsets(length: int, blend: float) -> np.ndarray:
+    """:func:`offset_curves` at the new frames ``t = 1 .. length`` of a gap ``d = length + 1``."""
+    return offset_curves(np.arange(1, length + 1), length + 1.0, blend)
 
 
 def smoothstep(length: int) -> np.ndarray:
@@ -397,7 +399,7 @@ class Result:
 
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
-             brute: bool = False, top_k: int = TOP_K, blend: float | None = None) -> Result | None:
+             exhaustive: bool = False, top_k: int | None = None, blend: float | None = None) -> Result | None:
     """One retrieval transition (see the module docstring); None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
@@ -424,7 +426,9 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         turn = tb.heading[b_start] - ta.heading[a_end]
         turn -= 2 * math.pi * round(turn / (2 * math.pi))
         disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
-    found = [rt.search(p, qa, qb, xa, xb, d, fps, alpha, disp if p == 0 else None, brute, top_k) for p in (0, 1)]
+    sa, sb = (np.zeros(0, np.int64),) * 2 if exhaustive else (rt.gather(xa), rt.gather(xb))
+    found = [rt.search(p, qa, qb, sa, sb, d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
+             for p in (0, 1)]
     if found[0] is None or found[1] is None:
         return None
     curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
@@ -464,8 +468,8 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
             gpos = np.empty((length, 3))
             gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
             heading = tr[:, 2]
-        cost = rt.seam_radii(p, s[0], e[0], xa, xb)
-        c = float(np.clip((CONF_RADII[1] - cost) / (CONF_RADII[1] - CONF_RADII[0]), 0.0, 1.0))
+        cost = rt.seam_distance(p, s[0], e[0], xa, xb)
+        c = float(np.clip((CONF_RANGE[1] - cost) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0))
         conf.append(c)
         clip = int(lib.clip_of[s[0]])
         parts["lower" if p == 0 else "upper"] = {
@@ -473,7 +477,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
             "frames": [int(s[0] - lib.clip_start[clip]), int(e[0] - lib.clip_start[clip])],
             "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
             "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
-            "cost_radii": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
+            "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
     frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
     contacts = lib.contacts[frames]
     info = {"parts": parts, "confidence": round(min(conf), 3)}

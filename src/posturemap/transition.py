@@ -610,8 +610,8 @@ class TransitionEngine:
             ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
             ia = [max(a_end - 1, 0), a_end]
             b_feet = rotate_about_up(tb.feet[ib], dtheta, self._up) + shift
-            lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, ta.feet[ia], b_feet,
-                      ta.motion.fps, contacts)
+            self.last["planted"] = lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up,
+                                             ta.feet[ia], b_feet, ta.motion.fps, contacts)
         return out_r, out_p
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

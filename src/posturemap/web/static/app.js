@@ -598,7 +598,7 @@ function showRetrieval(res) {
   if (r === undefined) return;
   el.textContent = !r ? 'No library motion fits: interpolated (fallback).'
     : Object.entries(r.parts).map(([part, p]) => `${part}: ${p.clip} ${p.frames[0]}–${p.frames[1]}`
-      + ` · match ${p.cost_radii.toFixed(2)} R · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
+      + ` · match ${p.distance.toFixed(1)}° · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
 }
 
 // ---- playback ----------------------------------------------------------------------------

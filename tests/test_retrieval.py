@@ -1,0 +1,317 @@
+"""Retrieval transitions (issue "Transitions that move like real people"): what they must show.
+
+A library is learned from Bandai clips of some styles and the transitions are made on clips of
+*other* styles (the library never saw them): the retrieved frames are real library frames up
+to the seam correction, planted feet stay put, B is reached exactly, an unrelated library falls
+back to interpolation, results are deterministic, ``alpha`` trades the match at A against the
+match at B monotonically, and the library survives the map file.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posturemap import bvh, cli, quat, retrieval
+from posturemap.library import MotionLibrary, key_joints
+from posturemap.model import MapFileError, PostureMap
+from posturemap.motion import Motion
+from posturemap.skeleton import fk
+from posturemap.transition import TransitionEngine, transition
+
+LIBRARY = ("walk_normal_001", "walk_happy_001", "walk_tired_001", "run_normal_001", "run_happy_001",
+           "walk-left_normal_001", "walk-right_normal_001", "dash_normal_001")
+HELD_OUT = ("walk_angry_001", "run_proud_001", "walk_old_001")
+UNRELATED = ("bow_normal_001", "bow_happy_001")
+UP = 1
+
+
+@pytest.fixture(scope="module")
+def clips(bandai_paths):
+    paths = bandai_paths(LIBRARY + HELD_OUT + UNRELATED)
+    return {n: bvh.read(p) for n, p in paths.items()}
+
+
+@pytest.fixture(scope="module")
+def model(clips):
+    return PostureMap(seed=0).fit([clips[n] for n in LIBRARY], list(LIBRARY))
+
+
+@pytest.fixture(scope="module")
+def engine(model, clips):
+    eng = TransitionEngine(model)
+    for n in HELD_OUT:
+        eng.add(n, clips[n])
+    return eng
+
+
+def windows(clips, length, count, seed=0):
+    """Seeded in-betweening windows (clip, a_end, b_start) inside the held-out clips."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        name = HELD_OUT[int(rng.integers(len(HELD_OUT)))]
+        a_end = int(rng.integers(10, len(clips[name]) - length - 12))
+        out.append((name, a_end, a_end + length + 1))
+    return out
+
+
+# -- the library ------------------------------------------------------------------------------
+def test_library_holds_every_training_frame_once(model, clips):
+    lib = model.library_
+    assert len(lib) == sum(len(clips[n]) for n in LIBRARY)
+    assert list(np.diff(lib.clip_start)) == [len(clips[n]) for n in LIBRARY]
+    assert lib.clip_names == LIBRARY
+    # The inverted index lists every frame exactly once, under its own winning neuron.
+    assert np.array_equal(np.sort(lib.index_frames), np.arange(len(lib)))
+    for k in (0, int(lib.win[len(lib) // 2]), int(lib.win.max())):
+        frames = lib.index_frames[lib.index_ptr[k]: lib.index_ptr[k + 1]]
+        assert np.all(lib.win[frames] == k)
+    # The rotations are the clips' own (root: its tilt, the rest unchanged).
+    first = clips[LIBRARY[0]]
+    joints = [j for j in range(first.skeleton.num_joints) if j != model.space_.root]
+    assert np.allclose(lib.rots[: len(first), joints], first.rotations[:, joints], atol=1e-6)
+    assert 200 < lib.nbytes_per_frame() < 1000
+
+
+def test_walking_feet_are_planted_about_half_the_time(model):
+    lib = model.library_
+    walk = slice(lib.clip_start[0], lib.clip_start[1])
+    share = lib.contacts[walk].mean(axis=0)
+    # A walk has each foot on the ground for about 60% of the cycle; a swinging foot is not.
+    assert np.all((share > 0.35) & (share < 0.85)), share
+    assert lib.contacts[walk].any(axis=1).mean() > 0.9  # double or single support, never flight
+
+
+def test_key_joints_are_found_by_name(model):
+    sk = model.skeleton_
+    lower, upper = key_joints(sk)
+    names = [sk.names[j] for j in np.concatenate([lower, upper])]
+    assert {"Foot_L", "Foot_R", "LowerLeg_L", "LowerLeg_R", "Hand_L", "Hand_R", "Head"} <= set(names), names
+
+
+# -- the replay -------------------------------------------------------------------------------
+def test_retrieved_frames_are_real_library_frames_up_to_the_seam_correction(engine, clips, monkeypatch):
+    monkeypatch.setattr(retrieval, "WARPS", (1.0,))  # no time warp: whole library frames
+    lib = engine.model.library_
+    rt = retrieval.Retriever(engine, lib)
+    length = 45
+    blend = 12.0
+    checked_middle = 0
+    for name, a_end, b_start in windows(clips, length, 6, seed=1):
+        tr = engine.tracks[name]
+        res = retrieval.retrieve(rt, tr, tr, a_end, b_start, length, 0.5, False, top_k=1, blend=blend)
+        d = length + 1
+        curves = retrieval.offset_curves(np.arange(1, length + 1), d, blend)
+        for part, mask in (("lower", rt.lower_mask), ("upper", rt.upper_mask)):
+            info = res.info["parts"][part]
+            s = lib.clip_start[LIBRARY.index(info["clip"])] + info["frames"][0]
+            assert info["frames"][1] - info["frames"][0] == d
+            src = quat.normalize(lib.rots[s - 1: s + d + 2][:, mask].astype(float))  # t = -1 .. d + 1
+            a2, b2 = tr.rots[[a_end - 1, a_end]][:, mask], tr.rots[[b_start, b_start + 1]][:, mask]
+
+            def rel(p, q):
+                return quat.log(quat.mul(p, quat.inv(q)))
+
+            seam = [rel(a2[1], src[1]), rel(a2[1], a2[0]) - rel(src[1], src[0]),
+                    rel(b2[0], src[-2]), rel(b2[1], b2[0]) - rel(src[-1], src[-2])]
+            # Each new frame is the library frame turned by the seam offsets, whose angle is at
+            # most the sum of the four offsets' angles weighted by their curves.
+            bound = sum(np.abs(curves[i])[:, None] * np.linalg.norm(seam[i], axis=-1)[None] for i in range(4))
+            angle = quat.angle_between(res.rots[:, mask], src[2:-2])
+            assert np.all(angle <= bound + 1e-5), (part, float((angle - bound).max()))
+            # Where both offsets have faded, the frame is the library frame itself.
+            middle = np.flatnonzero(np.abs(curves).sum(axis=0) == 0)
+            assert np.allclose(angle[middle], 0.0, atol=1e-5)
+            checked_middle += len(middle)
+    assert checked_middle > 0
+
+
+def test_planted_feet_stay_within_a_centimetre(engine, clips):
+    sk = engine.skeleton
+    ankles = [c[2] for c in engine._legs]
+    held = 0
+    for name, a_end, b_start in windows(clips, 30, 8, seed=2):
+        rots, pos = engine.generate(name, name, 30, a_end=a_end, b_start=b_start, align=False,
+                                    method="retrieval", foot_lock=True)
+        planted = engine.last["planted"]
+        _, g = fk(sk.parents, rots, pos)
+        for leg, ankle in enumerate(ankles):
+            both = (planted[1:, leg] >= 1.0) & (planted[:-1, leg] >= 1.0)
+            step = np.linalg.norm(np.diff(g[:, ankle][:, [0, 2]], axis=0), axis=-1)
+            assert np.all(step[both] < 1.0), (name, a_end, leg, step[both].max())
+            held += int(both.sum())
+    assert held > 40  # the feet were planted for a good part of these walks and runs
+
+
+def test_offset_curves_put_the_ends_exactly_on_a_and_b():
+    d, blend = 31.0, 9.0
+    eps = 1e-6
+    c = retrieval.offset_curves([0.0, eps, d - eps, d], d, blend)
+    assert np.allclose(c[:, 0], [1, 0, 0, 0]) and np.allclose(c[:, 3], [0, 0, 1, 0])
+    slope0, slope_d = (c[:, 1] - c[:, 0]) / eps, (c[:, 3] - c[:, 2]) / eps
+    assert np.allclose(slope0, [0, 1, 0, 0], atol=1e-4) and np.allclose(slope_d, [0, 0, 0, 1], atol=1e-4)
+    mid = retrieval.offset_curves(np.arange(blend, d - blend + 1), d, blend)
+    assert np.all(mid == 0)
+    s = retrieval.smoothstep(int(d) - 1)
+    assert s[0] > 0 and s[-1] < 1 and np.all(np.diff(s) > 0)
+
+
+def test_inbetweening_keeps_b_exactly_and_lands_the_root_on_it(model, clips):
+    name = HELD_OUT[0]
+    m = clips[name]
+    a_end, length = 40, 30
+    b_start = a_end + length + 1
+    out = transition(m, m, model, length=length, a_end=a_end, b_start=b_start, align=False, method="retrieval")
+    assert np.array_equal(out.rotations[b_start:], m.rotations[b_start:])
+    assert np.array_equal(out.positions[b_start:], m.positions[b_start:])
+    g = out.global_positions()[:, model.space_.root]
+    step = np.linalg.norm(np.diff(g[a_end - 5: b_start + 6], axis=0), axis=-1)
+    truth = np.linalg.norm(np.diff(m.global_positions()[a_end - 5: b_start + 6, model.space_.root], axis=0), axis=-1)
+    assert step.max() < 1.5 * truth.max()  # no jump onto B: the root arrives at B's place
+
+
+# -- confidence and fallback ------------------------------------------------------------------
+def test_an_unrelated_library_falls_back_to_interpolation(clips):
+    bows = PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED))
+    eng = TransitionEngine(bows)
+    eng.add("run", clips["run_proud_001"])
+    rots, pos = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False, method="retrieval")
+    rots, pos = rots.copy(), pos.copy()
+    info = eng.last["retrieval"]
+    assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[1]
+    fb_r, fb_p = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False, method=retrieval.FALLBACK)
+    assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
+
+
+def test_a_related_library_is_confident_for_the_legs(engine, clips):
+    # Walks and runs of other styles: the legs move alike (the arms carry more of the style).
+    conf = []
+    for name, a_end, b_start in windows(clips, 30, 8, seed=3):
+        engine.generate(name, name, 30, a_end=a_end, b_start=b_start, align=False, method="retrieval")
+        conf.append(engine.last["retrieval"]["parts"]["lower"]["confidence"])
+    assert np.median(conf) > 0.5, conf
+
+
+def test_a_map_without_library_uses_the_fallback(clips):
+    bare = PostureMap(seed=0, library=False).fit([clips[n] for n in LIBRARY[:2]], list(LIBRARY[:2]))
+    assert bare.library_ is None
+    eng = TransitionEngine(bare)
+    eng.add("w", clips["walk_angry_001"])
+    r, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method="retrieval")
+    r = r.copy()
+    assert eng.last["retrieval"] is None
+    fb, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method=retrieval.FALLBACK)
+    assert np.array_equal(r, fb)
+
+
+# -- control ----------------------------------------------------------------------------------
+def test_results_are_deterministic(model, clips, engine):
+    args = dict(length=30, a_end=50, b_start=81, align=False, method="retrieval", foot_lock=True)
+    r1, p1 = (x.copy() for x in engine.generate(HELD_OUT[1], HELD_OUT[1], **args))
+    r2, p2 = engine.generate(HELD_OUT[1], HELD_OUT[1], **args)
+    assert np.array_equal(r1, r2) and np.array_equal(p1, p2)
+    fresh = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in LIBRARY], list(LIBRARY)))
+    fresh.add(HELD_OUT[1], clips[HELD_OUT[1]])
+    r3, p3 = fresh.generate(HELD_OUT[1], HELD_OUT[1], **args)
+    assert np.array_equal(r1, r3) and np.array_equal(p1, p3)
+
+
+def test_alpha_trades_the_match_at_a_against_the_match_at_b(engine, clips):
+    # alpha weighs the two seams: 2 (1 - alpha) cost_A + 2 alpha cost_B. For the chosen segment,
+    # the cost at A can only grow and the cost at B only fall as alpha rises.
+    rng = np.random.default_rng(4)
+    moved = 0
+    for _ in range(6):
+        a, b = rng.choice(HELD_OUT, 2, replace=False)
+        a_end = int(rng.integers(20, len(clips[a]) - 1))
+        b_start = int(rng.integers(0, len(clips[b]) - 20))
+        costs = []
+        for alpha in (0.0, 0.25, 0.5, 0.75, 1.0):
+            engine.generate(a, b, 24, alpha=alpha, a_end=a_end, b_start=b_start, method="retrieval")
+            p = engine.last["retrieval"]["parts"]["lower"]
+            costs.append((p["cost_a"], p["cost_b"]))
+        ca, cb = np.array(costs).T
+        assert np.all(np.diff(ca) >= -1e-3) and np.all(np.diff(cb) <= 1e-3), costs
+        moved += ca[-1] > ca[0] + 1e-3
+    assert moved >= 3  # alpha did change the choice in most cases
+
+
+# -- files, other frame rates, the command line ------------------------------------------------
+def test_map_file_keeps_the_library(model, engine, tmp_path):
+    path = tmp_path / "lib.npz"
+    model.save(path)
+    back = PostureMap.load(path)
+    for k, v in model.library_.arrays().items():
+        assert np.array_equal(getattr(back.library_, k) if k not in ("lower", "upper") else
+                              back.library_.arrays()[k], v), k
+    eng = TransitionEngine(back)
+    name = HELD_OUT[0]
+    eng.add(name, engine.tracks[name].motion)
+    args = dict(length=25, a_end=30, b_start=56, align=False, method="retrieval")
+    r1 = engine.generate(name, name, **args)[0].copy()
+    assert np.array_equal(r1, eng.generate(name, name, **args)[0])
+
+
+@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index"])
+def test_a_damaged_library_is_refused(model, tmp_path, damage):
+    path = tmp_path / "lib.npz"
+    model.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    if damage == "nan":
+        arrays["library_gpos"] = arrays["library_gpos"].copy()
+        arrays["library_gpos"][3, 1] = np.nan
+    elif damage == "shape":
+        arrays["library_rots"] = arrays["library_rots"][:-1]
+    elif damage == "clips":
+        arrays["library_clip_start"] = arrays["library_clip_start"][::-1].copy()
+    else:
+        arrays["library_win"] = arrays["library_win"] + 100000
+    np.savez(path, **arrays)
+    with pytest.raises(MapFileError, match="library"):
+        PostureMap.load(path)
+
+
+def resample(m: Motion, factor: int) -> Motion:
+    """``m`` at ``factor`` times its frame rate (SLERP of rotations, LERP of translations)."""
+    t = np.arange((len(m) - 1) * factor + 1) / factor
+    i0 = np.minimum(np.floor(t).astype(int), len(m) - 2)
+    f = t - i0
+    rots = quat.slerp(m.rotations[i0], m.rotations[i0 + 1], np.broadcast_to(f[:, None], (len(t), m.rotations.shape[1])))
+    pos = m.positions[i0] + f[:, None, None] * (m.positions[i0 + 1] - m.positions[i0])
+    return Motion(m.skeleton, rots, pos, m.fps * factor)
+
+
+def test_a_clip_at_another_frame_rate_replays_the_library_at_its_speed(model, clips):
+    fast = resample(clips["walk_angry_001"], 4)  # 120 fps against a 30 fps library
+    eng = TransitionEngine(model)
+    eng.add("w", fast)
+    length = 119  # one second
+    warps = []
+    for a_end in (100, 250, 400):
+        eng.generate("w", "w", length, a_end=a_end, b_start=a_end + length + 1, align=False, method="retrieval")
+        info = eng.last["retrieval"]["parts"]["lower"]
+        warps.append(info["warp"])
+        frames = info["frames"][1] - info["frames"][0]
+        assert abs(frames - 30 * info["warp"] * (length + 1) / 120) <= 1  # 30 library frames a second
+    assert all(min(retrieval.WARPS) - 0.01 <= w <= max(retrieval.WARPS) + 0.01 for w in warps)
+
+
+def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_path, capsys):
+    map_path = tmp_path / "map.npz"
+    model.save(map_path)
+    out = tmp_path / "out.bvh"
+    a, b = paths_for_cli
+    assert cli.main(["transition", str(a), str(b), "-o", str(out), "--map", str(map_path),
+                     "--method", "retrieval", "--length", "30"]) == 0
+    text = capsys.readouterr().out
+    assert "lower: " in text and "upper: " in text and "confidence" in text and "match distance" in text
+    assert any(n in text for n in LIBRARY)
+    assert len(bvh.read(out)) == len(clips[HELD_OUT[0]]) + 30 + len(clips[HELD_OUT[1]])
+
+
+@pytest.fixture
+def paths_for_cli(bandai_paths):
+    p = bandai_paths(HELD_OUT[:2])
+    return p[HELD_OUT[0]], p[HELD_OUT[1]]
