@@ -33,7 +33,7 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -58,21 +58,14 @@ DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one 
 
 @dataclass
 class Seams:
-    """What the search and the synthesis need of A's end and B's start.
-
-    ``pose``/``vel`` (K, 3) key joints in the heading frame and their velocity (per second,
-    A backward, B forward), ``root`` (5,) root velocity (3), turning rate, height; ``x`` (D,)
-    the posture vector; ``rots`` (2, J, 4) local rotations (A: a_end-1, a_end; B: b_start,
-    b_start+1); ``gpos`` (2, 3) and ``heading`` (2,) root trajectory (B as aligned or in place).
-    """
+    """One seam as the search sees it: ``pose``/``vel`` (K, 3) key joints in the heading frame
+    and their velocity (per second; A's end backward, B's start forward), ``root`` (5,) the
+    root's velocity (3), turning rate and height. ``vectors`` caches its rows per body part."""
 
     pose: np.ndarray
     vel: np.ndarray
     root: np.ndarray
-    x: np.ndarray
-    rots: np.ndarray
-    gpos: np.ndarray
-    heading: np.ndarray
+    vectors: dict = field(default_factory=dict)
 
 
 class Retriever:
@@ -100,8 +93,9 @@ class Retriever:
         self._mats = None
 
     # -- seams ----------------------------------------------------------------------------
-    def seams(self, track, frames, gpos, heading) -> Seams:
-        """Seam data of two consecutive frames ``frames`` of a track (root as given)."""
+    def seams(self, track, frames: list[int], which: int) -> Seams:
+        """The seam at ``frames[which]`` of two consecutive frames ``frames`` of a track (A's end:
+        ``which = 1``, velocity backward; B's start: ``which = 0``, forward)."""
         eng = self.engine
         sk = eng.skeleton
         rots = track.motion.rotations[frames]
@@ -113,7 +107,7 @@ class Retriever:
         # Key joints relative to the clip's own root, in its own heading frame.
         p, v, r = clip_features(gp, track.gpos[frames], track.heading[frames], self.keys, eng._up,
                                 track.motion.fps)
-        return Seams(p, v, r, None, track.rots[frames], gpos, heading)
+        return Seams(p[which], v[which], r[which])
 
     def seam_distance(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
         """Match distance in degrees: the larger, over the two seams, of the RMS joint-rotation
@@ -188,7 +182,9 @@ class Retriever:
         return out
 
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
-        """The seam ``q`` as the rows of :meth:`_matrices` (p, v)."""
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
+        if part in q.vectors:
+            return q.vectors[part]
         lib, kl = self.lib, self.kl
         cols = slice(0, kl) if part == 0 else slice(kl, None)
         sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
@@ -198,7 +194,8 @@ class Retriever:
             w = np.sqrt(np.array(W_ROOT)) / self.root_scale
             p.append(q.root[4:5] * w[2])
             v += [q.root[:3] * w[0], q.root[3:4] * w[1]]
-        return np.concatenate(p), np.concatenate(v)
+        q.vectors[part] = (np.concatenate(p).astype(np.float32), np.concatenate(v).astype(np.float32))
+        return q.vectors[part]
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
               disp=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -217,11 +214,11 @@ class Retriever:
 
         def seam_cost(f, fv, q):
             p, v = self.query_vectors(part, q)
-            dp = pm[f] - p.astype(np.float32)
+            dp = pm[f] - p
             vv = vm[fv]
             # |rate V - v|^2 = rate^2 |V|^2 - 2 rate V.v + |v|^2
             return (np.einsum("ij,ij->i", dp, dp) + rate**2 * np.einsum("ij,ij->i", vv, vv)
-                    - 2 * rate * (vv @ v.astype(np.float32)) + float(v @ v))
+                    - 2 * rate * (vv @ v) + float(v @ v))
 
         ca = seam_cost(s, s, qa)
         cb = seam_cost(e, nxt, qb)
@@ -259,8 +256,8 @@ class Retriever:
         pm, vm = self._mats[part]
         p, v = self.query_vectors(part, q)
         fv = np.minimum(frames + 1, self.lib.clip_end[frames] - 1) if end else frames
-        dp = pm[frames] - p.astype(np.float32)
-        dv = vm[fv] - v.astype(np.float32)
+        dp = pm[frames] - p
+        dv = vm[fv] - v
         c = np.einsum("ij,ij->i", dp, dp) + np.einsum("ij,ij->i", dv, dv)
         return frames[np.argpartition(c, keep - 1)[:keep]]
 
@@ -412,10 +409,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     d = length + 1.0
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-    qa_all = rt.seams(ta, ia, None, None)
-    qb_all = rt.seams(tb, ib, None, None)
-    qa = Seams(qa_all.pose[1], qa_all.vel[1], qa_all.root[1], None, None, None, None)
-    qb = Seams(qb_all.pose[0], qb_all.vel[0], qb_all.root[0], None, None, None, None)
+    qa, qb = rt.seams(ta, ia, 1), rt.seams(tb, ib, 0)
     xa, xb = ta.features[a_end], tb.features[b_start]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     disp = None

@@ -565,10 +565,6 @@ class TransitionEngine:
         """``method="retrieval"`` (:mod:`posturemap.retrieval`), with its fallback blended by confidence."""
         from . import retrieval
 
-        rots_fb, pos_fb = self.generate(a, b, length, key_at, alpha, a_end, b_start, align,
-                                        retrieval.FALLBACK, False)
-        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
-        fb_last = self.last
         lib = getattr(self.model, "library_", None)
         res = None
         if lib is not None and len(lib):
@@ -576,6 +572,12 @@ class TransitionEngine:
                 self._retriever = retrieval.Retriever(self, lib)
             res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align,
                                      **getattr(self, "retrieval_options", {}))
+        # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
+        # retrieved parts leave open (joints above the root, local translations).
+        base = retrieval.FALLBACK if res is None or min(res.confidence) < 1.0 else "slerp"
+        rots_fb, pos_fb = self.generate(a, b, length, key_at, alpha, a_end, b_start, align, base, False)
+        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
+        fb_last = self.last
         out_r, out_p = self._buffers.get(length) or (np.empty((length, self.skeleton.num_joints, 4)),
                                                      np.empty((length, self.skeleton.num_joints, 3)))
         self._buffers[length] = (out_r, out_p)
