@@ -267,8 +267,9 @@ def test_slider_moves_update_one_by_one(studio, clips):
 
 
 def test_screenshot(browser, base_url, tmp_path):
-    """The studio mid-transition, with the ghost key and a comparison overlay, drawn with the
-    render profile a GPU gets (antialiasing, shadow maps; forced here, on software WebGL)."""
+    """The studio mid-transition (the default method: real motion retrieved, its source in the
+    panel) with a comparison overlay, drawn with the render profile a GPU gets (antialiasing,
+    shadow maps; forced here, on software WebGL)."""
     studio = Page(browser, base_url, "?render=full")
     assert studio.js("__studio.profile") == "full"
     page = studio.page
@@ -282,7 +283,8 @@ def test_screenshot(browser, base_url, tmp_path):
     page.wait_for_timeout(500)
     studio.wait("__studio.renderScale === 1")  # redrawn at full resolution once still
     page.wait_for_timeout(700)
-    assert studio.js("__studio.keyPosture !== null")
+    assert studio.js("__studio.result.retrieval.parts.lower.clip") in CLIPS
+    assert page.locator("#retrieval-info").is_visible()
     out = DOCS / "studio.png" if UPDATE_DOCS else tmp_path / "studio.png"
     page.screenshot(path=str(out))
     colors, covered = canvas_stats(out.read_bytes())
@@ -302,3 +304,25 @@ def test_page_without_a_map_uses_keyless_methods(browser, sample_clips):
         assert set(r["disabled"]) == set(KEYED)
         assert p.js("__studio.keyPosture") is None and p.errors == []
         p.close()
+
+
+def test_retrieval_shows_its_source_and_confidence(studio, clips):
+    # The default (auto) replays real library motion for a 20-frame gap: the panel names the
+    # clip and frames of each body part and how confident the match is; alpha still steers it.
+    studio.choose("walk_normal_001", "run_normal_001", a_end=60, b_start=10)
+    r = studio.js("__studio.result.retrieval")
+    assert set(r["parts"]) == {"lower", "upper"}
+    text = studio.page.inner_text("#retrieval-info")
+    for part, p in r["parts"].items():
+        assert p["clip"] in clips and f"{part}: {p['clip']} {p['frames'][0]}–{p['frames'][1]}" in text
+        assert f"confidence {round(100 * p['confidence'])}%" in text
+    costs = []
+    for alpha in ("0", "1"):
+        set_range(studio, "#alpha", alpha)
+        studio.wait_requests_settled()
+        costs.append(studio.js("__studio.result.retrieval.parts.lower"))
+    assert costs[0]["cost_a"] <= costs[1]["cost_a"] and costs[0]["cost_b"] >= costs[1]["cost_b"]
+    studio.page.select_option("#method", "slerp")
+    studio.wait_requests_settled()
+    assert studio.page.locator("#retrieval-info").is_hidden()
+    assert studio.errors == []

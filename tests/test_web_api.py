@@ -158,7 +158,12 @@ def test_transition_shape_segments_and_key(client, sample_clips, method):
     q = np.array([t["values"] for t in quats]).reshape(j, 16, 4)
     assert np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-5)
     assert d["alignment"]["joint"] == "Hips" and d["alignment"]["up"] == 1
-    if method in KEYED:
+    if method in ("auto", "retrieval"):  # real motion replayed: which one, and how confidently
+        parts = d["retrieval"]["parts"]
+        assert set(parts) == {"lower", "upper"} and d["key"] is None
+        assert all(p["clip"] in ("walk", "run", "wave") and 0 <= p["confidence"] <= 1 for p in parts.values())
+        assert d["method_used"] == "retrieval"
+    elif method in KEYED:
         key = d["key"]
         assert key["frame"] == d["key_frame"] == 70 + 6 and key["index"] == 6
         kq = np.array(key["quaternions"])
@@ -170,7 +175,7 @@ def test_transition_shape_segments_and_key(client, sample_clips, method):
             got = q[names.index(name), key["index"] - 1]
             assert abs(np.dot(got, k)) == pytest.approx(1.0, abs=1e-4)
     else:
-        assert d["key"] is None and d["key_frame"] is None
+        assert d["key"] is None and d["key_frame"] is None and "retrieval" not in d
 
 
 def test_transition_frames_match_the_library(client, sample_clips, model):
@@ -191,7 +196,7 @@ def test_defaults_and_alpha_moves_the_key(client, sample_clips):
     assert d["params"] == {"a_end": len(run) - 1, "b_start": 0, "length": 20, "key_at": 10, "alpha": 0.5,
                            "align": True, "foot_lock": True}
     assert d["method"] == DEFAULT_METHOD and d["frames"] == len(run) + 20 + len(walk)
-    keys = [np.array(post(client, {"a": "walk", "b": "wave", "alpha": a}).json()["key"]["quaternions"])
+    keys = [np.array(post(client, {"a": "walk", "b": "wave", "alpha": a, "method": "upm-valid"}).json()["key"]["quaternions"])
             for a in (0.0, 1.0)]
     assert np.abs(keys[0] - keys[1]).max() > 1e-3
 

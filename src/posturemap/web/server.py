@@ -409,7 +409,8 @@ class Studio:
             "seams": [p.a_end, t1 + 1],
             "key_frame": key["frame"] if key else None,
             "key": key,
-            "retrieval": last.get("retrieval"),
+            **({"retrieval": last["retrieval"], "method_used": last.get("method", p.method)}
+               if "retrieval" in last else {}),
             "source": {"a": [0, p.a_end], "b": [p.b_start, len(self.clips[p.b]) - 1]},
             "alignment": {"joint": self.bones[top], "up": up, "turn": round(turn, 9),
                           "shift": np.round(shift, 6).tolist()},
