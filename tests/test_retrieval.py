@@ -57,21 +57,37 @@ def windows(clips, length, count, seed=0):
 
 
 # -- the library ------------------------------------------------------------------------------
-def test_library_holds_every_training_frame_once(model, clips):
+def test_library_holds_every_training_frame_once_each_way(model, clips):
     lib = model.library_
-    assert len(lib) == sum(len(clips[n]) for n in LIBRARY)
-    assert list(np.diff(lib.clip_start)) == [len(clips[n]) for n in LIBRARY]
-    assert lib.clip_names == LIBRARY
+    n = sum(len(clips[c]) for c in LIBRARY)
+    assert lib.recorded == n and len(lib) == 2 * n  # the recorded clips, then each played backwards
+    assert list(np.diff(lib.clip_start)) == [len(clips[c]) for c in LIBRARY] * 2
+    assert lib.clip_names == LIBRARY + tuple(f"{c} (reversed)" for c in LIBRARY)
     # The inverted index lists every frame exactly once, under its own winning neuron.
     assert np.array_equal(np.sort(lib.index_frames), np.arange(len(lib)))
     for k in (0, int(lib.win[len(lib) // 2]), int(lib.win.max())):
         frames = lib.index_frames[lib.index_ptr[k]: lib.index_ptr[k + 1]]
         assert np.all(lib.win[frames] == k)
-    # The rotations are the clips' own (root: its tilt, the rest unchanged).
+    # The rotations are the clips' own (root: its tilt, the rest unchanged), then reversed.
     first = clips[LIBRARY[0]]
+    f = len(first)
     joints = [j for j in range(first.skeleton.num_joints) if j != model.space_.root]
-    assert np.allclose(lib.rots[: len(first), joints], first.rotations[:, joints], atol=1e-6)
+    assert np.allclose(lib.rots[:f, joints], first.rotations[:, joints], atol=1e-6)
+    back = slice(n, n + f)
+    assert np.array_equal(lib.rots[back], lib.rots[:f][::-1])
+    assert np.array_equal(lib.contacts[back], lib.contacts[:f][::-1])
+    # Played backwards, every velocity turns round: frame i of the reversed clip moves as
+    # frame f - i of the recorded one, the other way.
+    assert np.allclose(lib.vel[back][1:], -lib.vel[:f][::-1][:-1], atol=1e-3)
+    assert np.allclose(lib.root[back][1:, 3], -lib.root[:f][::-1][:-1, 3], atol=1e-3)  # turning rate
+    speed = np.linalg.norm(lib.root[:, :3], axis=1)  # the root's velocity: the same speed
+    assert np.allclose(speed[back][1:], speed[:f][::-1][:-1], rtol=1e-3, atol=1e-3)
     assert 200 < lib.nbytes_per_frame() < 1000
+
+
+def test_a_library_can_keep_to_the_recorded_direction(clips):
+    fwd = PostureMap(seed=0, library="recorded").fit([clips[n] for n in LIBRARY[:2]], list(LIBRARY[:2]))
+    assert len(fwd.library_) == fwd.library_.recorded == sum(len(clips[n]) for n in LIBRARY[:2])
 
 
 def test_walking_feet_are_planted_about_half_the_time(model):
@@ -105,9 +121,11 @@ def test_retrieved_frames_are_real_library_frames_up_to_the_seam_correction(engi
         curves = retrieval.offset_curves(np.arange(1, length + 1), d, blend)
         for part, mask in (("lower", rt.lower_mask), ("upper", rt.upper_mask)):
             info = res.info["parts"][part]
-            s = lib.clip_start[LIBRARY.index(info["clip"])] + info["frames"][0]
-            assert info["frames"][1] - info["frames"][0] == d
-            src = quat.normalize(lib.rots[s - 1: s + d + 2][:, mask].astype(float))  # t = -1 .. d + 1
+            first, last = info["frames"]
+            assert abs(last - first) == d and info["reversed"] == (last < first)
+            step = -1 if info["reversed"] else 1
+            frames = lib.library_frame(info["clip"], first) + step * np.arange(-1, d + 2)  # t = -1 .. d + 1
+            src = quat.normalize(lib.rots[frames][:, mask].astype(float))
             a2, b2 = tr.rots[[a_end - 1, a_end]][:, mask], tr.rots[[b_start, b_start + 1]][:, mask]
 
             def rel(p, q):
@@ -242,9 +260,11 @@ def test_map_file_keeps_the_library(model, engine, tmp_path):
     path = tmp_path / "lib.npz"
     model.save(path)
     back = PostureMap.load(path)
+    saved = back.library_.arrays()
     for k, v in model.library_.arrays().items():
-        assert np.array_equal(getattr(back.library_, k) if k not in ("lower", "upper") else
-                              back.library_.arrays()[k], v), k
+        assert np.array_equal(saved[k], v), k
+    for k in ("rots", "vel", "root", "index_frames", "clip_start"):  # the reversed half is rebuilt alike
+        assert np.array_equal(getattr(back.library_, k), getattr(model.library_, k)), k
     eng = TransitionEngine(back)
     name = HELD_OUT[0]
     eng.add(name, engine.tracks[name].motion)
@@ -307,7 +327,7 @@ def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_pat
                      "--method", "retrieval", "--length", "30"]) == 0
     text = capsys.readouterr().out
     assert "lower: " in text and "upper: " in text and "confidence" in text and "match distance" in text
-    assert any(n in text for n in LIBRARY)
+    assert any(n in text for n in LIBRARY)  # a recorded clip, or one played backwards
     assert len(bvh.read(out)) == len(clips[HELD_OUT[0]]) + 30 + len(clips[HELD_OUT[1]])
 
 

@@ -149,7 +149,8 @@ def describe_retrieval(info) -> str:
         return "  retrieval: no library segment fits; interpolated instead (fallback)"
     lines = []
     for part, r in info["parts"].items():
-        lines.append(f"  {part}: {r['clip']} frames {r['frames'][0]}..{r['frames'][1]} "
+        lines.append(f"  {part}: {r['clip']} frames {r['frames'][0]}..{r['frames'][1]}"
+                     f"{' (played backwards)' if r['reversed'] else ''} "
                      f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees, "
                      f"confidence {r['confidence']:.2f}")
     return "\n".join(lines)

@@ -19,8 +19,12 @@ Per library frame (all training clips, one after another; ``clip_start`` marks t
   thighs, upper arms, clavicles). Its inverted index (neuron -> frames, CSR) is the search's
   first stage, as an IVF index of a nearest-neighbour library is.
 
-Bytes per frame are reported by :meth:`MotionLibrary.nbytes_per_frame` (448 for Bandai's
-22 joints).
+Every clip is also searched played backwards (``reverse``, on by default): time-reversed real
+motion, the same postures and contacts travelled the other way, so that a library of forward
+walks also holds backward walks. The reversed copies are made in memory when the library is
+built or loaded; the map file holds the recorded clips only.
+
+Bytes per frame are reported by :meth:`MotionLibrary.nbytes_per_frame`.
 """
 
 from __future__ import annotations
@@ -113,6 +117,14 @@ def clip_features(gpos_all: np.ndarray, root_pos: np.ndarray, heading: np.ndarra
     """
     rel = gpos_all[:, joints] - root_pos[:, None]
     pose = heading_frame(rel, heading, up)
+    vel, root = motion_features(pose, root_pos, heading, up, fps)
+    return pose, vel, root
+
+
+def motion_features(pose: np.ndarray, root_pos: np.ndarray, heading: np.ndarray, up: int,
+                    fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity features of :func:`clip_features` from a clip's ``pose`` (F, K, 3), root
+    positions (F, 3) and headings (F,): ``vel (F, K, 3)`` and ``root (F, 5)``."""
     f = len(pose)
     prev = np.maximum(np.arange(f) - 1, 0)
     prev[0] = min(1, f - 1)
@@ -122,7 +134,7 @@ def clip_features(gpos_all: np.ndarray, root_pos: np.ndarray, heading: np.ndarra
     rv = heading_frame((root_pos - root_pos[prev]) * (sign * fps)[:, None], heading, up)
     turn = (heading - heading[prev]) * sign * fps
     root = np.concatenate([rv, turn[:, None], root_pos[:, up: up + 1]], axis=1)
-    return pose, vel, root
+    return vel, root
 
 
 def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.ndarray:
@@ -165,6 +177,8 @@ class MotionLibrary:
     clip_names: tuple[str, ...] = ()
     lower: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     upper: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    reverse: bool = True
+    recorded: int = field(init=False)
     clip_of: np.ndarray = field(init=False)
     clip_end: np.ndarray = field(init=False)
     scale: np.ndarray = field(init=False)
@@ -172,6 +186,9 @@ class MotionLibrary:
     index_frames: np.ndarray = field(init=False)
 
     def __post_init__(self):
+        object.__setattr__(self, "recorded", len(self.rots))
+        if self.reverse and len(self.rots):
+            self._add_reversed()
         n = len(self.rots)
         clip_of = np.repeat(np.arange(len(self.clip_start) - 1), np.diff(self.clip_start))
         object.__setattr__(self, "clip_of", clip_of)
@@ -183,6 +200,28 @@ class MotionLibrary:
         object.__setattr__(self, "index_ptr", np.cumsum(ptr))
         object.__setattr__(self, "index_frames", order.astype(np.int64))
 
+    def _add_reversed(self):
+        """Append every clip played backwards (in memory only; the file holds the recorded clips).
+
+        Time-reversed real motion: the same postures, contacts and paths, travelled the other
+        way (a forward walk becomes a backward walk). Velocity features are recomputed."""
+        starts = self.clip_start
+        order = np.concatenate([np.arange(starts[c + 1] - 1, starts[c] - 1, -1) for c in range(len(starts) - 1)])
+        rev = {k: getattr(self, k)[order] for k in ("rots", "gpos", "heading", "contacts", "pose", "win")}
+        vel, root = [], []
+        for c in range(len(starts) - 1):
+            sl = slice(starts[c], starts[c + 1])
+            v, r = motion_features(rev["pose"][sl].astype(np.float64), rev["gpos"][sl], rev["heading"][sl],
+                                   self.up, self.fps)
+            vel.append(v.astype(self.vel.dtype))
+            root.append(r.astype(self.root.dtype))
+        rev["vel"], rev["root"] = np.concatenate(vel), np.concatenate(root)
+        for k, v in rev.items():
+            object.__setattr__(self, k, np.concatenate([getattr(self, k), v]))
+        object.__setattr__(self, "clip_start", np.concatenate([starts, starts[-1] + starts[1:]]))
+        object.__setattr__(self, "clip_names", tuple(self.clip_names)
+                           + tuple(f"{n} (reversed)" for n in self.clip_names))
+
     def __len__(self) -> int:
         return len(self.rots)
 
@@ -191,19 +230,41 @@ class MotionLibrary:
         return len(self.clip_start) - 1
 
     def nbytes_per_frame(self) -> float:
-        """Stored bytes per library frame (all per-frame arrays)."""
-        n = max(len(self), 1)
-        return sum(getattr(self, k).nbytes for k in ARRAYS if k != "clip_start") / n
+        """Stored bytes per recorded library frame (all per-frame arrays; the map file holds
+        these, uncompressed; the reversed copies exist in memory only)."""
+        return sum(getattr(self, k)[0].nbytes for k in ARRAYS if k != "clip_start") if len(self) else 0.0
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The arrays to save (names without prefix)."""
-        out = {k: getattr(self, k) for k in ARRAYS}
+        """The arrays to save (names without prefix): the recorded clips only."""
+        n = self.recorded
+        out = {k: getattr(self, k)[:n] for k in ARRAYS if k != "clip_start"}
+        out["clip_start"] = self.clip_start[: self.num_recorded_clips + 1]
         out["lower"], out["upper"] = self.lower, self.upper
         return out
 
+    def source_frames(self, s: int, e: int) -> tuple[str, int, int]:
+        """The recorded clip and its frame numbers of library frames ``s..e`` (one clip):
+        ``(name, first, last)``, with ``first > last`` for a clip played backwards."""
+        c = int(self.clip_of[s])
+        first, last = s - int(self.clip_start[c]), e - int(self.clip_start[c])
+        n_rec = self.num_recorded_clips
+        if c < n_rec:
+            return self.clip_names[c], first, last
+        n = int(self.clip_start[c + 1] - self.clip_start[c])
+        return self.clip_names[c - n_rec], n - 1 - first, n - 1 - last
+
+    def library_frame(self, name: str, frame: int) -> int:
+        """The library index of frame ``frame`` (as recorded) of the recorded clip ``name``."""
+        return int(self.clip_start[self.clip_names.index(name)]) + frame
+
+    @property
+    def num_recorded_clips(self) -> int:
+        return (len(self.clip_start) - 1) // (2 if self.reverse else 1)
+
     def meta(self) -> dict:
-        return {"fps": self.fps, "up": self.up, "leg": self.leg, "frames": len(self),
-                "clips": list(self.clip_names), "bytes_per_frame": round(self.nbytes_per_frame(), 1)}
+        return {"fps": self.fps, "up": self.up, "leg": self.leg, "frames": self.recorded, "reverse": self.reverse,
+                "clips": list(self.clip_names[: self.num_recorded_clips]),
+                "bytes_per_frame": round(self.nbytes_per_frame(), 1)}
 
     @classmethod
     def from_parts(cls, meta: dict, arrays: dict, sk: Skeleton, n_neurons: int) -> "MotionLibrary":
@@ -237,7 +298,11 @@ class MotionLibrary:
         if starts.ndim != 1 or len(starts) < 2 or starts[0] != 0 or starts[-1] != n or np.any(np.diff(starts) < 1):
             raise ValueError("library clip boundaries are inconsistent")
         names = tuple(str(c) for c in meta.get("clips", []))[: len(starts) - 1]
-        return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, **out)
+        names += tuple(f"clip {i}" for i in range(len(names), len(starts) - 1))
+        reverse = meta.get("reverse", True)
+        if not isinstance(reverse, bool):
+            raise ValueError("library 'reverse' is not true or false")
+        return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, reverse=reverse, **out)
 
 
 def feature_scales(lib: MotionLibrary) -> np.ndarray:
@@ -256,11 +321,11 @@ def feature_scales(lib: MotionLibrary) -> np.ndarray:
     return np.where(s > 1e-9, s, 1.0)
 
 
-def build_library(tracks, model, names=None) -> MotionLibrary:
+def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibrary:
     """A library of the clips behind ``tracks`` (:class:`~posturemap.transition.Track`, one skeleton).
 
     ``model`` (a fitted :class:`~posturemap.model.PostureMap`) gives the index class map whose
-    winners index the frames.
+    winners index the frames. ``reverse``: also search every clip played backwards.
     """
     sk = tracks[0].motion.skeleton
     up = model.space_.up
@@ -287,4 +352,5 @@ def build_library(tracks, model, names=None) -> MotionLibrary:
     win = cmap.predict(feats[:, model.space_.class_dims[INDEX_CLASS]]).astype(np.int32)
     starts = np.concatenate([[0], np.cumsum([len(tr.gpos) for tr in tracks])]).astype(np.int64)
     names = tuple(names) if names is not None else tuple(f"clip {i}" for i in range(len(tracks)))
-    return MotionLibrary(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, win=win, **arrays)
+    return MotionLibrary(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, win=win,
+                         reverse=reverse, **arrays)

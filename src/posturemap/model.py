@@ -50,8 +50,9 @@ class PostureMap:
         Posture feature mode (see :mod:`posturemap.features`).
     classes : dict or None
         Joint name to class name overrides.
-    library : bool
-        Keep the training motion for retrieval transitions (:mod:`posturemap.library`).
+    library : True, "recorded" or False
+        Keep the training motion for retrieval transitions (:mod:`posturemap.library`): True
+        searches every clip as recorded and played backwards, "recorded" only as recorded.
 
     Attributes (after ``fit``)
     --------------------------
@@ -110,6 +111,8 @@ class PostureMap:
         self.skeleton_ = first
         self.space_ = space
         self.maps_ = maps
+        if self.library not in (True, False, "recorded"):
+            raise ValueError(f"library must be True, False or 'recorded', got {self.library!r}")
         self.library_ = self._build_library(motions, names) if self.library else None
         self.info_ = {
             "clips": len(motions), "frames": int(len(x)), "fps": float(motions[0].fps),
@@ -130,7 +133,7 @@ class PostureMap:
 
         engine = TransitionEngine(self)
         tracks = [engine.add(str(i), m) for i, m in enumerate(motions)]
-        return build_library(tracks, self, [str(n) for n in names])
+        return build_library(tracks, self, [str(n) for n in names], reverse=self.library is True)
 
     # -- use ------------------------------------------------------------------------------
     def encode(self, motion: Motion) -> np.ndarray:
@@ -252,7 +255,7 @@ class PostureMap:
             lib_arrays = {k[8:]: v for k, v in arrays.items() if k.startswith("library_")}
             self.library_ = MotionLibrary.from_parts(meta["library"], lib_arrays, self.skeleton_,
                                                      self.maps_[1].n_neurons)
-        self.library = self.library_ is not None
+        self.library = False if self.library_ is None else (True if self.library_.reverse else "recorded")
         return self
 
     def describe(self) -> dict:

@@ -465,10 +465,9 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         cost = rt.seam_distance(p, s[0], e[0], xa, xb)
         c = float(np.clip((CONF_RANGE[1] - cost) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0))
         conf.append(c)
-        clip = int(lib.clip_of[s[0]])
+        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
         parts["lower" if p == 0 else "upper"] = {
-            "clip": lib.clip_names[clip] if clip < len(lib.clip_names) else f"clip {clip}",
-            "frames": [int(s[0] - lib.clip_start[clip]), int(e[0] - lib.clip_start[clip])],
+            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
             "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
             "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
             "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}

@@ -598,6 +598,7 @@ function showRetrieval(res) {
   if (r === undefined) return;
   el.textContent = !r ? 'No library motion fits: interpolated (fallback).'
     : Object.entries(r.parts).map(([part, p]) => `${part}: ${p.clip} ${p.frames[0]}–${p.frames[1]}`
+      + (p.reversed ? ' (played backwards)' : '')
       + ` · match ${p.distance.toFixed(1)}° · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
 }
 
