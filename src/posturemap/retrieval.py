@@ -130,7 +130,10 @@ class Retriever:
         lib, cmap = self.lib, self.cmap
         q = x[self.space.class_dims[1]]
         w = cmap.weights_
-        d2 = np.einsum("ij,ij->i", w - q, w - q)
+        if np.isfinite(cmap.period_).any():  # euler features: angles on the circle
+            d2 = cmap.distances(q)[0] ** 2
+        else:
+            d2 = np.einsum("ij,ij->i", w - q, w - q)
         counts = np.diff(lib.index_ptr)
         counts = np.pad(counts, (0, max(0, len(w) - len(counts))))[: len(w)]
         n_take = min(len(w), 256)
