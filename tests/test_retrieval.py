@@ -335,3 +335,41 @@ def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_pat
 def paths_for_cli(bandai_paths):
     p = bandai_paths(HELD_OUT[:2])
     return p[HELD_OUT[0]], p[HELD_OUT[1]]
+
+
+def test_compiled_replay_matches_the_numpy_reference(model):
+    from posturemap import retrieval_numba
+
+    lib = model.library_
+    rng = np.random.default_rng(5)
+    length, k = 17, 5
+    s = rng.integers(0, len(lib) - 40, k)
+    s = np.array([v for v in s if lib.clip_end[v] - v > 40][:3])
+    e = s + rng.integers(10, 30, len(s))
+    i0, i1, f = retrieval.segment_times(lib, s, e, length + 1.0)
+    joints = np.array([0, 1, 3, 7, 12])
+    a2, b2 = (quat.normalize(rng.normal(size=(2, len(joints), 4))) for _ in range(2))
+    curves = retrieval.hermite_offsets(length, 6.0)
+    ref = retrieval.average_rotations(retrieval.offset_rotations(
+        retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    out = np.empty_like(ref)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+    assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)
+    assert quat.angle_between(out, ref).max() < 1e-6
+
+
+def test_compiled_seam_costs_match_numpy(model, monkeypatch):
+    from posturemap import retrieval_numba
+
+    rng = np.random.default_rng(6)
+    pm = rng.normal(size=(500, 7)).astype(np.float32)
+    vm = rng.normal(size=(500, 5)).astype(np.float32)
+    frames, vframes = rng.integers(0, 500, 300), rng.integers(0, 500, 300)
+    p, v = rng.normal(size=7).astype(np.float32), rng.normal(size=5).astype(np.float32)
+    rate = rng.uniform(0.7, 1.4, 300)
+    out = np.empty(300)
+    retrieval_numba.seam_costs(pm, vm, frames, vframes, p, v, rate, out)
+    monkeypatch.setattr(retrieval, "_compiled", lambda: None)  # the numpy path
+    ref = retrieval.seam_costs(pm, vm, frames, vframes, p, v, rate)
+    plain = ((pm[frames] - p) ** 2).sum(1) + ((rate[:, None] * vm[vframes] - v) ** 2).sum(1)
+    assert np.allclose(out, plain, rtol=1e-5) and np.allclose(ref, plain, rtol=1e-5)

@@ -134,18 +134,20 @@ class Retriever:
             d2 = cmap.distances(q)[0] ** 2
         else:
             d2 = np.einsum("ij,ij->i", w - q, w - q)
-        counts = np.diff(lib.index_ptr)
-        counts = np.pad(counts, (0, max(0, len(w) - len(counts))))[: len(w)]
         n_take = min(len(w), 256)
         near = np.argpartition(d2, n_take - 1)[:n_take] if n_take < len(w) else np.arange(len(w))
         near = near[np.argsort(d2[near])]
-        cum = np.cumsum(counts[near])
-        stop = int(np.searchsorted(cum, BUDGET)) + 1
-        near = near[:stop]
-        near = near[near < len(lib.index_ptr) - 1]
-        if len(near) == 0:
+        near = near[near < len(lib.index_ptr) - 1]  # neurons past the last indexed one hold no frame
+        start = lib.index_ptr[near]
+        count = lib.index_ptr[near + 1] - start
+        cum = np.cumsum(count)
+        stop = min(int(np.searchsorted(cum, BUDGET)) + 1, len(near))
+        if stop == 0 or cum[stop - 1] == 0:
             return np.zeros(0, dtype=np.int64)
-        return np.concatenate([lib.index_frames[lib.index_ptr[k]: lib.index_ptr[k + 1]] for k in near])
+        start, count, total = start[:stop], count[:stop], int(cum[stop - 1])
+        # The CSR rows of the chosen neurons, one after another, without a Python loop.
+        offset = np.repeat(start - (cum[:stop] - count), count)
+        return lib.index_frames[offset + np.arange(total)]
 
     def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):
         """Candidate segments ``(s, e)`` (M,) from gathered starts ``sa`` and ends ``sb``."""
@@ -161,10 +163,7 @@ class Retriever:
         ok = (s >= 0) & (e < len(lib))
         s, e = s[ok], e[ok]
         ok = lib.clip_of[s] == lib.clip_of[e]
-        s, e = s[ok], e[ok]
-        key = s * (len(lib) + 1) + e
-        _, first = np.unique(key, return_index=True)
-        return s[first], e[first]
+        return s[ok], e[ok]  # may repeat a segment found from both seams: see search
 
     def _matrices(self):
         """Per part, the weighted matching features of every library frame as two matrices:
@@ -216,12 +215,7 @@ class Retriever:
         nxt = np.minimum(e + 1, lib.clip_end[e] - 1)
 
         def seam_cost(f, fv, q):
-            p, v = self.query_vectors(part, q)
-            dp = pm[f] - p
-            vv = vm[fv]
-            # |rate V - v|^2 = rate^2 |V|^2 - 2 rate V.v + |v|^2
-            return (np.einsum("ij,ij->i", dp, dp) + rate**2 * np.einsum("ij,ij->i", vv, vv)
-                    - 2 * rate * (vv @ v) + float(v @ v))
+            return seam_costs(pm, vm, f, fv, *self.query_vectors(part, q), rate)
 
         ca = seam_cost(s, s, qa)
         cb = seam_cost(e, nxt, qb)
@@ -257,11 +251,8 @@ class Retriever:
         if self._mats is None:
             self._mats = self._matrices()
         pm, vm = self._mats[part]
-        p, v = self.query_vectors(part, q)
         fv = np.minimum(frames + 1, self.lib.clip_end[frames] - 1) if end else frames
-        dp = pm[frames] - p
-        dv = vm[fv] - v
-        c = np.einsum("ij,ij->i", dp, dp) + np.einsum("ij,ij->i", dv, dv)
+        c = seam_costs(pm, vm, frames, fv, *self.query_vectors(part, q), np.ones(len(frames)))
         return frames[np.argpartition(c, keep - 1)[:keep]]
 
     def search(self, part, qa, qb, sa, sb, d, fps, alpha, disp=None, k=None, exhaustive=False):
@@ -280,9 +271,13 @@ class Retriever:
         if len(s) == 0:
             return None
         total, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alpha, disp)
-        k = min(k, len(s))
-        best = np.argpartition(total, k - 1)[:k] if k < len(s) else np.arange(len(s))
-        best = best[np.argsort(total[best], kind="stable")]
+        # The k best distinct segments (a segment can come from both seams' frames, twice).
+        m = min(2 * k, len(s))
+        best = np.argpartition(total, m - 1)[:m] if m < len(s) else np.arange(len(s))
+        best = best[np.lexsort((e[best], s[best], total[best]))]
+        keep = np.ones(len(best), dtype=bool)
+        keep[1:] = (s[best][1:] != s[best][:-1]) | (e[best][1:] != e[best][:-1])
+        best = best[keep][:k]
         return s[best], e[best], total[best], ca[best], cb[best]
 
 
@@ -317,12 +312,12 @@ def smoothstep(length: int) -> np.ndarray:
     return 3 * u**2 - 2 * u**3
 
 
-def sample_segments(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
-    """Library segments ``[s, e]`` (K,) resampled to output times ``t = -1 .. d + 1``.
+def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
+    """Where library segments ``[s, e]`` (K,) are sampled at output times ``t = -1 .. d + 1``.
 
-    Returns rotations (K, T, J, 4) (normalised lerp between neighbouring frames), root
-    positions (K, T, 3) and headings (K, T) (linear), and the fractional source frames (K, T),
-    with ``T = d + 3``; times before the clip's start or after its end hold its first/last frame.
+    Returns ``(i0, i1, f)``, each (K, T) with ``T = d + 3``: the library frames on both sides
+    of each sample and the fraction between them; times before the clip's start or after its
+    end hold its first/last frame.
     """
     t = np.arange(-1, d + 2, dtype=float)
     u = s[:, None] + t[None] * ((e - s) / d)[:, None]
@@ -330,15 +325,60 @@ def sample_segments(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     hi = (lib.clip_end[s] - 1)[:, None]
     u = np.clip(u, lo, hi)
     i0 = np.floor(u).astype(np.int64)
-    i1 = np.minimum(i0 + 1, hi)
-    f = (u - i0)[..., None]
-    q0 = lib.rots[i0].astype(np.float64)
-    q1 = lib.rots[i1].astype(np.float64)
+    return i0, np.minimum(i0 + 1, hi), u - i0
+
+
+def sample_trajectory(lib: MotionLibrary, i0, i1, f) -> tuple[np.ndarray, np.ndarray]:
+    """Root positions (K, T, 3) and headings (K, T) at the samples of :func:`segment_times`."""
+    gpos = lib.gpos[i0] + f[..., None] * (lib.gpos[i1] - lib.gpos[i0])
+    return gpos, lib.heading[i0] + f * (lib.heading[i1] - lib.heading[i0])
+
+
+def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.ndarray:
+    """Rotations (K, T, M, 4) of ``joints`` (M,) at the samples: normalised lerp of neighbours."""
+    q0 = lib.rots[i0][:, :, joints].astype(np.float64)
+    q1 = lib.rots[i1][:, :, joints].astype(np.float64)
     q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
-    rots = quat.normalize(q0 + f[..., None] * (q1 - q0))
-    gpos = lib.gpos[i0] + f * (lib.gpos[i1] - lib.gpos[i0])
-    heading = lib.heading[i0] + f[..., 0] * (lib.heading[i1] - lib.heading[i0])
-    return rots, gpos, heading, u
+    return quat.normalize(q0 + f[..., None, None] * (q1 - q0))
+
+
+def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves) -> np.ndarray:
+    """The new frames' rotations (L, M, 4) of ``joints``: each segment sampled, its seams
+    corrected (:func:`offset_rotations`), the segments averaged (:func:`average_rotations`).
+
+    With numba loaded, one compiled kernel (:func:`posturemap.retrieval_numba.replay`) does the same.
+    """
+    if _compiled() is not None:
+        out = np.empty((curves.shape[1], len(joints), 4))
+        _compiled().replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+        return out
+    return average_rotations(offset_rotations(sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+
+
+def seam_costs(pm, vm, frames, vframes, p, v, rate) -> np.ndarray:
+    """Seam match costs (M,): ``|pm[frames] - p|^2 + |rate * vm[vframes] - v|^2`` per row.
+
+    pm, vm : (N, Dp), (N, Dv) float32 feature rows (:meth:`Retriever._matrices`); p, v the
+    seam's rows; rate (M,) the speed factor of each candidate. Compiled where numba is in use.
+    """
+    if _compiled() is not None:
+        out = np.empty(len(frames))
+        _compiled().seam_costs(pm, vm, frames, vframes, p, v, np.asarray(rate, dtype=np.float64), out)
+        return out
+    dp = pm[frames] - p
+    dv = vm[vframes] * np.asarray(rate, dtype=np.float32)[:, None] - v
+    return np.einsum("ij,ij->i", dp, dp, dtype=np.float64) + np.einsum("ij,ij->i", dv, dv, dtype=np.float64)
+
+
+def _compiled():
+    """The compiled replay kernel's module once numba is in use in this process, else None."""
+    import sys
+
+    if "numba" not in sys.modules:
+        return None
+    from . import retrieval_numba
+
+    return retrieval_numba
 
 
 def offset_rotations(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndarray) -> np.ndarray:
@@ -433,12 +473,14 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     out = np.empty((length, j_count, 4))
     parts, conf = {}, []
     for p, (s, e, total, ca, cb) in enumerate(found):
-        src, gp, hd, u = sample_segments(lib, s, e, d)
+        i0, i1, f = segment_times(lib, s, e, d)
         mask = rt.lower_mask if p == 0 else rt.upper_mask
-        r = offset_rotations(src[:, :, mask], ta.rots[ia][:, mask], tb.rots[ib][:, mask], curves)
-        out[:, mask] = average_rotations(r)
+        joints = np.flatnonzero(mask)
+        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
+                                          curves)
         if p == 0:
-            best_u = u[0]
+            best_u = i0[0] + f[0]
+            gp, hd = sample_trajectory(lib, i0, i1, f)
             theta0 = ta.heading[a_end] - hd[:, 1]
             traj = np.empty(hd.shape + (3,))
             rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
