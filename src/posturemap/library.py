@@ -122,14 +122,18 @@ def clip_features(gpos_all: np.ndarray, root_pos: np.ndarray, heading: np.ndarra
 
 
 def motion_features(pose: np.ndarray, root_pos: np.ndarray, heading: np.ndarray, up: int,
-                    fps: float) -> tuple[np.ndarray, np.ndarray]:
+                    fps: float, starts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The velocity features of :func:`clip_features` from a clip's ``pose`` (F, K, 3), root
-    positions (F, 3) and headings (F,): ``vel (F, K, 3)`` and ``root (F, 5)``."""
+    positions (F, 3) and headings (F,): ``vel (F, K, 3)`` and ``root (F, 5)``. ``starts``
+    (C + 1,), when given, splits the frames into clips (no difference across a boundary)."""
     f = len(pose)
-    prev = np.maximum(np.arange(f) - 1, 0)
-    prev[0] = min(1, f - 1)
-    sign = np.ones(f)
-    sign[0] = -1.0
+    starts = np.array([0, f]) if starts is None else np.asarray(starts)
+    first = np.zeros(f, dtype=bool)
+    first[starts[:-1][np.diff(starts) > 0]] = True
+    prev = np.arange(f) - 1
+    # A clip's first frame takes the forward difference (negated), a one-frame clip none.
+    prev[first] = np.minimum(np.flatnonzero(first) + 1, np.repeat(starts[1:], np.diff(starts))[first] - 1)
+    sign = np.where(first, -1.0, 1.0)
     vel = (pose - pose[prev]) * (sign * fps)[:, None, None]
     rv = heading_frame((root_pos - root_pos[prev]) * (sign * fps)[:, None], heading, up)
     turn = (heading - heading[prev]) * sign * fps
@@ -206,16 +210,12 @@ class MotionLibrary:
         Time-reversed real motion: the same postures, contacts and paths, travelled the other
         way (a forward walk becomes a backward walk). Velocity features are recomputed."""
         starts = self.clip_start
-        order = np.concatenate([np.arange(starts[c + 1] - 1, starts[c] - 1, -1) for c in range(len(starts) - 1)])
+        clip = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
+        order = starts[clip] + starts[clip + 1] - 1 - np.arange(len(clip))  # each clip back to front
         rev = {k: getattr(self, k)[order] for k in ("rots", "gpos", "heading", "contacts", "pose", "win")}
-        vel, root = [], []
-        for c in range(len(starts) - 1):
-            sl = slice(starts[c], starts[c + 1])
-            v, r = motion_features(rev["pose"][sl].astype(np.float64), rev["gpos"][sl], rev["heading"][sl],
-                                   self.up, self.fps)
-            vel.append(v.astype(self.vel.dtype))
-            root.append(r.astype(self.root.dtype))
-        rev["vel"], rev["root"] = np.concatenate(vel), np.concatenate(root)
+        v, r = motion_features(rev["pose"].astype(np.float64), rev["gpos"], rev["heading"], self.up, self.fps,
+                               starts)
+        rev["vel"], rev["root"] = v.astype(self.vel.dtype), r.astype(self.root.dtype)
         for k, v in rev.items():
             object.__setattr__(self, k, np.concatenate([getattr(self, k), v]))
         object.__setattr__(self, "clip_start", np.concatenate([starts, starts[-1] + starts[1:]]))

@@ -178,8 +178,15 @@ class PostureMap:
         if lib is not None:
             for k, v in lib.arrays().items():
                 arrays[f"library_{k}"] = v
+        # An .npz archive: the maps compressed, the motion library stored as is (it hardly
+        # compresses, and reading it without inflating keeps a CLI transition quick).
         buf = io.BytesIO()
-        np.savez_compressed(buf, **arrays)
+        with zipfile.ZipFile(buf, "w") as zf:
+            for name, arr in arrays.items():
+                member = io.BytesIO()
+                np.lib.format.write_array(member, np.asanyarray(arr), allow_pickle=False)
+                zf.writestr(name + ".npy", member.getvalue(),
+                            zipfile.ZIP_STORED if name.startswith("library_") else zipfile.ZIP_DEFLATED)
         write_bytes_atomic(path, buf.getvalue())
 
     @classmethod
