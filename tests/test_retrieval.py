@@ -373,3 +373,27 @@ def test_compiled_seam_costs_match_numpy(model, monkeypatch):
     ref = retrieval.seam_costs(pm, vm, frames, vframes, p, v, rate)
     plain = ((pm[frames] - p) ** 2).sum(1) + ((rate[:, None] * vm[vframes] - v) ** 2).sum(1)
     assert np.allclose(out, plain, rtol=1e-5) and np.allclose(ref, plain, rtol=1e-5)
+
+
+def test_a_library_shorter_than_the_gap_falls_back(clips):
+    short = clips["walk_normal_001"][:12]
+    tiny = PostureMap(seed=0).fit([short, clips["run_normal_001"][:10]], ["short walk", "short run"])
+    eng = TransitionEngine(tiny)
+    eng.add("w", clips["walk_angry_001"])
+    r, p = eng.generate("w", "w", 30, a_end=20, b_start=51, align=False, method="retrieval", foot_lock=True)
+    assert eng.last["retrieval"] is None  # no clip holds a 23..41-frame segment
+    assert np.all(np.isfinite(r)) and np.all(np.isfinite(p))
+
+
+def test_inspect_describes_the_library(model, tmp_path, capsys):
+    path = tmp_path / "m.npz"
+    model.save(path)
+    assert cli.main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    n = model.library_.recorded
+    assert f"motion library: {n} frames of {len(LIBRARY)} clips at 30 fps, also played backwards" in out
+    assert cli.main(["inspect", str(path), "--json"]) == 0
+    import json
+
+    d = json.loads(capsys.readouterr().out)["library"]
+    assert d["frames"] == n and d["clips"] == len(LIBRARY) and "Foot_L" in d["key_joints"]

@@ -187,6 +187,13 @@ def _cmd_inspect(args) -> int:
           f"(root {d['skeleton']['root']}, up {d['skeleton']['up']})")
     if t:
         print(f"  trained on {t.get('clips')} clips, {t.get('frames')} frames in {t.get('train_seconds')} s")
+    lib = d["library"]
+    if lib:
+        print(f"  motion library: {lib['frames']} frames of {lib['clips']} clips at {lib['fps']:g} fps"
+              f"{', also played backwards' if lib['reverse'] else ''}; {lib['bytes_per_frame']:.0f} bytes per frame; "
+              f"matched on {', '.join(lib['key_joints'])}")
+    else:
+        print("  motion library: none (retrieval falls back to interpolation)")
     p = d["params"]
     print(f"  parameters: radius {p['radius']}, neighborhood {p['neighborhood']}, learning rate "
           f"{p['learning_rate']}, epochs {p['epochs']}, seed {p['seed']}")

@@ -291,7 +291,7 @@ class MotionLibrary:
                 raise ValueError(f"library {name} is not finite")
             out[name] = a
         out["contacts"] = out["contacts"].astype(bool)
-        out["win"] = out["win"].astype(np.int64)
+        out["win"] = out["win"].astype(np.int32)
         if out["win"].min() < 0 or out["win"].max() >= n_neurons:
             raise ValueError("library index refers to neurons the map does not have")
         starts = np.asarray(arrays["clip_start"], dtype=np.int64)

@@ -281,4 +281,9 @@ class PostureMap:
             "training": {k: v for k, v in self.info_.items() if k != "quality"},
             "assignment": {CLASSES[c]: [n for n, jc in zip(self.skeleton_.names, self.space_.joint_class) if jc == c]
                            for c in range(len(CLASSES))},
+            "library": None if self.library_ is None else {
+                **{k: v for k, v in self.library_.meta().items() if k != "clips"},
+                "clips": self.library_.num_recorded_clips,
+                "key_joints": [self.skeleton_.names[j] for j in np.concatenate([self.library_.lower,
+                                                                                self.library_.upper])]},
         }
