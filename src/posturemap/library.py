@@ -291,9 +291,9 @@ class MotionLibrary:
                 raise ValueError(f"library {name} is not finite")
             out[name] = a
         out["contacts"] = out["contacts"].astype(bool)
-        out["win"] = out["win"].astype(np.int32)
-        if out["win"].min() < 0 or out["win"].max() >= n_neurons:
+        if out["win"].dtype.kind not in "iu" or out["win"].min() < 0 or out["win"].max() >= n_neurons:
             raise ValueError("library index refers to neurons the map does not have")
+        out["win"] = out["win"].astype(np.int32)
         starts = np.asarray(arrays["clip_start"], dtype=np.int64)
         if starts.ndim != 1 or len(starts) < 2 or starts[0] != 0 or starts[-1] != n or np.any(np.diff(starts) < 1):
             raise ValueError("library clip boundaries are inconsistent")
