@@ -273,7 +273,7 @@ def test_map_file_keeps_the_library(model, engine, tmp_path):
     assert np.array_equal(r1, eng.generate(name, name, **args)[0])
 
 
-@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index"])
+@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index", "not-unit", "ints"])
 def test_a_damaged_library_is_refused(model, tmp_path, damage):
     path = tmp_path / "lib.npz"
     model.save(path)
@@ -286,8 +286,12 @@ def test_a_damaged_library_is_refused(model, tmp_path, damage):
         arrays["library_rots"] = arrays["library_rots"][:-1]
     elif damage == "clips":
         arrays["library_clip_start"] = arrays["library_clip_start"][::-1].copy()
-    else:
+    elif damage == "index":
         arrays["library_win"] = arrays["library_win"] + 100000
+    elif damage == "not-unit":
+        arrays["library_rots"] = arrays["library_rots"] * 2
+    else:
+        arrays["library_pose"] = arrays["library_pose"].astype(np.int64)
     np.savez(path, **arrays)
     with pytest.raises(MapFileError, match="library"):
         PostureMap.load(path)

@@ -287,9 +287,14 @@ class MotionLibrary:
             a = arrays[name]
             if a.shape != shape:
                 raise ValueError(f"library {name} has shape {a.shape}, expected {shape}")
-            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
-                raise ValueError(f"library {name} is not finite")
+            if name not in ("contacts", "win") and (a.dtype.kind != "f" or not np.all(np.isfinite(a))):
+                raise ValueError(f"library {name} is not finite floating point")
             out[name] = a
+        if out["contacts"].dtype.kind not in "biu":
+            raise ValueError("library contacts are not booleans")
+        norm = np.linalg.norm(out["rots"].reshape(-1, 4), axis=1)
+        if np.any(np.abs(norm - 1.0) > 1e-3):
+            raise ValueError("library rotations are not unit quaternions")
         out["contacts"] = out["contacts"].astype(bool)
         if out["win"].dtype.kind not in "iu" or out["win"].min() < 0 or out["win"].max() >= n_neurons:
             raise ValueError("library index refers to neurons the map does not have")
