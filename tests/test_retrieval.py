@@ -198,7 +198,8 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     rots, pos = rots.copy(), pos.copy()
     info = eng.last["retrieval"]
     assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[1]
-    fb_r, fb_p = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False, method=retrieval.FALLBACK)
+    fb_r, fb_p = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False,
+                              method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
 
@@ -219,7 +220,7 @@ def test_a_map_without_library_uses_the_fallback(clips):
     r, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method="retrieval")
     r = r.copy()
     assert eng.last["retrieval"] is None
-    fb, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method=retrieval.FALLBACK)
+    fb, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method=retrieval.fallback_method(20, 30.0))
     assert np.array_equal(r, fb)
 
 
@@ -401,3 +402,19 @@ def test_inspect_describes_the_library(model, tmp_path, capsys):
 
     d = json.loads(capsys.readouterr().out)["library"]
     assert d["frames"] == n and d["clips"] == len(LIBRARY) and "Foot_L" in d["key_joints"]
+
+
+def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engine, clips, model):
+    from posturemap.transition import AUTO_SHORT_S
+
+    name = HELD_OUT[0]
+    for length, expected in ((5, "spline"), (int(AUTO_SHORT_S * 30) + 1, "retrieval"), (30, "retrieval")):
+        r1 = engine.generate(name, name, length, a_end=40, b_start=41 + length, align=False, method="auto",
+                             foot_lock=True)[0].copy()
+        assert engine.last["method"] == expected
+        r2 = engine.generate(name, name, length, a_end=40, b_start=41 + length, align=False, method=expected,
+                             foot_lock=True)[0]
+        assert np.array_equal(r1, r2)
+    report = {}
+    transition(clips[name], clips[name], model, length=5, a_end=40, b_start=46, align=False, report=report)
+    assert report == {"method": "spline"}

@@ -27,7 +27,7 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
    rotations between the segment and A / B at the seams (degrees per joint, the larger seam);
    below ``CONF_RANGE[0]`` the part is the retrieved motion, above ``CONF_RANGE[1]`` it is the
-   interpolating fallback (:data:`FALLBACK`), in between a per-joint SLERP of the two.
+   interpolating fallback (:func:`fallback_method`), in between a per-joint SLERP of the two.
 """
 
 from __future__ import annotations
@@ -49,6 +49,13 @@ BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest th
 PREFILTER = 192  # of those, the best matches at natural speed that become segment ends
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
+FALLBACK_SHORT = ("spline", 0.6)  # gaps shorter than this many seconds fall back to this method
+
+
+def fallback_method(length: int, fps: float) -> str:
+    """The interpolating method a part falls back to: on gaps under ``FALLBACK_SHORT[1]`` seconds
+    the seam velocities matter most (``spline``), on longer ones the map keys (``upm-valid``)."""
+    return FALLBACK_SHORT[0] if (length + 1) / fps < FALLBACK_SHORT[1] else FALLBACK
 W_VEL = 1.0  # weight of velocities against positions in the match
 W_ROOT = (1.0, 1.0, 0.5)  # root velocity, turning rate, height
 W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)

@@ -574,7 +574,8 @@ class TransitionEngine:
                                      **getattr(self, "retrieval_options", {}))
         # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
         # retrieved parts leave open (joints above the root, local translations).
-        base = retrieval.FALLBACK if res is None or min(res.confidence) < 1.0 else "slerp"
+        fallback = retrieval.fallback_method(length, ta.motion.fps)
+        base = fallback if res is None or min(res.confidence) < 1.0 else "slerp"
         rots_fb, pos_fb = self.generate(a, b, length, key_at, alpha, a_end, b_start, align, base, False)
         rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
         fb_last = self.last
