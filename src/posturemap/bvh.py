@@ -630,11 +630,18 @@ _KERNELS: list = []  # [namespace or None] once _fast_kernels() has run
 
 
 def _fast_kernels():
-    """The compiled kernels (see :class:`_Kernels`), or None without numba.
+    """The compiled kernels (see :class:`_Kernels`), or None to parse with numpy.
 
-    numba is imported on first use only, so ``import posturemap`` stays light; compiled code
-    is cached on disk, so only the very first read on a machine pays for compilation.
+    Compiled only once something in this process has loaded numba through
+    :func:`posturemap.kernels.compiled` (training, the studio, benchmarks; ``train`` and
+    ``serve`` load it before reading): reading a few files with numpy (about 20 ms a MB) is
+    faster than importing numba (about half a second). Compiled code is cached on disk, so
+    only the very first read on a machine pays for compilation.
     """
+    from . import kernels
+
+    if kernels.backend() != "numba":
+        return None
     if not _KERNELS:
         try:
             import numba

@@ -84,11 +84,13 @@ def _radius(text: str):
 
 
 def _cmd_train(args) -> int:
+    from . import kernels
     from .bvh import read_inputs
     from .features import load_class_overrides
     from .model import PostureMap
 
     _check_output(args.output)
+    kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)

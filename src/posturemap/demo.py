@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import time
 
-from . import bvh, sample
+from . import bvh, kernels, sample
 from .model import PostureMap
 from .motion import summary
 from .transition import DEFAULT_METHOD, transition
@@ -31,6 +31,7 @@ def _pick(names: list[str], word: str) -> str | None:
 def run(out: str, data: str | None = None, log=print) -> dict:
     """Run the pipeline, writing into folder ``out``; returns the paths written by role."""
     os.makedirs(out, exist_ok=True)
+    kernels.compiled()  # the demo trains a map
     written: dict[str, str] = {}
     if data is None:
         clips = {}

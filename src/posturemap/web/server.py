@@ -710,6 +710,8 @@ def run_cli(args) -> int:
     if missing:
         log(f"posturemap: warning: {STATIC_DIR / 'vendor'} lacks three.js ({', '.join(missing)}); "
             "run `make web` in the repository (the page cannot draw without it)")
+    from .. import kernels
+    kernels.compiled()  # many transitions (and maybe training) ahead: compiled kernels pay off
     clips = load_clips(args.inputs, log)
     model = None
     if args.map:
