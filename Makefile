@@ -19,7 +19,8 @@ demo: $(VENV)/.installed
 	$(VENV)/bin/posturemap demo
 
 # three.js for the studio page, pinned in package.json/package-lock.json, copied next to the page
-# (no CDN: the page works offline). `make web` is enough after a fresh clone.
+# (no CDN: the page works offline; GLTFLoader for the tests' glTF checks). `make web` is enough
+# after a fresh clone. `npm ci` also installs the Khronos glTF-Validator (devDependencies) for the tests.
 VENDOR := src/posturemap/web/static/vendor
 THREE := node_modules/three
 
@@ -29,10 +30,11 @@ node_modules/.package-lock.json: package.json package-lock.json
 
 $(VENDOR)/.stamp: node_modules/.package-lock.json
 	rm -rf $(VENDOR)
-	mkdir -p $(VENDOR)/addons/controls $(VENDOR)/addons/loaders
+	mkdir -p $(VENDOR)/addons/controls $(VENDOR)/addons/loaders $(VENDOR)/addons/utils
 	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/LICENSE $(VENDOR)/
 	cp $(THREE)/examples/jsm/controls/OrbitControls.js $(VENDOR)/addons/controls/
-	cp $(THREE)/examples/jsm/loaders/BVHLoader.js $(VENDOR)/addons/loaders/
+	cp $(THREE)/examples/jsm/loaders/BVHLoader.js $(THREE)/examples/jsm/loaders/GLTFLoader.js $(VENDOR)/addons/loaders/
+	cp $(THREE)/examples/jsm/utils/BufferGeometryUtils.js $(THREE)/examples/jsm/utils/SkeletonUtils.js $(VENDOR)/addons/utils/
 	touch $@
 
 web: $(VENDOR)/.stamp

@@ -118,10 +118,13 @@ def _check_output(path: str):
 
 
 def _cmd_transition(args) -> int:
-    from . import bvh
+    from . import bvh, gltf
     from .model import PostureMap
     from .transition import KEYED, transition
 
+    as_gltf = gltf.is_gltf_path(args.output)
+    if args.split_animations and not as_gltf:
+        raise UserError("--split-animations", "needs a glTF output (-o ending in .glb or .gltf)")
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
@@ -135,8 +138,16 @@ def _cmd_transition(args) -> int:
     out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
                      a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method,
                      foot_lock=not args.no_foot_lock)
-    bvh.write(args.output, out)
     a_end = len(a) - 1 if args.a_end is None else args.a_end
+    if as_gltf:
+        n = a_end + 1
+        stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
+        gltf.write(args.output, out, parts=[("A", 0, n), ("transition", n, n + args.length),
+                                            ("B", n + args.length, len(out))],
+                   split=args.split_animations, name=f"{stem(args.a)}_to_{stem(args.b)}",
+                   up=model.space_.up if model is not None else None)
+    else:
+        bvh.write(args.output, out)
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {args.method} frames "
           f"+ B[{args.b_start}..{len(b) - 1}]")
     return 0
@@ -211,10 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .transition import DEFAULT_METHOD, METHODS
 
-    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH")
+    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH or glTF")
     r.add_argument("a", metavar="A.bvh")
     r.add_argument("b", metavar="B.bvh")
-    r.add_argument("-o", "--output", required=True, metavar="OUT.bvh")
+    r.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="file to write: .bvh (A's skeleton and channels), or .glb / .gltf (glTF 2.0: "
+                        "metres, Y up, one animation; the clip's unit is guessed from its body height)")
     r.add_argument("--map", metavar="MAP", help="posture map from `posturemap train` (default: learn one from A and B)")
     r.add_argument("--length", type=_positive_int, default=20, help="in-between frames (20)")
     r.add_argument("--key-at", type=_positive_int, default=None,
@@ -224,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
     r.add_argument("--no-foot-lock", action="store_true", help="do not pin planted feet (foot-skate cleanup)")
+    r.add_argument("--split-animations", action="store_true",
+                   help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"transition method ({DEFAULT_METHOD})")
     r.set_defaults(func=_cmd_transition)
