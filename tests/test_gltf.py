@@ -22,6 +22,7 @@ import shutil
 import struct
 import subprocess
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -366,7 +367,9 @@ def test_three_js_gltfloader_loads_the_motion(files, walk_run):
 # -- the studio's export ------------------------------------------------------------------------
 def test_studio_export_formats(sample_clips):
     pytest.importorskip("starlette", reason="the web extra (pip install 'posturemap[web]') is not installed")
-    from starlette.testclient import TestClient
+    with warnings.catch_warnings():  # starlette 1.x prefers httpx2 for its test client; httpx still works
+        warnings.simplefilter("ignore")
+        from starlette.testclient import TestClient
 
     from posturemap.web.server import create_app
 
