@@ -7,7 +7,7 @@ import os
 import sys
 
 from . import __version__
-from .errors import UserError
+from .errors import UserError, require_extra
 
 
 class _Parser(argparse.ArgumentParser):
@@ -18,19 +18,34 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def _data_folder(given: str | None) -> str:
+    """The data folder: ``--data``, else ``$POSTUREMAP_DATA``; never a guess inside the install."""
+    data = given or os.environ.get("POSTUREMAP_DATA")
+    if not data:
+        raise UserError("--data", "no data folder: give --data DIR or set POSTUREMAP_DATA "
+                                  "(a folder holding bandai1/)")
+    if not os.path.isdir(data):
+        raise UserError(data, "data folder does not exist" + ("" if given else " (from POSTUREMAP_DATA)"))
+    return data
+
+
 def _cmd_bench(args) -> int:
+    require_extra("bench", "minisom", "matplotlib", what="bench")
+    args.data = _data_folder(args.data)
     from . import evaluate
     return evaluate.run_cli(args)
 
 
 def _cmd_serve(args) -> int:
+    require_extra("web", "starlette", "uvicorn", what="serve")
     from .web import server
     return server.run_cli(args)
 
 
 def _cmd_demo(args) -> int:
     from . import demo
-    demo.run(args.out, data=args.data, log=print)
+    out = args.out or demo.default_out(args.data)
+    demo.run(out, data=args.data, log=print)
     return 0
 
 
@@ -120,11 +135,17 @@ def _check_output(path: str):
 def _cmd_transition(args) -> int:
     from . import bvh, gltf
     from .model import PostureMap
+    from .motion import up_axis
     from .transition import KEYED, transition
 
     as_gltf = gltf.is_gltf_path(args.output)
     if args.split_animations and not as_gltf:
         raise UserError("--split-animations", "needs a glTF output (-o ending in .glb or .gltf)")
+    if args.preview:
+        require_extra("preview", "matplotlib", what="--preview")
+        if not args.preview.lower().endswith(".png"):
+            raise UserError(args.preview, "a preview file name must end in .png")
+        _check_output(args.preview)
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
@@ -148,8 +169,16 @@ def _cmd_transition(args) -> int:
                    up=model.space_.up if model is not None else None)
     else:
         bvh.write(args.output, out)
+    if args.preview:
+        from . import preview
+        from .motion import length_unit
+
+        preview.transition_filmstrip(out, a_end + 1, args.length, args.preview,
+                                     up=model.space_.up if model is not None else up_axis(out),
+                                     title=f"{os.path.basename(args.a)} -> {os.path.basename(args.b)}: "
+                                           f"{args.length} {args.method} frames", unit=length_unit(a))
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {args.method} frames "
-          f"+ B[{args.b_start}..{len(b) - 1}]")
+          f"+ B[{args.b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
     return 0
 
 
@@ -237,6 +266,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
     r.add_argument("--no-foot-lock", action="store_true", help="do not pin planted feet (foot-skate cleanup)")
+    r.add_argument("--preview", metavar="OUT.png",
+                   help="also draw a filmstrip (side and top view: A's last second, the transition, B's "
+                        "first second, planted feet); needs matplotlib: pip install 'posturemap[preview]'")
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
@@ -251,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("bench", help="evaluate every method (in-betweening accuracy, realism, speed) and "
                                      "write results.md, results.json and plots")
     e.add_argument("--quick", action="store_true", help="small run for CI (under 3 minutes)")
-    e.add_argument("--data", default=None, help="data folder (default: $POSTUREMAP_DATA or ../shared/data)")
+    e.add_argument("--data", default=None, help="data folder holding bandai1/ (default: $POSTUREMAP_DATA)")
     e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")
     e.add_argument("--seed", type=int, default=0, help="random seed (0)")
     e.set_defaults(func=_cmd_bench)
@@ -264,7 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_cmd_serve)
 
     d = sub.add_parser("demo", help="run the whole pipeline on the bundled sample (or --data DIR)")
-    d.add_argument("--out", default="out", help="output folder (default: out)")
+    d.add_argument("--out", default=None,
+                   help="output folder (default: out for the sample, out-NAME for --data NAME)")
     d.add_argument("--data", default=None, help="folder of BVH files to use instead of the sample")
     d.set_defaults(func=_cmd_demo)
     return p
