@@ -214,7 +214,6 @@ def transition_filmstrip(result: Motion, a_frames: int, length: int, path, up: i
                 ("B", gpos[t1: t1 + context], None)]
     filmstrip(segments, path, sk.parents, up=up, fps=result.fps, feet=[c[2] for c in chains], title=title,
               unit=unit)
-    return None
 
 
-__all__ = ["COLOURS", "filmstrip", "foot_contacts", "transition_filmstrip"]
+__all__ = ["COLOURS", "CONTACT_HEIGHT", "CONTACT_SPEED", "filmstrip", "foot_contacts", "transition_filmstrip"]
