@@ -4,11 +4,12 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
 
-.PHONY: demo test bench bench-quick serve clean web studio-docs
+.PHONY: demo test bench bench-quick serve clean web studio-docs wheel-smoke
 
+# The package with what `demo` and `serve` use (the studio's server, the filmstrip pictures).
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) install -e .
+	$(PIP) install -e '.[web,preview]'
 	touch $@
 
 $(VENV)/.test-installed: $(VENV)/.installed pyproject.toml
@@ -17,6 +18,9 @@ $(VENV)/.test-installed: $(VENV)/.installed pyproject.toml
 
 demo: $(VENV)/.installed
 	$(VENV)/bin/posturemap demo
+	@echo
+	@echo "posturemap is installed in $(VENV): 'source $(VENV)/bin/activate' puts it on the PATH"
+	@echo "(or call $(VENV)/bin/posturemap). 'make serve' opens the studio on the demo's clips."
 
 # three.js for the studio page, pinned in package.json/package-lock.json, copied next to the page
 # (no CDN: the page works offline; GLTFLoader for the tests' glTF checks). `make web` is enough
@@ -49,8 +53,15 @@ bench: $(VENV)/.test-installed
 bench-quick: $(VENV)/.test-installed
 	$(VENV)/bin/posturemap bench --quick --out bench-results
 
-serve: $(VENV)/.test-installed web
-	$(VENV)/bin/posturemap serve
+# The studio on the demo's clips and map (after `make demo`), else on the bundled sample.
+serve: $(VENV)/.installed web
+	@if [ -f out/map.npz ]; then set -x; \
+	    $(VENV)/bin/posturemap serve out/sample_walk.bvh out/sample_run.bvh out/sample_wave.bvh --map out/map.npz; \
+	else set -x; $(VENV)/bin/posturemap serve; fi
+
+# Build the wheel, install it in a fresh venv outside the checkout, run the demo and the studio.
+wheel-smoke:
+	bash .ci/wheel-smoke
 
 # Re-measure the studio's slider latency and retake its screenshot (docs/web-latency.md, docs/studio.png).
 studio-docs: $(VENV)/.test-installed web
@@ -58,4 +69,4 @@ studio-docs: $(VENV)/.test-installed web
 	POSTUREMAP_UPDATE_DOCS=1 $(PY) -m pytest -q tests/test_browser.py -k screenshot
 
 clean:
-	rm -rf $(VENV) out build src/*.egg-info node_modules $(VENDOR)
+	rm -rf $(VENV) out out-* build dist src/*.egg-info node_modules $(VENDOR)
