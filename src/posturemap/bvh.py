@@ -7,7 +7,9 @@ back); the others use their OFFSET.
 
 The frame data is read in one pass without per-line Python work: only the header of a large
 ASCII file is decoded, a numba kernel parses the numbers straight from the bytes and another
-turns Euler angles into quaternions. Text the kernel does not recognise (unusual whitespace or
+turns Euler angles into quaternions, once numba is loaded in the process
+(:func:`posturemap.kernels.compiled`; until then, e.g. for the two files of one command-line
+transition, the general numpy path reads everything). Text the kernel does not recognise (unusual whitespace or
 number syntax, a wrong line) goes through the general numpy path, which is the reference for
 what is accepted and for the error messages; numbers the kernel parses come out bit-identical
 to Python's ``float``.

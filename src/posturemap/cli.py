@@ -32,7 +32,9 @@ def _data_folder(given: str | None) -> str:
 def _cmd_bench(args) -> int:
     require_extra("bench", "minisom", "matplotlib", what="bench")
     args.data = _data_folder(args.data)
-    from . import evaluate
+    from . import evaluate, kernels
+
+    kernels.compiled()  # hundreds of files to read, maps to train, transitions to time
     return evaluate.run_cli(args)
 
 
