@@ -181,3 +181,20 @@ def test_version_matches_the_package_metadata(capsys):
     assert capsys.readouterr().out.strip() == f"posturemap {meta['project']['version']}"
     assert posturemap.__version__ == meta["project"]["version"]
 
+
+
+def test_filmstrip_rows_stack_one_side_view_per_motion(sample_clips, tmp_path):
+    walk, run = sample_clips["walk"], sample_clips["run"]
+    sk = walk.skeleton
+    g_walk, g_run = walk.global_positions(), run.global_positions()
+    rows = [("truth", [("context", g_walk[:10], "#888888"), ("gap", g_walk[10:30], "#ff0000")]),
+            ("method", [("context", g_walk[:10], "#888888"), ("gap", g_run[:20], "#0000ff")])]
+    out = tmp_path / "rows.png"
+    preview.filmstrip_rows(rows, out, sk.parents, fps=walk.fps, title="one window")
+    rgb = (png_pixels(out)[..., :3] * 255).round().astype(int)
+    red = np.flatnonzero(np.all(rgb == (255, 0, 0), axis=-1).any(axis=1))
+    blue = np.flatnonzero(np.all(rgb == (0, 0, 255), axis=-1).any(axis=1))
+    assert len(red) > 20 and len(blue) > 20
+    assert red.max() < blue.min()  # the truth's row above the method's
+    with pytest.raises(ValueError):
+        preview.filmstrip_rows([], out, sk.parents)

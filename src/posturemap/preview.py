@@ -11,7 +11,8 @@ B's first frames), each in its own colour, in two views:
 
 Foot contacts (low and slow ankles, with :mod:`posturemap.feet`'s thresholds in leg lengths)
 are marked with filled dots in both views. Inputs are plain arrays of global joint positions;
-:func:`transition_filmstrip` builds the segments of a transition result. matplotlib is imported
+:func:`transition_filmstrip` builds the segments of a transition result; :func:`filmstrip_rows`
+stacks side views (e.g. the truth and each method on one window). matplotlib is imported
 on first use only (``pip install 'posturemap[preview]'``).
 """
 
@@ -89,7 +90,8 @@ def _horizontal_axes(points: np.ndarray, up: int) -> tuple[np.ndarray, np.ndarra
 
 def filmstrip(segments, path, parents, up: int = 1, fps: float = 30.0, feet=(), every: int | None = None,
               title: str | None = None, unit: str = "", width_px: int = 1200) -> None:
-    """Write a filmstrip PNG of consecutive motion segments to ``path`` (atomically).
+    """Write a filmstrip PNG of consecutive motion segments to ``path`` (atomically): the side
+    view above, the top view below.
 
     Parameters
     ----------
@@ -107,10 +109,46 @@ def filmstrip(segments, path, parents, up: int = 1, fps: float = 30.0, feet=(), 
     width_px : picture width in pixels (the height follows from the views' extents)
     """
     require_extra("preview", "matplotlib", what="--preview")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import LineCollection
-    from matplotlib.figure import Figure
+    strip = _prepare(segments, parents, up, fps, feet, every)
+    plan = np.stack([strip["body_pos"] @ strip["along"], strip["body_pos"] @ strip["across"]], axis=-1)
+    plan_w, plan_h = np.ptp(plan.reshape(-1, 2), axis=0) + 0.1 * strip["height"]
+    inner = 0.92 * width_px
+    side_px = _side_px(strip, inner)
+    top_px = float(np.clip(inner * plan_h / plan_w, 110, 320))
+    fig, (side, top) = _figure(width_px, [side_px, top_px], 120)
+    _draw_side(side, strip)
+    side.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False, ncol=len(strip["segs"]))
+    _draw_top(top, strip, unit)
+    _save(fig, path, title)
 
+
+def filmstrip_rows(rows, path, parents, up: int = 1, fps: float = 30.0, feet=(), every: int | None = None,
+                   title: str | None = None, width_px: int = 1200) -> None:
+    """Side-view filmstrips stacked in one PNG, one row per motion (e.g. the truth, then one row
+    per method on the same window): the same frames drawn at the same places in every row.
+
+    ``rows`` is a sequence of ``(row_title, segments)``, ``segments`` as for :func:`filmstrip`;
+    ``every`` defaults to about 18 figures for the longest row. Other parameters as for
+    :func:`filmstrip`.
+    """
+    require_extra("preview", "matplotlib", what="--preview")
+    rows = list(rows)
+    if not rows:
+        raise ValueError("rows must hold at least one (title, segments)")
+    longest = max(sum(len(np.asarray(p)) for _, p, _ in segs) for _, segs in rows)
+    every = every or max(1, int(np.ceil(longest / 18)))
+    strips = [(row_title, _prepare(segs, parents, up, fps, feet, every)) for row_title, segs in rows]
+    inner = 0.92 * width_px
+    fig, axes = _figure(width_px, [_side_px(s, inner) for _, s in strips], 60)
+    for ax, (row_title, strip) in zip(np.atleast_1d(axes), strips):
+        _draw_side(ax, strip, f"{row_title}: " if row_title else "")
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=7, frameon=False,
+                  ncol=len(strip["segs"]))
+    _save(fig, path, title)
+
+
+def _prepare(segments, parents, up: int, fps: float, feet, every: int | None) -> dict:
+    """What both views need: segments with colours, bones, body joints, axes, contacts."""
     segs = [(str(label), np.asarray(pos, dtype=float), colour) for label, pos, colour in segments]
     if not segs or any(p.ndim != 3 or p.shape[-1] != 3 or len(p) == 0 for _, p, _ in segs):
         raise ValueError("segments must be (label, positions (F, J, 3) with F >= 1, colour)")
@@ -120,75 +158,104 @@ def filmstrip(segments, path, parents, up: int = 1, fps: float = 30.0, feet=(), 
     segs = [(label, pos, colour or COLOURS.get(label) or next(others)) for label, pos, colour in segs]
     allpos = np.concatenate([p for _, p, _ in segs])
     total = len(allpos)
-    every = every or max(1, int(np.ceil(total / 18)))
     bones = _rigid_bones(allpos, parents)
     body = sorted({j for bone in bones for j in bone}) or list(range(len(parents)))
-    allpos_body = allpos[:, body]
-    along, across = _horizontal_axes(allpos_body, up)
-    height = float(np.median(np.ptp(allpos_body[..., up], axis=1))) or 1.0
+    body_pos = allpos[:, body]
+    along, across = _horizontal_axes(body_pos, up)
+    height = float(np.median(np.ptp(body_pos[..., up], axis=1))) or 1.0
     leg = _leg_length(allpos, parents, feet) or 0.5 * height
-    contacts = foot_contacts(allpos[:, feet], fps, up, leg) if feet else np.zeros((total, 0), dtype=bool)
+    return {"segs": segs, "allpos": allpos, "body": body, "body_pos": body_pos, "bones": bones,
+            "along": along, "across": across, "height": height, "up": up, "fps": fps, "feet": feet,
+            "every": every or max(1, int(np.ceil(total / 18))), "spacing": 0.55 * height,
+            "floor": float(body_pos[..., up].min()),
+            "contacts": foot_contacts(allpos[:, feet], fps, up, leg) if feet else np.zeros((total, 0), dtype=bool)}
 
-    spacing = 0.55 * height
-    # Panel heights from the views' extents (equal aspect), within sensible bounds.
-    plan = np.stack([allpos_body @ along, allpos_body @ across], axis=-1).reshape(-1, 2)
-    plan_w, plan_h = np.ptp(plan, axis=0) + 0.1 * height
-    side_w = (total / every) * spacing + height
-    inner = 0.92 * width_px
-    side_px = float(np.clip(inner * 1.25 * height / side_w, 110, 320))
-    top_px = float(np.clip(inner * plan_h / plan_w, 110, 320))
-    fig = Figure(figsize=(width_px / 100, (side_px + top_px + 120) / 100), dpi=100)
-    FigureCanvasAgg(fig)
-    side, top = fig.subplots(2, 1, gridspec_kw={"height_ratios": [side_px, top_px]})
-    start = 0
-    floor = float(allpos_body[..., up].min())
-    for label, pos, colour in segs:
+
+def _side_px(strip: dict, inner: float) -> float:
+    """Height in pixels of a side view ``inner`` pixels wide (equal aspect), within bounds."""
+    side_w = (len(strip["allpos"]) / strip["every"]) * strip["spacing"] + strip["height"]
+    return float(np.clip(inner * 1.25 * strip["height"] / side_w, 110, 320))
+
+
+def _shown(strip: dict):
+    """Per segment: (label, positions, colour, its frame numbers, the frames drawn)."""
+    start, every = 0, strip["every"]
+    for label, pos, colour in strip["segs"]:
         frames = np.arange(start, start + len(pos))
-        shown = frames[(frames % every == 0) | (frames == frames[-1])]
+        yield label, pos, colour, frames, frames[(frames % every == 0) | (frames == frames[-1])]
+        start += len(pos)
+
+
+def _draw_side(ax, strip: dict, prefix: str = "") -> None:
+    """Stick figures left to right in time, each about its own centre; dots on planted feet."""
+    from matplotlib.collections import LineCollection
+
+    allpos, along, up, every = strip["allpos"], strip["along"], strip["up"], strip["every"]
+    for label, pos, colour, _, shown in _shown(strip):
         lines, dots = [], []
         for f in shown:
             p = allpos[f]
-            x = p @ along - (p[body] @ along).mean() + (f / every) * spacing
-            y = p[:, up] - floor
-            lines.extend([[(x[j], y[j]), (x[k], y[k])] for j, k in bones])
-            dots.extend((x[j], y[j]) for i, j in enumerate(feet) if contacts[f, i])
-        side.add_collection(LineCollection(lines, colors=colour, linewidths=1.3, label=f"{label} ({len(pos)} frames)"))
+            x = p @ along - (p[strip["body"]] @ along).mean() + (f / every) * strip["spacing"]
+            y = p[:, up] - strip["floor"]
+            lines.extend([[(x[j], y[j]), (x[k], y[k])] for j, k in strip["bones"]])
+            dots.extend((x[j], y[j]) for i, j in enumerate(strip["feet"]) if strip["contacts"][f, i])
+        ax.add_collection(LineCollection(lines, colors=colour, linewidths=1.3, label=f"{label} ({len(pos)} frames)"))
         if dots:
-            side.scatter(*np.array(dots).T, s=14, color=colour, edgecolors="black", linewidths=0.5, zorder=3)
-        # Top: the path of the body's centre, every shown figure's feet, footprints.
-        centre = pos[:, body].mean(axis=1)
-        top.plot(centre @ along, centre @ across, color=colour, linewidth=2)
-        for i, j in enumerate(feet):
-            planted = contacts[frames, i]
-            top.scatter(pos[planted, j] @ along, pos[planted, j] @ across, s=10, color=colour,
-                        edgecolors="black", linewidths=0.4, zorder=3)
-        top_lines = [[(allpos[f, j] @ along, allpos[f, j] @ across), (allpos[f, k] @ along, allpos[f, k] @ across)]
-                     for f in shown for j, k in bones]
-        top.add_collection(LineCollection(top_lines, colors=colour, linewidths=0.6, alpha=0.45))
-        start += len(pos)
-    side.autoscale_view()
-    side.set_aspect("equal", adjustable="datalim")
-    side.set_yticks([])
-    side.set_xticks([])
-    side.set_title(f"side view, every {every} frames ({every / fps:.2f} s) left to right; "
-                   f"dots: planted feet", fontsize=9, loc="left")
-    side.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False, ncol=len(segs))
-    top.autoscale_view()
-    top.set_aspect("equal", adjustable="datalim")
-    top.set_title("top view: path of the body's centre, feet, footprints", fontsize=9, loc="left")
-    top.tick_params(labelsize=7)
+            ax.scatter(*np.array(dots).T, s=14, color=colour, edgecolors="black", linewidths=0.5, zorder=3)
+    ax.autoscale_view()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_yticks([])
+    ax.set_xticks([])
+    ax.set_title(f"{prefix}side view, every {every} frames ({every / strip['fps']:.2f} s) left to right; "
+                 f"dots: planted feet", fontsize=9, loc="left")
+
+
+def _draw_top(ax, strip: dict, unit: str) -> None:
+    """The ground plan: path of the body's centre, the drawn figures faintly, footprints."""
+    from matplotlib.collections import LineCollection
+
+    allpos, along, across = strip["allpos"], strip["along"], strip["across"]
+    for _, pos, colour, frames, shown in _shown(strip):
+        centre = pos[:, strip["body"]].mean(axis=1)
+        ax.plot(centre @ along, centre @ across, color=colour, linewidth=2)
+        for i, j in enumerate(strip["feet"]):
+            planted = strip["contacts"][frames, i]
+            ax.scatter(pos[planted, j] @ along, pos[planted, j] @ across, s=10, color=colour,
+                       edgecolors="black", linewidths=0.4, zorder=3)
+        lines = [[(allpos[f, j] @ along, allpos[f, j] @ across), (allpos[f, k] @ along, allpos[f, k] @ across)]
+                 for f in shown for j, k in strip["bones"]]
+        ax.add_collection(LineCollection(lines, colors=colour, linewidths=0.6, alpha=0.45))
+    ax.autoscale_view()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title("top view: path of the body's centre, feet, footprints", fontsize=9, loc="left")
+    ax.tick_params(labelsize=7)
     if unit:
-        top.set_xlabel(unit, fontsize=8)
-    if title:
-        fig.suptitle(title, fontsize=10, x=0.01, ha="left")
-    for ax in (side, top):
+        ax.set_xlabel(unit, fontsize=8)
+
+
+def _figure(width_px: int, heights_px: list[float], margin_px: float):
+    """A matplotlib Figure (Agg canvas, no pyplot) with one axes row per height."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_px / 100, (sum(heights_px) + margin_px + 40 * len(heights_px)) / 100), dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(heights_px), 1, gridspec_kw={"height_ratios": heights_px}, squeeze=False)[:, 0]
+    for ax in axes:
         for spine in ("top", "right"):
             ax.spines[spine].set_visible(False)
+    return fig, axes
+
+
+def _save(fig, path, title: str | None) -> None:
+    """Render ``fig`` to PNG and write it to ``path`` atomically (one-line error if it cannot)."""
+    from .bvh import write_bytes_atomic
+
+    if title:
+        fig.suptitle(title, fontsize=10, x=0.01, ha="left")
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
-    from .bvh import write_bytes_atomic
-
     try:
         write_bytes_atomic(path, buf.getvalue())
     except OSError as e:
@@ -216,4 +283,5 @@ def transition_filmstrip(result: Motion, a_frames: int, length: int, path, up: i
               unit=unit)
 
 
-__all__ = ["COLOURS", "CONTACT_HEIGHT", "CONTACT_SPEED", "filmstrip", "foot_contacts", "transition_filmstrip"]
+__all__ = ["COLOURS", "CONTACT_HEIGHT", "CONTACT_SPEED", "filmstrip", "filmstrip_rows", "foot_contacts",
+           "transition_filmstrip"]
