@@ -27,7 +27,7 @@ from .errors import UserError, require_extra
 from .feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains
 from .motion import Motion
 
-COLOURS = {"A": "#7a8491", "transition": "#e8590c", "B": "#1c7ed6"}
+COLOURS = {"A": "#7a8491", "transition": "#e8590c", "B": "#1c7ed6", "context": "#7a8491", "truth": "#212529"}
 OTHER_COLOURS = ("#2b8a3e", "#862e9c", "#c92a2a", "#495057")
 
 
@@ -97,7 +97,7 @@ def filmstrip(segments, path, parents, up: int = 1, fps: float = 30.0, feet=(), 
     ----------
     segments : sequence of ``(label, positions, colour)``; ``positions`` (F_k, J, 3) global joint
         positions of consecutive frames (one skeleton), ``colour`` any matplotlib colour or None
-        (:data:`COLOURS` by label, else :data:`OTHER_COLOURS` in turn)
+        (:data:`COLOURS` by label, else :data:`OTHER_COLOURS` in turn, one colour per label)
     path : PNG file to write
     parents : (J,) parent index per joint, -1 for roots (bones are drawn joint to parent)
     up : up axis 0, 1, 2 of the positions
@@ -137,7 +137,8 @@ def filmstrip_rows(rows, path, parents, up: int = 1, fps: float = 30.0, feet=(),
         raise ValueError("rows must hold at least one (title, segments)")
     longest = max(sum(len(np.asarray(p)) for _, p, _ in segs) for _, segs in rows)
     every = every or max(1, int(np.ceil(longest / 18)))
-    strips = [(row_title, _prepare(segs, parents, up, fps, feet, every)) for row_title, segs in rows]
+    palette = _palette(*(segs for _, segs in rows))
+    strips = [(row_title, _prepare(segs, parents, up, fps, feet, every, palette)) for row_title, segs in rows]
     inner = 0.92 * width_px
     fig, axes = _figure(width_px, [_side_px(s, inner) for _, s in strips], 60)
     for ax, (row_title, strip) in zip(np.atleast_1d(axes), strips):
@@ -147,15 +148,28 @@ def filmstrip_rows(rows, path, parents, up: int = 1, fps: float = 30.0, feet=(),
     _save(fig, path, title)
 
 
-def _prepare(segments, parents, up: int, fps: float, feet, every: int | None) -> dict:
+def _palette(*segment_lists) -> dict[str, str]:
+    """A colour per segment label: :data:`COLOURS` by label, other labels :data:`OTHER_COLOURS`
+    in turn (the same label always the same colour)."""
+    out = dict(COLOURS)
+    k = 0
+    for segs in segment_lists:
+        for label, _, _ in segs:
+            if str(label) not in out:
+                out[str(label)] = OTHER_COLOURS[k % len(OTHER_COLOURS)]
+                k += 1
+    return out
+
+
+def _prepare(segments, parents, up: int, fps: float, feet, every: int | None, palette: dict | None = None) -> dict:
     """What both views need: segments with colours, bones, body joints, axes, contacts."""
     segs = [(str(label), np.asarray(pos, dtype=float), colour) for label, pos, colour in segments]
     if not segs or any(p.ndim != 3 or p.shape[-1] != 3 or len(p) == 0 for _, p, _ in segs):
         raise ValueError("segments must be (label, positions (F, J, 3) with F >= 1, colour)")
     parents = np.asarray(parents)
     feet = list(feet)
-    others = iter(OTHER_COLOURS * 4)
-    segs = [(label, pos, colour or COLOURS.get(label) or next(others)) for label, pos, colour in segs]
+    palette = palette or _palette(segs)
+    segs = [(label, pos, colour or palette[label]) for label, pos, colour in segs]
     allpos = np.concatenate([p for _, p, _ in segs])
     total = len(allpos)
     bones = _rigid_bones(allpos, parents)
