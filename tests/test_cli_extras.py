@@ -79,7 +79,7 @@ def test_cli_transition_preview(sample_clips, tmp_path, capsys):
     assert "filmstrip" in capsys.readouterr().out
     px = png_pixels(png)
     rgb = (px[..., :3] * 255).round().astype(int)
-    for colour in preview.COLOURS.values():  # A, transition, B
+    for colour in (preview.COLOURS[k] for k in ("A", "transition", "B")):
         v = tuple(int(colour[i: i + 2], 16) for i in (1, 3, 5))
         assert np.all(rgb == v, axis=-1).sum() > 100, colour
     for bad, what in [(tmp_path / "t.jpg", "must end in .png"), (tmp_path / "no" / "t.png", "output folder")]:
