@@ -162,7 +162,7 @@ def _modules_after(code: str) -> dict:
     """Run ``code`` in a fresh interpreter; returns which heavy modules it imported."""
     probe = textwrap.dedent(code) + textwrap.dedent("""
         import json, sys
-        print(json.dumps({m: m in sys.modules for m in ("numba", "scipy", "matplotlib", "starlette")}))
+        print(json.dumps({m: m in sys.modules for m in ("numpy", "numba", "scipy", "matplotlib", "starlette")}))
     """)
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
@@ -171,7 +171,29 @@ def _modules_after(code: str) -> dict:
 
 def test_import_posturemap_does_not_import_numba():
     loaded = _modules_after("import posturemap\nposturemap.PostureMap, posturemap.transition")
-    assert loaded == {"numba": False, "scipy": False, "matplotlib": False, "starlette": False}
+    assert loaded == {"numpy": True, "numba": False, "scipy": False, "matplotlib": False, "starlette": False}
+    # The package itself loads its modules on first use; the names are the same objects.
+    loaded = _modules_after("import posturemap")
+    assert not any(loaded.values()), loaded
+    import posturemap
+    from posturemap import transition as imported_name
+    from posturemap.model import PostureMap as model_class
+
+    assert posturemap.PostureMap is model_class
+    assert posturemap.transition is transition is imported_name  # the function, not the module
+    assert callable(posturemap.transition) and "transition" in dir(posturemap)
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_and_version_import_no_numpy(flag):
+    loaded = _modules_after(f"""
+        from posturemap import cli
+        try:
+            cli.main([{flag!r}])
+        except SystemExit as e:
+            assert e.code == 0
+    """)
+    assert not any(loaded.values()), loaded
 
 
 def test_cli_transition_with_a_map_runs_without_numba(sample_clips, tmp_path):

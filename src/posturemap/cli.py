@@ -229,7 +229,10 @@ def _cmd_inspect(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(words=None) -> argparse.ArgumentParser:
+    """The argument parser; ``words`` (the command line's words) leaves out the ``transition``
+    command's ``--method`` unless they hold ``transition``, so that ``posturemap --help`` and
+    ``--version`` import no numpy (default: everything)."""
     p = _Parser(prog="posturemap",
                 description="Natural, real-time motion transitions between motion-capture clips "
                             "with a Uniform Posture Map.")
@@ -251,8 +254,6 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--classes", metavar="FILE.json", help='bone class overrides {"Joint": "body|global|medium|detail"}')
     t.set_defaults(func=_cmd_train)
 
-    from .transition import DEFAULT_METHOD, METHODS
-
     r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH or glTF")
     r.add_argument("a", metavar="A.bvh")
     r.add_argument("b", metavar="B.bvh")
@@ -273,8 +274,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "first second, planted feet); needs matplotlib: pip install 'posturemap[preview]'")
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
-    r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD})")
+    if words is None or "transition" in words:  # the one option that needs the library (numpy)
+        from .transition import DEFAULT_METHOD, METHODS
+
+        r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                       help=f"transition method ({DEFAULT_METHOD})")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
@@ -306,7 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(set(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
