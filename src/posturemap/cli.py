@@ -163,10 +163,8 @@ def _cmd_transition(args) -> int:
                      foot_lock=not args.no_foot_lock)
     a_end = len(a) - 1 if args.a_end is None else args.a_end
     if as_gltf:
-        n = a_end + 1
         stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
-        gltf.write(args.output, out, parts=[("A", 0, n), ("transition", n, n + args.length),
-                                            ("B", n + args.length, len(out))],
+        gltf.write(args.output, out, parts=gltf.transition_parts(a_end + 1, args.length, len(out)),
                    split=args.split_animations, name=f"{stem(args.a)}_to_{stem(args.b)}",
                    up=model.space_.up if model is not None else None)
     else:

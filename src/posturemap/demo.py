@@ -93,9 +93,8 @@ def run(out: str, data: str | None = None, log=print) -> dict:
         stem = os.path.join(out, f"{short(a)}_to_{short(b)}")
         n_a = len(clips[a])
         bvh.write(stem + ".bvh", result)
-        gltf.write(stem + ".glb", result, parts=[("A", 0, n_a), ("transition", n_a, n_a + LENGTH),
-                                                 ("B", n_a + LENGTH, len(result))],
-                   split=True, name=f"{short(a)}_to_{short(b)}", up=model.space_.up)
+        gltf.write(stem + ".glb", result, parts=gltf.transition_parts(n_a, LENGTH, len(result)), split=True,
+                   name=f"{short(a)}_to_{short(b)}", up=model.space_.up)
         written[f"{short(a)}->{short(b)}"] = stem + ".bvh"
         written[f"{short(a)}->{short(b)} glb"] = stem + ".glb"
         log(f"out   {stem}.bvh, .glb: {len(result)} frames ({n_a} of A + {LENGTH} {DEFAULT_METHOD} frames "

@@ -63,6 +63,12 @@ def guess_scale(motion: Motion) -> tuple[str, float]:
     return unit, ASSUMED_HEIGHT_M / height if height > 0 else 1.0
 
 
+def transition_parts(a_frames: int, length: int, frames: int) -> list[tuple[str, int, int]]:
+    """The parts of a transition result for :func:`build`: ``A`` (its first ``a_frames``
+    frames), ``transition`` (the next ``length``) and ``B`` (the rest, up to ``frames``)."""
+    return [("A", 0, a_frames), ("transition", a_frames, a_frames + length), ("B", a_frames + length, frames)]
+
+
 def _check_parts(parts, frames: int) -> list[tuple[str, int, int]]:
     """``parts`` as (name, start, stop) frame ranges that tile 0..frames; raises ValueError."""
     out, at = [], 0

@@ -430,8 +430,7 @@ class Studio:
             return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
         from .. import gltf
 
-        n = p.a_end + 1
-        parts = [("A", 0, n), ("transition", n, n + p.length), ("B", n + p.length, len(out))]
+        parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
         data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
                           name=re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}")[:120])
         return data, f"{stem}.{fmt}", EXPORT_FORMATS[fmt]
