@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 
 from posturemap import bvh, cli, gltf, quat
+from posturemap.errors import UserError
 from posturemap.model import PostureMap
 from posturemap.motion import Motion, up_axis
 from posturemap.skeleton import fk
@@ -397,3 +398,25 @@ def test_studio_export_formats(sample_clips):
             else:
                 assert r.status_code == 422 and r.json()["field"] == "format", r.text
         assert c.post("/api/transition", json=dict(body, format="glb")).status_code == 422  # export only
+
+
+def test_two_top_joints_give_no_skin_and_still_the_motion(sample_clips, tmp_path):
+    walk = sample_clips["walk"]
+    parents = walk.skeleton.parents.copy()
+    parents[5] = -1  # the left shoulder becomes a second top joint (its channels are then global)
+    m = Motion(dataclasses.replace(walk.skeleton, parents=parents), walk.rotations, walk.positions, walk.fps)
+    doc, binary = gltf.read_glb(gltf.dumps(m, metres_per_unit=0.01, up=1))
+    assert "skins" not in doc  # a skin needs one common root
+    assert doc["scenes"][0]["nodes"] == [0, 5]
+    world = gltf.world_positions(doc, binary)[:, : len(parents)]
+    assert np.abs(world - m.global_positions() * 0.01).max() < 1e-5
+
+
+def test_write_checks_the_name_and_the_folder(sample_clips, tmp_path):
+    walk = sample_clips["walk"]
+    with pytest.raises(UserError, match=r"\.glb or \.gltf"):
+        gltf.write(tmp_path / "walk.fbx", walk)
+    with pytest.raises(UserError, match="cannot write") as info:
+        gltf.write(tmp_path / "missing" / "walk.glb", walk)
+    assert str(tmp_path / "missing" / "walk.glb") in str(info.value)
+    assert list(tmp_path.iterdir()) == []
