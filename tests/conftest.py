@@ -13,9 +13,17 @@ from pathlib import Path
 
 import pytest
 
-from posturemap import sample
+from posturemap import kernels, sample
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels():
+    """The suite runs with the compiled kernels loaded, as training, the studio and the
+    benchmarks do; tests of the numpy kernels ask for them with ``kernels.numpy_backend()``
+    or ``kernels.NUMPY`` (and a fresh process, for the command line)."""
+    kernels.compiled()
 
 
 def data_path() -> Path:

@@ -326,3 +326,27 @@ def test_retrieval_shows_its_source_and_confidence(studio, clips):
     studio.wait_requests_settled()
     assert studio.page.locator("#retrieval-info").is_hidden()
     assert studio.errors == []
+
+
+def test_export_as_glb_downloads_the_shown_result(studio, clips):
+    from posturemap import gltf
+
+    page = studio.page
+    studio.choose("run_normal_001", "walk_normal_001", a_end=15, b_start=30, length=24)
+    expected = 16 + 24 + len(clips["walk_normal_001"]) - 30
+    page.select_option("#export-format", "glb")
+    with page.expect_download() as info:
+        page.click("#export")
+    download = info.value
+    assert download.suggested_filename == f"run_normal_001_to_walk_normal_001_{DEFAULT_METHOD}.glb"
+    doc, binary = gltf.read_glb(Path(download.path()).read_bytes())
+    assert doc["asset"]["extras"]["frames"] == expected and doc["asset"]["extras"]["metres_per_unit"] == 0.01
+    times = gltf.accessor_array(doc, binary, doc["animations"][0]["samplers"][0]["input"])
+    assert len(times) == expected
+    world = gltf.world_positions(doc, binary)  # metres; Bandai is Y-up like glTF
+    assert world.shape[0] == expected
+    # What the page draws (centimetres) is what the file holds, every joint from Hips down.
+    for f in (0, 15, 16, 27, 39, 40, 41, expected - 1):
+        drawn = np.array(studio.js(f"__studio.jointPositions({f})"))
+        assert np.abs(drawn[1:] * 0.01 - world[f, 1: len(drawn)]).max() < 5e-4, f"frame {f}"
+    assert studio.errors == []

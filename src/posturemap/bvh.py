@@ -7,7 +7,9 @@ back); the others use their OFFSET.
 
 The frame data is read in one pass without per-line Python work: only the header of a large
 ASCII file is decoded, a numba kernel parses the numbers straight from the bytes and another
-turns Euler angles into quaternions. Text the kernel does not recognise (unusual whitespace or
+turns Euler angles into quaternions, once numba is loaded in the process
+(:func:`posturemap.kernels.compiled`; until then, e.g. for the two files of one command-line
+transition, the general numpy path reads everything). Text the kernel does not recognise (unusual whitespace or
 number syntax, a wrong line) goes through the general numpy path, which is the reference for
 what is accepted and for the error messages; numbers the kernel parses come out bit-identical
 to Python's ``float``.
@@ -630,11 +632,18 @@ _KERNELS: list = []  # [namespace or None] once _fast_kernels() has run
 
 
 def _fast_kernels():
-    """The compiled kernels (see :class:`_Kernels`), or None without numba.
+    """The compiled kernels (see :class:`_Kernels`), or None to parse with numpy.
 
-    numba is imported on first use only, so ``import posturemap`` stays light; compiled code
-    is cached on disk, so only the very first read on a machine pays for compilation.
+    Compiled only once something in this process has loaded numba through
+    :func:`posturemap.kernels.compiled` (training, the studio, benchmarks; ``train`` and
+    ``serve`` load it before reading): reading a few files with numpy (about 20 ms a MB) is
+    faster than importing numba (about half a second). Compiled code is cached on disk, so
+    only the very first read on a machine pays for compilation.
     """
+    from . import kernels
+
+    if kernels.backend() != "numba":
+        return None
     if not _KERNELS:
         try:
             import numba

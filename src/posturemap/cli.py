@@ -7,7 +7,7 @@ import os
 import sys
 
 from . import __version__
-from .errors import UserError
+from .errors import UserError, require_extra
 
 
 class _Parser(argparse.ArgumentParser):
@@ -18,19 +18,36 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def _data_folder(given: str | None) -> str:
+    """The data folder: ``--data``, else ``$POSTUREMAP_DATA``; never a guess inside the install."""
+    data = given or os.environ.get("POSTUREMAP_DATA")
+    if not data:
+        raise UserError("--data", "no data folder: give --data DIR or set POSTUREMAP_DATA "
+                                  "(a folder holding bandai1/)")
+    if not os.path.isdir(data):
+        raise UserError(data, "data folder does not exist" + ("" if given else " (from POSTUREMAP_DATA)"))
+    return data
+
+
 def _cmd_bench(args) -> int:
-    from . import evaluate
+    require_extra("bench", "minisom", "matplotlib", what="bench")
+    args.data = _data_folder(args.data)
+    from . import evaluate, kernels
+
+    kernels.compiled()  # hundreds of files to read, maps to train, transitions to time
     return evaluate.run_cli(args)
 
 
 def _cmd_serve(args) -> int:
+    require_extra("web", "starlette", "uvicorn", what="serve")
     from .web import server
     return server.run_cli(args)
 
 
 def _cmd_demo(args) -> int:
     from . import demo
-    demo.run(args.out, data=args.data, log=print)
+    out = args.out or demo.default_out(args.data)
+    demo.run(out, data=args.data, log=print)
     return 0
 
 
@@ -84,11 +101,13 @@ def _radius(text: str):
 
 
 def _cmd_train(args) -> int:
+    from . import kernels
     from .bvh import read_inputs
     from .features import load_class_overrides
     from .model import PostureMap
 
     _check_output(args.output)
+    kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
@@ -116,10 +135,19 @@ def _check_output(path: str):
 
 
 def _cmd_transition(args) -> int:
-    from . import bvh
+    from . import bvh, gltf
     from .model import PostureMap
+    from .motion import up_axis
     from .transition import KEYED, transition
 
+    as_gltf = gltf.is_gltf_path(args.output)
+    if args.split_animations and not as_gltf:
+        raise UserError("--split-animations", "needs a glTF output (-o ending in .glb or .gltf)")
+    if args.preview:
+        require_extra("preview", "matplotlib", what="--preview")
+        if not args.preview.lower().endswith(".png"):
+            raise UserError(args.preview, "a preview file name must end in .png")
+        _check_output(args.preview)
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
@@ -134,10 +162,25 @@ def _cmd_transition(args) -> int:
     out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
                      a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method,
                      foot_lock=not args.no_foot_lock, report=report)
-    bvh.write(args.output, out)
     a_end = len(a) - 1 if args.a_end is None else args.a_end
-    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {report.get('method', args.method)} "
-          f"frames + B[{args.b_start}..{len(b) - 1}]")
+    used = report.get("method", args.method)
+    if as_gltf:
+        stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
+        gltf.write(args.output, out, parts=gltf.transition_parts(a_end + 1, args.length, len(out)),
+                   split=args.split_animations, name=f"{stem(args.a)}_to_{stem(args.b)}",
+                   up=model.space_.up if model is not None else None)
+    else:
+        bvh.write(args.output, out)
+    if args.preview:
+        from . import preview
+        from .motion import length_unit
+
+        preview.transition_filmstrip(out, a_end + 1, args.length, args.preview,
+                                     up=model.space_.up if model is not None else up_axis(out),
+                                     title=f"{os.path.basename(args.a)} -> {os.path.basename(args.b)}: "
+                                           f"{args.length} {used} frames", unit=length_unit(a))
+    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames "
+          f"+ B[{args.b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
     if "retrieval" in report:
         print(describe_retrieval(report["retrieval"]))
     return 0
@@ -208,7 +251,10 @@ def _cmd_inspect(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(words=None) -> argparse.ArgumentParser:
+    """The argument parser; ``words`` (the command line's words) leaves out the ``transition``
+    command's ``--method`` unless they hold ``transition``, so that ``posturemap --help`` and
+    ``--version`` import no numpy (default: everything)."""
     p = _Parser(prog="posturemap",
                 description="Natural, real-time motion transitions between motion-capture clips "
                             "with a Uniform Posture Map.")
@@ -230,12 +276,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--classes", metavar="FILE.json", help='bone class overrides {"Joint": "body|global|medium|detail"}')
     t.set_defaults(func=_cmd_train)
 
-    from .transition import DEFAULT_METHOD, METHODS
-
-    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH")
+    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH or glTF")
     r.add_argument("a", metavar="A.bvh")
     r.add_argument("b", metavar="B.bvh")
-    r.add_argument("-o", "--output", required=True, metavar="OUT.bvh")
+    r.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="file to write: .bvh (A's skeleton and channels), or .glb / .gltf (glTF 2.0: "
+                        "metres, Y up, one animation; the clip's unit is guessed from its body height)")
     r.add_argument("--map", metavar="MAP", help="posture map from `posturemap train` (default: learn one from A and B)")
     r.add_argument("--length", type=_positive_int, default=20, help="in-between frames (20)")
     r.add_argument("--key-at", type=_positive_int, default=None,
@@ -245,8 +291,16 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
     r.add_argument("--no-foot-lock", action="store_true", help="do not pin planted feet (foot-skate cleanup)")
-    r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD})")
+    r.add_argument("--preview", metavar="OUT.png",
+                   help="also draw a filmstrip (side and top view: A's last second, the transition, B's "
+                        "first second, planted feet); needs matplotlib: pip install 'posturemap[preview]'")
+    r.add_argument("--split-animations", action="store_true",
+                   help="glTF only: also write A's part, the transition and B's part as three named animations")
+    if words is None or "transition" in words:  # the one option that needs the library (numpy)
+        from .transition import DEFAULT_METHOD, METHODS
+
+        r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                       help=f"transition method ({DEFAULT_METHOD})")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
@@ -257,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("bench", help="evaluate every method (in-betweening accuracy, realism, speed) and "
                                      "write results.md, results.json and plots")
     e.add_argument("--quick", action="store_true", help="small run for CI (under 3 minutes)")
-    e.add_argument("--data", default=None, help="data folder (default: $POSTUREMAP_DATA or ../shared/data)")
+    e.add_argument("--data", default=None, help="data folder holding bandai1/ (default: $POSTUREMAP_DATA)")
     e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")
     e.add_argument("--seed", type=int, default=0, help="random seed (0)")
     e.set_defaults(func=_cmd_bench)
@@ -270,14 +324,16 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_cmd_serve)
 
     d = sub.add_parser("demo", help="run the whole pipeline on the bundled sample (or --data DIR)")
-    d.add_argument("--out", default="out", help="output folder (default: out)")
+    d.add_argument("--out", default=None,
+                   help="output folder (default: out for the sample, out-NAME for --data NAME)")
     d.add_argument("--data", default=None, help="folder of BVH files to use instead of the sample")
     d.set_defaults(func=_cmd_demo)
     return p
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(set(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

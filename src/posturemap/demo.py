@@ -2,21 +2,31 @@
 
 1. clips: the bundled sample (written as BVH and read back) or every BVH file of ``--data``;
 2. learn a posture map from them and save it;
-3. make transitions between clip pairs with the default method and write them as BVH.
+3. make transitions between clip pairs with the default method and write each as BVH and as
+   glTF binary (``.glb``), with a filmstrip picture (``.png``) when matplotlib is installed
+   (``pip install 'posturemap[preview]'``; without it the demo says so and goes on);
+4. print the commands to try next (the studio on these clips and this map, one transition).
+
+The sample run writes into ``out``; a ``--data NAME`` run into ``out-NAME`` (:func:`default_out`),
+so the two never overwrite each other.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import re
+import shlex
 import time
 
-from . import bvh, sample
+from . import bvh, gltf, kernels, sample
 from .model import PostureMap
-from .motion import summary
+from .motion import length_unit, summary
 from .transition import DEFAULT_METHOD, transition
 
 SAMPLE_PAIRS = [("walk", "wave"), ("wave", "run"), ("run", "walk")]
 DATA_PAIRS = [("walk", "run"), ("bow", "dance"), ("run", "walk-back")]
+LENGTH = 20  # in-between frames of each transition (the default of transition())
 
 
 def _pick(names: list[str], word: str) -> str | None:
@@ -28,9 +38,20 @@ def _pick(names: list[str], word: str) -> str | None:
     return None
 
 
+def default_out(data: str | None) -> str:
+    """The demo's output folder: ``out`` for the sample, ``out-NAME`` for ``--data .../NAME``."""
+    if data is None:
+        return "out"
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", os.path.basename(os.path.normpath(os.path.abspath(data))))
+    return f"out-{os.path.splitext(name)[0] or 'data'}"
+
+
 def run(out: str, data: str | None = None, log=print) -> dict:
     """Run the pipeline, writing into folder ``out``; returns the paths written by role."""
+    if data is not None and not os.path.exists(data):
+        raise FileNotFoundError(2, "no such file or folder", data)
     os.makedirs(out, exist_ok=True)
+    kernels.compiled()  # the demo trains a map
     written: dict[str, str] = {}
     if data is None:
         clips = {}
@@ -62,16 +83,36 @@ def run(out: str, data: str | None = None, log=print) -> dict:
     log(f"map   {map_path}: learned in {time.perf_counter() - t0:.1f} s; neurons "
         + ", ".join(f"{c} {v['neurons']}" for c, v in q.items())
         + f"; invalid neurons {max(v['invalid_neurons'] for v in q.values()):.0%}")
+    pictures = importlib.util.find_spec("matplotlib") is not None
+    short = lambda p: os.path.splitext(os.path.basename(p))[0].replace("dataset-1_", "")  # noqa: E731
     for i, (a, b) in enumerate(pairs):
         t0 = time.perf_counter()
         result = transition(clips[a], clips[b], model, method=DEFAULT_METHOD)
         ms = (time.perf_counter() - t0) * 1e3
         note = " (the first call also compiles or loads the kernels)" if i == 0 else ""
-        short = lambda p: os.path.splitext(os.path.basename(p))[0].replace("dataset-1_", "")  # noqa: E731
-        path = os.path.join(out, f"{short(a)}_to_{short(b)}.bvh")
-        bvh.write(path, result)
-        written[f"{short(a)}->{short(b)}"] = path
-        log(f"out   {path}: {len(result)} frames ({len(clips[a])} of A + 20 {DEFAULT_METHOD} frames "
+        stem = os.path.join(out, f"{short(a)}_to_{short(b)}")
+        n_a = len(clips[a])
+        bvh.write(stem + ".bvh", result)
+        gltf.write(stem + ".glb", result, parts=gltf.transition_parts(n_a, LENGTH, len(result)), split=True,
+                   name=f"{short(a)}_to_{short(b)}", up=model.space_.up)
+        written[f"{short(a)}->{short(b)}"] = stem + ".bvh"
+        written[f"{short(a)}->{short(b)} glb"] = stem + ".glb"
+        log(f"out   {stem}.bvh, .glb: {len(result)} frames ({n_a} of A + {LENGTH} {DEFAULT_METHOD} frames "
             f"+ {len(clips[b])} of B) in {ms:.1f} ms{note}")
-    log(f"done: open the .bvh files in {out}/ with Blender or any BVH viewer, or run `posturemap serve`")
+        if pictures:
+            from . import preview
+
+            preview.transition_filmstrip(result, n_a, LENGTH, stem + ".png", up=model.space_.up,
+                                         title=f"{short(a)} -> {short(b)}: {LENGTH} {DEFAULT_METHOD} frames",
+                                         unit=length_unit(result))
+            written[f"{short(a)}->{short(b)} png"] = stem + ".png"
+            log(f"      {stem}.png: filmstrip (A's last second grey, the transition orange, B blue)")
+    if not pictures:
+        log("note: no filmstrip pictures (matplotlib is missing: pip install 'posturemap[preview]')")
+    inputs = " ".join(shlex.quote(p) for p in ([written[n] for n in sample.clips()] if data is None else [data]))
+    a, b = pairs[0]
+    log(f"done: open the .bvh or .glb files in {out}/ with Blender, three.js or a game engine. Next, try:")
+    log(f"  posturemap serve {inputs} --map {shlex.quote(map_path)}    # the studio, on these clips")
+    log(f"  posturemap transition {shlex.quote(a if data else written[a])} {shlex.quote(b if data else written[b])} "
+        f"--map {shlex.quote(map_path)} --alpha 0.3 -o my_transition.glb --preview my_transition.png")
     return written

@@ -9,3 +9,16 @@ class UserError(ValueError):
     def __init__(self, where, what):
         super().__init__(f"{where}: {what}" if where else str(what))
         self.where, self.what = where, what
+
+
+def require_extra(extra: str, *modules: str, what: str | None = None) -> None:
+    """Raise :class:`UserError` naming ``pip install 'posturemap[extra]'`` unless every module
+    of ``modules`` can be imported (looked up, not imported: cheap).
+
+    ``what`` names the command or option that needs them (default: the extra).
+    """
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise UserError(what or extra, f"needs {', '.join(missing)}: pip install 'posturemap[{extra}]'")

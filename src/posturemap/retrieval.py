@@ -353,7 +353,7 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves) -> n
     """The new frames' rotations (L, M, 4) of ``joints``: each segment sampled, its seams
     corrected (:func:`offset_rotations`), the segments averaged (:func:`average_rotations`).
 
-    With numba loaded, one compiled kernel (:func:`posturemap.retrieval_numba.replay`) does the same.
+    Where numba is in use, one compiled kernel (:func:`posturemap.retrieval_numba.replay`) does the same.
     """
     if _compiled() is not None:
         out = np.empty((curves.shape[1], len(joints), 4))
@@ -378,10 +378,9 @@ def seam_costs(pm, vm, frames, vframes, p, v, rate) -> np.ndarray:
 
 
 def _compiled():
-    """The compiled replay kernel's module once numba is in use in this process, else None."""
-    import sys
-
-    if "numba" not in sys.modules:
+    """The compiled retrieval kernels once this process uses numba (:func:`posturemap.kernels.compiled`:
+    training, the studio, benchmarks), else None (a single CLI transition stays in numpy)."""
+    if kernels.backend() != "numba":
         return None
     from . import retrieval_numba
 

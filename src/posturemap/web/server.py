@@ -18,8 +18,9 @@ Endpoints (JSON unless noted; every error is ``{"error": message, "field": name 
                              false). The answer carries the new frames as tracks (``inbetween``),
                              the ``alignment`` to apply to B's frames, the segments, the seams and
                              the key posture; the clips' own frames come from ``/api/clip``
-``POST /api/export``         the same body; answers the result as a BVH file (``text/plain``,
-``GET /api/export?a=..``     attachment), the body fields as query parameters for GET
+``POST /api/export``         the same body plus ``format``: ``bvh`` (default; ``text/plain``), ``glb``
+``GET /api/export?a=..``     (``model/gltf-binary``) or ``gltf`` (``model/gltf+json``); answers the
+                             result as an attachment, the body fields as query parameters for GET
 
 Tracks follow three.js: one ``<bone>.quaternion`` track per joint with local rotations in the
 order (x, y, z, w), and a ``<bone>.position`` track for each joint whose local translation moves
@@ -77,6 +78,7 @@ MAX_BODY = 64 * 1024          # bytes of a request body
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
 DEFAULT_LENGTH = 20
 FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align", "foot_lock")
+EXPORT_FORMATS = {"bvh": "text/plain; charset=utf-8", "glb": "model/gltf-binary", "gltf": "model/gltf+json"}
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 _RESERVED = re.compile(r"[\[\]\.:/]")
 
@@ -417,11 +419,36 @@ class Studio:
             "inbetween": self.tracks(rots, pos, fps),
         }
 
-    def export(self, p: Params) -> tuple[str, str]:
-        """BVH text of the result and a file name for it."""
+    def export(self, p: Params, fmt: str = "bvh") -> tuple[bytes, str, str]:
+        """The result as a file: its bytes, a file name and a media type.
+
+        ``fmt`` is one of :data:`EXPORT_FORMATS`: ``bvh`` (the clips' skeleton and channels),
+        ``glb`` or ``gltf`` (glTF 2.0 in metres, Y up: the whole result as one animation, then
+        A's part, the transition and B's part as three more; see :mod:`posturemap.gltf`).
+        """
         out = self.generate(p)
-        name = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120] + ".bvh"
-        return bvh.dumps(out), name
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120]
+        if fmt == "bvh":
+            return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
+        from .. import gltf
+
+        parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
+        data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
+                          name=re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}")[:120])
+        return data, f"{stem}.{fmt}", EXPORT_FORMATS[fmt]
+
+
+def export_format(raw) -> str:
+    """Take the export's ``format`` field out of a request body (default ``bvh``); raises
+    :class:`ApiError` (422) for anything but a name in :data:`EXPORT_FORMATS`."""
+    fmt = raw.pop("format", None) if isinstance(raw, dict) else None
+    if fmt is None:
+        return "bvh"
+    if not isinstance(fmt, str) or fmt not in EXPORT_FORMATS:
+        got = repr(fmt[:40]) if isinstance(fmt, str) else _kind(fmt)
+        raise ApiError(422, f"format: unknown export format {got} (choose from {', '.join(EXPORT_FORMATS)})",
+                       "format")
+    return fmt
 
 
 def _kind(v) -> str:
@@ -590,8 +617,9 @@ def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epoc
 
     async def export(request):
         raw = query_params(request.query_params) if request.method == "GET" else await read_json(request)
-        text, name = await run_in_threadpool(studio.export, studio.params(raw))
-        return Response(text, media_type="text/plain; charset=utf-8",
+        fmt = export_format(raw)
+        data, name, media = await run_in_threadpool(studio.export, studio.params(raw), fmt)
+        return Response(data, media_type=media,
                         headers={"Content-Disposition": f'attachment; filename="{name}"',
                                  "Cache-Control": "no-store"})
 
@@ -712,6 +740,8 @@ def run_cli(args) -> int:
     if missing:
         log(f"posturemap: warning: {STATIC_DIR / 'vendor'} lacks three.js ({', '.join(missing)}); "
             "run `make web` in the repository (the page cannot draw without it)")
+    from .. import kernels
+    kernels.compiled()  # many transitions (and maybe training) ahead: compiled kernels pay off
     clips = load_clips(args.inputs, log)
     model = None
     if args.map:

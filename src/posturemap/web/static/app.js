@@ -1022,7 +1022,7 @@ async function init() {
   ui.speed.addEventListener('change', () => { speed = Number(ui.speed.value); });
   ui.plotJoint.addEventListener('change', () => drawPlot());
   $('play').addEventListener('click', () => setPlaying(!playing));
-  $('export').addEventListener('click', exportBvh);
+  $('export').addEventListener('click', exportResult);
   showOutputs();
   pollStatus();
 }
@@ -1037,19 +1037,21 @@ function setClipRanges(resetA, resetB) {
   if (resetA && resetB) ui.keyAt.value = String(Math.max(1, Math.floor(Number(ui.length.value) / 2)));
 }
 
-async function exportBvh() {
+async function exportResult() {
   const btn = $('export');
+  const format = $('export-format').value;
   btn.disabled = true;
   try {
     const r = await fetch('/api/export', {
-      method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(currentParams()),
+      method: 'POST', headers: { 'Content-Type': 'application/json' },
+      body: JSON.stringify({ ...currentParams(), format }),
     });
     if (!r.ok) {
       let msg = `HTTP ${r.status}`;
       try { msg = (await r.json()).error || msg; } catch { /* not JSON */ }
       throw new Error(msg);
     }
-    const name = (/filename="([^"]+)"/.exec(r.headers.get('Content-Disposition') || '') || [])[1] || 'transition.bvh';
+    const name = (/filename="([^"]+)"/.exec(r.headers.get('Content-Disposition') || '') || [])[1] || `transition.${format}`;
     const url = URL.createObjectURL(await r.blob());
     const link = document.createElement('a');
     link.href = url;

@@ -1,0 +1,200 @@
+"""The command line beyond the core: filmstrip previews, optional extras that fail kindly, data
+folders only from arguments or ``POSTUREMAP_DATA``, the demo's own output folders, the version.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import posturemap
+from posturemap import bvh, cli, demo, errors, preview
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def png_pixels(path: Path) -> np.ndarray:
+    """RGBA pixels (H, W, 4) of a PNG, read with matplotlib."""
+    from matplotlib import image
+
+    return image.imread(str(path))
+
+
+# -- filmstrip ----------------------------------------------------------------------------------
+def test_filmstrip_draws_each_segment_in_its_colour(sample_clips, tmp_path):
+    walk = sample_clips["walk"]
+    gpos = walk.global_positions()
+    sk = walk.skeleton
+    out = tmp_path / "strip.png"
+    segments = [("A", gpos[:30], "#ff0000"), ("transition", gpos[30:50], "#00ff00"), ("B", gpos[50:80], "#0000ff")]
+    feet = [sk.names.index(n) for n in sk.names if "Foot" in n]
+    preview.filmstrip(segments, out, sk.parents, up=1, fps=walk.fps, feet=feet, title="test", unit="cm")
+    px = png_pixels(out)
+    assert px.shape[1] == 1200 and 300 < px.shape[0] < 900
+    rgb = (px[..., :3] * 255).round().astype(int)
+    counts = {c: int(np.all(rgb == v, axis=-1).sum()) for c, v in
+              {"red": (255, 0, 0), "green": (0, 255, 0), "blue": (0, 0, 255)}.items()}
+    assert all(n > 200 for n in counts.values()), counts  # every segment is drawn, in its colour
+    # Left to right in time: A's red lies left of the transition's green, left of B's blue.
+    cols = {c: np.flatnonzero(np.all(rgb == v, axis=-1).any(axis=0)).mean() for c, v in
+            {"red": (255, 0, 0), "green": (0, 255, 0), "blue": (0, 0, 255)}.items()}
+    assert cols["red"] < cols["green"] < cols["blue"], cols
+
+
+def test_foot_contacts_low_and_slow():
+    fps, leg = 30.0, 80.0
+    t = np.arange(60) / fps
+    planted = np.stack([np.full(60, 10.0), np.full(60, 2.0), np.zeros(60)], axis=-1)  # still, on the floor
+    phase = 4 * np.pi * t  # a step every half second: lifts and speeds up, slows and lands
+    swinging = np.stack([25 * (phase - np.sin(phase)) / np.pi, 2.0 + 15 * (1 - np.cos(phase)), np.zeros(60)], axis=-1)
+    sliding = np.stack([200 * t, np.full(60, 2.0), np.zeros(60)], axis=-1)  # low but 2 m/s
+    on = preview.foot_contacts(np.stack([planted, swinging, sliding], axis=1), fps, 1, leg)
+    assert on[:, 0].all()
+    assert not on[:, 2].any()
+    lift = swinging[:, 1] - 2.0
+    assert on[:, 1].any() and not on[lift > 10, 1].any()  # down between steps, never in the swing
+    assert np.all(lift[on[:, 1]] < preview.CONTACT_HEIGHT * leg)
+
+
+def test_filmstrip_rejects_bad_segments(tmp_path, sample_clips):
+    sk = sample_clips["walk"].skeleton
+    with pytest.raises(ValueError, match="segments"):
+        preview.filmstrip([("A", np.zeros((0, sk.num_joints, 3)), None)], tmp_path / "x.png", sk.parents)
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_cli_transition_preview(sample_clips, tmp_path, capsys):
+    a, b = tmp_path / "walk.bvh", tmp_path / "run.bvh"
+    bvh.write(a, sample_clips["walk"])
+    bvh.write(b, sample_clips["run"])
+    png = tmp_path / "t.png"
+    assert cli.main(["transition", str(a), str(b), "-o", str(tmp_path / "t.glb"), "--preview", str(png),
+                     "--method", "slerp", "--length", "10"]) == 0
+    assert "filmstrip" in capsys.readouterr().out
+    px = png_pixels(png)
+    rgb = (px[..., :3] * 255).round().astype(int)
+    for colour in (preview.COLOURS[k] for k in ("A", "transition", "B")):
+        v = tuple(int(colour[i: i + 2], 16) for i in (1, 3, 5))
+        assert np.all(rgb == v, axis=-1).sum() > 100, colour
+    for bad, what in [(tmp_path / "t.jpg", "must end in .png"), (tmp_path / "no" / "t.png", "output folder")]:
+        assert cli.main(["transition", str(a), str(b), "-o", str(tmp_path / "u.bvh"), "--preview", str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and what in err, err
+        assert not (tmp_path / "u.bvh").exists()  # checked before anything is written
+
+
+# -- optional extras ----------------------------------------------------------------------------
+def hide_modules(monkeypatch, *names):
+    """Make ``importlib.util.find_spec`` (and import) fail for ``names``, as if not installed."""
+    real = importlib.util.find_spec
+
+    def find_spec(name, *args, **kwargs):
+        if name.split(".")[0] in names:
+            return None
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
+    for n in names:
+        monkeypatch.setitem(sys.modules, n, None)  # import n -> ImportError
+
+
+@pytest.mark.parametrize("argv, hidden, extra", [
+    (["bench", "--quick", "--data", "."], ("minisom",), "bench"),
+    (["serve"], ("uvicorn",), "web"),
+    (["transition", "A.bvh", "B.bvh", "-o", "o.bvh", "--preview", "p.png"], ("matplotlib",), "preview"),
+])
+def test_missing_extra_is_one_line_naming_it(argv, hidden, extra, monkeypatch, capsys):
+    hide_modules(monkeypatch, *hidden)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("posturemap: error: ")
+    assert f"pip install 'posturemap[{extra}]'" in err and hidden[0] in err
+
+
+def test_require_extra_passes_when_installed():
+    errors.require_extra("preview", "numpy")  # installed: no error
+    with pytest.raises(errors.UserError, match=r"needs no_such_module_x: pip install 'posturemap\[web\]'"):
+        errors.require_extra("web", "numpy", "no_such_module_x")
+
+
+def test_demo_without_matplotlib_says_so_and_goes_on(monkeypatch, tmp_path):
+    hide_modules(monkeypatch, "matplotlib")
+    lines = []
+    written = demo.run(str(tmp_path / "d"), log=lines.append)
+    assert not any(p.endswith(".png") for p in written.values())
+    assert any("pip install 'posturemap[preview]'" in line for line in lines)
+    assert sum(p.endswith(".glb") for p in written.values()) == 3
+
+
+# -- data folders -------------------------------------------------------------------------------
+def test_bench_data_only_from_argument_or_environment(monkeypatch, tmp_path, capsys):
+    pytest.importorskip("minisom")
+    monkeypatch.delenv("POSTUREMAP_DATA", raising=False)
+    assert cli.main(["bench", "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert "--data" in err and "POSTUREMAP_DATA" in err and err.count("\n") == 1
+    monkeypatch.setenv("POSTUREMAP_DATA", str(tmp_path / "nowhere"))
+    assert cli.main(["bench", "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "nowhere") in err and "POSTUREMAP_DATA" in err
+    assert cli.main(["bench", "--quick", "--data", str(tmp_path)]) == 2  # exists, but no bandai1/
+    assert "bandai1" in capsys.readouterr().err
+
+
+# -- the demo's folders and the version ---------------------------------------------------------
+def test_demo_data_run_has_its_own_folder(tmp_path, monkeypatch, sample_clips, capsys):
+    monkeypatch.chdir(tmp_path)
+    data = tmp_path / "mydata"
+    data.mkdir()
+    for name, clip in sample_clips.items():
+        bvh.write(data / f"x_{name}_1.bvh", clip)
+    assert demo.default_out(None) == "out" and demo.default_out(str(data)) == "out-mydata"
+    assert cli.main(["demo"]) == 0
+    sample_map = (tmp_path / "out" / "map.npz").read_bytes()
+    capsys.readouterr()
+    assert cli.main(["demo", "--data", str(data)]) == 0
+    text = capsys.readouterr().out
+    assert (tmp_path / "out-mydata" / "map.npz").is_file()
+    assert (tmp_path / "out" / "map.npz").read_bytes() == sample_map  # the sample run's map untouched
+    assert sorted(p.name for p in (tmp_path / "out-mydata").glob("*.glb")) == \
+        ["x_walk_1_to_x_run_1.glb"]
+    # The demo ends with the next commands, which work as printed.
+    serve_line = next(line for line in text.splitlines() if line.strip().startswith("posturemap serve"))
+    assert f"--map out-mydata{os.sep}map.npz" in serve_line and str(data) in serve_line
+    transition_line = next(line for line in text.splitlines()[::-1]
+                           if line.strip().startswith("posturemap transition"))
+    assert cli.main(transition_line.split()[1:]) == 0
+    assert (tmp_path / "my_transition.glb").is_file()
+
+
+def test_version_matches_the_package_metadata(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["--version"])
+    assert info.value.code == 0
+    meta = tomllib.loads((REPO / "pyproject.toml").read_text("utf-8"))
+    assert capsys.readouterr().out.strip() == f"posturemap {meta['project']['version']}"
+    assert posturemap.__version__ == meta["project"]["version"]
+
+
+
+def test_filmstrip_rows_stack_one_side_view_per_motion(sample_clips, tmp_path):
+    walk, run = sample_clips["walk"], sample_clips["run"]
+    sk = walk.skeleton
+    g_walk, g_run = walk.global_positions(), run.global_positions()
+    rows = [("truth", [("context", g_walk[:10], "#888888"), ("gap", g_walk[10:30], "#ff0000")]),
+            ("method", [("context", g_walk[:10], "#888888"), ("gap", g_run[:20], "#0000ff")])]
+    out = tmp_path / "rows.png"
+    preview.filmstrip_rows(rows, out, sk.parents, fps=walk.fps, title="one window")
+    rgb = (png_pixels(out)[..., :3] * 255).round().astype(int)
+    red = np.flatnonzero(np.all(rgb == (255, 0, 0), axis=-1).any(axis=1))
+    blue = np.flatnonzero(np.all(rgb == (0, 0, 255), axis=-1).any(axis=1))
+    assert len(red) > 20 and len(blue) > 20
+    assert red.max() < blue.min()  # the truth's row above the method's
+    with pytest.raises(ValueError):
+        preview.filmstrip_rows([], out, sk.parents)

@@ -1,0 +1,217 @@
+"""The two kernel backends (numpy, numba) against each other, and a start-up without numba.
+
+``posturemap.kernels`` runs numpy until something calls ``kernels.compiled()``; every hot
+kernel must give the same answer either way. ``import posturemap`` and one command-line
+transition with ``--map`` must not import numba at all (a structural check, in a fresh
+process: the timing is ``bench/startup.py``'s job).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from posturemap import bvh, kernels, quat
+from posturemap.model import PostureMap
+from posturemap.transition import METHODS, transition
+
+
+def random_quats(rng, shape) -> np.ndarray:
+    q = quat.normalize(rng.normal(size=tuple(shape) + (4,)))
+    return q * np.where(rng.random(tuple(shape) + (1,)) < 0.5, -1.0, 1.0)
+
+
+@pytest.fixture(scope="module")
+def jit():
+    return kernels.compiled()
+
+
+def test_backend_switch_and_restore(jit):
+    assert kernels.backend() == "numba" and kernels.fk is jit.fk
+    with kernels.numpy_backend():
+        assert kernels.backend() == "numpy"
+        assert kernels.fk is kernels.NUMPY.fk and kernels.nearest is kernels.NUMPY.nearest
+        assert bvh._fast_kernels() is None  # the BVH reader follows the backend
+    assert kernels.backend() == "numba" and kernels.fk is jit.fk
+    assert bvh._fast_kernels() is not None
+    assert kernels.upm_epoch is jit.upm_epoch  # training kernels: compiled only
+
+
+def test_log_exp_and_fk_agree(jit):
+    rng = np.random.default_rng(0)
+    n, j = 40, 7
+    ref = random_quats(rng, (j,))
+    q = random_quats(rng, (n, j))
+    q[0] = quat.mul(ref, quat.exp(rng.normal(size=(j, 3)) * 1e-10))  # the series branch
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        out = np.empty((n, j, 3))
+        impl.log_relative(q, ref, out)
+        back = np.empty((n, j, 4))
+        impl.exp_relative(out, ref, back)
+        outs.append((out, back))
+    np.testing.assert_allclose(outs[0][0], outs[1][0], atol=1e-12)
+    np.testing.assert_allclose(outs[0][1], outs[1][1], atol=1e-12)
+    assert np.all(quat.angle_between(outs[0][1], q) < 1e-7)  # exp(log(q)) is q
+
+    parents = np.array([-1, 0, 1, 1, 3, 0, 5])
+    positions = rng.normal(scale=10.0, size=(n, j, 3))
+    results = []
+    for impl in (kernels.NUMPY, jit):
+        grot, gpos = np.empty((n, j, 4)), np.empty((n, j, 3))
+        impl.fk(parents, q, positions, grot, gpos)
+        results.append((grot, gpos))
+    np.testing.assert_allclose(results[0][0], results[1][0], atol=1e-12)
+    np.testing.assert_allclose(results[0][1], results[1][1], atol=1e-10)
+    # Joint 4's global position by hand: root, then 1, 3, 4 down the chain.
+    g = positions[:, 0]
+    r = q[:, 0]
+    for c in (1, 3, 4):
+        g = g + quat.mul_vec(r, positions[:, c])
+        r = quat.mul(r, q[:, c])
+    np.testing.assert_allclose(results[0][1][:, 4], g, atol=1e-10)
+
+
+@pytest.mark.parametrize("chain_len", [0, 2])
+@pytest.mark.parametrize("up", [1, 2])
+def test_compose_root_agrees(jit, up, chain_len):
+    rng = np.random.default_rng(3 + up + 10 * chain_len)
+    n, root = 30, chain_len
+    j_count = chain_len + 2
+    rots = random_quats(rng, (n, j_count))
+    positions = rng.normal(scale=50.0, size=(n, j_count, 3))
+    gpos = rng.normal(scale=100.0, size=(n, 3))
+    heading = rng.uniform(-7, 7, size=n)
+    chain = np.arange(chain_len, dtype=np.int64)
+    out = []
+    for impl in (kernels.NUMPY, jit):
+        r, p = rots.copy(), positions.copy()
+        impl.compose_root(chain, root, up, r, p, gpos, heading)
+        out.append((r, p))
+    assert np.all(quat.angle_between(out[0][0], out[1][0]) < 1e-7)
+    np.testing.assert_allclose(out[0][1], out[1][1], atol=1e-9)
+    assert not np.allclose(out[0][0][:, root], rots[:, root])  # it did change the root
+
+
+@pytest.mark.parametrize("circular", [False, True])
+def test_nearest_and_projection_agree(jit, circular):
+    rng = np.random.default_rng(5 + circular)
+    n, d, m = 300, 12, 25
+    period = np.where(rng.random(d) < 0.5, 2 * np.pi, np.inf) if circular else np.full(d, np.inf)
+    w = np.where(np.isinf(period), rng.normal(size=(n, d)), rng.uniform(0, 2 * np.pi, size=(n, d)))
+    x = np.where(np.isinf(period), rng.normal(scale=1.5, size=(m, d)), rng.uniform(0, 2 * np.pi, size=(m, d)))
+    # A brute-force scan as the oracle.
+    diff = np.abs(w[None] - x[:, None])
+    diff = np.where(np.isinf(period), diff, np.minimum(diff, 2 * np.pi - diff))
+    truth = np.argmin((diff ** 2).sum(-1), axis=1)
+    for impl in (kernels.NUMPY, jit):
+        assert [impl.nearest(w, xi, period) for xi in x] == truth.tolist()
+        many = np.empty(m, dtype=np.int64)
+        impl.nearest_many(w, x, period, many)
+        assert many.tolist() == truth.tolist()
+    limit = float(np.median(np.sqrt((diff ** 2).sum(-1).min(1))))  # half the rows kept
+    projected = []
+    for impl in (kernels.NUMPY, jit):
+        out, idx = x.copy(), np.empty(m, dtype=np.int64)
+        impl.project_to_map(w, out, period, limit, out, idx)  # in place, as transition.py calls it
+        assert idx.tolist() == truth.tolist()
+        projected.append(out)
+    np.testing.assert_allclose(projected[0], projected[1], atol=1e-12)
+    moved = np.linalg.norm(projected[0] - x, axis=1) > 1e-9
+    assert moved.any() and (~moved).any()  # some kept, some pulled onto a sphere
+
+
+def test_key_from_blend_agrees(jit):
+    rng = np.random.default_rng(8)
+    dims = [np.array([0, 3, 4]), np.array([1, 2]), np.array([5])]
+    maps = [rng.normal(size=(int(rng.integers(5, 40)), len(d))) for d in dims]
+    weights = np.concatenate([w.ravel() for w in maps])
+    offsets = np.concatenate([[0], np.cumsum([w.size for w in maps])[:-1]]).astype(np.int64)
+    counts = np.array([len(w) for w in maps], dtype=np.int64)
+    dim_index = np.concatenate(dims).astype(np.int64)
+    dim_offsets = np.concatenate([[0], np.cumsum([len(d) for d in dims])]).astype(np.int64)
+    blend = rng.normal(size=6)
+    keys = []
+    for impl in (kernels.NUMPY, jit):
+        key, chosen = np.full(6, np.nan), np.empty(3, dtype=np.int64)
+        impl.key_from_blend(weights, offsets, counts, dim_index, dim_offsets, blend, key, chosen)
+        for c, d in enumerate(dims):
+            assert chosen[c] == np.argmin(((maps[c] - blend[d]) ** 2).sum(1))
+            np.testing.assert_array_equal(key[d], maps[c][chosen[c]])
+        keys.append(key)
+    np.testing.assert_array_equal(keys[0], keys[1])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_transitions_agree_across_backends(sample_clips, method):
+    a, b = sample_clips["walk"], sample_clips["run"]
+    model = PostureMap(seed=0, epochs=2).fit([a, b])
+    fast = transition(a, b, model, length=12, alpha=0.3, method=method)
+    with kernels.numpy_backend():
+        slow = transition(a, b, model, length=12, alpha=0.3, method=method)
+    np.testing.assert_allclose(slow.positions, fast.positions, atol=1e-8)
+    np.testing.assert_allclose(np.abs(quat.dot(slow.rotations, fast.rotations)), 1.0, atol=1e-12)
+
+
+def _modules_after(code: str) -> dict:
+    """Run ``code`` in a fresh interpreter; returns which heavy modules it imported."""
+    probe = textwrap.dedent(code) + textwrap.dedent("""
+        import json, sys
+        print(json.dumps({m: m in sys.modules for m in ("numpy", "numba", "scipy", "matplotlib", "starlette")}))
+    """)
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_import_posturemap_does_not_import_numba():
+    loaded = _modules_after("import posturemap\nposturemap.PostureMap, posturemap.transition")
+    assert loaded == {"numpy": True, "numba": False, "scipy": False, "matplotlib": False, "starlette": False}
+    # The package itself loads its modules on first use; the names are the same objects.
+    loaded = _modules_after("import posturemap")
+    assert not any(loaded.values()), loaded
+    import posturemap
+    from posturemap import transition as imported_name
+    from posturemap.model import PostureMap as model_class
+
+    assert posturemap.PostureMap is model_class
+    assert posturemap.transition is transition is imported_name  # the function, not the module
+    assert callable(posturemap.transition) and "transition" in dir(posturemap)
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_and_version_import_no_numpy(flag):
+    loaded = _modules_after(f"""
+        from posturemap import cli
+        try:
+            cli.main([{flag!r}])
+        except SystemExit as e:
+            assert e.code == 0
+    """)
+    assert not any(loaded.values()), loaded
+
+
+def test_cli_transition_with_a_map_runs_without_numba(sample_clips, tmp_path):
+    a, b = tmp_path / "walk.bvh", tmp_path / "run.bvh"
+    bvh.write(a, sample_clips["walk"])
+    bvh.write(b, sample_clips["run"])
+    model = PostureMap(seed=0, epochs=2).fit([bvh.read(a), bvh.read(b)])
+    model.save(tmp_path / "map.npz")
+    out = tmp_path / "out.bvh"
+    loaded = _modules_after(f"""
+        from posturemap import cli
+        assert cli.main(["transition", {str(a)!r}, {str(b)!r}, "-o",
+                        {str(out)!r}, "--map", {str(tmp_path / "map.npz")!r}, "--length", "15"]) == 0
+    """)
+    assert loaded["numba"] is False and loaded["matplotlib"] is False
+    # The numpy run in that process wrote what the compiled kernels make here.
+    expected = transition(bvh.read(a), bvh.read(b), model, length=15)
+    got = bvh.read(out)
+    assert len(got) == len(expected)
+    assert np.all(quat.angle_between(got.rotations, expected.rotations) < 1e-6)
+    np.testing.assert_allclose(got.positions, expected.positions, atol=1e-5)
