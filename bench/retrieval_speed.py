@@ -119,7 +119,7 @@ def compare_indexes(rt, queries, log=None) -> dict:
         if how == "exhaustive":
             return rt.search(part, qa, qb, None, None, d, fps, alpha, None, 1, exhaustive=True)
         if how == "upm":
-            return rt.search(part, qa, qb, rt.gather(xa), rt.gather(xb), d, fps, alpha, None, 1)
+            return rt.search(part, qa, qb, rt.gather(xa, part), rt.gather(xb, part), d, fps, alpha, None, 1)
         frames = []
         for index, seam in zip(knn[how][part], (qa, qb)):
             p, v = rt.query_vectors(part, seam)

@@ -97,6 +97,12 @@ class Retriever:
         self.cmap = cmap
         dim_joint = np.concatenate([np.repeat(space.joints, 3), [space.root]])
         self.part_dims = [np.flatnonzero(space.active & m[dim_joint]) for m in (self.lower_mask, self.upper_mask)]
+        # Columns of the index map's vectors that belong to each part (all, if a part has none).
+        index_dims = space.class_dims[1]
+        self.index_cols = []
+        for dims in self.part_dims:
+            cols = np.flatnonzero(np.isin(index_dims, dims))
+            self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
 
     # -- seams ----------------------------------------------------------------------------
@@ -129,16 +135,21 @@ class Retriever:
         return float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0)))
 
     # -- search ---------------------------------------------------------------------------
-    def gather(self, x: np.ndarray) -> np.ndarray:
+    def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
         """Library frames whose index neuron is among those nearest the posture ``x`` (D,).
 
-        Neurons are visited nearest first until :data:`BUDGET` frames are gathered.
+        Neurons are visited nearest first until :data:`BUDGET` frames are gathered; with
+        ``part``, nearness counts only the index map's dimensions of that body part's joints
+        (the thighs for the legs, the clavicles and upper arms for the upper body).
         """
         lib, cmap = self.lib, self.cmap
-        q = x[self.space.class_dims[1]]
-        w = cmap.weights_
+        cols = self.index_cols[part] if part is not None else slice(None)
+        q = x[self.space.class_dims[1]][cols]
+        w = cmap.weights_[:, cols]
         if np.isfinite(cmap.period_).any():  # euler features: angles on the circle
-            d2 = cmap.distances(q)[0] ** 2
+            diff = np.abs(w - q)
+            diff = np.minimum(diff, cmap.period_[cols] - diff)
+            d2 = np.einsum("ij,ij->i", diff, diff)
         else:
             d2 = np.einsum("ij,ij->i", w - q, w - q)
         n_take = min(len(w), 256)
@@ -469,9 +480,9 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         turn = tb.heading[b_start] - ta.heading[a_end]
         turn -= 2 * math.pi * round(turn / (2 * math.pi))
         disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
-    sa, sb = (np.zeros(0, np.int64),) * 2 if exhaustive else (rt.gather(xa), rt.gather(xb))
-    found = [rt.search(p, qa, qb, sa, sb, d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
-             for p in (0, 1)]
+    none = np.zeros(0, np.int64)
+    found = [rt.search(p, qa, qb, none if exhaustive else rt.gather(xa, p), none if exhaustive else rt.gather(xb, p),
+                       d, fps, alpha, disp if p == 0 else None, top_k, exhaustive) for p in (0, 1)]
     if found[0] is None or found[1] is None:
         return None
     curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
