@@ -99,11 +99,11 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
     for m in methods:  # the very first call: compiled kernels loaded, bases and graphs built
         a, b, a_end, b_start, alpha = _draws(rng, lengths, 1)[0]
         t0 = time.perf_counter_ns()
-        engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m)
+        engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
         first_ms[m] = (time.perf_counter_ns() - t0) / 1e6
     for a, b, a_end, b_start, alpha in _draws(rng, lengths, warmup):
         for m in methods:
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m)
+            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
     times = {m: [] for m in methods}
     cpu_times = {m: [] for m in methods}
     clock, cpu_clock = time.perf_counter_ns, time.thread_time_ns
@@ -114,7 +114,7 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
         for m in methods[k:] + methods[:k]:  # rotate the order: no method always runs first
             c0 = cpu_clock()
             t0 = clock()
-            engine.generate(na, nb, LENGTH, None, alpha, a_end, b_start, True, m)
+            engine.generate(na, nb, LENGTH, None, alpha, a_end, b_start, True, m, False)
             t1 = clock()
             cpu_times[m].append(cpu_clock() - c0)
             times[m].append(t1 - t0)
@@ -127,7 +127,7 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
     for m in methods:
         for a, b, a_end, b_start, alpha in draws:
             t0 = clock()
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m)
+            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
             b2b[m].append(clock() - t0)
     out = {}
     for m in methods:
@@ -148,11 +148,11 @@ def bench_functional(model, clips, lengths, methods, calls, rng, log) -> dict:
         n = calls
         draws = _draws(rng, lengths, n + 2)
         for a, b, a_end, b_start, alpha in draws[:2]:  # warm-up
-            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m)
+            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m, False)
         times = []
         for a, b, a_end, b_start, alpha in draws[2:]:
             t0 = time.perf_counter_ns()
-            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m)
+            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m, False)
             times.append(time.perf_counter_ns() - t0)
         out[m] = _stats(times)
         if log:

@@ -633,7 +633,7 @@ def test_engine_reuses_buffers_and_matches_the_functional_api(clips, model):
         a_end = int(rng.integers(1, len(clips[a])))
         b_start = int(rng.integers(0, len(clips[b]) - 1))
         alpha = float(rng.random())
-        rots, pos = engine.generate(a, b, 20, 7, alpha, a_end, b_start, method=method)
+        rots, pos = engine.generate(a, b, 20, 7, alpha, a_end, b_start, method=method, foot_lock=False)
         if first is None:
             first = (rots, pos)
         assert rots is first[0] and pos is first[1], "a call of the same length must reuse the buffers"

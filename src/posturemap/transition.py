@@ -448,8 +448,8 @@ class TransitionEngine:
         return dtheta, shift
 
     def generate(self, a: str, b: str, length: int = 20, key_at: int | None = None, alpha: float = 0.5,
-                 a_end: int | None = None, b_start: int = 0, align: bool = True, method: str = "upm",
-                 foot_lock: bool = False):
+                 a_end: int | None = None, b_start: int = 0, align: bool = True, method: str = DEFAULT_METHOD,
+                 foot_lock: bool = True):
         """The in-between frames: local rotations (length, J, 4) and positions (length, J, 3).
 
         ``foot_lock`` keeps planted feet still (:mod:`posturemap.feet`; costs a forward
