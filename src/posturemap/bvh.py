@@ -23,17 +23,20 @@ import dataclasses
 import io
 import os
 import re
-import tempfile
 
 import numpy as np
 
 from . import quat
 from .errors import UserError
+from .fileio import read_regular, write_bytes_atomic  # noqa: F401 - write_bytes_atomic kept here for callers
 from .motion import Motion
 from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
+MAX_DEPTH = 1_000  # joints on one chain from a root
 MAX_VALUES = 500_000_000  # frames * channels; beyond this a file is not motion capture
+MAX_FILE_BYTES = 2 << 30  # 2 GiB: larger files are refused before reading
+MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-4, 10.0  # seconds: 10 kHz .. 0.1 Hz
 
 _CHANNEL_NAMES = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}  # any case
 # The line breaks of str.splitlines(), so that line numbers match what editors show.
@@ -52,10 +55,9 @@ def read(path: str | os.PathLike) -> Motion:
     """Read a BVH file into a Motion (rotations from degrees to quaternions)."""
     path = os.fspath(path)
     try:
-        with open(path, "rb") as f:
-            raw = f.read()
-    except OSError as e:
-        raise BVHError(path, None, f"cannot read file ({e.strerror or e})") from None
+        raw = read_regular(path, MAX_FILE_BYTES, "BVH file")
+    except UserError as e:
+        raise BVHError(path, None, e.what) from None
     return loads(raw, path)
 
 
@@ -93,6 +95,11 @@ def loads(raw: bytes | str, path: str = "<string>") -> Motion:
         skeleton, motion_lineno = _parse_hierarchy(lines, path)
         header = (skeleton, *_parse_motion_header(lines, motion_lineno, skeleton, path))
     skeleton, num_frames, fps, last_lineno, offset = header
+    num_channels = sum(len(c) for c in skeleton.channels)
+    if num_frames * num_channels * 2 > len(raw if text is None else text) - offset + 1:
+        # each value takes at least two characters (a digit and a separator): checked before allocating
+        raise BVHError(path, last_lineno, f"truncated: 'Frames: {num_frames}' of {num_channels} values "
+                                          f"cannot fit in the rest of the file")
     values = _parse_frames(raw, text, offset, last_lineno, num_frames, skeleton, path)
     rotations, positions, unwrapped = _channels_to_pose(skeleton, values)
     if unwrapped:
@@ -215,6 +222,8 @@ def _parse_hierarchy(lines, path: str) -> tuple[Skeleton, int]:
                 raise BVHError(path, lineno, "'{' without a joint")
             stack.append(pending)
             pending = None
+            if len(stack) > MAX_DEPTH:
+                raise BVHError(path, lineno, f"hierarchy nested more than {MAX_DEPTH} levels deep")
             if len(tokens) > 1:
                 raise BVHError(path, lineno, "unexpected text after '{'")
         elif key == "}":
@@ -327,8 +336,11 @@ def _parse_motion_header(lines, motion_lineno: int, sk: Skeleton,
         frame_time = float(ft_txt)
     except ValueError:
         raise BVHError(path, lineno, f"frame time {ft_txt[:40]!r} is not a number") from None
-    if not (np.isfinite(frame_time) and frame_time > 0 and np.isfinite(1.0 / frame_time)):
+    if not (np.isfinite(frame_time) and frame_time > 0):
         raise BVHError(path, lineno, f"frame time must be a positive number, got {ft_txt[:40]!r}")
+    if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
+        raise BVHError(path, lineno, f"frame time {ft_txt[:40]} s is outside {MIN_FRAME_TIME:g}..{MAX_FRAME_TIME:g} s "
+                                     f"({1 / MAX_FRAME_TIME:g} to {1 / MIN_FRAME_TIME:g} frames per second)")
     return num_frames, 1.0 / frame_time, lineno, offset
 
 
@@ -708,12 +720,29 @@ def continuous_euler(euler: np.ndarray, order: str) -> np.ndarray:
     return out
 
 
+def check_finite(motion: Motion, where: str = "output") -> None:
+    """Raise :class:`BVHError` when ``motion`` has a NaN or infinite value (nothing to write)."""
+    if not np.isfinite(motion.fps) or motion.fps <= 0:
+        raise BVHError(where, None, f"refusing to write a motion with frame rate {motion.fps!r}")
+    for name, a in (("rotation", motion.rotations), ("translation", motion.positions)):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            f, j = (int(k) for k in np.argwhere(bad)[0][:2])
+            raise BVHError(where, None, f"refusing to write NaN or infinite values (frame {f}, "
+                                        f"joint {motion.skeleton.names[j]!r}, {name}); nothing written")
+
+
 _MAX_INDENT = 32  # indentation levels the writer shows; deeper joints share the last one
 
 
 def dumps(motion: Motion) -> str:
-    """BVH text of ``motion`` with its skeleton's hierarchy and channel layout."""
+    """BVH text of ``motion`` with its skeleton's hierarchy and channel layout.
+
+    A motion with a NaN or infinite rotation, translation or frame rate raises
+    :class:`BVHError` (a BVH file cannot hold it, and no reader would take it back).
+    """
     sk = motion.skeleton
+    check_finite(motion)
     out = io.StringIO()
     out.write("HIERARCHY\n")
     ends = {j: o for j, o in sk.end_sites}
@@ -752,23 +781,10 @@ def write(path: str | os.PathLike, motion: Motion) -> None:
     A folder that is missing or not writable, a full disk and the like raise :class:`BVHError`
     naming the file; no temporary file is left behind and an existing file stays as it was.
     """
+    path = os.fspath(path)
+    check_finite(motion, path)
     data = dumps(motion).encode("utf-8")
     try:
         write_bytes_atomic(path, data)
     except OSError as e:
         raise BVHError(os.fspath(path), None, f"cannot write file ({e.strerror or e})") from None
-
-
-def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file and rename: never a half-written file."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

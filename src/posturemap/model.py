@@ -1,10 +1,11 @@
 """PostureMap: the four class maps, the skeleton and the feature space; map files.
 
-A map file is a ``.npz`` archive read with ``allow_pickle=False``: a ``meta`` entry holding
-UTF-8 JSON (format name, version, skeleton, feature configuration, class assignment,
-training parameters and quality figures) and plain numeric arrays (per class: weights,
-edges, hits, witness samples, periods; the feature space's reference rotations, fill values
-and active dimensions). Written atomically.
+A map file is a ``.npz`` archive without pickles: a ``meta`` entry holding UTF-8 JSON (format
+name, version, skeleton, feature configuration, class assignment, training parameters and
+quality figures) and plain numeric arrays (per class: weights, edges, hits, witness samples,
+periods; the feature space's reference rotations, fill values and active dimensions; the
+motion library's arrays). The format and its validation are in :mod:`posturemap.mapfile`;
+files are written atomically (:func:`posturemap.fileio.write_bytes_atomic`).
 """
 
 from __future__ import annotations
@@ -12,29 +13,18 @@ from __future__ import annotations
 import io
 import json
 import os
-import zipfile
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from . import features
-from .bvh import write_bytes_atomic
+from . import features, mapfile
 from .errors import UserError
 from .features import CLASSES, FeatureSpace
+from .fileio import write_bytes_atomic
+from .mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
 from .motion import Motion
 from .skeleton import Skeleton
 from .upm import UniformPostureMap
-
-FORMAT = "posturemap-map"
-VERSION = 1
-
-
-class MapFileError(UserError):
-    """A map file that cannot be used: corrupt, truncated, foreign or of another version."""
-
-    def __init__(self, path, what):
-        super().__init__(path, what)
 
 
 class PostureMap:
@@ -191,27 +181,12 @@ class PostureMap:
 
     @classmethod
     def load(cls, path: str) -> "PostureMap":
-        """Read a map file; a corrupt, truncated or foreign file raises :class:`MapFileError`."""
+        """Read a map file; a corrupt, truncated, foreign or hostile file raises :class:`MapFileError`.
+
+        Every metadata field and array is checked first (:func:`posturemap.mapfile.read`).
+        """
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise MapFileError(path, "no such map file")
-        if not zipfile.is_zipfile(path):
-            raise MapFileError(path, "not a posturemap map file (not an .npz archive)")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError, TypeError) as e:
-            raise MapFileError(path, f"not a posturemap map file (unreadable archive: {e})") from None
-        try:
-            meta = json.loads(bytes(arrays.pop("meta")).decode("utf-8"))
-        except KeyError:
-            raise MapFileError(path, "not a posturemap map file (no 'meta' entry)") from None
-        except (UnicodeDecodeError, json.JSONDecodeError, TypeError, ValueError):
-            raise MapFileError(path, "corrupt metadata (not JSON)") from None
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-            raise MapFileError(path, "not a posturemap map file (foreign format)")
-        if meta.get("version") != VERSION:
-            raise MapFileError(path, f"map format version {meta.get('version')!r}; this posturemap reads {VERSION}")
+        meta, arrays = mapfile.read(path)
         try:
             return cls._from_parts(meta, arrays)
         except (KeyError, TypeError, ValueError, IndexError) as e:
@@ -219,32 +194,17 @@ class PostureMap:
 
     @classmethod
     def _from_parts(cls, meta: dict, arrays: dict) -> "PostureMap":
+        """A map from metadata and arrays checked by :func:`posturemap.mapfile.read`."""
         p = meta["params"]
         self = cls(p["radius"], p["neighborhood"], p["learning_rate"], p["epochs"], p["seed"], p["features"])
         self.skeleton_ = Skeleton.from_dict(meta["skeleton"])
         self.space_ = FeatureSpace.from_parts(meta["space"], {k[6:]: v for k, v in arrays.items()
                                                                if k.startswith("space_")})
-        sp = self.space_
-        j = self.skeleton_.num_joints
-        full = 3 * len(sp.joints) + 1
-        if (sp.joint_class.shape != (j,) or sp.fill.shape != (full,) or sp.active.shape != (full,)
-                or sp.reference.shape != (len(sp.joints), 4) or not 0 <= sp.root < j
-                or np.any(sp.joints < 0) or np.any(sp.joints >= j)):
-            raise ValueError("feature space does not match the skeleton")
         self.maps_ = []
         for c in range(len(CLASSES)):
             w = np.asarray(arrays[f"c{c}_weights"], dtype=np.float64)
             edges = np.asarray(arrays[f"c{c}_edges"], dtype=np.int64)
             period = np.asarray(arrays[f"c{c}_period"], dtype=np.float64)
-            dims = len(sp.class_dims[c])
-            if w.ndim != 2 or w.shape[1] != dims or len(w) == 0:
-                raise ValueError(f"class {CLASSES[c]} weights have shape {w.shape}, expected (n, {dims})")
-            if not np.all(np.isfinite(w)):
-                raise ValueError(f"class {CLASSES[c]} weights are not finite")
-            if edges.ndim != 2 or edges.shape[1] != 2 or (edges.size and (edges.min() < 0 or edges.max() >= len(w))):
-                raise ValueError(f"class {CLASSES[c]} edges do not fit its {len(w)} neurons")
-            if period.shape != (dims,):
-                raise ValueError(f"class {CLASSES[c]} periods have shape {period.shape}")
             m = UniformPostureMap(meta["radius"][c], p["neighborhood"], p["learning_rate"], p["epochs"],
                                   p["seed"] + c, period)
             m.weights_, m.edges_, m.period_ = w, edges, period
