@@ -152,7 +152,7 @@ def _read_npy(z: zipfile.ZipFile, info: zipfile.ZipInfo, name: str, max_bytes: i
             raise _Bad(f"{name} has no valid .npy header ({str(e)[:120]})") from None
         if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None or dtype.kind not in kinds:
             raise _Bad(f"{name} has dtype {str(dtype)[:40]}, expected "
-                       + {"u": "bytes (uint8)", "biuf": "numbers"}.get(kinds, "numbers"))
+                       + {"u": "bytes (uint8)", "iu": "whole numbers", "f": "floats", "b": "booleans"}.get(kinds, "numbers"))
         if name == "meta" and dtype.itemsize != 1:
             raise _Bad("meta is not a byte array")
         if not all(isinstance(s, int) and s >= 0 for s in shape) or len(shape) > 8:
