@@ -33,7 +33,7 @@ from .motion import Motion
 from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
-MAX_DEPTH = 1_000  # joints on one chain from a root
+MAX_DEPTH = MAX_JOINTS  # joints on one chain from a root (the parser keeps its own stack)
 MAX_VALUES = 500_000_000  # frames * channels; beyond this a file is not motion capture
 MAX_FILE_BYTES = 2 << 30  # 2 GiB: larger files are refused before reading
 MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-4, 10.0  # seconds: 10 kHz .. 0.1 Hz
@@ -95,11 +95,6 @@ def loads(raw: bytes | str, path: str = "<string>") -> Motion:
         skeleton, motion_lineno = _parse_hierarchy(lines, path)
         header = (skeleton, *_parse_motion_header(lines, motion_lineno, skeleton, path))
     skeleton, num_frames, fps, last_lineno, offset = header
-    num_channels = sum(len(c) for c in skeleton.channels)
-    if num_frames * num_channels * 2 > len(raw if text is None else text) - offset + 1:
-        # each value takes at least two characters (a digit and a separator): checked before allocating
-        raise BVHError(path, last_lineno, f"truncated: 'Frames: {num_frames}' of {num_channels} values "
-                                          f"cannot fit in the rest of the file")
     values = _parse_frames(raw, text, offset, last_lineno, num_frames, skeleton, path)
     rotations, positions, unwrapped = _channels_to_pose(skeleton, values)
     if unwrapped:
@@ -221,9 +216,9 @@ def _parse_hierarchy(lines, path: str) -> tuple[Skeleton, int]:
             if pending is None:
                 raise BVHError(path, lineno, "'{' without a joint")
             stack.append(pending)
-            pending = None
-            if len(stack) > MAX_DEPTH:
+            if pending != -2 and len(stack) > MAX_DEPTH:
                 raise BVHError(path, lineno, f"hierarchy nested more than {MAX_DEPTH} levels deep")
+            pending = None
             if len(tokens) > 1:
                 raise BVHError(path, lineno, "unexpected text after '{'")
         elif key == "}":
@@ -339,8 +334,9 @@ def _parse_motion_header(lines, motion_lineno: int, sk: Skeleton,
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise BVHError(path, lineno, f"frame time must be a positive number, got {ft_txt[:40]!r}")
     if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
-        raise BVHError(path, lineno, f"frame time {ft_txt[:40]} s is outside {MIN_FRAME_TIME:g}..{MAX_FRAME_TIME:g} s "
-                                     f"({1 / MAX_FRAME_TIME:g} to {1 / MIN_FRAME_TIME:g} frames per second)")
+        raise BVHError(path, lineno, f"frame time {ft_txt[:40]} is out of range (must be a positive number from "
+                                     f"{MIN_FRAME_TIME:g} to {MAX_FRAME_TIME:g} s: {1 / MAX_FRAME_TIME:g} to "
+                                     f"{1 / MIN_FRAME_TIME:g} frames per second)")
     return num_frames, 1.0 / frame_time, lineno, offset
 
 

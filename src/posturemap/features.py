@@ -75,12 +75,19 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
         if parents[j] >= 0:
             desc[parents[j]] += desc[j] + 1
     body = np.zeros(j_count, dtype=bool)
-    body[: root + 1] = [j == root or _is_ancestor(parents, j, root) for j in range(root + 1)]
+    j = root
+    while j >= 0:  # the root and its ancestors
+        body[j] = True
+        j = parents[j]
+    children = [[] for _ in range(j_count)]  # one pass: linear time in joints
+    for c in range(j_count):
+        if parents[c] >= 0:
+            children[parents[c]].append(c)
     # Follow the spine: from the root, the child with the most descendants, up to the first
     # joint where three or more chains part (the chest: neck and two arms).
     j = root
     while True:
-        kids = [c for c in range(j_count) if parents[c] == j]
+        kids = children[j]
         if not kids or (j != root and len(kids) >= 3):
             break
         j = max(kids, key=lambda c: desc[c])
@@ -104,12 +111,13 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
     return out
 
 
-def _is_ancestor(parents, a, j) -> bool:
-    while j >= 0:
-        j = parents[j]
-        if j == a:
-            return True
-    return False
+def subtree_mask(parents: np.ndarray, root: int) -> np.ndarray:
+    """Bool (J,): ``root`` and its descendants (one pass; parents come before children)."""
+    mask = np.zeros(len(parents), dtype=bool)
+    mask[root] = True
+    for j in range(root + 1, len(parents)):
+        mask[j] = parents[j] >= 0 and mask[parents[j]]
+    return mask
 
 
 def load_class_overrides(path: str, names: tuple[str, ...]) -> dict[str, str]:
@@ -301,7 +309,7 @@ def fit_space(motions: list[Motion], mode: str = "logmap", classes: dict[str, st
     jc = assign_classes(sk, root)
     for name, cls in (classes or {}).items():
         jc[sk.index(name)] = CLASSES.index(cls)
-    below = [j for j in range(sk.num_joints) if j == root or _is_ancestor(sk.parents, root, j)]
+    below = np.flatnonzero(subtree_mask(sk.parents, root))
     joints = np.array([root] + [j for j in below if j != root], dtype=np.int64)
     orders = tuple(sk.rotation_order(int(j)) or "ZXY" for j in joints)
     k = len(joints)

@@ -38,11 +38,11 @@ def open_regular(path: str | os.PathLike, max_bytes: int | None = None, what: st
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as e:
-        raise UserError(path, f"cannot read {what} ({e.strerror or e})") from None
+        raise UserError(path, f"cannot read file ({e.strerror or e})") from None
     try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
-            raise UserError(path, f"is a folder, expected a {what}")
+            raise UserError(path, f"cannot read file (a folder, not a {what})")
         if not stat.S_ISREG(st.st_mode):
             kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
                     or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "special")

@@ -1,0 +1,154 @@
+"""BVH bounds, special files and output sanity (issue 12): each reproducer is a named test.
+
+Bad input must end in exit code 2 and one line ``posturemap: error: <file>...: <what>`` on
+stderr (no traceback, no output file); the checks come before any allocation.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from posturemap import bvh, cli, sample
+from posturemap.bvh import BVHError
+from posturemap.motion import Motion
+
+
+@pytest.fixture(scope="module")
+def walk_text():
+    return bvh.dumps(sample.clips()["walk"])
+
+
+def run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_refused(capsys, path, *argv, words=()):
+    code, out, err = run(capsys, *argv)
+    assert code == 2, (code, out, err)
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"posturemap: error: {path}"), lines[0]
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+def with_frame_time(text: str, value: str) -> str:
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("Frame Time:"))
+    lines[k] = f"Frame Time: {value}"
+    return "\n".join(lines) + "\n"
+
+
+def chain(n: int, frames: int = 2) -> str:
+    """A chain of ``n`` joints, each the child of the previous one."""
+    lines = ["HIERARCHY", "ROOT j0", "{", "OFFSET 0 0 0",
+             "CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"]
+    for i in range(1, n):
+        lines += [f"JOINT j{i}", "{", "OFFSET 0 1 0", "CHANNELS 3 Zrotation Xrotation Yrotation"]
+    lines += ["End Site", "{", "OFFSET 0 1 0", "}"] + ["}"] * n
+    lines += ["MOTION", f"Frames: {frames}", "Frame Time: 0.0333333"]
+    lines += [" ".join(["0"] * (3 + 3 * n))] * frames
+    return "\n".join(lines) + "\n"
+
+
+# -- reproducers -------------------------------------------------------------------------------
+@pytest.mark.parametrize("value", ["100", "1000", "1e308", "1e-300", "0.00001"])
+def test_issue12_frame_time_out_of_bounds(walk_text, tmp_path, capsys, value):
+    path = tmp_path / "slow.bvh"
+    path.write_text(with_frame_time(walk_text, value))
+    out = tmp_path / "out.bvh"
+    assert_refused(capsys, path, "transition", path, path, "-o", out, words=["frame time"])
+    assert not out.exists()
+    assert_refused(capsys, path, "inspect", path, words=["frame time"])
+
+
+def test_frame_time_bounds_are_inclusive(walk_text):
+    assert bvh.loads(with_frame_time(walk_text, "10")).fps == pytest.approx(0.1)
+    assert bvh.loads(with_frame_time(walk_text, "0.0001")).fps == pytest.approx(10000)
+
+
+def test_issue12_fifo_named_bvh_is_refused_at_once(tmp_path, capsys):
+    fifo = tmp_path / "x.bvh"
+    os.mkfifo(fifo)  # nobody writes: reading would block forever
+    assert_refused(capsys, fifo, "inspect", fifo, words=["not a regular file", "FIFO"])
+
+
+def test_issue12_symlink_to_dev_zero_is_refused(tmp_path, capsys):
+    link = tmp_path / "zero.bvh"
+    link.symlink_to("/dev/zero")
+    assert_refused(capsys, link, "inspect", link, words=["not a regular file", "device"])
+
+
+def test_issue12_folder_of_special_files(tmp_path, capsys):
+    (tmp_path / "clips").mkdir()
+    os.mkfifo(tmp_path / "clips" / "a.bvh")
+    out = tmp_path / "m.npz"
+    assert_refused(capsys, tmp_path / "clips" / "a.bvh", "train", tmp_path / "clips", "-o", out,
+                   words=["not a regular file"])
+    assert not out.exists()
+
+
+def test_issue12_chain_of_9999_joints_reads_in_linear_time(tmp_path, capsys):
+    # Bone classes were found with a scan of all joints per joint on the spine and an ancestor
+    # walk per joint (quadratic: 13-24 s); now one pass each. The time itself is measured by
+    # bench/fuzz_long.py (no timing asserts in unit tests): here the result must be right.
+    from posturemap.features import assign_classes, subtree_mask
+
+    path = tmp_path / "chain.bvh"
+    path.write_text(chain(9999))
+    code, out, err = run(capsys, "inspect", path)
+    assert code == 0, err
+    assert "9999 joints" in out
+    sk = bvh.read(path).skeleton
+    assert subtree_mask(sk.parents, 0).all() and subtree_mask(sk.parents, 5000).sum() == 4999
+    jc = assign_classes(sk, 0)
+    assert jc[0] == 0 and jc.shape == (9999,)
+
+
+def test_hierarchy_deeper_than_the_limit_is_refused(monkeypatch):
+    monkeypatch.setattr(bvh, "MAX_DEPTH", 50)
+    with pytest.raises(BVHError, match="nested more than 50 levels"):
+        bvh.loads(chain(51))
+    assert bvh.loads(chain(50)).skeleton.num_joints == 50
+
+
+@pytest.mark.parametrize("frames", ["1000000", "3000000"])
+def test_frame_count_beyond_the_file_is_refused_before_allocating(walk_text, frames):
+    # The fast parser checks the count against the bytes left before allocating; the general
+    # one then says how many frame lines there are.
+    text = walk_text.replace(f"Frames: {sample.clips()['walk'].num_frames}", f"Frames: {frames}")
+    with pytest.raises(BVHError, match=f"truncated: .* but 'Frames: {frames}'"):
+        bvh.loads(text.encode())
+
+
+def test_huge_file_refused_from_its_size(tmp_path, monkeypatch):
+    path = tmp_path / "big.bvh"
+    path.write_bytes(b"HIERARCHY\n" + b" " * 5000)
+    monkeypatch.setattr(bvh, "MAX_FILE_BYTES", 4096)
+    with pytest.raises(BVHError, match="too large"):
+        bvh.read(path)
+
+
+# -- output sanity -----------------------------------------------------------------------------
+@pytest.mark.parametrize("where", ["rotations", "positions"])
+def test_non_finite_motion_is_not_written(tmp_path, where):
+    m = sample.clips()["walk"]
+    arrays = {"rotations": m.rotations.copy(), "positions": m.positions.copy()}
+    arrays[where][7, 3, 1] = np.nan
+    bad = Motion(m.skeleton, arrays["rotations"], arrays["positions"], m.fps)
+    out = tmp_path / "out.bvh"
+    out.write_text("old")
+    with pytest.raises(BVHError, match="refusing to write NaN") as info:
+        bvh.write(out, bad)
+    assert "frame 7" in str(info.value) and m.skeleton.names[3] in str(info.value)
+    assert out.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bvh"]
+    with pytest.raises(BVHError):
+        bvh.dumps(bad)
