@@ -395,7 +395,8 @@ def test_malformed_json_is_400(client):
         r = client.post("/api/transition", content=raw, headers={"content-type": "application/json"})
         assert r.status_code == 400, raw[:20]
         assert r.json()["error"]
-    r = client.post("/api/transition", content=b"[" * 30000 + b"]" * 30000)  # nested too deeply
+    r = client.post("/api/transition", content=b"[" * 30000 + b"]" * 30000,  # nested too deeply
+                    headers={"content-type": "application/json"})
     assert r.status_code in (400, 422) and r.json()["error"]
 
 
@@ -410,7 +411,8 @@ def test_oversized_body_is_413(client):
 
     r = client.post("/api/transition", content=chunks(), headers={"content-type": "application/json"})
     assert r.status_code == 413
-    r = client.post("/api/transition", content=b"{}", headers={"content-length": "abc"})
+    r = client.post("/api/transition", content=b"{}", headers={"content-length": "abc",
+                                                                "content-type": "application/json"})
     assert r.status_code in (400, 413)
 
 
@@ -475,7 +477,7 @@ def test_random_garbage_never_gives_500(client):
             r = client.post(str(rng.choice(["/api/transition", "/api/export"])), json=body)
         elif kind == 1:  # random bytes
             raw = rng.bytes(int(rng.integers(0, 300)))
-            r = client.post("/api/transition", content=raw)
+            r = client.post("/api/transition", content=raw, headers={"content-type": "application/json"})
         elif kind == 2:  # query strings
             q = "&".join(f"{rng.choice(fields)}={rng.choice(['1', '-5', 'x', '0.5', 'walk', 'run', '', '%00', '1e9'])}"
                          for _ in range(rng.integers(0, 6)))

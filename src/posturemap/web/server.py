@@ -35,17 +35,35 @@ added to the translation. The export writes the same change into the root joint 
 world pose of every joint from the root down is the same.
 
 Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
-:data:`MAX_BODY` bytes 413, wrong types or values out of range 422, and a keyed method asked
-for while the map is still training 503.
+:data:`MAX_BODY` bytes 413, a body not sent within :data:`BODY_TIMEOUT` seconds 408, a POST
+whose ``Content-Type`` is not ``application/json`` 415, wrong types or values out of range 422,
+and a keyed method asked for while the map is still training 503.
+
+Cross-site requests are refused with 403: a request whose ``Origin`` is not the server's own
+(``http://<Host>``), and a request to ``/api/`` that the browser marks ``Sec-Fetch-Site:
+cross-site`` or ``same-site`` (a page elsewhere cannot make the studio work or read its
+exports). Requests without these headers (curl, scripts) are served. A foreign ``Host``
+header is refused with 400 when bound to this machine (DNS rebinding).
+
+The server (:func:`serve`) closes a connection whose request headers are not complete within
+:data:`HEADER_TIMEOUT` seconds and an idle keep-alive connection after
+:data:`KEEP_ALIVE_TIMEOUT`; a client that disconnects mid-request is dropped quietly.
+Requests run concurrently: each transition takes an engine from a small pool
+(:data:`POOL_SIZE` copies sharing the clips' tracks and the map, each with its own output
+buffers), so no lock is held while one is computed.
 """
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import contextlib
+import copy
 import hashlib
 import json
 import math
+import os
+import queue
 import re
 import socket
 import sys
@@ -66,6 +84,7 @@ try:  # the "web" extra
     from starlette.applications import Starlette
     from starlette.exceptions import HTTPException
     from starlette.middleware import Middleware
+    from starlette.requests import ClientDisconnect
     from starlette.responses import FileResponse, JSONResponse, Response
     from starlette.routing import Mount, Route
     from starlette.staticfiles import StaticFiles
@@ -75,6 +94,11 @@ except ImportError:  # pragma: no cover - reported by run_cli / create_app
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 VENDOR_FILES = ("three.module.js", "three.core.js", "addons/controls/OrbitControls.js")
 MAX_BODY = 64 * 1024          # bytes of a request body
+BODY_TIMEOUT = 10.0           # seconds to receive a request body
+HEADER_TIMEOUT = 10.0         # seconds to receive a request's headers
+KEEP_ALIVE_TIMEOUT = 5        # seconds an idle keep-alive connection stays open
+MAX_HEADER_BYTES = 16 * 1024  # request line and headers
+POOL_SIZE = max(2, min(4, os.cpu_count() or 1))  # transition engines working at once
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
 DEFAULT_LENGTH = 20
 FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align", "foot_lock")
@@ -162,8 +186,9 @@ class Studio:
             self.log(f"posturemap: warning: the map takes root {self.skeleton.names[model.space_.root]!r} and "
                      f"up {'XYZ'[model.space_.up]} but the clips read as root {self.skeleton.names[self.root]!r}, "
                      f"up {'XYZ'[self.up]}: transitions may not line up")
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # guards the status and the swap of engines, not the work
         self.engine = self._engine(model)
+        self._pool = self._make_pool(self.engine)
         self._status = {"state": "ready" if model is not None else ("loading" if train else "none"),
                         "progress": 1.0 if model is not None else 0.0, "epochs": epochs, "classes": {},
                         "neurons": sum(model.neuron_counts()) if model is not None else 0,
@@ -182,6 +207,21 @@ class Studio:
         # Compile the kernels now rather than on the first request.
         engine.generate(name, name, 2, 1, 0.5, None, 0, True, KEYED[0] if model is not None else "spline")
         return engine
+
+    @staticmethod
+    def _make_pool(engine: TransitionEngine) -> queue.SimpleQueue:
+        """:data:`POOL_SIZE` engines: ``engine`` and copies that share its tracks and map.
+
+        An engine reuses its output buffers between calls, so one engine serves one request at
+        a time; the copies have their own buffers and caches, the clips and the map are shared
+        (read-only).
+        """
+        pool = queue.SimpleQueue()
+        pool.put(engine)
+        shared = {id(engine.model): engine.model, id(engine.tracks): engine.tracks}
+        for _ in range(POOL_SIZE - 1):
+            pool.put(copy.deepcopy(engine, dict(shared)))
+        return pool
 
     # -- training ---------------------------------------------------------------------------
     def _train(self, epochs: int, seed: int):
@@ -209,13 +249,14 @@ class Studio:
             model = PostureMap(epochs=epochs, seed=seed).fit(list(self.clips.values()), list(self.clips),
                                                               progress=progress)
             engine = self._engine(model)
+            pool = self._make_pool(engine)
         except Exception as e:  # noqa: BLE001 - reported on the page and in the terminal
             self._set_status(state="error", message=f"training failed: {e}")
             self.log(f"posturemap: error: training the posture map failed: {e}")
             return
         seconds = round(time.perf_counter() - self._started, 2)
         with self._lock:
-            self.engine = engine
+            self.engine, self._pool = engine, pool
             self._status.update(state="ready", progress=1.0, neurons=sum(model.neuron_counts()),
                                 seconds=seconds, message="")
         self.log(f"posture map ready: {sum(model.neuron_counts())} neurons "
@@ -316,8 +357,8 @@ class Studio:
             alpha = 0.5
         if isinstance(alpha, bool) or not isinstance(alpha, (int, float)):
             raise ApiError(422, f"alpha: must be a number between 0 and 1, got {_kind(alpha)}", "alpha")
-        if not (math.isfinite(alpha) and 0.0 <= alpha <= 1.0):
-            raise ApiError(422, f"alpha: must be between 0 and 1, got {alpha!r}", "alpha")
+        if not (0 <= alpha <= 1 and math.isfinite(alpha)):  # range first: a 309-digit int has no float
+            raise ApiError(422, f"alpha: must be between 0 and 1, got {_kind(alpha)}", "alpha")
         method = raw.get("method", DEFAULT_METHOD)
         if method is None:
             method = DEFAULT_METHOD
@@ -345,9 +386,11 @@ class Studio:
         shift)``.
         """
         with self._lock:
-            engine = self.engine
+            pool = self._pool
+            s = dict(self._status)
+        engine = pool.get()  # blocks only while all POOL_SIZE engines are busy
+        try:
             if p.method in KEYED and engine.model is None:
-                s = self._status
                 if s["state"] == "training":
                     raise ApiError(503, f"method: {p.method!r} needs the posture map, still training "
                                         f"({100 * s['progress']:.0f}%); try again in a moment", "method")
@@ -371,6 +414,8 @@ class Studio:
             if with_b:
                 b_part = (aligned(engine.tracks[p.b], engine, p.b_start, turn, shift) if p.align
                           else self.clips[p.b][p.b_start:])
+        finally:
+            pool.put(engine)
         return rots, pos, last, keyed_joints, b_part, (top, up, turn, shift)
 
     def generate(self, p: Params):
@@ -425,11 +470,15 @@ class Studio:
         ``fmt`` is one of :data:`EXPORT_FORMATS`: ``bvh`` (the clips' skeleton and channels),
         ``glb`` or ``gltf`` (glTF 2.0 in metres, Y up: the whole result as one animation, then
         A's part, the transition and B's part as three more; see :mod:`posturemap.gltf`).
+        A result the writers refuse (non-finite values) is a 422.
         """
         out = self.generate(p)
         stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120]
         if fmt == "bvh":
-            return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
+            try:
+                return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
+            except UserError as e:
+                raise ApiError(422, e.what) from None
         from .. import gltf
 
         parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
@@ -457,7 +506,8 @@ def _kind(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (int, float)):
-        return repr(v)
+        text = repr(v) if not isinstance(v, int) or abs(v) < 10 ** 40 else f"a {len(str(abs(v)))}-digit number"
+        return text if len(text) <= 40 else text[:37] + "..."
     if isinstance(v, str):
         return "a string"
     if isinstance(v, list):
@@ -476,8 +526,8 @@ def _int(raw: dict, field: str, default: int, lo: int, hi: int, where: str | Non
     if not _is_int(v):
         raise ApiError(422, f"{field}: must be a whole number, got {_kind(v)}", field)
     if not lo <= v <= hi:
-        what = f"frame {v} is outside {where} (frames {lo}..{hi})" if where else \
-               f"must be between {lo} and {hi}, got {v}"
+        what = f"frame {_kind(v)} is outside {where} (frames {lo}..{hi})" if where else \
+               f"must be between {lo} and {hi}, got {_kind(v)}"
         raise ApiError(422, f"{field}: {what}", field)
     return v
 
@@ -510,8 +560,43 @@ def _reject_constant(name: str):
     raise ValueError(f"{name} is not a JSON number")
 
 
+class Disconnected(Exception):
+    """The client went away before its request was read (answered quietly: nobody listens)."""
+
+
+def _is_json(content_type: str) -> bool:
+    return content_type.split(";", 1)[0].strip().lower() == "application/json"
+
+
 async def read_json(request) -> object:
-    """The request body as JSON: 413 over :data:`MAX_BODY` bytes, 400 when not valid JSON."""
+    """The request body as JSON.
+
+    415 unless ``Content-Type: application/json`` (a cross-site form cannot send that without
+    the browser asking first), 413 over :data:`MAX_BODY` bytes, 408 when the body takes longer
+    than :data:`BODY_TIMEOUT` seconds, 400 when not valid JSON; :class:`Disconnected` when the
+    client leaves.
+    """
+    if not _is_json(request.headers.get("content-type", "")):
+        raise ApiError(415, "send the body as JSON with 'Content-Type: application/json'")
+    try:
+        async with asyncio.timeout(BODY_TIMEOUT):
+            body = await _read_body(request)
+    except TimeoutError:
+        raise ApiError(408, f"request body not received within {BODY_TIMEOUT:g} s") from None
+    except ClientDisconnect:
+        raise Disconnected from None
+    if not body.strip():
+        raise ApiError(400, "empty body: send a JSON object")
+    try:
+        return json.loads(bytes(body), parse_constant=_reject_constant)
+    except RecursionError:
+        raise ApiError(400, "body is not valid JSON (nested too deeply)") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ApiError(400, f"body is not valid JSON ({str(e)[:120]})") from None
+
+
+async def _read_body(request) -> bytearray:
+    """The body, at most :data:`MAX_BODY` bytes (413 beyond, from the header or while streaming)."""
     declared = request.headers.get("content-length")
     if declared is not None:
         if not declared.strip().isdigit():
@@ -523,14 +608,7 @@ async def read_json(request) -> object:
         body += chunk
         if len(body) > MAX_BODY:
             raise ApiError(413, f"request body too large (at most {MAX_BODY} bytes)")
-    if not body.strip():
-        raise ApiError(400, "empty body: send a JSON object")
-    try:
-        return json.loads(bytes(body), parse_constant=_reject_constant)
-    except RecursionError:
-        raise ApiError(400, "body is not valid JSON (nested too deeply)") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise ApiError(400, f"body is not valid JSON ({str(e)[:120]})") from None
+    return body
 
 
 # -- the application ----------------------------------------------------------------------
@@ -547,8 +625,29 @@ def _page_policy() -> str:
             "form-action 'none'; frame-ancestors 'none'")
 
 
+def cross_site(headers: dict, path: str) -> str | None:
+    """Why a request must be refused as cross-site, or None (see the module docstring).
+
+    ``headers`` maps lower-case header names to values (bytes). A browser sends ``Origin``
+    on every POST and on cross-origin fetches; it must be this server's own origin
+    (``http://`` or ``https://`` plus the ``Host`` header). ``Sec-Fetch-Site`` covers requests
+    without ``Origin`` (an ``<img>`` or ``<script>`` pointing at ``/api/export``): other sites
+    may link to the page, not use the API.
+    """
+    origin = headers.get(b"origin")
+    if origin is not None:
+        host = headers.get(b"host", b"").decode("latin-1").lower()
+        if origin.decode("latin-1").lower() not in (f"http://{host}", f"https://{host}"):
+            return f"cross-origin request from {origin.decode('latin-1')[:80]!r} refused"
+    site = headers.get(b"sec-fetch-site", b"").lower()
+    if path.startswith("/api/") and site in (b"cross-site", b"same-site"):
+        return f"cross-site request ({site.decode('latin-1')}) to the API refused"
+    return None
+
+
 class _Guard:
-    """ASGI middleware: refuses foreign Host headers (DNS rebinding) and adds security headers."""
+    """ASGI middleware: refuses foreign Host headers (DNS rebinding) and cross-site requests
+    (:func:`cross_site`), and adds security headers."""
 
     def __init__(self, app, allowed_hosts=None):
         self.app = app
@@ -560,8 +659,12 @@ class _Guard:
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        headers = dict(scope["headers"])
+        refused = cross_site(headers, scope.get("path", ""))
+        if refused:
+            return await JSONResponse({"error": refused, "field": None}, 403)(scope, receive, send)
         if self.allowed is not None:
-            host = dict(scope["headers"]).get(b"host", b"").decode("latin-1").lower()
+            host = headers.get(b"host", b"").decode("latin-1").lower()
             name = host[1:].split("]")[0] if host.startswith("[") else host.rsplit(":", 1)[0]
             if name not in self.allowed:
                 resp = JSONResponse({"error": f"unexpected Host header {host[:80]!r}", "field": None}, 400)
@@ -629,7 +732,12 @@ def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epoc
     async def http_error(request, exc: HTTPException):
         return JSONResponse({"error": exc.detail, "field": None}, exc.status_code, headers=exc.headers)
 
+    async def disconnected(request, exc: Exception):
+        return Response(status_code=400)  # the client is gone: nothing to log, nobody reads this
+
     async def server_error(request, exc: Exception):
+        if isinstance(exc, (Disconnected, ClientDisconnect)):
+            return await disconnected(request, exc)
         studio.log("posturemap: internal error:\n" + "".join(traceback.format_exception(exc)).rstrip())
         return JSONResponse({"error": f"internal error ({type(exc).__name__})", "field": None}, 500)
 
@@ -643,7 +751,8 @@ def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epoc
         Mount("/static", app=StaticFiles(directory=STATIC_DIR, check_dir=False), name="static"),
     ]
     app = Starlette(routes=routes, middleware=[Middleware(_Guard, allowed_hosts=allowed_hosts)],
-                    exception_handlers={ApiError: api_error, HTTPException: http_error, Exception: server_error})
+                    exception_handlers={ApiError: api_error, HTTPException: http_error, Disconnected: disconnected,
+                                        ClientDisconnect: disconnected, Exception: server_error})
     app.state.studio = studio
     return app
 
@@ -699,16 +808,64 @@ def _listen(host: str, port: int) -> socket.socket:
     return sock
 
 
+def _timed_h11():
+    """uvicorn's h11 protocol with a deadline for each request's headers (a trickling client is cut off)."""
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class TimedH11Protocol(H11Protocol):
+        _header_timer = None
+
+        def connection_made(self, transport):
+            super().connection_made(transport)
+            self._arm()
+
+        def _arm(self):
+            if self._header_timer is None:
+                self._header_timer = self.loop.call_later(HEADER_TIMEOUT, self._headers_too_slow)
+
+        def _disarm(self):
+            if self._header_timer is not None:
+                self._header_timer.cancel()
+                self._header_timer = None
+
+        def _headers_too_slow(self):
+            self._header_timer = None
+            if not self.transport.is_closing():
+                self.transport.close()
+
+        def data_received(self, data: bytes) -> None:
+            cycle = self.cycle
+            if cycle is None or cycle.response_complete:
+                self._arm()  # bytes of a new request: its headers must come in time
+            super().data_received(data)
+            if self.cycle is not cycle:  # a request's headers were parsed
+                self._disarm()
+
+        def connection_lost(self, exc):
+            self._disarm()
+            super().connection_lost(exc)
+
+    return TimedH11Protocol
+
+
+def server_for(app):
+    """A uvicorn server for ``app`` with the studio's limits: header and keep-alive timeouts,
+    at most :data:`MAX_HEADER_BYTES` of request line and headers, no access log."""
+    import uvicorn
+
+    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off", http=_timed_h11(),
+                            timeout_keep_alive=KEEP_ALIVE_TIMEOUT, h11_max_incomplete_event_size=MAX_HEADER_BYTES)
+    return uvicorn.Server(config)
+
+
 @contextlib.contextmanager
 def running(app, host: str = "127.0.0.1", port: int = 0):
     """Serve ``app`` with uvicorn in a background thread; yields the base URL (``http://host:port``).
 
     For tests, benchmarks and notebooks; port 0 takes a free port. The server stops on exit.
     """
-    import uvicorn
-
     sock = _listen(host, port)
-    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off"))
+    srv = server_for(app)
     thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True, name="posturemap-serve")
     thread.start()
     deadline = time.monotonic() + 20
@@ -759,8 +916,7 @@ def run_cli(args) -> int:
     if not local:
         log(f"posturemap: warning: listening on {args.host}: other machines can reach the studio")
     print(f"open http://{shown}:{port}/  (Ctrl+C to stop)", flush=True)
-    config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
-    server = uvicorn.Server(config)
+    server = server_for(app)
     try:
         server.run(sockets=[sock])
     finally:
