@@ -36,7 +36,8 @@ world pose of every joint from the root down is the same.
 
 Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
 :data:`MAX_BODY` bytes 413, a body not sent within :data:`BODY_TIMEOUT` seconds 408, a POST
-whose ``Content-Type`` is not ``application/json`` 415, wrong types or values out of range 422,
+whose ``Content-Type`` is not ``application/json`` 415, headers over :data:`MAX_HEADER_BYTES`
+431, wrong types or values out of range 422,
 and a keyed method asked for while the map is still training 503.
 
 Cross-site requests are refused with 403: a request whose ``Origin`` is not the server's own
@@ -97,7 +98,7 @@ MAX_BODY = 64 * 1024          # bytes of a request body
 BODY_TIMEOUT = 10.0           # seconds to receive a request body
 HEADER_TIMEOUT = 10.0         # seconds to receive a request's headers
 KEEP_ALIVE_TIMEOUT = 5        # seconds an idle keep-alive connection stays open
-MAX_HEADER_BYTES = 16 * 1024  # request line and headers
+MAX_HEADER_BYTES = 16 * 1024  # request headers (431 beyond)
 POOL_SIZE = max(2, min(4, os.cpu_count() or 1))  # transition engines working at once
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
 DEFAULT_LENGTH = 20
@@ -659,6 +660,9 @@ class _Guard:
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        if sum(len(k) + len(v) + 4 for k, v in scope["headers"]) > MAX_HEADER_BYTES:
+            resp = JSONResponse({"error": f"request headers larger than {MAX_HEADER_BYTES} bytes", "field": None}, 431)
+            return await resp(scope, receive, send)
         headers = dict(scope["headers"])
         refused = cross_site(headers, scope.get("path", ""))
         if refused:
@@ -850,7 +854,8 @@ def _timed_h11():
 
 def server_for(app):
     """A uvicorn server for ``app`` with the studio's limits: header and keep-alive timeouts,
-    at most :data:`MAX_HEADER_BYTES` of request line and headers, no access log."""
+    h11's buffer for an incomplete request head at :data:`MAX_HEADER_BYTES` (``_Guard`` checks
+    the size of a complete one), no access log."""
     import uvicorn
 
     config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off", http=_timed_h11(),
