@@ -40,7 +40,7 @@ VALUES = [None, True, False, 0, -1, 1, 2, 5, 89, 90, 2 ** 31, 2 ** 64, -2 ** 63,
 PATHS = ["/", "/api/status", "/api/clips", "/api/clip/walk", "/api/clip/nope", "/api/clip/..%2f..%2fetc",
          "/api/transition", "/api/export", "/static/app.js", "/static/../../etc/passwd", "/static/%00",
          "/api/nothing", "//api//export", "/api/clip/" + "x" * 500]
-ORIGINS = [None, None, None, "http://evil.example", "null", "http://127.0.0.1:1", "https://attacker.test"]
+ORIGINS = [None] * 12 + ["http://evil.example", "null", "http://127.0.0.1:1", "https://attacker.test"]
 CTYPES = ["application/json", "application/json", "application/json; charset=utf-8", "text/plain",
           "application/x-www-form-urlencoded", "multipart/form-data; boundary=x", None, "application/JSON"]
 

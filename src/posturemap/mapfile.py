@@ -21,8 +21,9 @@ plain numeric dtype (bool, integer or float; no objects, no structures) and a sh
 is within :data:`MAX_ARRAY_BYTES` (:data:`MAX_META_BYTES` for ``meta``) and matches the
 member's size in the archive; the metadata's every field (type, range, finite, lengths
 against the skeleton); each array's shape against the metadata, from its header, before its
-data is read; then the values: finite floats, indices within range, class weights not
-degenerate (two or more neurons that all coincide). Any failure raises
+data is read; then the values: finite floats within :data:`MAX_VALUE`, rotation features
+within :data:`MAX_ANGLE`, unit quaternions, indices within range, class weights not degenerate
+(two or more neurons that all coincide). Any failure raises
 :class:`MapFileError` naming the file and what is wrong.
 
 This is the only version so far (:data:`VERSION` 1); an older or newer version is refused
@@ -53,6 +54,8 @@ MAX_ARRAY_BYTES = 2 << 30      # one array, as declared by its header
 MAX_TOTAL_BYTES = 4 << 30      # all arrays together
 MAX_JOINTS = 10_000
 MAX_INT = 2 ** 53              # integers in the metadata (counts, seeds)
+MAX_VALUE = 1e12               # any float in an array (positions in any unit, velocities)
+MAX_ANGLE = 4 * math.pi        # rotation features (rotation vectors, Euler angles), radians
 _DTYPE_KINDS = "biuf"          # bool, signed and unsigned integers, floats
 _CHANNELS = set(POSITION_CHANNELS + ROTATION_CHANNELS)
 
@@ -85,7 +88,7 @@ def read(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
         if not zipfile.is_zipfile(f):
             raise MapFileError(path, "not a posturemap map file (not an .npz archive)")
         try:
-            with zipfile.ZipFile(f) as z:
+            with zipfile.ZipFile(f) as z, np.errstate(all="ignore"):  # huge values fail the checks, quietly
                 return _read_archive(z, path)
         except MapFileError:
             raise
@@ -397,6 +400,16 @@ def check_arrays(meta: dict, arrays: dict[str, np.ndarray]) -> None:
     for name, a in arrays.items():
         if not name.endswith("_period"):  # periods are 2 pi or infinite
             _finite(a, name)
+            if a.dtype.kind == "f" and a.size and np.abs(a).max() > MAX_VALUE:
+                raise _Bad(f"{name} has values beyond {MAX_VALUE:g}")
+    if "library_rots" in arrays and np.any(np.abs(np.linalg.norm(arrays["library_rots"], axis=-1) - 1.0) > 1e-3):
+        raise _Bad("library_rots holds rotations that are not unit quaternions")
+    # Feature values: rotation parts are rotation vectors or Euler angles (radians), the last
+    # dimension a height in leg lengths; beyond these bounds a decoded posture is not a rotation.
+    bound = np.full(len(dim_class), MAX_ANGLE)
+    bound[-1] = MAX_VALUE
+    if np.any(np.abs(arrays["space_fill"]) > bound):
+        raise _Bad(f"space_fill has rotation values beyond {MAX_ANGLE:.4g} radians")
     ref = arrays["space_reference"]
     if np.any(np.abs(np.linalg.norm(ref, axis=1) - 1.0) > 1e-3):
         raise _Bad("space_reference holds rotations that are not unit quaternions")
@@ -411,6 +424,8 @@ def check_arrays(meta: dict, arrays: dict[str, np.ndarray]) -> None:
         n = len(w)
         if w.shape[1] != dims or n == 0:
             raise _Bad(f"class {cls} weights have shape {w.shape}, expected (n >= 1, {dims})")
+        if np.any(np.abs(w) > bound[active & (dim_class == c)]):
+            raise _Bad(f"class {cls} weights (c{c}_weights) have rotation values beyond {MAX_ANGLE:.4g} radians")
         if n >= 2 and np.all(w == w[0]):
             raise _Bad(f"class {cls} weights are degenerate (all {n} neurons coincide)")
         edges = arrays[f"c{c}_edges"]

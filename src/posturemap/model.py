@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -188,8 +189,10 @@ class PostureMap:
         path = os.fspath(path)
         meta, arrays = mapfile.read(path)
         try:
-            return cls._from_parts(meta, arrays)
-        except (KeyError, TypeError, ValueError, IndexError) as e:
+            with warnings.catch_warnings():  # e.g. a cast of huge values: a corrupt file, not a warning
+                warnings.simplefilter("error", RuntimeWarning)
+                return cls._from_parts(meta, arrays)
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeWarning) as e:
             raise MapFileError(path, f"corrupt map file ({type(e).__name__}: {e})") from None
 
     @classmethod
