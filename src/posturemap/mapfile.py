@@ -151,8 +151,13 @@ def _read_npy(z: zipfile.ZipFile, info: zipfile.ZipInfo, name: str, max_bytes: i
                 shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
             else:
                 raise _Bad(f"{name} has .npy format version {version}")
-        except (ValueError, SyntaxError, TypeError) as e:
-            raise _Bad(f"{name} has no valid .npy header ({str(e)[:120]})") from None
+        except _Bad:
+            raise
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError):
+            raise
+        except Exception as e:  # noqa: BLE001 - numpy parses the header text with ast and tokenize, which
+            # raise ValueError, SyntaxError, tokenize.TokenError, RecursionError... on hostile text
+            raise _Bad(f"{name} has no valid .npy header ({type(e).__name__})") from None
         if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None or dtype.kind not in kinds:
             raise _Bad(f"{name} has dtype {str(dtype)[:40]}, expected "
                        + {"u": "bytes (uint8)", "iu": "whole numbers", "f": "floats", "b": "booleans"}.get(kinds, "numbers"))

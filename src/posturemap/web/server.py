@@ -99,7 +99,17 @@ BODY_TIMEOUT = 10.0           # seconds to receive a request body
 HEADER_TIMEOUT = 10.0         # seconds to receive a request's headers
 KEEP_ALIVE_TIMEOUT = 5        # seconds an idle keep-alive connection stays open
 MAX_HEADER_BYTES = 16 * 1024  # request headers (431 beyond)
-POOL_SIZE = max(2, min(4, os.cpu_count() or 1))  # transition engines working at once
+
+
+def _pool_size() -> int:
+    """Transition engines working at once: ``$POSTUREMAP_ENGINES`` (1..64) or 2..4 by cores."""
+    text = os.environ.get("POSTUREMAP_ENGINES", "")
+    if text.strip().isdigit() and 1 <= int(text) <= 64:
+        return int(text)
+    return max(2, min(4, os.cpu_count() or 1))
+
+
+POOL_SIZE = _pool_size()
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
 DEFAULT_LENGTH = 20
 FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align", "foot_lock")
