@@ -152,3 +152,59 @@ def test_non_finite_motion_is_not_written(tmp_path, where):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bvh"]
     with pytest.raises(BVHError):
         bvh.dumps(bad)
+
+
+# -- round trip: the file's own channel values ------------------------------------------------
+def _frame_values(text: str) -> np.ndarray:
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("Frame Time"))
+    return np.array([[float(x) for x in line.split()] for line in lines[k + 1:] if line.strip()])
+
+
+@pytest.mark.parametrize("start", [0, 243, 2000])
+def test_issue12_cmu_frames_written_with_the_files_own_values(cmu_file, start):
+    # CMU angles pass +-180 degrees (continuous curves); written from a frame whose root angle
+    # was beyond 180, the writer used to start at the principal value: 360 degrees away from
+    # the file for every later frame.
+    m = bvh.read(cmu_file)
+    original = _frame_values(cmu_file.read_text())
+    assert np.abs(original[start:, 3:6]).max() > 180  # the case the issue describes
+    assert np.array_equal(_frame_values(bvh.dumps(m[start:])), original[start:])
+
+
+def test_issue12_cmu_transition_keeps_a_and_continues_smoothly(cmu_file):
+    from posturemap.transition import transition
+
+    m = bvh.read(cmu_file)
+    original = _frame_values(cmu_file.read_text())
+    a, b = m[:2100], m[2300:]
+    out = transition(a, b, None, length=30, method="spline")
+    values = _frame_values(bvh.dumps(out))
+    assert np.array_equal(values[:2100], original[:2100])  # A unchanged: the file's numbers
+    rot = [c for c in range(values.shape[1]) if c not in (0, 1, 2)]
+    jump = np.abs(np.diff(values[:, rot], axis=0)).max(axis=0)
+    file_jump = np.abs(np.diff(original[:, rot], axis=0)).max(axis=0)
+    # No channel jumps by a turn where the file did not (the seams included).
+    assert np.all(jump < np.maximum(file_jump, 90.0) + 1.0), (jump - file_jump).max()
+
+
+def test_generated_run_between_file_frames_continues_by_whole_turns():
+    from posturemap.bvh import _continue_runs
+
+    out = np.array([[170.0], [179.0], [-170.0], [-160.0], [200.0]])  # rows 2-3 generated (wrapped)
+    fixed = np.array([True, True, False, False, True])
+    _continue_runs(out, np.array([0]), fixed)
+    assert np.allclose(out[:, 0], [170, 179, 190, 200, 200])
+    out = np.array([[-170.0], [190.0]])  # a generated first row meets the file's next one
+    _continue_runs(out, np.array([0]), np.array([False, True]))
+    assert np.allclose(out[:, 0], [190, 190])
+
+
+def test_changed_joints_are_recomputed_not_copied(tmp_path):
+    m = bvh.loads(bvh.dumps(sample.clips()["walk"]))
+    assert m.source is not None
+    rots = m.rotations.copy()
+    rots[:, 0] = rots[::-1, 0]  # the root's rotation changed: its file values no longer apply
+    changed = Motion(m.skeleton, rots, m.positions, m.fps, m.source)
+    back = bvh.loads(bvh.dumps(changed))
+    assert np.allclose(np.abs(np.einsum("fjc,fjc->fj", back.rotations, rots)), 1.0, atol=1e-7)

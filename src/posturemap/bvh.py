@@ -99,7 +99,7 @@ def loads(raw: bytes | str, path: str = "<string>") -> Motion:
     rotations, positions, unwrapped = _channels_to_pose(skeleton, values)
     if unwrapped:
         skeleton = dataclasses.replace(skeleton, euler_style="continuous")
-    return Motion(skeleton, rotations, positions, fps)
+    return Motion(skeleton, rotations, positions, fps, source=values)
 
 
 class _NeedMore(Exception):
@@ -685,7 +685,56 @@ def _pose_to_channels(motion: Motion) -> np.ndarray:
         if sk.euler_style == "continuous":
             euler = continuous_euler(euler, order)
         values[:, np.array([rot_cols[j] for j in joints])] = np.degrees(euler)
+    if motion.source is not None and motion.source.shape == values.shape:
+        values = _with_source_values(motion, values, pos_cols, rot_cols)
     return values
+
+
+def _with_source_values(motion: Motion, values: np.ndarray, pos_cols, rot_cols) -> np.ndarray:
+    """``values`` (F, C) with the file's own numbers wherever a joint's pose is unchanged.
+
+    A joint's rotation channels of a frame take ``motion.source``'s triple when it encodes the
+    frame's rotation (quaternion dot within 1e-12 of 1), a position channel its value when
+    equal within 1e-9; the other (generated or changed) runs of frames are turned by whole
+    360-degree steps, in continuous style, to continue from the frame before them (or, at the
+    start, into the frame after them), so that no curve jumps where the file's did not.
+    """
+    sk = motion.skeleton
+    src = motion.source
+    known = np.all(np.isfinite(src), axis=1)
+    if not known.any():
+        return values
+    filled = np.where(known[:, None], src, 0.0)
+    src_rot, src_pos = _channels_to_pose(sk, filled)[:2]
+    out = values.copy()
+    jj, aa = np.nonzero(pos_cols >= 0)
+    for j, a in zip(jj, aa):
+        c = pos_cols[j, a]
+        same = known & (np.abs(src[:, c] - motion.positions[:, j, a]) <= 1e-9 * (1.0 + np.abs(src[:, c])))
+        out[same, c] = src[same, c]
+    continuous = sk.euler_style == "continuous"
+    for j, cols in enumerate(rot_cols):
+        if not cols:
+            continue
+        dot = np.abs(np.einsum("fc,fc->f", src_rot[:, j], motion.rotations[:, j]))
+        same = known & (dot >= 1.0 - 1e-12)
+        cols = np.array(cols)
+        out[np.ix_(same, cols)] = src[np.ix_(same, cols)]
+        if continuous and same.any() and not same.all():
+            _continue_runs(out, cols, same)
+    return out
+
+
+def _continue_runs(out: np.ndarray, cols: np.ndarray, fixed: np.ndarray) -> None:
+    """Turn each run of rows not ``fixed`` by 360-degree steps (per column) to meet its neighbour."""
+    f = len(fixed)
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], fixed.astype(np.int8), [1]])))
+    for start, end in zip(edges[::2], edges[1::2]):  # rows start..end-1 are not fixed
+        ref, at = (start - 1, start) if start > 0 else (end, end - 1)
+        if ref >= f:
+            continue
+        step = 360.0 * np.round((out[ref, cols] - out[at, cols]) / 360.0)
+        out[start:end, cols] += step
 
 
 def continuous_euler(euler: np.ndarray, order: str) -> np.ndarray:

@@ -22,12 +22,18 @@ class Motion:
     positions : ndarray, shape (F, J, 3), local translations in the clip's own length unit
         (the bone offset for joints without position channels)
     fps : float, frames per second
+    source : ndarray (F, C) or None; for a motion read from a BVH file, the file's own channel
+        values per frame (NaN rows for frames that did not come from a file). The BVH writer
+        writes them back for every joint whose pose is unchanged, so that a file read and
+        written keeps its own numbers (angles past +-180 degrees included); slicing and
+        :func:`concatenate` keep them with their frames
     """
 
     skeleton: Skeleton
     rotations: np.ndarray
     positions: np.ndarray
     fps: float
+    source: np.ndarray | None = None
 
     def __post_init__(self):
         j = self.skeleton.num_joints
@@ -37,6 +43,8 @@ class Motion:
             raise ValueError(f"positions must be (F, {j}, 3), got {self.positions.shape}")
         if not self.fps > 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
+        if self.source is not None and (self.source.ndim != 2 or len(self.source) != len(self.rotations)):
+            raise ValueError(f"source must be (F, C) with F = {len(self.rotations)}, got {self.source.shape}")
 
     @property
     def num_frames(self) -> int:
@@ -49,7 +57,8 @@ class Motion:
         """Frames by slice or index array; always returns a Motion (copies the arrays)."""
         if isinstance(index, (int, np.integer)):
             index = slice(index, index + 1 if index != -1 else None)
-        return Motion(self.skeleton, self.rotations[index].copy(), self.positions[index].copy(), self.fps)
+        source = None if self.source is None else self.source[index].copy()
+        return Motion(self.skeleton, self.rotations[index].copy(), self.positions[index].copy(), self.fps, source)
 
     def global_transforms(self) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations (F, J, 4) and positions (F, J, 3) of every joint."""
@@ -68,8 +77,14 @@ def concatenate(motions: list[Motion]) -> Motion:
             raise ValueError("cannot concatenate motions with different skeletons")
         if abs(m.fps - first.fps) > 1e-6 * first.fps:
             raise ValueError(f"cannot concatenate motions at {first.fps} and {m.fps} fps")
+    source = None
+    with_source = [m.source for m in motions if m.source is not None]
+    if with_source and all(s.shape[1] == with_source[0].shape[1] for s in with_source):
+        width = with_source[0].shape[1]
+        source = np.concatenate([m.source if m.source is not None else np.full((len(m), width), np.nan)
+                                 for m in motions])
     return Motion(first.skeleton, np.concatenate([m.rotations for m in motions]),
-                  np.concatenate([m.positions for m in motions]), first.fps)
+                  np.concatenate([m.positions for m in motions]), first.fps, source)
 
 
 def root_index(motion_or_skeleton) -> int:
