@@ -22,7 +22,7 @@ is within :data:`MAX_ARRAY_BYTES` (:data:`MAX_META_BYTES` for ``meta``) and matc
 member's size in the archive; the metadata's every field (type, range, finite, lengths
 against the skeleton); each array's shape against the metadata, from its header, before its
 data is read; then the values: finite floats within :data:`MAX_VALUE`, rotation features
-within :data:`MAX_ANGLE`, unit quaternions, indices within range, class weights not degenerate
+within :data:`MAX_ANGLE`, unit quaternions (the library's own are checked by ``from_parts``), indices within range, class weights not degenerate
 (two or more neurons that all coincide). Any failure raises
 :class:`MapFileError` naming the file and what is wrong.
 
@@ -407,8 +407,6 @@ def check_arrays(meta: dict, arrays: dict[str, np.ndarray]) -> None:
             _finite(a, name)
             if a.dtype.kind == "f" and a.size and np.abs(a).max() > MAX_VALUE:
                 raise _Bad(f"{name} has values beyond {MAX_VALUE:g}")
-    if "library_rots" in arrays and np.any(np.abs(np.linalg.norm(arrays["library_rots"], axis=-1) - 1.0) > 1e-3):
-        raise _Bad("library_rots holds rotations that are not unit quaternions")
     # Feature values: rotation parts are rotation vectors or Euler angles (radians), the last
     # dimension a height in leg lengths; beyond these bounds a decoded posture is not a rotation.
     bound = np.full(len(dim_class), MAX_ANGLE)
