@@ -208,3 +208,15 @@ def test_changed_joints_are_recomputed_not_copied(tmp_path):
     changed = Motion(m.skeleton, rots, m.positions, m.fps, m.source)
     back = bvh.loads(bvh.dumps(changed))
     assert np.allclose(np.abs(np.einsum("fjc,fjc->fj", back.rotations, rots)), 1.0, atol=1e-7)
+
+
+def test_gltf_writer_refuses_non_finite_motion_too(tmp_path):
+    from posturemap import gltf
+
+    m = sample.clips()["walk"]
+    rots = m.rotations.copy()
+    rots[3, 2, 0] = np.inf
+    bad = Motion(m.skeleton, rots, m.positions, m.fps)
+    with pytest.raises(BVHError, match="refusing to write NaN"):
+        gltf.write(tmp_path / "out.glb", bad)
+    assert list(tmp_path.iterdir()) == []

@@ -256,7 +256,13 @@ def gltf_text(doc: dict, data: bytes) -> str:
 
 
 def dumps(motion: Motion, binary: bool = True, **options) -> bytes:
-    """The file's bytes: ``.glb`` (``binary``) or ``.gltf``; ``options`` as for :func:`build`."""
+    """The file's bytes: ``.glb`` (``binary``) or ``.gltf``; ``options`` as for :func:`build`.
+
+    A motion with NaN or infinite values raises :class:`~posturemap.bvh.BVHError` (nothing to write).
+    """
+    from .bvh import check_finite
+
+    check_finite(motion)
     doc, data = build(motion, **options)
     return glb_bytes(doc, data) if binary else gltf_text(doc, data).encode("utf-8")
 
@@ -277,6 +283,9 @@ def write(path, motion: Motion, **options) -> None:
     path = os.fspath(path)
     if not is_gltf_path(path):
         raise UserError(path, "a glTF file name must end in .glb or .gltf")
+    from .bvh import check_finite
+
+    check_finite(motion, path)
     data = dumps(motion, binary=path.lower().endswith(".glb"), **options)
     try:
         write_bytes_atomic(path, data)

@@ -485,16 +485,16 @@ class Studio:
         """
         out = self.generate(p)
         stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120]
-        if fmt == "bvh":
-            try:
+        try:
+            if fmt == "bvh":
                 return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
-            except UserError as e:
-                raise ApiError(422, e.what) from None
-        from .. import gltf
+            from .. import gltf
 
-        parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
-        data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
-                          name=re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}")[:120])
+            parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
+            data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
+                              name=re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}")[:120])
+        except UserError as e:  # the writers refuse non-finite values
+            raise ApiError(422, e.what) from None
         return data, f"{stem}.{fmt}", EXPORT_FORMATS[fmt]
 
 
