@@ -26,7 +26,7 @@ within :data:`MAX_ANGLE`, unit quaternions (the library's own are checked by ``f
 (two or more neurons that all coincide). Any failure raises
 :class:`MapFileError` naming the file and what is wrong.
 
-This is the only version so far (:data:`VERSION` 1); an older or newer version is refused
+Members the format does not name are not read. This is the only version so far (:data:`VERSION` 1); an older or newer version is refused
 with a message saying which one this posturemap reads.
 """
 
