@@ -106,7 +106,7 @@ def markdown(results: dict, seconds: float) -> str:
              f"`python bench/load.py --seconds {seconds:g}`: `posturemap serve` on the procedural sample clips",
              "(3 clips, 21 joints) with a saved map; each client keeps one connection and posts random",
              "transitions (`upm`, `spline`, `auto`; lengths 5-39) back to back for "
-             f"{seconds:g} s per row. Machine: {os.cpu_count()} cores, {platform.python_version()}, "
+             f"{seconds:g} s per row. Machine: {os.cpu_count()} cores, Python {platform.python_version()}, "
              "**shared with other engineers' test runs** while measured, so absolute figures are noisy; "
              "both settings ran in the same run, one after the other.", "",
              f"`pool`: {POOL_SIZE} engines (the default); `one engine`: `POSTUREMAP_ENGINES=1`, every transition "

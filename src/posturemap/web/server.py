@@ -46,7 +46,7 @@ cross-site`` or ``same-site`` (a page elsewhere cannot make the studio work or r
 exports). Requests without these headers (curl, scripts) are served. A foreign ``Host``
 header is refused with 400 when bound to this machine (DNS rebinding).
 
-The server (:func:`serve`) closes a connection whose request headers are not complete within
+The server (:func:`server_for`) closes a connection whose request headers are not complete within
 :data:`HEADER_TIMEOUT` seconds and an idle keep-alive connection after
 :data:`KEEP_ALIVE_TIMEOUT`; a client that disconnects mid-request is dropped quietly.
 Requests run concurrently: each transition takes an engine from a small pool
@@ -947,7 +947,9 @@ __all__ = [
     "Studio",
     "bone_names",
     "create_app",
+    "cross_site",
     "load_clips",
     "run_cli",
     "running",
+    "server_for",
 ]
