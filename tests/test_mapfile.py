@@ -275,3 +275,19 @@ def test_map_error_class_is_still_exported_from_model():
     from posturemap import model
 
     assert model.MapFileError is MapFileError
+
+
+def test_zip_bomb_member_is_refused_before_inflating(map_bytes, tmp_path, capsys):
+    # 64 MiB of zeros deflate to about 64 KiB: consistent header, refused by its ratio.
+    n = (64 << 20) // 8
+    data = _npy_with_header((n,), "<i8", body=b"\0" * (n * 8))
+    crafted = _replace_member(map_bytes, "c1_hits.npy", data, zipfile.ZIP_DEFLATED)
+    assert len(crafted) < 1 << 20
+    inspect_refuses(capsys, tmp_path, crafted, "c1_hits", "zip bomb")
+
+
+def test_more_neurons_than_the_cap_refused_from_the_header(map_bytes, tmp_path, capsys, monkeypatch):
+    from posturemap import mapfile
+
+    monkeypatch.setattr(mapfile, "MAX_NEURONS", 50)  # the sample map's classes have more
+    inspect_refuses(capsys, tmp_path, map_bytes, "weights", "does not fit the metadata")

@@ -16,18 +16,21 @@ A map file is a ZIP archive of ``.npy`` members (``numpy.savez``), read here wit
 
 :func:`read` checks, in this order and before the next step reads anything: the path is a
 regular file of at most :data:`MAX_FILE_BYTES`; the archive has at most :data:`MAX_MEMBERS`
-members; each member's ``.npy`` header (read through :mod:`numpy.lib.format`) declares a
-plain numeric dtype (bool, integer or float; no objects, no structures) and a shape whose size
-is within :data:`MAX_ARRAY_BYTES` (:data:`MAX_META_BYTES` for ``meta``) and matches the
-member's size in the archive; the metadata's every field (type, range, finite, lengths
-against the skeleton); each array's shape against the metadata, from its header, before its
-data is read; then the values: finite floats within :data:`MAX_VALUE`, rotation features
-within :data:`MAX_ANGLE`, unit quaternions (the library's own are checked by ``from_parts``), indices within range, class weights not degenerate
-(two or more neurons that all coincide). Any failure raises
-:class:`MapFileError` naming the file and what is wrong.
+members, none inflating more than :data:`MAX_RATIO` times its stored size; each member's
+``.npy`` header (read through :mod:`numpy.lib.format`) declares a plain numeric dtype (bool,
+integer or float; no objects, no structures) and a shape whose size is within
+:data:`MAX_ARRAY_BYTES` (:data:`MAX_META_BYTES` for ``meta``) and matches the member's size
+in the archive; the metadata's every field (type, range, finite, lengths against the
+skeleton); each array's shape against the metadata (class maps: at most :data:`MAX_NEURONS`
+neurons), from its header, before its data is read; then the values: finite floats within
+:data:`MAX_VALUE`, rotation features within :data:`MAX_ANGLE`, unit quaternions (the
+library's are checked by ``from_parts``), indices within range, class weights not degenerate
+(two or more neurons that all coincide). Any failure raises :class:`MapFileError` naming the
+file and what is wrong.
 
-Members the format does not name are not read. This is the only version so far (:data:`VERSION` 1); an older or newer version is refused
-with a message saying which one this posturemap reads.
+Members the format does not name are not read. This is the only version so far
+(:data:`VERSION` 1); an older or newer version is refused with a message saying which one
+this posturemap reads.
 """
 
 from __future__ import annotations
@@ -53,6 +56,9 @@ MAX_META_BYTES = 16 << 20      # the JSON metadata
 MAX_ARRAY_BYTES = 2 << 30      # one array, as declared by its header
 MAX_TOTAL_BYTES = 4 << 30      # all arrays together
 MAX_JOINTS = 10_000
+MAX_NEURONS = 1_000_000        # per class map (a Bandai map has about 3,000)
+MAX_EDGES = 50 * MAX_NEURONS
+MAX_RATIO = 200                # uncompressed / compressed size of a member over 16 MiB (a zip bomb)
 MAX_INT = 2 ** 53              # integers in the metadata (counts, seeds)
 MAX_VALUE = 1e12               # any float in an array (positions in any unit, velocities)
 MAX_ANGLE = 4 * math.pi        # rotation features (rotation vectors, Euler angles), radians
@@ -142,6 +148,8 @@ def _read_npy(z: zipfile.ZipFile, info: zipfile.ZipInfo, name: str, max_bytes: i
     """One ``.npy`` member, its header checked (dtype kind, shape, size) before its data is read."""
     if info.flag_bits & 0x1:
         raise _Bad(f"{name} is encrypted")
+    if info.file_size > 16 << 20 and info.file_size > MAX_RATIO * max(info.compress_size, 1):
+        raise _Bad(f"{name} inflates {info.file_size} bytes from {info.compress_size} (a zip bomb?)")
     with z.open(info) as f:
         try:
             version = np.lib.format.read_magic(f)
@@ -279,13 +287,14 @@ def _shown(v) -> str:
 class _Rule:
     """What one array must be: dtype kinds, a test of its declared shape, optional or not."""
 
-    def __init__(self, kinds: str, shape, optional: bool = False):
+    def __init__(self, kinds: str, shape, optional: bool = False, limit: int | None = None):
         self.kinds, self.optional = kinds, optional
-        self.shape = shape
+        self.shape, self.limit = shape, limit  # limit: of the first axis when it is free
 
     def shape_ok(self, shape: tuple) -> bool:
         want = self.shape
-        return len(shape) == len(want) and all(w is None or s == w for s, w in zip(shape, want))
+        return (len(shape) == len(want) and all(w is None or s == w for s, w in zip(shape, want))
+                and (self.limit is None or shape[0] <= self.limit))
 
 
 def check_skeleton(sk: dict) -> int:
@@ -368,10 +377,10 @@ def check_meta(meta: dict) -> dict[str, _Rule]:
     rules = {"space_reference": _Rule("f", (k, 4)), "space_fill": _Rule("f", (full,)),
              "space_active": _Rule("b", (full,)), "space_rest": _Rule("f", (4,), optional=True)}
     for c in range(len(CLASSES)):
-        rules[f"c{c}_weights"] = _Rule("f", (None, None))  # d checked with the active mask
-        rules[f"c{c}_edges"] = _Rule("iu", (None, 2))
-        rules[f"c{c}_hits"] = _Rule("iu", (None,))
-        rules[f"c{c}_witness"] = _Rule("iu", (None,))
+        rules[f"c{c}_weights"] = _Rule("f", (None, None), limit=MAX_NEURONS)  # d checked with the mask
+        rules[f"c{c}_edges"] = _Rule("iu", (None, 2), limit=MAX_EDGES)
+        rules[f"c{c}_hits"] = _Rule("iu", (None,), limit=MAX_NEURONS)
+        rules[f"c{c}_witness"] = _Rule("iu", (None,), limit=MAX_NEURONS)
         rules[f"c{c}_period"] = _Rule("f", (None,))
     meta["_dim_class"] = dim_class  # removed by check_arrays
     return rules
