@@ -230,6 +230,9 @@ class Studio:
         pool = queue.SimpleQueue()
         pool.put(engine)
         shared = {id(engine.model): engine.model, id(engine.tracks): engine.tracks}
+        library = getattr(engine.model, "library_", None)
+        if library is not None:  # the motion library too (a retriever built before the copy keeps it)
+            shared[id(library)] = library
         for _ in range(POOL_SIZE - 1):
             pool.put(copy.deepcopy(engine, dict(shared)))
         return pool
