@@ -1,58 +1,69 @@
-"""``posturemap bench``: in-betweening accuracy, cross-clip realism and speed of every method.
+"""``posturemap bench``: in-betweening accuracy, realism and speed of every method, on hold-outs.
 
 Protocol (DESIGN.md, "Evaluation protocol"; LaFAN1 benchmark of Harvey et al. 2020)
 ---------------------------------------------------------------------------------------
-Data: the Bandai-Namco dataset-1 clips ``bandai1/dataset-1_{content}_{style}_{id}.bvh``.
+Three hold-outs (:data:`HOLDOUTS`), each evaluated separately; for each, the posture map (and
+whatever a method keeps from the training clips, e.g. a motion library), the classic SOM, the
+L2P statistics, the feet's planted heights and the pose-validity index are built from that
+hold-out's training side only:
 
-Split: the clips of the styles in :data:`TEST_STYLES` (angry, old, proud: 33 of the 174 clips,
-every content in those styles) are the held-out test clips; the other 141 clips are the
-training clips. The posture map, the classic SOM, the L2P statistics, the floor heights of
-the feet and the pose-validity index are built from training clips only, so no test clip (not
-even another take of the same style) is ever seen in training.
+- ``style``: Bandai-Namco dataset-1 (``bandai1/dataset-1_{content}_{style}_{id}.bvh``); test =
+  every clip of the styles :data:`TEST_STYLES` (angry, old, proud; 33 clips, every content),
+  training = the other 141 clips. Unseen performers' styles of known motion types.
+- ``content``: test = every clip of the contents :data:`TEST_CONTENTS` (dash, walk-back,
+  byebye: fast locomotion, walking backwards, a waving gesture; 45 clips, every style),
+  training = the other contents (129 clips). Whole motion types absent from the library.
+- ``cmu``: CMU subject 1, trial 1 (``cmu/01_01.bvh``, 120 fps, its own skeleton and unit):
+  training = the first half of its frames, test = the second half; lengths
+  :data:`CMU_LENGTHS`, the same frame counts as at 30 fps and the same durations (x 4).
 
-``--quick`` (:meth:`Settings.quick_run`, under a minute on 2 cores): every third training clip
-(sorted by name), 32 seeded random test windows, 20 cross-clip pairs, one MiniSom epoch, 200
-latency calls, no ``bench/`` scripts; every method and diagnostic still runs. The full run
-(seed 0) took 466 s on 2 busy cores, 294 s of it in ``bench/train_speed.py``.
+``--quick`` (:meth:`Settings.quick_run`, about 20 s on 2 cores): every fourth training clip
+(sorted by name), 12 seeded random test windows per hold-out, 10 cross-clip pairs, one MiniSom
+epoch, 100 latency calls, no diagnostics, no sweep and no ``bench/`` scripts; every method,
+metric and hold-out still runs.
 
-In-betweening: from each test clip, windows of 65 frames start every 40 frames (LaFAN1:
-``while start + 65 < frames``); for a transition length L in 5, 15, 30, 45 the window's first
-10 + L + 10 frames are used (as LaFAN1 does): 10 past-context frames, L frames to rebuild, 10
-future-context frames. Every method sees the context only: the engine gets the whole clip as
-both A and B with ``a_end`` = the last past-context frame, ``b_start`` = the first
-future-context frame and ``align=False`` (the truth's root trajectory is the reference).
-Methods (:data:`METHODS`):
+In-betweening: from each test clip, windows of 10 + max(L) + 10 frames start every 40 frames
+(LaFAN1: ``while start + window < frames``); for a transition length L the window's first 10 +
+L + 10 frames are used (as LaFAN1 does): 10 past-context frames, L frames to rebuild, 10
+future-context frames. Every method sees the context only: the engine gets the 10 past frames
+as clip A and the 10 future frames as clip B (``a_end`` = A's last frame, ``b_start`` = 0,
+``align=False``: the truth's root trajectory is the reference), so no method can read a frame
+of the gap. Methods (:data:`METHODS`):
 
 - ``zero-velocity``: holds the last past-context frame (local rotations and root position);
-- ``slerp``, ``inertialize``, ``spline``, ``upm``, ``upm-path`` and any other method of
-  :data:`posturemap.transition.METHODS`: :class:`TransitionEngine`;
+- every method of :data:`posturemap.transition.METHODS` (new ones join automatically), through
+  :class:`TransitionEngine` on a map fitted on the hold-out's training clips; ``+feet``
+  (:data:`FEET`) variants for ``upm-valid`` and the default method;
 - ``som``: ``upm`` with the key taken from a classic fixed-grid SOM (MiniSom) per bone class,
   with about the neuron count of the UPM class map (:func:`som_grid`), trained on the same
   features; the key is the SOM neuron nearest the alpha-blend, then the same B-spline.
 
-Metrics (:mod:`posturemap.metrics`) on the rebuilt frames: L2Q, L2P (LaFAN1), NPSS, MPJPE
-(cm), root position error (cm) and the root-relative joint position error (cm), foot skate
-(cm/s, over the L + 1 frame steps from the last past-context frame to the first
-future-context frame; contacts from the motion itself, plus the slide of the feet where the
-truth's feet are planted), pose validity (distance to the nearest training posture in the
-map's feature space; compare with the truth row) and jerk (cm/s^3, every third difference
-that touches a rebuilt frame).
+Metrics (:mod:`posturemap.metrics`) on the rebuilt frames, per method and length, overall and
+per motion type (content): L2Q, L2P, NPSS (LaFAN1), MPJPE, root position error and
+root-relative joint position error (cm); foot skate, the standard height-weighted measure
+(:func:`posturemap.metrics.weighted_skate`, cm/s, H = 2.5 cm per 80 cm of leg, ground = the
+lowest foot joint over the window, over the L + 1 frame steps from the last past-context
+frame to the first future-context frame; no contact detection), with the older contact-based
+measure as a secondary column (``contact_skate``); naturalness (:func:`naturalness_fn`: each
+rebuilt window's distance to its nearest real window of the same length among the test clips,
+which no library has seen, leaving out windows that overlap its own frames; z-scored pose and
+velocity features in the character's frame); pose validity (distance to the nearest training
+posture in the map's feature space) and jerk (cm/s^3). Beside each realism figure, the truth's.
+Every method against slerp, window by window, with a bootstrap interval.
 
-Cross-clip transitions: seeded random pairs of two different test clips, random ``a_end`` and
-``b_start``, ``length`` 20 (the paper's), ``align=True``. No ground truth: foot skate,
-validity and jerk, next to the same figures on the real frames around the seams.
+Cross-clip transitions (hold-outs with two or more test clips): seeded random pairs of two
+different test clips, random ``a_end`` and ``b_start``, ``length`` 20 (the paper's),
+``align=True``. No ground truth: foot skate, validity and jerk, next to the same figures on the
+real frames around the seams.
 
-Diagnostics for the keyed methods: distance of the key posture to the true posture at
-``key_at`` (next to the alpha-blend's, A's and B's and the nearest neuron's), overall and per
-bone class; stand-ins (:data:`VARIANTS`) through the same spline: the plain alpha-blend as
-key (not snapped to a neuron), the true posture as key (an oracle), the key of a map learned
-from the window's own clip without the gap, the keyless spline and the blend key with zero
-angular seam velocity, and ``upm`` with a LERP root; a sweep of ``alpha`` and ``key_at``; and
-every method's per-window difference from slerp with a bootstrap interval.
+Diagnostics for the keyed methods (style hold-out, full run): distance of the key posture to
+the true posture at ``key_at`` (next to the alpha-blend's, A's and B's and the nearest
+neuron's), overall and per bone class; stand-ins (:data:`VARIANTS`) through the same spline;
+a sweep of ``alpha`` and ``key_at``.
 
-Speed: per-method latency of :meth:`TransitionEngine.generate` (median, p99), UPM training
-against MiniSom at equal neuron count (samples/s), and the scripts in the repository's
-``bench/`` folder when present (BVH loading against other readers, ...).
+Speed (on the style hold-out's map): per-method latency of :meth:`TransitionEngine.generate`
+(median, p99), UPM training against MiniSom at equal neuron count (samples/s), and the scripts
+in the repository's ``bench/`` folder when present (BVH loading against other readers, ...).
 """
 
 from __future__ import annotations
@@ -73,61 +84,77 @@ import numpy as np
 from . import metrics, quat, report
 from .bvh import write_bytes_atomic
 from .features import CLASSES
-from .motion import Motion
+from .feet import leg_chains, leg_length
+from .motion import Motion, length_unit
 from .skeleton import fk
 from .transition import DEFAULT_METHOD, TransitionEngine, aligned
 from .transition import METHODS as ENGINE_METHODS
 
+HOLDOUTS = ("style", "content", "cmu")
 TEST_STYLES = ("angry", "old", "proud")
+TEST_CONTENTS = ("dash", "walk-back", "byebye")
 LENGTHS = (5, 15, 30, 45)
+CMU_FILE = Path("cmu") / "01_01.bvh"
+CMU_LENGTHS = (5, 15, 20, 30, 45, 60, 120, 180)  # 5-45 frames, and 20-180: the 30 fps durations
 N_PAST = 10
 N_FUTURE = 10
 STRIDE = 40
-WINDOW = N_PAST + max(LENGTHS) + N_FUTURE
 STATS_WINDOW, STATS_STRIDE = 50, 20  # LaFAN1 get_train_stats
 CROSS_LENGTH = 20
 _BASELINES = ("slerp", "inertialize", "spline")
-# Every method of the engine (new ones join automatically), plus the two built here.
 FEET = "+feet"  # suffix: the method with foot locking (posturemap.feet)
 DEFAULT_SPEC = DEFAULT_METHOD + FEET  # what `posturemap transition` does by default
+# Every method of the engine (new ones join automatically), foot-locked variants, and the
+# two built here.
+_FOOT_LOCKED = tuple(m + FEET for m in dict.fromkeys(("upm-valid", DEFAULT_METHOD)) if m in ENGINE_METHODS)
 METHODS = (("zero-velocity",) + tuple(m for m in _BASELINES if m in ENGINE_METHODS)
-           + tuple(m for m in ENGINE_METHODS if m not in _BASELINES) + (DEFAULT_SPEC, "som"))
+           + tuple(m for m in ENGINE_METHODS if m not in _BASELINES) + _FOOT_LOCKED + ("som",))
 
 
 def method_spec(m: str) -> tuple[str, bool]:
     """Engine method and foot locking of a method name of this benchmark."""
     return (m[: -len(FEET)], True) if m.endswith(FEET) else (m, False)
+
+
 VARIANTS = ("blend-key", "oracle-key", "self-map-key", "spline-v0", "blend-key-v0", "upm-lerp-root")
 SWEEP_LENGTHS = (15, 30, 45)
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
 FOOT_PATTERN = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)
 FLOOR_PERCENTILE = 5.0
-QUALITY_KEYS = ("inbetween", "cross_clip", "diagnostics")
+NATURAL_FRAMES = 10  # naturalness compares at most this many evenly spaced frames of a window
+NATURAL_STRIDE_S = 0.1  # reference windows start every 0.1 s
+UNIT_CM = {"m": 100.0, "cm": 1.0, "mm": 0.1, "inch": 2.54}
+ASF_UNIT_CM = 2.54 / 0.45  # CMU's BVH conversions keep the ASF unit, 1/0.45 inch
+QUALITY_KEYS = ("holdouts", "diagnostics")
 
 _NAME = re.compile(r"^dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_(?P<id>\d+)$")
 
 
 @dataclass(frozen=True)
 class Settings:
-    """How much of the benchmark to run (see :meth:`full` and :meth:`quick`).
+    """How much of the benchmark to run (see :meth:`full` and :meth:`quick_run`).
 
-    train_stride : use every n-th training clip (sorted by name)
-    max_windows : at most this many test windows (a seeded random subset), None for all
+    holdouts : which hold-outs of :data:`HOLDOUTS` to run
+    train_stride : use every n-th training clip (sorted by name; Bandai hold-outs)
+    max_windows : at most this many test windows per hold-out (a seeded random subset), None for all
     pairs : number of random cross-clip pairs
     som_epochs : passes of MiniSom over the training features
     latency_calls : timed generate calls per method
     bench_scripts : run the scripts of ``bench/`` (slow)
-    sweep : also score ``upm`` over a grid of ``alpha`` and ``key_at``
+    diagnostics : key distances and stand-in keys of the keyed methods (style hold-out)
+    sweep : also score ``upm`` over a grid of ``alpha`` and ``key_at`` (with diagnostics)
     plots : write the PNG plots
     """
 
     quick: bool = False
+    holdouts: tuple = HOLDOUTS
     train_stride: int = 1
     max_windows: int | None = None
     pairs: int = 100
     som_epochs: int = 4
     latency_calls: int = 2000
     bench_scripts: bool = True
+    diagnostics: bool = True
     sweep: bool = True
     plots: bool = True
 
@@ -137,8 +164,8 @@ class Settings:
 
     @classmethod
     def quick_run(cls) -> Settings:
-        return cls(quick=True, train_stride=3, max_windows=32, pairs=20, som_epochs=1,
-                   latency_calls=200, bench_scripts=False)
+        return cls(quick=True, train_stride=4, max_windows=8, pairs=10, som_epochs=1, latency_calls=100,
+                   bench_scripts=False, diagnostics=False, sweep=False)
 
 
 # -- data ---------------------------------------------------------------------------------
@@ -148,17 +175,85 @@ def parse_name(path: str | Path) -> dict | None:
     return m.groupdict() if m else None
 
 
-def split_files(files: list[Path], test_styles=TEST_STYLES) -> tuple[list[Path], list[Path]]:
-    """(train, test): test = files whose style is in ``test_styles``; others (and any file
-    whose name does not follow the Bandai pattern) are training files. Both sorted."""
+def split_files(files: list[Path], test_styles=TEST_STYLES, test_contents=()) -> tuple[list[Path], list[Path]]:
+    """(train, test): test = files whose style is in ``test_styles`` or whose content is in
+    ``test_contents``; others (and any file whose name does not follow the Bandai pattern)
+    are training files. Both sorted."""
     train, test = [], []
     for f in sorted(files):
         info = parse_name(f)
-        (test if info and info["style"] in test_styles else train).append(f)
+        held = info is not None and (info["style"] in test_styles or info["content"] in test_contents)
+        (test if held else train).append(f)
     return train, test
 
 
-def window_starts(num_frames: int, window: int = WINDOW, stride: int = STRIDE) -> list[int]:
+@dataclass
+class Split:
+    """One hold-out: training and test motions and how to measure them.
+
+    train, test : lists of Motion (one skeleton); train_names, test_names : their names
+    contents : motion type of each test clip (per-content tables)
+    lengths : transition lengths (frames); rule : the split in words
+    cm : centimetres per unit of the clips; unit : how that unit was found
+    train_clips_all : training clips before ``Settings.train_stride``
+    """
+
+    name: str
+    rule: str
+    train: list
+    train_names: list
+    test: list
+    test_names: list
+    contents: list
+    lengths: tuple
+    cm: float
+    unit: str
+    train_clips_all: int
+
+
+def unit_cm(motion: Motion) -> tuple[float, str]:
+    """Centimetres per unit of a clip, and how it was found (:func:`posturemap.motion.length_unit`;
+    a clip of unknown unit is taken to be in CMU's ASF unit, 1/0.45 inch)."""
+    u = length_unit(motion)
+    if u in UNIT_CM:
+        return UNIT_CM[u], u
+    return ASF_UNIT_CM, "ASF unit (1/0.45 inch, assumed for a body of unknown unit, as CMU's)"
+
+
+def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
+    """Read the clips of one hold-out of :data:`HOLDOUTS` (see the module doc)."""
+    from . import bvh
+
+    data_dir = Path(data_dir)
+    if name == "cmu":
+        path = data_dir / CMU_FILE
+        m = bvh.read(path)
+        half = len(m) // 2
+        cm, unit = unit_cm(m)
+        return Split(name, f"{CMU_FILE.name}: training = frames 0-{half - 1}, test = frames {half}-{len(m) - 1}",
+                     [m[:half]], [f"{CMU_FILE.name}[0:{half}]"], [m[half:]], [f"{CMU_FILE.name}[{half}:{len(m)}]"],
+                     [CMU_FILE.stem], CMU_LENGTHS, cm, unit, 1)
+    if name not in ("style", "content"):
+        raise ValueError(f"unknown hold-out {name!r}; valid: {', '.join(HOLDOUTS)}")
+    files = sorted((data_dir / "bandai1").glob("*.bvh"))
+    if not files:
+        raise FileNotFoundError(str(data_dir / "bandai1"))
+    if name == "style":
+        train_f, test_f = split_files(files, TEST_STYLES)
+        rule = f"test = every clip of the styles {', '.join(TEST_STYLES)}; training = the other styles"
+    else:
+        train_f, test_f = split_files(files, (), TEST_CONTENTS)
+        rule = (f"test = every clip of the contents (motion types) {', '.join(TEST_CONTENTS)}; "
+                "training = the other contents, every style")
+    used = train_f[:: settings.train_stride]
+    train, test = [bvh.read(f) for f in used], [bvh.read(f) for f in test_f]
+    cm, unit = unit_cm(test[0])
+    contents = [(parse_name(f) or {"content": "other"})["content"] for f in test_f]
+    return Split(name, rule, train, [f.name for f in used], test, [f.name for f in test_f], contents,
+                 LENGTHS, cm, unit, len(train_f))
+
+
+def window_starts(num_frames: int, window: int, stride: int = STRIDE) -> list[int]:
     """First frames of the windows of one clip (LaFAN1: ``while start + window < frames``)."""
     return list(range(0, max(num_frames - window, 0), stride))
 
@@ -284,7 +379,13 @@ def set_key(key_model: KeyModel, x: np.ndarray):
 # -- scoring ------------------------------------------------------------------------------
 @dataclass
 class Context:
-    """What scoring needs besides the motions (skeleton, frames, training statistics)."""
+    """What scoring needs besides the motions (skeleton, frames, training statistics).
+
+    feet : indices of the foot joints; floor : (K,) their planted heights (a low percentile
+    of their training heights, clip unit); std : (J, 3) L2P statistics; index : KD-tree of
+    training postures; skate_height : H of the skate measure (clip unit); cm : centimetres
+    per clip unit (every figure in cm is the clip's figure times ``cm``).
+    """
 
     skeleton: object
     space: object
@@ -295,6 +396,8 @@ class Context:
     floor: np.ndarray
     std: np.ndarray
     index: object
+    skate_height: float = 2.5
+    cm: float = 1.0
 
 
 def global_windows(rots: np.ndarray, pos: np.ndarray, parents) -> tuple[np.ndarray, np.ndarray]:
@@ -310,22 +413,82 @@ def window_features(ctx: Context, rots: np.ndarray, pos: np.ndarray) -> np.ndarr
     return ctx.space.encode(m)[:, ctx.space.active]
 
 
-def feet_scores(ctx: Context, gpos: np.ndarray, truth_contacts: np.ndarray | None = None) -> dict:
-    """Foot skate of windows of global positions (N, T, J, 3) over all their T-1 steps."""
+def skate_scores(ctx: Context, gpos: np.ndarray, steps: slice) -> tuple[np.ndarray, float]:
+    """Foot skate of windows of global positions (N, T, J, 3), in cm/s.
+
+    Returns ``(per_window, contact)``: the height-weighted skate (:func:`metrics.weighted_skate`;
+    ground from all T frames, averaged over ``steps``) per window (N,), and the older
+    contact-based skate over the frames that ``steps`` spans (one mean over all contact steps).
+    """
     feet = gpos[:, :, ctx.feet]
-    contacts = metrics.foot_contacts(feet, ctx.fps, ctx.up, ctx.floor)
-    skate, n = metrics.foot_skate(feet, ctx.fps, ctx.up, contacts)
-    out = {"foot_skate": skate, "contact_fraction": n / contacts.size}
-    if truth_contacts is not None:
-        out["foot_slide_truth_contacts"] = metrics.foot_skate(feet, ctx.fps, ctx.up, truth_contacts)[0]
-    return out
+    per = metrics.weighted_skate(feet, ctx.fps, ctx.up, ctx.skate_height, ctx.floor, steps) * ctx.cm
+    span = feet[:, steps.start: steps.stop + 1]
+    contacts = metrics.foot_contacts(span, ctx.fps, ctx.up, ctx.floor, metrics.CONTACT_HEIGHT / ctx.cm,
+                                     metrics.CONTACT_SPEED / ctx.cm)
+    return per, metrics.foot_skate(span, ctx.fps, ctx.up, contacts)[0] * ctx.cm
+
+
+def natural_frames(length: int) -> np.ndarray:
+    """Indices of the (at most :data:`NATURAL_FRAMES`) evenly spaced frames naturalness compares."""
+    return np.unique(np.round(np.linspace(0, length - 1, min(length, NATURAL_FRAMES))).astype(np.int64))
+
+
+def natural_reference(ctx: Context, clips: list[Motion]) -> dict:
+    """Per-frame pose and velocity features of the reference clips, z-scored.
+
+    Returns ``{"frames": [(F_c - 1, D) per clip, row f - 1 = frame f], "mean", "std"}``;
+    mean and std (D,) over all reference frames (a constant feature is divided by 1).
+    """
+    feats = []
+    for m in clips:
+        g_r, g_p = fk(ctx.skeleton.parents, m.rotations, m.positions)
+        feats.append(metrics.motion_features(g_p, g_r, ctx.root, ctx.up, ctx.fps))
+    allf = np.concatenate(feats)
+    mean, std = allf.mean(0), allf.std(0)
+    std = np.where(std < 1e-9 * max(float(std.max()), 1e-300), 1.0, std)
+    return {"frames": [(f - mean) / std for f in feats], "mean": mean, "std": std}
+
+
+def naturalness_fn(ctx: Context, ref: dict, windows, length: int):
+    """A function: full windows (N, 20 + L, J, 4/3) of local frames -> (N,) naturalness.
+
+    Naturalness of a window = the distance (root mean square over z-scored features) from its
+    L rebuilt frames (pose and velocity, :func:`metrics.motion_features`, at
+    :func:`natural_frames`) to the nearest real window of L frames of the reference clips,
+    which start every :data:`NATURAL_STRIDE_S` seconds; reference windows that overlap the
+    window's own frames in its own clip are left out, so the truth is never its own neighbour.
+    """
+    idx = natural_frames(length)
+    stride = max(1, round(NATURAL_STRIDE_S * ctx.fps))
+    descs, owner = [], []
+    for c, f in enumerate(ref["frames"]):
+        starts = np.arange(1, len(f) - length + 2, stride)  # first frame f0 >= 1 (needs f0 - 1)
+        if len(starts):
+            descs.append(f[(starts - 1)[:, None] + idx[None]].reshape(len(starts), -1))
+            owner.append(np.stack([np.full(len(starts), c), starts], 1))
+    refs, owner = np.concatenate(descs), np.concatenate(owner)
+    refs_sq = (refs * refs).sum(1)
+    span = N_PAST + length + N_FUTURE
+    wc = np.array([c for c, _ in windows])[:, None]
+    ws = np.array([s for _, s in windows])[:, None]
+    exclude = (owner[None, :, 0] == wc) & (owner[None, :, 1] < ws + span) & (owner[None, :, 1] + length > ws)
+
+    def score(rots: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        g_r, g_p = global_windows(rots[:, N_PAST - 1: N_PAST + length], pos[:, N_PAST - 1: N_PAST + length],
+                                  ctx.skeleton.parents)
+        f = (metrics.motion_features(g_p, g_r, ctx.root, ctx.up, ctx.fps) - ref["mean"]) / ref["std"]
+        return metrics.nearest_window_distance(f[:, idx].reshape(len(f), -1), refs, exclude, refs_sq)
+
+    return score
 
 
 def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
-                    accuracy_only: bool = False) -> dict:
+                    accuracy_only: bool = False, natural=None) -> dict:
     """Every metric for windows (N, 20 + L, J, ...) of truth and rebuilt frames (N, L, J, ...).
 
     ``accuracy_only``: only L2Q and L2P (skips the pose-validity queries, the slow part).
+    ``natural``: a function from :func:`naturalness_fn` (adds ``naturalness``), or None.
+    Per-window values of L2Q, L2P, MPJPE, skate (and naturalness) go to ``per_window``.
     """
     sl = slice(N_PAST, N_PAST + length)
     full_r, full_p = truth_r.copy(), truth_p.copy()
@@ -344,46 +507,87 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
     root_err = np.linalg.norm(pg_p[:, sl, ctx.root] - tg_p[:, sl, ctx.root], axis=-1)
     rel_p = pg_p[:, sl] - pg_p[:, sl, ctx.root: ctx.root + 1]
     rel_t = tg_p[:, sl] - tg_p[:, sl, ctx.root: ctx.root + 1]
-    seam = slice(N_PAST - 1, N_PAST + length + 1)
-    t_contacts = metrics.foot_contacts(tg_p[:, seam][:, :, ctx.feet], ctx.fps, ctx.up, ctx.floor)
+    skate, contact = skate_scores(ctx, pg_p, slice(N_PAST - 1, N_PAST + length))
     valid = metrics.pose_validity(window_features(ctx, pred_r, pred_p), ctx.index)
+    per_window = {
+        "l2q": [metrics.l2q(p_rot[i: i + 1, sl], t_rot[i: i + 1, sl]) for i in range(n)],
+        "l2p": [metrics.l2p(p_pos[i: i + 1, sl], t_pos[i: i + 1, sl], ctx.std) for i in range(n)],
+        "mpjpe_cm": (np.linalg.norm(pg_p[:, sl] - tg_p[:, sl], axis=-1).mean(axis=(1, 2)) * ctx.cm).tolist(),
+        "skate": skate.tolist(),
+    }
     out = {
         "l2q": metrics.l2q(p_rot[:, sl], t_rot[:, sl]),
         "l2p": metrics.l2p(p_pos[:, sl], t_pos[:, sl], ctx.std),
         "npss": metrics.npss(p_q.reshape(n, length, -1), t_q.reshape(n, length, -1)),
-        "mpjpe_cm": metrics.mpjpe(pg_p[:, sl], tg_p[:, sl]),
-        "root_error_cm": float(root_err.mean()),
-        "pose_error_cm": metrics.mpjpe(rel_p, rel_t),
-        **feet_scores(ctx, pg_p[:, seam], t_contacts),
+        "mpjpe_cm": metrics.mpjpe(pg_p[:, sl], tg_p[:, sl]) * ctx.cm,
+        "root_error_cm": float(root_err.mean()) * ctx.cm,
+        "pose_error_cm": metrics.mpjpe(rel_p, rel_t) * ctx.cm,
+        "skate": float(skate.mean()),
+        "contact_skate": contact,
         "validity": float(valid.mean()),
         "validity_p95": float(np.percentile(valid, 95)),
-        "jerk": metrics.jerk(pg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps),
-        "per_window": {
-            "l2q": [metrics.l2q(p_rot[i: i + 1, sl], t_rot[i: i + 1, sl]) for i in range(n)],
-            "l2p": [metrics.l2p(p_pos[i: i + 1, sl], t_pos[i: i + 1, sl], ctx.std) for i in range(n)],
-        },
+        "jerk": metrics.jerk(pg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
+        "per_window": per_window,
     }
+    if natural is not None:
+        nat = natural(full_r, full_p)
+        out["naturalness"] = float(nat.mean())
+        per_window["naturalness"] = nat.tolist()
     return out
 
 
 def paired_difference(a: list[float], b: list[float], seed: int, resamples: int = 2000) -> dict:
-    """Mean of ``a - b`` over windows, its 95% bootstrap interval and the share of windows with a < b."""
+    """Mean of ``a - b`` over windows, its 95% bootstrap interval, the share of windows with
+    a < b, and the ratio of the means (``mean a / mean b``)."""
     d = np.asarray(a) - np.asarray(b)
     rng = np.random.default_rng(seed)
     means = d[rng.integers(0, len(d), (resamples, len(d)))].mean(axis=1)
     lo, hi = np.percentile(means, [2.5, 97.5])
-    return {"mean": float(d.mean()), "ci95": [float(lo), float(hi)], "share_better": float(np.mean(d < 0))}
+    mb = float(np.mean(b))
+    return {"mean": float(d.mean()), "ci95": [float(lo), float(hi)], "share_better": float(np.mean(d < 0)),
+            "ratio": float(np.mean(a)) / mb if mb else None}
 
 
-def score_truth(ctx: Context, truth_r, truth_p, length: int) -> dict:
+def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> dict:
     """The realism figures of the true frames themselves (reference row)."""
     sl = slice(N_PAST, N_PAST + length)
-    seam = slice(N_PAST - 1, N_PAST + length + 1)
     _, tg_p = global_windows(truth_r, truth_p, ctx.skeleton.parents)
+    skate, contact = skate_scores(ctx, tg_p, slice(N_PAST - 1, N_PAST + length))
     valid = metrics.pose_validity(window_features(ctx, truth_r[:, sl], truth_p[:, sl]), ctx.index)
-    return {**feet_scores(ctx, tg_p[:, seam]), "validity": float(valid.mean()),
-            "validity_p95": float(np.percentile(valid, 95)),
-            "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps)}
+    out = {"skate": float(skate.mean()), "contact_skate": contact, "validity": float(valid.mean()),
+           "validity_p95": float(np.percentile(valid, 95)),
+           "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
+           "per_window": {"skate": skate.tolist()}}
+    if natural is not None:
+        nat = natural(truth_r, truth_p)
+        out["naturalness"] = float(nat.mean())
+        out["per_window"]["naturalness"] = nat.tolist()
+    return out
+
+
+PER_CONTENT_KEYS = ("l2q", "l2p", "mpjpe_cm", "skate", "naturalness")
+
+
+def per_content(res: dict, contents: list[str]) -> dict:
+    """Means of the per-window figures (:data:`PER_CONTENT_KEYS`) over the windows of each
+    motion type: ``{content: {"windows": n, "methods": {m: {L: {k: v}}}, "truth": {L: {k: v}}}}``.
+
+    res : the in-betweening results (``methods`` and ``truth`` with ``per_window`` lists);
+    contents : the content of each window, in window order.
+    """
+    labels = np.array(contents)
+    out = {}
+
+    def means(per_window, mask):
+        return {k: float(np.mean(np.asarray(v)[mask])) for k, v in per_window.items() if k in PER_CONTENT_KEYS}
+
+    for c in sorted(set(contents)):
+        mask = labels == c
+        out[c] = {"windows": int(mask.sum()),
+                  "methods": {m: {n: means(v["per_window"], mask) for n, v in per.items()}
+                              for m, per in res["methods"].items()},
+                  "truth": {n: means(v["per_window"], mask) for n, v in res["truth"].items()}}
+    return out
 
 
 # -- the run -------------------------------------------------------------------------------
@@ -391,23 +595,15 @@ def _log(msg: str):
     print(msg, flush=True)
 
 
-def prepare(data_dir: Path, settings: Settings, seed: int, log=_log) -> dict:
-    """Read the clips, split them, train the maps; returns the shared state of the run."""
-    from . import bvh
+def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
+    """Train the maps on a hold-out's training side; returns the shared state of the run."""
     from .model import PostureMap
 
-    files = sorted((Path(data_dir) / "bandai1").glob("*.bvh"))
-    if not files:
-        raise FileNotFoundError(str(Path(data_dir) / "bandai1"))
-    train_files, test_files = split_files(files)
-    train_files = train_files[:: settings.train_stride]
+    train, test = split.train, split.test
+    log(f"{split.name} hold-out: {len(train)} training clips ({sum(map(len, train))} frames), "
+        f"{len(test)} test clips ({sum(map(len, test))} frames)")
     t0 = time.perf_counter()
-    train = [bvh.read(f) for f in train_files]
-    test = [bvh.read(f) for f in test_files]
-    log(f"data: {len(train_files)} training clips ({sum(map(len, train))} frames), "
-        f"{len(test_files)} test clips ({sum(map(len, test))} frames) in {time.perf_counter() - t0:.1f} s")
-    t0 = time.perf_counter()
-    model = PostureMap(seed=seed).fit(train, [f.name for f in train_files])
+    model = PostureMap(seed=seed).fit(train, list(split.train_names))
     upm_seconds = time.perf_counter() - t0
     space = model.space_
     log(f"upm: {sum(model.neuron_counts())} neurons {model.neuron_counts()} in {upm_seconds:.1f} s "
@@ -431,16 +627,18 @@ def prepare(data_dir: Path, settings: Settings, seed: int, log=_log) -> dict:
     _, std = metrics.position_stats(n_pos)
     heights = np.concatenate([m.global_positions()[:, feet, up] for m in train])
     floor = np.percentile(heights, FLOOR_PERCENTILE, axis=0)
+    skate_height = metrics.SKATE_HEIGHT_LEGS * leg_length(sk, leg_chains(sk))
     ctx = Context(sk, space, root, up, fps, feet, floor, std,
-                  metrics.build_posture_index(x_train[:, space.active]))
-    return {"train_files": train_files, "test_files": test_files, "train": train, "test": test,
-            "model": model, "som": som, "som_info": som_info, "upm_seconds": upm_seconds,
-            "ctx": ctx, "x_train": x_train, "stats_windows": len(wins_r)}
+                  metrics.build_posture_index(x_train[:, space.active]), skate_height, split.cm)
+    return {"split": split, "train_files": split.train_names, "test_files": split.test_names,
+            "train": train, "test": test, "model": model, "som": som, "som_info": som_info,
+            "upm_seconds": upm_seconds, "ctx": ctx, "x_train": x_train, "stats_windows": len(wins_r)}
 
 
 def make_windows(state: dict, settings: Settings, seed: int) -> list[tuple[int, int]]:
     """(test clip index, first frame) of every window used, in a fixed order."""
-    wins = [(c, s) for c, m in enumerate(state["test"]) for s in window_starts(len(m))]
+    window = N_PAST + max(state["split"].lengths) + N_FUTURE
+    wins = [(c, s) for c, m in enumerate(state["test"]) for s in window_starts(len(m), window)]
     if settings.max_windows is not None and len(wins) > settings.max_windows:
         rng = np.random.default_rng(seed)
         keep = np.sort(rng.choice(len(wins), settings.max_windows, replace=False))
@@ -449,7 +647,11 @@ def make_windows(state: dict, settings: Settings, seed: int) -> list[tuple[int, 
 
 
 def make_engines(state: dict) -> dict:
-    """One engine per key source, each holding every test clip (names = clip indices)."""
+    """One engine per key source, each holding every test clip (names = clip indices).
+
+    The whole clips serve the cross-clip transitions, the latency and the diagnostics (which
+    read the truth on purpose); in-betweening gives the methods the context frames only.
+    """
     model = state["model"]
     engines = {"upm": TransitionEngine(model), "som": TransitionEngine(state["som"]),
                "fixed": TransitionEngine(fixed_key_model(model))}
@@ -459,134 +661,173 @@ def make_engines(state: dict) -> dict:
     return engines
 
 
-def _generate(engines, method, clip, length, a_end, b_start, **kw):
+def _engine_call(engines, method: str) -> tuple[TransitionEngine, str, bool]:
+    """(engine, engine method, foot lock) of a benchmark method or stand-in key."""
     if method == "som":
-        r, p = engines["som"].generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False,
-                                       method="upm", **kw)
-    elif method in VARIANTS:
-        r, p = engines["fixed"].generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False,
-                                         method="upm", **kw)
-    else:
-        base, feet = method_spec(method)
-        r, p = engines["upm"].generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False,
-                                       method=base, foot_lock=feet, **kw)
+        return engines["som"], "upm", False
+    if method in VARIANTS:
+        return engines["fixed"], "upm", False
+    base, feet = method_spec(method)
+    return engines["upm"], base, feet
+
+
+def _generate(engines, method, clip, length, a_end, b_start, **kw):
+    """``method`` between frames ``a_end`` and ``b_start`` of one whole clip (diagnostics)."""
+    eng, base, feet = _engine_call(engines, method)
+    r, p = eng.generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False, method=base,
+                        foot_lock=feet, **kw)
     return r.copy(), p.copy()
 
 
-def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log) -> tuple[dict, dict, dict]:
-    """Scores per method and length, the truth's, the diagnostics; plus curves for a plot.
+def generate_from_context(engines, method: str, past: Motion, future: Motion, length: int):
+    """``method``'s ``length`` frames between the past context (A) and the future context (B).
 
-    Returns ``(inbetween, diagnostics, example)``.
+    The engine sees only these frames (as two clips; ``align=False``): no frame of the gap.
+    Returns local rotations (L, J, 4) and positions (L, J, 3), new arrays.
     """
-    from .model import PostureMap
+    eng, base, feet = _engine_call(engines, method)
+    eng.add("_past", past)
+    eng.add("_future", future)
+    try:
+        r, p = eng.generate("_past", "_future", length, a_end=len(past) - 1, b_start=0, align=False,
+                            method=base, foot_lock=feet)
+        return r.copy(), p.copy()
+    finally:
+        del eng.tracks["_past"], eng.tracks["_future"]
 
+
+def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
+                  diagnostics: bool = False) -> tuple[dict, dict, dict]:
+    """Scores per method and length, the truth's, per content, the diagnostics; plus curves
+    for a plot. Returns ``(inbetween, diagnostics, example)`` (diagnostics empty unless asked).
+    """
     ctx, engines = state["ctx"], state["engines"]
-    test, space = state["test"], state["model"].space_
-    fixed = engines["fixed"].model
-    upm = engines["upm"]
-    act = space.active
-    res = {"windows": len(windows), "lengths": list(LENGTHS), "methods": {m: {} for m in METHODS},
-           "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS}}
+    test, lengths = state["test"], state["split"].lengths
+    res = {"windows": len(windows), "lengths": list(lengths), "methods": {m: {} for m in METHODS},
+           "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS},
+           "window_list": [[state["test_files"][c], s] for c, s in windows]}
     diag = {"key_distance": {}, "key_distance_by_class": {}, "variants": {v: {} for v in VARIANTS},
-            "sweep": {}}
+            "sweep": {}} if diagnostics else {}
     example = {}
-    for length in LENGTHS:
+    ref = natural_reference(ctx, test)
+    for length in lengths:
         t0 = time.perf_counter()
         span = N_PAST + length + N_FUTURE
         truth_r = np.stack([test[c].rotations[s: s + span] for c, s in windows])
         truth_p = np.stack([test[c].positions[s: s + span] for c, s in windows])
         preds = {m: (np.empty((len(windows), length) + truth_r.shape[2:]),
-                     np.empty((len(windows), length) + truth_p.shape[2:])) for m in METHODS + VARIANTS}
-        key_at = length // 2
-        kd = {k: [] for k in ("a_to_true", "b_to_true", "blend_to_true", "upm_key_to_true",
-                              "upm_path_key_to_true", "som_key_to_true", "nearest_neuron_to_true",
-                              "upm_key_to_blend")}
-        kdc = {cls: {"blend": [], "upm_key": [], "nearest_neuron": []} for cls in CLASSES}
+                     np.empty((len(windows), length) + truth_p.shape[2:])) for m in METHODS}
         for i, (c, s) in enumerate(windows):
-            name = str(c)
-            a_end, b_start = s + N_PAST - 1, s + N_PAST + length
-            feats = upm.tracks[name].features
-            xa, xb, xt = feats[a_end], feats[b_start], feats[a_end + key_at]
-            blend = xa + 0.5 * (xb - xa)
-            k_upm, _ = upm.key_features(xa, xb, 0.5)
-            k_path, _ = upm.key_features(xa, xb, 0.5, path=True)
-            k_som, _ = engines["som"].key_features(xa, xb, 0.5)
-            k_near = space.merge([m.weights_[m.predict(xt[d][None])[0]]
-                                  for m, d in zip(state["model"].maps_, space.class_dims)])
-            for key, v in (("a_to_true", xa), ("b_to_true", xb), ("blend_to_true", blend),
-                           ("upm_key_to_true", k_upm), ("upm_path_key_to_true", k_path),
-                           ("som_key_to_true", k_som), ("nearest_neuron_to_true", k_near)):
-                kd[key].append(float(np.linalg.norm((v - xt)[act])))
-            kd["upm_key_to_blend"].append(float(np.linalg.norm((k_upm - blend)[act])))
-            for cls, d in zip(CLASSES, space.class_dims):
-                for key, v in (("blend", blend), ("upm_key", k_upm), ("nearest_neuron", k_near)):
-                    kdc[cls][key].append(float(np.linalg.norm((v - xt)[d])))
+            past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
             for m in METHODS:
                 if m == "zero-velocity":
-                    preds[m][0][i] = test[c].rotations[a_end]
-                    preds[m][1][i] = test[c].positions[a_end]
+                    preds[m][0][i], preds[m][1][i] = past.rotations[-1], past.positions[-1]
                 else:
-                    preds[m][0][i], preds[m][1][i] = _generate(engines, m, name, length, a_end, b_start)
-            set_key(fixed, blend)
-            preds["blend-key"][0][i], preds["blend-key"][1][i] = _generate(engines, "blend-key", name, length,
-                                                                           a_end, b_start)
-            set_key(fixed, xt)
-            preds["oracle-key"][0][i], preds["oracle-key"][1][i] = _generate(engines, "oracle-key", name,
-                                                                             length, a_end, b_start)
-            # A map learned from this clip's context alone (the frames outside the gap), as
-            # `posturemap transition` does without --map: the clip's own style, no truth.
-            own = PostureMap(seed=seed).fit([centred(test[c][: a_end + 1], ctx.root, ctx.up),
-                                             centred(test[c][b_start:], ctx.root, ctx.up)])
-            eng = TransitionEngine(own)
-            eng.add(name, test[c])
-            r, p = eng.generate(name, name, length, a_end=a_end, b_start=b_start, align=False, method="upm")
-            preds["self-map-key"][0][i], preds["self-map-key"][1][i] = r, p
-            # Zero angular velocity at the seams: the window with the two frames before A's end
-            # and the one after B's start given the seam frame's rotations (positions kept).
-            seg_r = test[c].rotations[s: s + N_PAST + length + N_FUTURE].copy()
-            a_w, b_w = N_PAST - 1, N_PAST + length
-            seg_r[a_w - 2: a_w] = seg_r[a_w]
-            seg_r[b_w + 1] = seg_r[b_w]
-            fixed_eng = engines["fixed"]
-            fixed_eng.add("v0", Motion(ctx.skeleton, seg_r, test[c].positions[s: s + N_PAST + length + N_FUTURE],
-                                       ctx.fps))
-            r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="spline")
-            preds["spline-v0"][0][i], preds["spline-v0"][1][i] = r, p
-            set_key(fixed, blend)
-            r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="upm")
-            preds["blend-key-v0"][0][i], preds["blend-key-v0"][1][i] = r, p
-            # upm's frames with the root joint's translation of slerp (LERP root).
-            preds["upm-lerp-root"][0][i] = preds["upm"][0][i]
-            preds["upm-lerp-root"][1][i] = preds["upm"][1][i]
-            preds["upm-lerp-root"][1][i, :, ctx.root] = preds["slerp"][1][i, :, ctx.root]
+                    preds[m][0][i], preds[m][1][i] = generate_from_context(engines, m, past, future, length)
+        natural = naturalness_fn(ctx, ref, windows, length)
+        n = str(length)
         for m in METHODS:
-            res["methods"][m][str(length)] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length)
-        for v in VARIANTS:
-            diag["variants"][v][str(length)] = score_inbetween(ctx, truth_r, truth_p, *preds[v], length)
-        res["truth"][str(length)] = score_truth(ctx, truth_r, truth_p, length)
+            res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=natural)
+        res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=natural)
         for m in METHODS:
-            res["vs_slerp"][m][str(length)] = {
-                k: paired_difference(res["methods"][m][str(length)]["per_window"][k],
-                                     res["methods"]["slerp"][str(length)]["per_window"][k], seed)
+            res["vs_slerp"][m][n] = {
+                k: paired_difference(res["methods"][m][n]["per_window"][k],
+                                     res["methods"]["slerp"][n]["per_window"][k], seed)
                 for k in ("l2q", "l2p")}
-        diag["key_distance"][str(length)] = {k: float(np.mean(v)) for k, v in kd.items()}
-        diag["key_distance_by_class"][str(length)] = {cls: {k: float(np.mean(v)) for k, v in kv.items()}
-                                                      for cls, kv in kdc.items()}
-        if settings.sweep and length in SWEEP_LENGTHS:
-            diag["sweep"][str(length)] = sweep(state, windows, truth_r, truth_p, length)
+        if diagnostics:
+            run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, preds, diag)
         if length == 30:  # plot a walking window when there is one
-            names = [state["test_files"][c].name for c, _ in windows]
+            names = [state["test_files"][c] for c, _ in windows]
             e = next((i for i, nm in enumerate(names) if "_walk_" in nm), 0)
             example = {m: np.concatenate([truth_r[e, :N_PAST], preds[m][0][e], truth_r[e, N_PAST + length:]])
                        for m in METHODS}
             example["truth"] = truth_r[e]
             example["window"] = windows[e]
             example["clip"] = names[e]
-            example["joints"] = list(state["ctx"].skeleton.names)
+            example["joints"] = list(ctx.skeleton.names)
         r = res["methods"]
-        log(f"in-betweening L={length}: {len(windows)} windows in {time.perf_counter() - t0:.1f} s; "
-            + ", ".join(f"{m} L2Q {r[m][str(length)]['l2q']:.3f}" for m in METHODS))
+        log(f"  in-betweening L={length}: {len(windows)} windows in {time.perf_counter() - t0:.1f} s; "
+            + ", ".join(f"{m} L2Q {r[m][n]['l2q']:.3f}" for m in METHODS))
+    res["per_content"] = per_content(res, [state["split"].contents[c] for c, _ in windows])
     return res, diag, example
+
+
+def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, preds, diag):
+    """Key distances and stand-in keys of the keyed methods at one length, into ``diag``.
+
+    These read the truth on purpose (the oracle key): they explain the keyed methods' errors,
+    they are not methods. ``preds`` holds the methods' frames (``upm``, ``slerp`` are used).
+    """
+    from .model import PostureMap
+
+    ctx, engines, test = state["ctx"], state["engines"], state["test"]
+    space = state["model"].space_
+    fixed, upm, act = engines["fixed"].model, engines["upm"], space.active
+    vpreds = {v: (np.empty_like(preds["slerp"][0]), np.empty_like(preds["slerp"][1])) for v in VARIANTS}
+    key_at = length // 2
+    kd = {k: [] for k in ("a_to_true", "b_to_true", "blend_to_true", "upm_key_to_true",
+                          "upm_path_key_to_true", "som_key_to_true", "nearest_neuron_to_true",
+                          "upm_key_to_blend")}
+    kdc = {cls: {"blend": [], "upm_key": [], "nearest_neuron": []} for cls in CLASSES}
+    for i, (c, s) in enumerate(windows):
+        name = str(c)
+        a_end, b_start = s + N_PAST - 1, s + N_PAST + length
+        feats = upm.tracks[name].features
+        xa, xb, xt = feats[a_end], feats[b_start], feats[a_end + key_at]
+        blend = xa + 0.5 * (xb - xa)
+        k_upm, _ = upm.key_features(xa, xb, 0.5)
+        k_path, _ = upm.key_features(xa, xb, 0.5, path=True)
+        k_som, _ = engines["som"].key_features(xa, xb, 0.5)
+        k_near = space.merge([m.weights_[m.predict(xt[d][None])[0]]
+                              for m, d in zip(state["model"].maps_, space.class_dims)])
+        for key, v in (("a_to_true", xa), ("b_to_true", xb), ("blend_to_true", blend),
+                       ("upm_key_to_true", k_upm), ("upm_path_key_to_true", k_path),
+                       ("som_key_to_true", k_som), ("nearest_neuron_to_true", k_near)):
+            kd[key].append(float(np.linalg.norm((v - xt)[act])))
+        kd["upm_key_to_blend"].append(float(np.linalg.norm((k_upm - blend)[act])))
+        for cls, d in zip(CLASSES, space.class_dims):
+            for key, v in (("blend", blend), ("upm_key", k_upm), ("nearest_neuron", k_near)):
+                kdc[cls][key].append(float(np.linalg.norm((v - xt)[d])))
+        set_key(fixed, blend)
+        vpreds["blend-key"][0][i], vpreds["blend-key"][1][i] = _generate(engines, "blend-key", name, length,
+                                                                         a_end, b_start)
+        set_key(fixed, xt)
+        vpreds["oracle-key"][0][i], vpreds["oracle-key"][1][i] = _generate(engines, "oracle-key", name,
+                                                                           length, a_end, b_start)
+        # A map learned from this clip's context alone (the frames outside the gap), as
+        # `posturemap transition` does without --map: the clip's own style, no truth.
+        own = PostureMap(seed=seed).fit([centred(test[c][: a_end + 1], ctx.root, ctx.up),
+                                         centred(test[c][b_start:], ctx.root, ctx.up)])
+        eng = TransitionEngine(own)
+        eng.add(name, test[c])
+        r, p = eng.generate(name, name, length, a_end=a_end, b_start=b_start, align=False, method="upm")
+        vpreds["self-map-key"][0][i], vpreds["self-map-key"][1][i] = r, p
+        # Zero angular velocity at the seams: the window with the two frames before A's end
+        # and the one after B's start given the seam frame's rotations (positions kept).
+        seg_r = test[c].rotations[s: s + N_PAST + length + N_FUTURE].copy()
+        a_w, b_w = N_PAST - 1, N_PAST + length
+        seg_r[a_w - 2: a_w] = seg_r[a_w]
+        seg_r[b_w + 1] = seg_r[b_w]
+        fixed_eng = engines["fixed"]
+        fixed_eng.add("v0", Motion(ctx.skeleton, seg_r, test[c].positions[s: s + N_PAST + length + N_FUTURE],
+                                   ctx.fps))
+        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="spline")
+        vpreds["spline-v0"][0][i], vpreds["spline-v0"][1][i] = r, p
+        set_key(fixed, blend)
+        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="upm")
+        vpreds["blend-key-v0"][0][i], vpreds["blend-key-v0"][1][i] = r, p
+        # upm's frames with the root joint's translation of slerp (LERP root).
+        vpreds["upm-lerp-root"][0][i] = preds["upm"][0][i]
+        vpreds["upm-lerp-root"][1][i] = preds["upm"][1][i]
+        vpreds["upm-lerp-root"][1][i, :, ctx.root] = preds["slerp"][1][i, :, ctx.root]
+    n = str(length)
+    for v in VARIANTS:
+        diag["variants"][v][n] = score_inbetween(ctx, truth_r, truth_p, *vpreds[v], length)
+    diag["key_distance"][n] = {k: float(np.mean(v)) for k, v in kd.items()}
+    diag["key_distance_by_class"][n] = {cls: {k: float(np.mean(v)) for k, v in kv.items()}
+                                        for cls, kv in kdc.items()}
+    if settings.sweep and length in SWEEP_LENGTHS:
+        diag["sweep"][n] = sweep(state, windows, truth_r, truth_p, length)
 
 
 def sweep(state, windows, truth_r, truth_p, length) -> dict:
@@ -610,12 +851,13 @@ def sweep(state, windows, truth_r, truth_p, length) -> dict:
 
 
 def random_pairs(lengths: list[int], count: int, seed: int, length: int = CROSS_LENGTH) -> list[tuple]:
-    """``count`` seeded (a, b, a_end, b_start) with a != b, 10 real frames on both sides."""
+    """``count`` seeded (a, b, a_end, b_start) with a != b (unless there is one clip only), 10
+    real frames on both sides."""
     rng = np.random.default_rng(seed)
     ok = [i for i, n in enumerate(lengths) if n >= N_PAST + N_FUTURE]
     pairs = []
     while len(pairs) < count:
-        a, b = rng.choice(ok, 2, replace=False)
+        a, b = rng.choice(ok, 2, replace=len(ok) < 2)
         a_end = int(rng.integers(N_PAST - 1, lengths[a]))
         b_start = int(rng.integers(0, lengths[b] - N_FUTURE + 1))
         pairs.append((int(a), int(b), a_end, b_start))
@@ -641,8 +883,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
                 r = np.repeat(a_part.rotations[-1:], length, axis=0)
                 p = np.repeat(a_part.positions[-1:], length, axis=0)
             else:
-                eng = engines["som"] if m == "som" else upm
-                base, feet = method_spec("upm" if m == "som" else m)
+                eng, base, feet = _engine_call(engines, m)
                 r, p = eng.generate(str(a), str(b), length, a_end=a_end, b_start=b_start, align=True,
                                     method=base, foot_lock=feet)
             seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
@@ -650,33 +891,35 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         reference.append((a_part, b_part))
     out = {"pairs": len(pairs), "length": length, "align": True, "methods": {}}
     sl = slice(N_PAST, N_PAST + length)
-    seam = slice(N_PAST - 1, N_PAST + length + 1)
+    steps = slice(N_PAST - 1, N_PAST + length)
     parents = ctx.skeleton.parents
     for m in METHODS:
         rots = np.stack([s[0] for s in seqs[m]])
         pos = np.stack([s[1] for s in seqs[m]])
         _, gp = global_windows(rots, pos, parents)
+        skate, contact = skate_scores(ctx, gp, steps)
         valid = metrics.pose_validity(window_features(ctx, rots[:, sl], pos[:, sl]), ctx.index)
-        out["methods"][m] = {**feet_scores(ctx, gp[:, seam]), "validity": float(valid.mean()),
+        out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact, "validity": float(valid.mean()),
                              "validity_p95": float(np.percentile(valid, 95)),
-                             "jerk": metrics.jerk(gp[:, N_PAST - 3: N_PAST + length + 3], ctx.fps)}
+                             "jerk": metrics.jerk(gp[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm}
     # Reference: the real frames on both sides of the seams (10 of A, 10 of B, separately).
     real = [(np.stack([p.rotations for p in parts]), np.stack([p.positions for p in parts]))
             for parts in zip(*reference)]
-    feet_out, jerks, valids = [], [], []
+    skates, contacts, jerks, valids = [], [], [], []
     for rots, pos in real:
         _, gp = global_windows(rots, pos, parents)
-        feet_out.append(feet_scores(ctx, gp))
-        jerks.append(metrics.jerk(gp, ctx.fps))
+        skate, contact = skate_scores(ctx, gp, slice(0, gp.shape[1] - 1))
+        skates.append(skate.mean())
+        contacts.append(contact)
+        jerks.append(metrics.jerk(gp, ctx.fps) * ctx.cm)
         valids.append(metrics.pose_validity(window_features(ctx, rots, pos), ctx.index))
     v = np.concatenate(valids)
-    out["reference"] = {"foot_skate": float(np.mean([f["foot_skate"] for f in feet_out])),
-                        "contact_fraction": float(np.mean([f["contact_fraction"] for f in feet_out])),
+    out["reference"] = {"skate": float(np.mean(skates)), "contact_skate": float(np.mean(contacts)),
                         "validity": float(v.mean()), "validity_p95": float(np.percentile(v, 95)),
                         "jerk": float(np.mean(jerks))}
-    out["pair_list"] = [{"a": state["test_files"][a].name, "b": state["test_files"][b].name,
+    out["pair_list"] = [{"a": state["test_files"][a], "b": state["test_files"][b],
                          "a_end": a_end, "b_start": b_start} for a, b, a_end, b_start in pairs]
-    log(f"cross-clip: {len(pairs)} pairs in {time.perf_counter() - t0:.1f} s")
+    log(f"  cross-clip: {len(pairs)} pairs in {time.perf_counter() - t0:.1f} s")
     return out
 
 
@@ -689,8 +932,7 @@ def latency(state: dict, calls: int, seed: int) -> dict:
     for m in METHODS:
         if m == "zero-velocity":
             continue
-        eng = engines["som"] if m == "som" else engines["upm"]
-        meth, feet = method_spec("upm" if m == "som" else m)
+        eng, meth, feet = _engine_call(engines, m)
         for a, b, a_end, b_start in pairs[:20]:  # warm-up: compiled kernels, caches
             eng.generate(str(a), str(b), CROSS_LENGTH, a_end=a_end, b_start=b_start, method=meth, foot_lock=feet)
         times = np.empty(len(pairs))
@@ -775,6 +1017,37 @@ def _jsonable(x):
     return x
 
 
+def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_log) -> tuple[dict, dict, dict, dict]:
+    """One hold-out end to end: read, train on its training side, in-betweening, cross-clip.
+
+    Returns ``(results, diagnostics, example, state)`` (diagnostics for the style hold-out
+    when ``settings.diagnostics``; ``state`` for the speed figures).
+    """
+    split = load_split(name, data_dir, settings)
+    state = prepare(split, settings, seed, log)
+    state["engines"] = make_engines(state)
+    windows = make_windows(state, settings, seed)
+    log(f"  in-betweening: {len(windows)} windows from {len(state['test'])} test clips")
+    inb, diag, example = run_inbetween(state, windows, settings, seed, log,
+                                       diagnostics=settings.diagnostics and name == "style")
+    cross = run_cross(state, settings, seed, log) if len(state["test"]) >= 2 and settings.pairs else None
+    model, ctx = state["model"], state["ctx"]
+    out = {
+        "split": {"rule": split.rule, "test_clips": len(split.test), "test_frames": int(sum(map(len, split.test))),
+                  "train_clips_all": split.train_clips_all, "train_clips": len(split.train),
+                  "train_frames": int(sum(map(len, split.train))), "fps": ctx.fps,
+                  "joints": ctx.skeleton.num_joints, "unit": split.unit, "cm_per_unit": split.cm,
+                  "test_files": list(split.test_names), "train_files": list(split.train_names)},
+        "map": {"neurons": model.neuron_counts(), "radius": [m.radius_ for m in model.maps_],
+                "train_seconds": state["upm_seconds"], "som": state["som_info"]},
+        "feet": {"joints": [ctx.skeleton.names[j] for j in ctx.feet], "floor_cm": (ctx.floor * ctx.cm).tolist(),
+                 "floor_percentile": FLOOR_PERCENTILE, "skate_height_cm": ctx.skate_height * ctx.cm,
+                 "leg_length_cm": ctx.skate_height / metrics.SKATE_HEIGHT_LEGS * ctx.cm},
+        "inbetween": inb, "cross_clip": cross,
+    }
+    return out, diag, example, state
+
+
 def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log) -> dict:
     """Run the benchmark; writes results.md, results.json and PNG plots into ``out``.
 
@@ -796,19 +1069,19 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
         sections[name] = now - clock
         clock = now
 
-    state = prepare(data_dir, settings, seed, log)
-    state["engines"] = make_engines(state)
-    windows = make_windows(state, settings, seed)
-    lap("data and training")
-    log(f"in-betweening: {len(windows)} windows from {len(state['test'])} test clips")
-    inb, diag, example = run_inbetween(state, windows, settings, seed, log)
-    lap("in-betweening and diagnostics")
-    cross = run_cross(state, settings, seed, log)
-    lap("cross-clip")
+    holdouts, examples, diag, speed_state = {}, {}, {}, None
+    for name in settings.holdouts:
+        holdouts[name], d, examples[name], state = run_holdout(name, data_dir, settings, seed, log)
+        diag = diag or d
+        if speed_state is None or name == "style":
+            speed_state = state
+        lap(f"{name} hold-out")
     log("speed: latency")
-    speed = {"latency": latency(state, settings.latency_calls, seed), "training": [], "bench": {}}
+    speed = {"latency": latency(speed_state, settings.latency_calls, seed), "training": [], "bench": {},
+             "holdout": speed_state["split"].name}
     log("speed: training")
-    speed["training"] = training_speed(state, seed)
+    speed["training"] = training_speed(speed_state, seed)
+    speed_state = state = None
     lap("speed: latency and training")
     for name in ("transition_speed", "train_speed", "bvh_load"):
         if settings.bench_scripts:
@@ -817,28 +1090,15 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
         else:
             speed["bench"][name] = {"status": "skipped", "reason": "--quick skips the bench/ scripts"}
         lap(f"bench/{name}.py")
-    model = state["model"]
-    ctx = state["ctx"]
     results = {
-        "config": {"seed": seed, **dataclasses.asdict(settings), "lengths": list(LENGTHS), "n_past": N_PAST,
-                   "n_future": N_FUTURE, "stride": STRIDE, "cross_length": CROSS_LENGTH},
+        "config": {"seed": seed, **dataclasses.asdict(settings), "n_past": N_PAST, "n_future": N_FUTURE,
+                   "stride": STRIDE, "cross_length": CROSS_LENGTH, "natural_frames": NATURAL_FRAMES,
+                   "natural_stride_s": NATURAL_STRIDE_S, "skate_height_legs": metrics.SKATE_HEIGHT_LEGS,
+                   "test_styles": list(TEST_STYLES), "test_contents": list(TEST_CONTENTS)},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code_version()},
-        "split": {"rule": f"test = styles {', '.join(TEST_STYLES)}; train = the other styles",
-                  "test_styles": list(TEST_STYLES), "test_clips": len(state["test_files"]),
-                  "test_frames": int(sum(map(len, state["test"]))),
-                  "train_clips_all": len(split_files(sorted((data_dir / "bandai1").glob("*.bvh")))[0]),
-                  "train_clips": len(state["train_files"]), "train_frames": int(sum(map(len, state["train"]))),
-                  "test_files": [f.name for f in state["test_files"]],
-                  "train_files": [f.name for f in state["train_files"]]},
-        "map": {"neurons": model.neuron_counts(), "radius": [m.radius_ for m in model.maps_],
-                "train_seconds": state["upm_seconds"],
-                "som": state["som_info"]},
-        "feet": {"joints": [ctx.skeleton.names[j] for j in ctx.feet], "floor_cm": ctx.floor.tolist(),
-                 "floor_percentile": FLOOR_PERCENTILE},
-        "inbetween": inb, "cross_clip": cross, "diagnostics": diag, "speed": speed,
-        "section_seconds": sections,
+        "holdouts": holdouts, "diagnostics": diag, "speed": speed, "section_seconds": sections,
     }
-    results["plots"] = report.plot(results, example, out) if settings.plots else []
+    results["plots"] = report.plot(results, examples, out) if settings.plots else []
     results["wall_seconds"] = time.perf_counter() - t_start
     results = _jsonable(results)
     write_bytes_atomic(out / "results.json", (json.dumps(results, indent=1) + "\n").encode())
@@ -873,6 +1133,8 @@ def run_cli(args) -> int:
     data = Path(args.data) if args.data else default_data_dir()
     if not (data / "bandai1").is_dir():
         raise UserError(str(data), "no bandai1/ folder of BVH clips here (set --data or POSTUREMAP_DATA)")
+    if not (data / CMU_FILE).is_file():
+        raise UserError(str(data), f"no {CMU_FILE.as_posix()} here (the 120 fps hold-out; set --data or POSTUREMAP_DATA)")
     settings = Settings.quick_run() if args.quick else Settings.full()
     run(data, args.out, seed=args.seed, settings=settings)
     return 0
