@@ -17,10 +17,10 @@ hold-out's training side only:
   training = the first half of its frames, test = the second half; lengths
   :data:`CMU_LENGTHS`, the same frame counts as at 30 fps and the same durations (x 4).
 
-``--quick`` (:meth:`Settings.quick_run`, about 20 s on 2 cores): every fourth training clip
-(sorted by name), 12 seeded random test windows per hold-out, 10 cross-clip pairs, one MiniSom
-epoch, 100 latency calls, no diagnostics, no sweep and no ``bench/`` scripts; every method,
-metric and hold-out still runs.
+``--quick`` (:meth:`Settings.quick_run`, about 20 s on 2 idle cores): every fourth training
+clip (sorted by name), 8 seeded random test windows per hold-out, 10 cross-clip pairs, a
+quarter of a MiniSom epoch, 100 latency calls, no diagnostics, no sweep and no ``bench/``
+scripts; every method, metric and hold-out still runs.
 
 In-betweening: from each test clip, windows of 10 + max(L) + 10 frames start every 40 frames
 (LaFAN1: ``while start + window < frames``); for a transition length L the window's first 10 +
@@ -138,7 +138,7 @@ class Settings:
     train_stride : use every n-th training clip (sorted by name; Bandai hold-outs)
     max_windows : at most this many test windows per hold-out (a seeded random subset), None for all
     pairs : number of random cross-clip pairs
-    som_epochs : passes of MiniSom over the training features
+    som_epochs : passes of MiniSom over the training features (a fraction: that share of one pass)
     latency_calls : timed generate calls per method
     bench_scripts : run the scripts of ``bench/`` (slow)
     diagnostics : key distances and stand-in keys of the keyed methods (style hold-out)
@@ -151,7 +151,7 @@ class Settings:
     train_stride: int = 1
     max_windows: int | None = None
     pairs: int = 100
-    som_epochs: int = 4
+    som_epochs: float = 4
     latency_calls: int = 2000
     bench_scripts: bool = True
     diagnostics: bool = True
@@ -164,7 +164,7 @@ class Settings:
 
     @classmethod
     def quick_run(cls) -> Settings:
-        return cls(quick=True, train_stride=4, max_windows=8, pairs=10, som_epochs=1, latency_calls=100,
+        return cls(quick=True, train_stride=4, max_windows=8, pairs=10, som_epochs=0.25, latency_calls=100,
                    bench_scripts=False, diagnostics=False, sweep=False)
 
 
@@ -316,7 +316,7 @@ def train_som(x: np.ndarray, n_neurons: int, epochs: int, seed: int):
 
     Classic settings: Gaussian neighbourhood from sigma = max(rows, cols) / 4 decreasing
     linearly to 1, learning rate 0.5 decreasing linearly to 0, weights started at random
-    samples, ``epochs * n`` updates in seeded random order.
+    samples, ``round(epochs * n)`` updates in seeded random order.
     """
     from minisom import MiniSom
 
@@ -325,7 +325,7 @@ def train_som(x: np.ndarray, n_neurons: int, epochs: int, seed: int):
                   decay_function="linear_decay_to_zero", sigma_decay_function="linear_decay_to_one",
                   neighborhood_function="gaussian", random_seed=seed)
     som.random_weights_init(x)
-    som.train(x, epochs * len(x), random_order=True)
+    som.train(x, max(1, round(epochs * len(x))), random_order=True)
     return som, rows, cols
 
 
@@ -450,13 +450,16 @@ def natural_reference(ctx: Context, clips: list[Motion]) -> dict:
 
 
 def naturalness_fn(ctx: Context, ref: dict, windows, length: int):
-    """A function: full windows (N, 20 + L, J, 4/3) of local frames -> (N,) naturalness.
+    """A function: rebuilt windows -> naturalness, for the ``windows`` at one length.
 
-    Naturalness of a window = the distance (root mean square over z-scored features) from its
-    L rebuilt frames (pose and velocity, :func:`metrics.motion_features`, at
-    :func:`natural_frames`) to the nearest real window of L frames of the reference clips,
-    which start every :data:`NATURAL_STRIDE_S` seconds; reference windows that overlap the
-    window's own frames in its own clip are left out, so the truth is never its own neighbour.
+    The function takes local rotations (K * N, L + 1, J, 4) and positions (K * N, L + 1, J, 3):
+    the last past-context frame and the L rebuilt frames of the N windows, for K methods in a
+    row (any K >= 1, so one pass over the reference serves every method). It returns (K * N,):
+    the distance (root mean square over z-scored features) from each window's L rebuilt frames
+    (pose and velocity, :func:`metrics.motion_features`, at :func:`natural_frames`) to the
+    nearest real window of L frames of the reference clips, which start every
+    :data:`NATURAL_STRIDE_S` seconds; reference windows that overlap the window's own frames
+    in its own clip are left out, so the truth is never its own neighbour.
     """
     idx = natural_frames(length)
     stride = max(1, round(NATURAL_STRIDE_S * ctx.fps))
@@ -474,29 +477,44 @@ def naturalness_fn(ctx: Context, ref: dict, windows, length: int):
     exclude = (owner[None, :, 0] == wc) & (owner[None, :, 1] < ws + span) & (owner[None, :, 1] + length > ws)
 
     def score(rots: np.ndarray, pos: np.ndarray) -> np.ndarray:
-        g_r, g_p = global_windows(rots[:, N_PAST - 1: N_PAST + length], pos[:, N_PAST - 1: N_PAST + length],
-                                  ctx.skeleton.parents)
+        g_r, g_p = global_windows(rots, pos, ctx.skeleton.parents)
         f = (metrics.motion_features(g_p, g_r, ctx.root, ctx.up, ctx.fps) - ref["mean"]) / ref["std"]
-        return metrics.nearest_window_distance(f[:, idx].reshape(len(f), -1), refs, exclude, refs_sq)
+        k = len(f) // len(windows)
+        return metrics.nearest_window_distance(f[:, idx].reshape(len(f), -1), refs, np.tile(exclude, (k, 1)),
+                                               refs_sq)
 
     return score
 
 
+def rebuilt_frames(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """The last past-context frame of windows ``truth (N, 20 + L, J, ...)`` followed by the
+    rebuilt frames ``pred (N, L, J, ...)``: (N, L + 1, J, ...), what naturalness reads."""
+    return np.concatenate([truth[:, N_PAST - 1: N_PAST], pred], axis=1)
+
+
+def truth_globals(ctx: Context, truth_r, truth_p) -> tuple:
+    """Global rotations and positions of true windows (N, T, J, ...), and the same in the
+    window frame (:func:`metrics.normalize_windows`): what :func:`score_inbetween` needs of the
+    truth, to compute once per length."""
+    tg_r, tg_p = global_windows(truth_r, truth_p, ctx.skeleton.parents)
+    t_pos, t_rot = metrics.normalize_windows(tg_p, tg_r, ctx.root, ctx.up, N_PAST - 1)
+    return tg_r, tg_p, t_pos, t_rot
+
+
 def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
-                    accuracy_only: bool = False, natural=None) -> dict:
+                    accuracy_only: bool = False, natural=None, truth_g: tuple | None = None) -> dict:
     """Every metric for windows (N, 20 + L, J, ...) of truth and rebuilt frames (N, L, J, ...).
 
     ``accuracy_only``: only L2Q and L2P (skips the pose-validity queries, the slow part).
-    ``natural``: a function from :func:`naturalness_fn` (adds ``naturalness``), or None.
+    ``natural``: the naturalness of each window (N,) (:func:`naturalness_fn`), or None.
+    ``truth_g``: :func:`truth_globals` of the truth when already known.
     Per-window values of L2Q, L2P, MPJPE, skate (and naturalness) go to ``per_window``.
     """
     sl = slice(N_PAST, N_PAST + length)
     full_r, full_p = truth_r.copy(), truth_p.copy()
     full_r[:, sl], full_p[:, sl] = pred_r, pred_p
-    parents = ctx.skeleton.parents
-    tg_r, tg_p = global_windows(truth_r, truth_p, parents)
-    pg_r, pg_p = global_windows(full_r, full_p, parents)
-    t_pos, t_rot = metrics.normalize_windows(tg_p, tg_r, ctx.root, ctx.up, N_PAST - 1)
+    tg_r, tg_p, t_pos, t_rot = truth_g or truth_globals(ctx, truth_r, truth_p)
+    pg_r, pg_p = global_windows(full_r, full_p, ctx.skeleton.parents)
     p_pos, p_rot = metrics.normalize_windows(pg_p, pg_r, ctx.root, ctx.up, N_PAST - 1, tg_p, tg_r)
     if accuracy_only:
         return {"l2q": metrics.l2q(p_rot[:, sl], t_rot[:, sl]),
@@ -530,9 +548,8 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "per_window": per_window,
     }
     if natural is not None:
-        nat = natural(full_r, full_p)
-        out["naturalness"] = float(nat.mean())
-        per_window["naturalness"] = nat.tolist()
+        out["naturalness"] = float(np.mean(natural))
+        per_window["naturalness"] = np.asarray(natural).tolist()
     return out
 
 
@@ -549,7 +566,8 @@ def paired_difference(a: list[float], b: list[float], seed: int, resamples: int 
 
 
 def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> dict:
-    """The realism figures of the true frames themselves (reference row)."""
+    """The realism figures of the true frames themselves (reference row); ``natural`` as in
+    :func:`score_inbetween`."""
     sl = slice(N_PAST, N_PAST + length)
     _, tg_p = global_windows(truth_r, truth_p, ctx.skeleton.parents)
     skate, contact = skate_scores(ctx, tg_p, slice(N_PAST - 1, N_PAST + length))
@@ -559,9 +577,8 @@ def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> di
            "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
            "per_window": {"skate": skate.tolist()}}
     if natural is not None:
-        nat = natural(truth_r, truth_p)
-        out["naturalness"] = float(nat.mean())
-        out["per_window"]["naturalness"] = nat.tolist()
+        out["naturalness"] = float(np.mean(natural))
+        out["per_window"]["naturalness"] = np.asarray(natural).tolist()
     return out
 
 
@@ -724,11 +741,17 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                     preds[m][0][i], preds[m][1][i] = past.rotations[-1], past.positions[-1]
                 else:
                     preds[m][0][i], preds[m][1][i] = generate_from_context(engines, m, past, future, length)
-        natural = naturalness_fn(ctx, ref, windows, length)
+        sl = slice(N_PAST, N_PAST + length)
+        nat = naturalness_fn(ctx, ref, windows, length)(
+            np.concatenate([rebuilt_frames(truth_r, preds[m][0]) for m in METHODS] + [truth_r[:, N_PAST - 1: sl.stop]]),
+            np.concatenate([rebuilt_frames(truth_p, preds[m][1]) for m in METHODS] + [truth_p[:, N_PAST - 1: sl.stop]]))
+        nat = nat.reshape(len(METHODS) + 1, len(windows))
         n = str(length)
-        for m in METHODS:
-            res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=natural)
-        res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=natural)
+        truth_g = truth_globals(ctx, truth_r, truth_p)
+        for k, m in enumerate(METHODS):
+            res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=nat[k],
+                                                   truth_g=truth_g)
+        res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=nat[-1])
         for m in METHODS:
             res["vs_slerp"][m][n] = {
                 k: paired_difference(res["methods"][m][n]["per_window"][k],
