@@ -1083,6 +1083,8 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
     np.random.seed(seed)  # third-party code that draws from numpy's global generator
     import platform
 
+    code = code_version()  # at the start: the code that runs, whatever changes meanwhile
+
     sections = {}
     clock = time.perf_counter()
 
@@ -1118,7 +1120,7 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
                    "stride": STRIDE, "cross_length": CROSS_LENGTH, "natural_frames": NATURAL_FRAMES,
                    "natural_stride_s": NATURAL_STRIDE_S, "skate_height_legs": metrics.SKATE_HEIGHT_LEGS,
                    "test_styles": list(TEST_STYLES), "test_contents": list(TEST_CONTENTS)},
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code_version()},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code},
         "holdouts": holdouts, "diagnostics": diag, "speed": speed, "section_seconds": sections,
     }
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
