@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import evaluate, report
+from posturemap import evaluate
+from posturemap.evaluate import report
 from posturemap.evaluate import LENGTHS, METHODS, N_FUTURE, N_PAST, VARIANTS, Settings
 
 TINY = Settings(quick=True, holdouts=("cmu",), max_windows=3, pairs=0, som_epochs=0.1, latency_calls=5,
@@ -92,7 +93,8 @@ def _inb(ratios_q, ratios_p, skate, truth_skate, lengths=LENGTHS):
     def row(q, p, s):
         return {str(n): {"l2q": q[i], "l2p": p[i], "skate": s[i]} for i, n in enumerate(lengths)}
     k = len(lengths)
-    return {"lengths": list(lengths), "windows": 1, "truth": {str(n): {"skate": t} for n, t in zip(lengths, truth_skate)},
+    return {"lengths": list(lengths), "windows": 1,
+            "truth": {str(n): {"skate": t} for n, t in zip(lengths, truth_skate)},
             "methods": {"slerp": row([1.0] * k, [1.0] * k, [9.0] * k), "spline": row([0.9] * k, [0.9] * k, [9.0] * k),
                         "inertialize": row([0.9] * k, [0.9] * k, [9.0] * k), "m": row(ratios_q, ratios_p, skate)}}
 
@@ -251,17 +253,19 @@ def test_truth_as_prediction_scores_zero_error(tiny_state):
                                    natural=natural(*(evaluate.rebuilt_frames(t, t[:, sl]) for t in (tr, tp))))
     for k in ("l2q", "l2p", "npss", "mpjpe_cm", "root_error_cm", "pose_error_cm"):
         assert got[k] == pytest.approx(0.0, abs=1e-9), k
-    ref = evaluate.score_truth(ctx, tr, tp, length, natural=natural(tr[:, N_PAST - 1: sl.stop], tp[:, N_PAST - 1: sl.stop]))
+    seam_on = slice(N_PAST - 1, sl.stop)  # the last past frame and the gap
+    ref = evaluate.score_truth(ctx, tr, tp, length, natural=natural(tr[:, seam_on], tp[:, seam_on]))
     for k in ("skate", "contact_skate", "validity", "jerk", "naturalness"):
         assert got[k] == pytest.approx(ref[k], rel=1e-12), k
     # A perturbed prediction is not free.
     bad_r = tr[:, sl][:, ::-1]
     bad = evaluate.score_inbetween(ctx, tr, tp, bad_r, tp[:, sl], length,
-                                   natural=natural(evaluate.rebuilt_frames(tr, bad_r), evaluate.rebuilt_frames(tp, tp[:, sl])))
+                                   natural=natural(evaluate.rebuilt_frames(tr, bad_r),
+                                                   evaluate.rebuilt_frames(tp, tp[:, sl])))
     assert bad["l2q"] > 0.01 and bad["l2p"] > 0.01 and bad["naturalness"] > got["naturalness"]
     # One call scores several methods' windows in a row, each as if alone.
-    both = natural(np.concatenate([tr[:, N_PAST - 1: sl.stop], evaluate.rebuilt_frames(tr, bad_r)]),
-                   np.concatenate([tp[:, N_PAST - 1: sl.stop], tp[:, N_PAST - 1: sl.stop]]))
+    both = natural(np.concatenate([tr[:, seam_on], evaluate.rebuilt_frames(tr, bad_r)]),
+                   np.concatenate([tp[:, seam_on], tp[:, seam_on]]))
     np.testing.assert_allclose(both, got["per_window"]["naturalness"] + bad["per_window"]["naturalness"])
 
 

@@ -7,13 +7,14 @@ report can be rebuilt from that file alone.
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
 import numpy as np
 
-from . import metrics
-from .features import CLASSES
+from .. import metrics
+from ..features import CLASSES
 
 HOLDOUT_TITLES = {
     "style": "Style hold-out (unseen styles of known motion types)",
@@ -260,8 +261,9 @@ def markdown(results: dict) -> str:
              "at the last past frame; L2P divides by per-coordinate std of training windows of 50 frames, "
              "stride 20; signs of quaternions made consistent with the truth). MPJPE and all cm figures: the "
              "clip's unit times the hold-out's cm per unit.")
+    pct = next(iter(holds.values()))["feet"]["floor_percentile"]
     r.append(f"- Foot skate (the standard measure): per window, each foot joint's height above its planted height "
-             f"(the {next(iter(holds.values()))['feet']['floor_percentile']:g}th percentile of its height in training), minus the lowest such value over "
+             f"(the {pct:g}th percentile of its height in training), minus the lowest such value over "
              f"the window's frames and joints (the ground of this window); per joint and frame step, the horizontal "
              f"speed times `w = clip(2 - 2**(h / H), 0, 1)` with h the mean height of the step's two ends and "
              f"H = {cfg['skate_height_legs']:.5f} leg lengths (2.5 cm on Bandai's 80 cm leg); the mean over the "
@@ -347,3 +349,21 @@ def _speed_section(r: list[str], results: dict) -> None:
             r.append((b.get("markdown") or "```\n" + json.dumps(b["result"], indent=1)[:3000] + "\n```") + "\n")
         else:
             r.append(f"Not run: {b['status']} ({b['reason']}).\n")
+
+
+def jsonable(x):
+    """A JSON-ready copy: numpy scalars and arrays to Python, Paths to str, tuple keys joined."""
+    if isinstance(x, dict):
+        return {(k if isinstance(k, str) else "/".join(map(str, k)) if isinstance(k, tuple) else str(k)):
+                jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
