@@ -123,15 +123,18 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
 
     class Spy(TransitionEngine):
         def generate(self, a, b, *args, **kw):
-            seen.append((len(self.tracks[a].gpos), len(self.tracks[b].gpos), kw["a_end"], kw["b_start"], kw["align"]))
+            seen.append((sorted(self.tracks), len(self.tracks[a].gpos), len(self.tracks[b].gpos), kw["a_end"],
+                         kw["b_start"], kw["align"]))
             return super().generate(a, b, *args, **kw)
 
-    engines = {"upm": Spy(PostureMap(seed=0).fit([walk]))}
+    model = PostureMap(seed=0).fit([walk])
+    engines = {"upm": Spy(model), "som": Spy(model)}
     past, future = walk[20: 20 + N_PAST], walk[45: 45 + N_FUTURE]
-    r, p = evaluate.generate_from_context(engines, "upm-valid+feet", past, future, 15)
-    assert seen == [(N_PAST, N_FUTURE, N_PAST - 1, 0, False)]
-    assert r.shape == (15, walk.skeleton.num_joints, 4) and p.shape == (15, walk.skeleton.num_joints, 3)
-    assert engines["upm"].tracks == {}  # the context clips do not stay behind
+    out = evaluate.generate_from_context(engines, ["upm-valid+feet", "som"], past, future, 15)
+    assert seen == [(["_future", "_past"], N_PAST, N_FUTURE, N_PAST - 1, 0, False)] * 2
+    for r, p in out.values():
+        assert r.shape == (15, walk.skeleton.num_joints, 4) and p.shape == (15, walk.skeleton.num_joints, 3)
+    assert engines["upm"].tracks == {} and engines["som"].tracks == {}  # the context clips do not stay behind
 
 
 # -- on real data -------------------------------------------------------------------------------
@@ -235,7 +238,7 @@ def test_quick_run_splits(quick):
 def tiny_state(data_dir, bandai_files):
     split = evaluate.load_split("style", data_dir, TINY_STYLE)
     state = evaluate.prepare(split, TINY_STYLE, 0, log=lambda m: None)
-    state["engines"] = evaluate.make_engines(state)
+    state["engines"] = evaluate.make_engines(state)  # the diagnostics read whole clips
     return state
 
 

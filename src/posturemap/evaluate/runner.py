@@ -6,6 +6,7 @@ import dataclasses
 import json
 import os
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -72,8 +73,8 @@ def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
 def make_engines(state: dict) -> dict:
     """One engine per key source, each holding every test clip (names = clip indices).
 
-    The whole clips serve the cross-clip transitions, the latency and the diagnostics (which
-    read the truth on purpose); in-betweening gives the methods the context frames only.
+    The whole clips serve the latency and the diagnostics (which read the truth on purpose);
+    in-betweening and cross-clip transitions use :func:`empty_engines`.
     """
     model = state["model"]
     engines = {"upm": TransitionEngine(model), "som": TransitionEngine(state["som"]),
@@ -84,6 +85,27 @@ def make_engines(state: dict) -> dict:
     return engines
 
 
+def empty_engines(state: dict) -> dict:
+    """Engines of the map and of the SOM that hold no clip: a method can only see the clips
+    put in for one call (:func:`clips_in`), whatever it looks at besides the map."""
+    return {"upm": TransitionEngine(state["model"]), "som": TransitionEngine(state["som"])}
+
+
+@contextmanager
+def clips_in(engines: dict, clips: dict):
+    """Inside the block, every engine of ``engines`` holds ``clips`` (name -> Motion); after it,
+    they are gone again."""
+    try:
+        for e in engines.values():
+            for name, m in clips.items():
+                e.add(name, m)
+        yield
+    finally:
+        for e in engines.values():
+            for name in clips:
+                e.tracks.pop(name, None)
+
+
 def _generate(engines, method, clip, length, a_end, b_start, **kw):
     """``method`` between frames ``a_end`` and ``b_start`` of one whole clip (diagnostics)."""
     eng, base, feet = engine_call(engines, method)
@@ -92,21 +114,21 @@ def _generate(engines, method, clip, length, a_end, b_start, **kw):
     return r.copy(), p.copy()
 
 
-def generate_from_context(engines, method: str, past: Motion, future: Motion, length: int):
-    """``method``'s ``length`` frames between the past context (A) and the future context (B).
+def generate_from_context(engines: dict, methods, past: Motion, future: Motion, length: int) -> dict:
+    """Each method's ``length`` frames between the past context (A) and the future context (B).
 
-    The engine sees only these frames (as two clips; ``align=False``): no frame of the gap.
-    Returns local rotations (L, J, 4) and positions (L, J, 3), new arrays.
+    engines : from :func:`empty_engines`; while the methods run they hold these two clips only
+    (``align=False``), so no method can see a frame of the gap or another test clip.
+    Returns ``{method: (rotations (L, J, 4), positions (L, J, 3))}``, new arrays.
     """
-    eng, base, feet = engine_call(engines, method)
-    eng.add("_past", past)
-    eng.add("_future", future)
-    try:
-        r, p = eng.generate("_past", "_future", length, a_end=len(past) - 1, b_start=0, align=False,
-                            method=base, foot_lock=feet)
-        return r.copy(), p.copy()
-    finally:
-        del eng.tracks["_past"], eng.tracks["_future"]
+    out = {}
+    with clips_in(engines, {"_past": past, "_future": future}):
+        for m in methods:
+            eng, base, feet = engine_call(engines, m)
+            r, p = eng.generate("_past", "_future", length, a_end=len(past) - 1, b_start=0, align=False,
+                                method=base, foot_lock=feet)
+            out[m] = (r.copy(), p.copy())
+    return out
 
 
 def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
@@ -114,7 +136,7 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
     """Scores per method and length, the truth's, per content, the diagnostics; plus curves
     for a plot. Returns ``(inbetween, diagnostics, example)`` (diagnostics empty unless asked).
     """
-    ctx, engines = state["ctx"], state["engines"]
+    ctx, engines = state["ctx"], empty_engines(state)
     test, lengths = state["test"], state["split"].lengths
     res = {"windows": len(windows), "lengths": list(lengths), "methods": {m: {} for m in METHODS},
            "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS},
@@ -132,11 +154,10 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                      np.empty((len(windows), length) + truth_p.shape[2:])) for m in METHODS}
         for i, (c, s) in enumerate(windows):
             past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
-            for m in METHODS:
-                if m == "zero-velocity":
-                    preds[m][0][i], preds[m][1][i] = past.rotations[-1], past.positions[-1]
-                else:
-                    preds[m][0][i], preds[m][1][i] = generate_from_context(engines, m, past, future, length)
+            preds["zero-velocity"][0][i], preds["zero-velocity"][1][i] = past.rotations[-1], past.positions[-1]
+            made = generate_from_context(engines, METHODS[1:], past, future, length)
+            for m, (r, p) in made.items():
+                preds[m][0][i], preds[m][1][i] = r, p
         sl = slice(N_PAST, N_PAST + length)
         nat = naturalness_fn(ctx, ref, windows, length)(
             np.concatenate([rebuilt_frames(truth_r, preds[m][0]) for m in METHODS] + [truth_r[:, N_PAST - 1: sl.stop]]),
@@ -272,27 +293,28 @@ def sweep(state, windows, truth_r, truth_p, length) -> dict:
 def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     """Foot skate, validity and jerk of transitions between two different test clips."""
     t0 = time.perf_counter()
-    ctx, engines, test = state["ctx"], state["engines"], state["test"]
+    ctx, engines, test = state["ctx"], empty_engines(state), state["test"]
     pairs = random_pairs([len(m) for m in test], settings.pairs, seed + 1)
     length = CROSS_LENGTH
     upm = engines["upm"]
     seqs = {m: [] for m in METHODS}
     reference = []
     for a, b, a_end, b_start in pairs:
-        ta, tb = upm.tracks[str(a)], upm.tracks[str(b)]
-        dtheta, shift = upm.alignment(ta, tb, a_end, b_start, length)
-        b_part = aligned(tb, upm, b_start, dtheta, shift)[:N_FUTURE]
-        a_part = test[a][a_end - N_PAST + 1: a_end + 1]
-        for m in METHODS:
-            if m == "zero-velocity":
-                r = np.repeat(a_part.rotations[-1:], length, axis=0)
-                p = np.repeat(a_part.positions[-1:], length, axis=0)
-            else:
-                eng, base, feet = engine_call(engines, m)
-                r, p = eng.generate(str(a), str(b), length, a_end=a_end, b_start=b_start, align=True,
-                                    method=base, foot_lock=feet)
-            seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
-                            np.concatenate([a_part.positions, p, b_part.positions])))
+        with clips_in(engines, {"a": test[a], "b": test[b]}):  # these two clips only
+            ta, tb = upm.tracks["a"], upm.tracks["b"]
+            dtheta, shift = upm.alignment(ta, tb, a_end, b_start, length)
+            b_part = aligned(tb, upm, b_start, dtheta, shift)[:N_FUTURE]
+            a_part = test[a][a_end - N_PAST + 1: a_end + 1]
+            for m in METHODS:
+                if m == "zero-velocity":
+                    r = np.repeat(a_part.rotations[-1:], length, axis=0)
+                    p = np.repeat(a_part.positions[-1:], length, axis=0)
+                else:
+                    eng, base, feet = engine_call(engines, m)
+                    r, p = eng.generate("a", "b", length, a_end=a_end, b_start=b_start, align=True,
+                                        method=base, foot_lock=feet)
+                seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
+                                np.concatenate([a_part.positions, p, b_part.positions])))
         reference.append((a_part, b_part))
     out = {"pairs": len(pairs), "length": length, "align": True, "methods": {}}
     sl = slice(N_PAST, N_PAST + length)
@@ -332,15 +354,17 @@ def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_l
     """One hold-out end to end: read, train on its training side, in-betweening, cross-clip.
 
     Returns ``(results, diagnostics, example, state)`` (diagnostics for the style hold-out
-    when ``settings.diagnostics``; ``state`` for the speed figures).
+    when ``settings.diagnostics``; ``state`` for the speed figures; it holds the engines of
+    :func:`make_engines` when the diagnostics ran).
     """
     split = load_split(name, data_dir, settings)
     state = prepare(split, settings, seed, log)
-    state["engines"] = make_engines(state)
+    diagnostics = settings.diagnostics and name == "style"
+    if diagnostics:
+        state["engines"] = make_engines(state)
     windows = make_windows(state, settings, seed)
     log(f"  in-betweening: {len(windows)} windows from {len(state['test'])} test clips")
-    inb, diag, example = run_inbetween(state, windows, settings, seed, log,
-                                       diagnostics=settings.diagnostics and name == "style")
+    inb, diag, example = run_inbetween(state, windows, settings, seed, log, diagnostics=diagnostics)
     cross = run_cross(state, settings, seed, log) if len(state["test"]) >= 2 and settings.pairs else None
     model, ctx = state["model"], state["ctx"]
     out = {
@@ -390,6 +414,8 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
             speed_state = state
         lap(f"{name} hold-out")
     log("speed: latency")
+    if "engines" not in speed_state:
+        speed_state["engines"] = make_engines(speed_state)
     speed = {"latency": latency(speed_state, settings.latency_calls, seed), "training": [], "bench": {},
              "holdout": speed_state["split"].name}
     log("speed: training")
