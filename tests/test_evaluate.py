@@ -88,6 +88,13 @@ def test_per_content_means_the_windows_of_each_content():
     assert out["dash"]["truth"]["5"] == {"skate": 1.0}
 
 
+def test_round_per_window_rounds_only_the_window_lists():
+    x = {"a": {"per_window": {"l2q": [0.123456789, 12345.678, None]}, "l2q": 0.123456789},
+         "b": [{"per_window": {"skate": [1 / 3]}}]}
+    assert evaluate.round_per_window(x) == {"a": {"per_window": {"l2q": [0.12346, 12346.0, None]}, "l2q": 0.123456789},
+                                            "b": [{"per_window": {"skate": [0.33333]}}]}
+
+
 def _inb(ratios_q, ratios_p, skate, truth_skate, lengths=LENGTHS):
     """A synthetic in-betweening result: slerp at 1.0, spline and inertialize at 0.9, method m."""
     def row(q, p, s):

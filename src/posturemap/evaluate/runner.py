@@ -439,12 +439,24 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
     }
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
     results["wall_seconds"] = time.perf_counter() - t_start
-    results = jsonable(results)
+    results = round_per_window(jsonable(results))
     write_bytes_atomic(out / "results.json", (json.dumps(results, indent=1) + "\n").encode())
     write_bytes_atomic(out / "results.md", report.markdown(results).encode())
     log(f"wrote {out / 'results.md'}, {out / 'results.json'} and {len(results['plots'])} plots "
         f"in {results['wall_seconds']:.0f} s")
     return results
+
+
+def round_per_window(x, digits: int = 5):
+    """``x`` with every list under a ``per_window`` key rounded to ``digits`` significant digits
+    (the window-by-window figures are for inspection; every mean and interval is computed from
+    the full values before). Keeps results.json to about a megabyte."""
+    if isinstance(x, dict):
+        return {k: ({m: [None if v is None else float(f"{v:.{digits}g}") for v in vals] for m, vals in v.items()}
+                    if k == "per_window" else round_per_window(v, digits)) for k, v in x.items()}
+    if isinstance(x, list):
+        return [round_per_window(v, digits) for v in x]
+    return x
 
 
 def code_version() -> str | None:
