@@ -47,11 +47,12 @@ def plot(results: dict, examples: dict, out: Path) -> list[str]:
     for name, hold in results["holdouts"].items():
         inb = hold["inbetween"]
         methods, lengths = list(inb["methods"]), inb["lengths"]
-        fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), dpi=100)
+        fig, axes = plt.subplots(2, 2, figsize=(12.5, 7.5), dpi=100)
         for ax, (metric, label) in zip(axes.ravel(), PLOT_METRICS):
-            for m in methods:
+            for i, m in enumerate(methods):  # ten colours; then the same colours dashed, dotted
                 ax.plot(lengths, [inb["methods"][m][str(n)].get(metric) for n in lengths], marker="o", ms=3,
-                        lw=2.2 if m == inb["default_method"] else 1.1, label=m)
+                        lw=2.2 if m == inb["default_method"] else 1.1, ls=("-", "--", ":")[min(i // 10, 2)],
+                        color=f"C{i % 10}", label=m)
             if metric in inb["truth"][str(lengths[0])]:
                 ax.plot(lengths, [inb["truth"][str(n)][metric] for n in lengths], color="k", lw=2.5, ls="--",
                         label="truth")
@@ -62,9 +63,10 @@ def plot(results: dict, examples: dict, out: Path) -> list[str]:
             ax.set_xticklabels([str(n) for n in lengths])
             ax.minorticks_off()
             ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=7, ncol=2)
-        fig.suptitle(f"{HOLDOUT_TITLES.get(name, name)}: {inb['windows']} windows", fontsize=10)
-        fig.tight_layout()
+        fig.legend(*axes[1, 0].get_legend_handles_labels(), loc="center right", fontsize=8)
+        fig.suptitle(f"{HOLDOUT_TITLES.get(name, name)}: {inb['windows']} windows (thick: the default; "
+                     "dashed black: the truth)", fontsize=10)
+        fig.tight_layout(rect=(0, 0, 0.85, 1))
         path = out / f"results_{name}.png"
         fig.savefig(path)
         plt.close(fig)
