@@ -68,6 +68,17 @@ def test_foot_joints_and_centred(sample_clips):
     assert not np.all(walk.positions[:, 0, [0, 2]] == 0.0)  # the input is left alone
 
 
+def test_key_model_stands_in_for_the_maps_only(sample_clips):
+    from posturemap.model import PostureMap
+
+    model = PostureMap(seed=0).fit([sample_clips["walk"]])
+    km = evaluate.fixed_key_model(model)
+    assert [m.n_neurons for m in km.maps_] == [1] * len(model.maps_)
+    assert km.space_ is model.space_ and (km.radius, km.seed) == (model.radius, model.seed)  # the rest: the map's
+    with pytest.raises(AttributeError):
+        _ = km.no_such_attribute
+
+
 def test_methods_cover_the_engine_and_todays_default():
     from posturemap.transition import METHODS as ENGINE
 

@@ -47,11 +47,22 @@ class KeyTable:
 
 @dataclass
 class KeyModel:
-    """A stand-in for :class:`PostureMap` with other key tables (same skeleton and features)."""
+    """A stand-in for :class:`PostureMap` with other key tables (same skeleton and features).
+
+    Anything else the engine reads from a map (e.g. a motion library) comes from ``base``,
+    the map it stands in for.
+    """
 
     skeleton_: object
     space_: object
     maps_: list
+    base: object = None
+
+    def __getattr__(self, name):
+        base = self.__dict__.get("base")
+        if base is None or name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(base, name)
 
 
 def grid_edges(rows: int, cols: int) -> np.ndarray:
@@ -96,7 +107,7 @@ def som_model(model, parts: list[np.ndarray], epochs: int, seed: int, log=print)
                      "seconds": seconds, "samples_per_s": epochs * len(x) / seconds})
         log(f"  som {CLASSES[c]}: {rows}x{cols} grid ({rows * cols} neurons, UPM {m.n_neurons}), "
             f"{seconds:.1f} s")
-    return KeyModel(model.skeleton_, model.space_, maps), info
+    return KeyModel(model.skeleton_, model.space_, maps, model), info
 
 
 def fixed_key_model(model) -> KeyModel:
@@ -104,7 +115,7 @@ def fixed_key_model(model) -> KeyModel:
     space = model.space_
     maps = [KeyTable(np.zeros((1, len(d))), np.full(len(d), np.inf), np.zeros((0, 2), np.int64))
             for d in space.class_dims]
-    return KeyModel(model.skeleton_, space, maps)
+    return KeyModel(model.skeleton_, space, maps, model)
 
 
 def centred(motion: Motion, root: int, up: int) -> Motion:
