@@ -106,6 +106,13 @@ def test_round_per_window_rounds_only_the_window_lists():
                                             "b": [{"per_window": {"skate": [0.33333]}}]}
 
 
+def test_dumps_keeps_number_lists_on_one_line_and_the_content():
+    x = {"a": [1, -2.5, 1e-05, None], "b": ["x", "y"], "c": {"d": [[1, 2], [3, 4]]}}
+    text = report.dumps(x)
+    assert json.loads(text) == x
+    assert '"a": [1, -2.5, 1e-05, null]' in text and '[1, 2]' in text and '"x",\n' in text
+
+
 def _inb(ratios_q, ratios_p, skate, truth_skate, lengths=LENGTHS):
     """A synthetic in-betweening result: slerp at 1.0, spline and inertialize at 0.9, method m."""
     def row(q, p, s):

@@ -353,6 +353,15 @@ def _speed_section(r: list[str], results: dict) -> None:
             r.append(f"Not run: {b['status']} ({b['reason']}).\n")
 
 
+_NUMBER_LIST = re.compile(r"\[(?:\s*(?:-?[0-9][0-9.eE+-]*|null)\s*,)*\s*(?:-?[0-9][0-9.eE+-]*|null)\s*\]")
+
+
+def dumps(results: dict) -> str:
+    """results.json's text: indented JSON with every list of numbers on one line."""
+    text = json.dumps(results, indent=1)
+    return _NUMBER_LIST.sub(lambda m: re.sub(r"\s+", "", m.group(0)).replace(",", ", "), text) + "\n"
+
+
 def jsonable(x):
     """A JSON-ready copy: numpy scalars and arrays to Python, Paths to str, tuple keys joined."""
     if isinstance(x, dict):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from contextlib import contextmanager
@@ -440,7 +439,7 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
     results["wall_seconds"] = time.perf_counter() - t_start
     results = round_per_window(jsonable(results))
-    write_bytes_atomic(out / "results.json", (json.dumps(results, indent=1) + "\n").encode())
+    write_bytes_atomic(out / "results.json", report.dumps(results).encode())
     write_bytes_atomic(out / "results.md", report.markdown(results).encode())
     log(f"wrote {out / 'results.md'}, {out / 'results.json'} and {len(results['plots'])} plots "
         f"in {results['wall_seconds']:.0f} s")
