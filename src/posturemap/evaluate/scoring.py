@@ -55,11 +55,12 @@ def skate_scores(ctx: Context, gpos: np.ndarray, steps: slice) -> tuple[np.ndarr
     """Foot skate of windows of global positions (N, T, J, 3), in cm/s.
 
     Returns ``(per_window, contact)``: the height-weighted skate (:func:`metrics.weighted_skate`;
-    ground from all T frames, averaged over ``steps``) per window (N,), and the older
+    ground = the lowest foot joint over all T frames, no per-joint offset; averaged over
+    ``steps``) per window (N,), and the older
     contact-based skate over the frames that ``steps`` spans (one mean over all contact steps).
     """
     feet = gpos[:, :, ctx.feet]
-    per = metrics.weighted_skate(feet, ctx.fps, ctx.up, ctx.skate_height, ctx.floor, steps) * ctx.cm
+    per = metrics.weighted_skate(feet, ctx.fps, ctx.up, ctx.skate_height, None, steps) * ctx.cm
     span = feet[:, steps.start: steps.stop + 1]
     contacts = metrics.foot_contacts(span, ctx.fps, ctx.up, ctx.floor, metrics.CONTACT_HEIGHT / ctx.cm,
                                      metrics.CONTACT_SPEED / ctx.cm)
