@@ -1,4 +1,4 @@
-"""The benchmark (`posturemap bench`): protocol helpers, and one quick run on bandai1."""
+"""The benchmark (`posturemap bench`): protocol helpers, and one quick run of every hold-out."""
 
 from __future__ import annotations
 
@@ -10,11 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import evaluate, report
-from posturemap.evaluate import LENGTHS, METHODS, N_PAST, VARIANTS, Settings
+from posturemap import evaluate
+from posturemap.evaluate import report
+from posturemap.evaluate import LENGTHS, METHODS, N_FUTURE, N_PAST, VARIANTS, Settings
 
-TINY = Settings(quick=True, train_stride=10, max_windows=4, pairs=3, som_epochs=1, latency_calls=5,
-                bench_scripts=False, sweep=False, plots=False)
+TINY = Settings(quick=True, holdouts=("cmu",), max_windows=3, pairs=0, som_epochs=0.1, latency_calls=5,
+                bench_scripts=False, diagnostics=False, sweep=False, plots=False)
+TINY_STYLE = dataclasses.replace(TINY, holdouts=("style",), train_stride=10)
 
 
 # -- protocol helpers (no data needed) ---------------------------------------------------------
@@ -30,11 +32,21 @@ def test_split_holds_out_whole_styles():
         "content": "walk-left", "style": "not-confident", "id": "003"}
 
 
+def test_split_holds_out_whole_contents():
+    names = ["dataset-1_walk_angry_001.bvh", "dataset-1_walk-back_normal_001.bvh", "dataset-1_dash_old_002.bvh",
+             "dataset-1_byebye_proud_001.bvh", "dataset-1_bye_proud_001.bvh", "other.bvh"]
+    train, test = evaluate.split_files([Path(n) for n in names], (), evaluate.TEST_CONTENTS)
+    assert [p.name for p in test] == ["dataset-1_byebye_proud_001.bvh", "dataset-1_dash_old_002.bvh",
+                                      "dataset-1_walk-back_normal_001.bvh"]
+    assert [p.name for p in train] == ["dataset-1_bye_proud_001.bvh", "dataset-1_walk_angry_001.bvh", "other.bvh"]
+
+
 def test_window_starts_follow_lafan1():
-    assert evaluate.window_starts(65) == []          # needs start + 65 < frames
-    assert evaluate.window_starts(66) == [0]
-    assert evaluate.window_starts(146) == [0, 40, 80]
-    assert evaluate.window_starts(145) == [0, 40]
+    assert evaluate.window_starts(65, 65) == []          # needs start + 65 < frames
+    assert evaluate.window_starts(66, 65) == [0]
+    assert evaluate.window_starts(146, 65) == [0, 40, 80]
+    assert evaluate.window_starts(145, 65) == [0, 40]
+    assert evaluate.window_starts(300, 200, 40) == [0, 40, 80]
 
 
 def test_som_grid():
@@ -56,9 +68,103 @@ def test_foot_joints_and_centred(sample_clips):
     assert not np.all(walk.positions[:, 0, [0, 2]] == 0.0)  # the input is left alone
 
 
-# -- on bandai1 ---------------------------------------------------------------------------------
+def test_key_model_stands_in_for_the_maps_only(sample_clips):
+    from posturemap.model import PostureMap
+
+    model = PostureMap(seed=0).fit([sample_clips["walk"]])
+    km = evaluate.fixed_key_model(model)
+    assert [m.n_neurons for m in km.maps_] == [1] * len(model.maps_)
+    assert km.space_ is model.space_ and (km.radius, km.seed) == (model.radius, model.seed)  # the rest: the map's
+    with pytest.raises(AttributeError):
+        _ = km.no_such_attribute
+
+
+def test_methods_cover_the_engine_and_todays_default():
+    from posturemap.transition import METHODS as ENGINE
+
+    assert set(ENGINE) <= set(METHODS)
+    assert {"zero-velocity", "som", "upm-valid" + evaluate.FEET, evaluate.DEFAULT_SPEC} <= set(METHODS)
+    assert len(set(METHODS)) == len(METHODS)
+    assert evaluate.method_spec("upm-valid+feet") == ("upm-valid", True)
+    assert evaluate.method_spec("slerp") == ("slerp", False)
+
+
+def test_per_content_means_the_windows_of_each_content():
+    res = {"methods": {"m": {"5": {"per_window": {"l2q": [1.0, 2.0, 4.0], "skate": [0.0, 3.0, 6.0],
+                                                  "npss": [9.0, 9.0, 9.0]}}}},
+           "truth": {"5": {"per_window": {"skate": [1.0, 1.0, 4.0]}}}}
+    out = evaluate.per_content(res, ["walk", "dash", "walk"])
+    assert out["walk"]["windows"] == 2 and out["dash"]["windows"] == 1
+    assert out["walk"]["methods"]["m"]["5"] == {"l2q": 2.5, "skate": 3.0}  # npss is not per content
+    assert out["dash"]["truth"]["5"] == {"skate": 1.0}
+
+
+def test_round_per_window_rounds_only_the_window_lists():
+    x = {"a": {"per_window": {"l2q": [0.123456789, 12345.678, None]}, "l2q": 0.123456789},
+         "b": [{"per_window": {"skate": [1 / 3]}}]}
+    assert evaluate.round_per_window(x) == {"a": {"per_window": {"l2q": [0.12346, 12346.0, None]}, "l2q": 0.123456789},
+                                            "b": [{"per_window": {"skate": [0.33333]}}]}
+
+
+def test_dumps_keeps_number_lists_on_one_line_and_the_content():
+    x = {"a": [1, -2.5, 1e-05, None], "b": ["x", "y"], "c": {"d": [[1, 2], [3, 4]]}}
+    text = report.dumps(x)
+    assert json.loads(text) == x
+    assert '"a": [1, -2.5, 1e-05, null]' in text and '[1, 2]' in text and '"x",\n' in text
+
+
+def _inb(ratios_q, ratios_p, skate, truth_skate, lengths=LENGTHS):
+    """A synthetic in-betweening result: slerp at 1.0, spline and inertialize at 0.9, method m."""
+    def row(q, p, s):
+        return {str(n): {"l2q": q[i], "l2p": p[i], "skate": s[i]} for i, n in enumerate(lengths)}
+    k = len(lengths)
+    return {"lengths": list(lengths), "windows": 1,
+            "truth": {str(n): {"skate": t} for n, t in zip(lengths, truth_skate)},
+            "methods": {"slerp": row([1.0] * k, [1.0] * k, [9.0] * k), "spline": row([0.9] * k, [0.9] * k, [9.0] * k),
+                        "inertialize": row([0.9] * k, [0.9] * k, [9.0] * k), "m": row(ratios_q, ratios_p, skate)}}
+
+
+def test_acceptance_criteria_hand_cases():
+    good = report.acceptance(_inb([0.5] * 4, [0.6] * 4, [1.0, 1.2, 1.4, 1.5], [1.0] * 4))["m"]
+    assert good["skate"] == (True, pytest.approx(1.5))
+    assert good["l2q"] == (True, 0.5) and good["l2p"] == (True, 0.6)
+    assert good["goal"] == (True, 0.6)
+    assert good["beats_baselines"] == (True, pytest.approx(0.6 / 0.9))
+    # 1% worse than slerp at 5 frames, skate 1.6x the truth's at 45 (5 frames do not count for skate),
+    # L2P 0.75x slerp at 45: not the goal; worse than spline at 30.
+    bad = report.acceptance(_inb([1.01, 0.5, 0.95, 0.5], [0.5, 0.5, 0.5, 0.75], [9.0, 1.0, 1.0, 1.6], [1.0] * 4))["m"]
+    assert bad["skate"] == (False, pytest.approx(1.6))
+    assert bad["l2q"] == (False, pytest.approx(1.01)) and bad["l2p"][0]
+    assert bad["goal"] == (False, pytest.approx(0.95))
+    assert bad["beats_baselines"] == (False, pytest.approx(0.95 / 0.9))
+
+
+def test_the_engine_sees_the_context_frames_only(sample_clips):
+    from posturemap.model import PostureMap
+    from posturemap.transition import TransitionEngine
+
+    walk = sample_clips["walk"]
+    seen = []
+
+    class Spy(TransitionEngine):
+        def generate(self, a, b, *args, **kw):
+            seen.append((sorted(self.tracks), len(self.tracks[a].gpos), len(self.tracks[b].gpos), kw["a_end"],
+                         kw["b_start"], kw["align"]))
+            return super().generate(a, b, *args, **kw)
+
+    model = PostureMap(seed=0).fit([walk])
+    engines = {"upm": Spy(model), "som": Spy(model)}
+    past, future = walk[20: 20 + N_PAST], walk[45: 45 + N_FUTURE]
+    out = evaluate.generate_from_context(engines, ["upm-valid+feet", "som"], past, future, 15)
+    assert seen == [(["_future", "_past"], N_PAST, N_FUTURE, N_PAST - 1, 0, False)] * 2
+    for r, p in out.values():
+        assert r.shape == (15, walk.skeleton.num_joints, 4) and p.shape == (15, walk.skeleton.num_joints, 3)
+    assert engines["upm"].tracks == {} and engines["som"].tracks == {}  # the context clips do not stay behind
+
+
+# -- on real data -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def quick(data_dir, bandai_files, tmp_path_factory):
+def quick(data_dir, bandai_files, cmu_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
     results = evaluate.run(data_dir, out, seed=0, settings=Settings.quick_run(), log=lambda m: None)
     return results, out
@@ -68,92 +174,169 @@ def _finite_numbers(d):
     if isinstance(d, dict):
         for v in d.values():
             yield from _finite_numbers(v)
+    elif isinstance(d, list):
+        for v in d:
+            yield from _finite_numbers(v)
     elif isinstance(d, (int, float)) and not isinstance(d, bool):
         yield d
 
 
 def test_quick_run_writes_every_file(quick):
     results, out = quick
-    for name in ("results.md", "results.json", "results_l2q.png", "results_l2p.png", "results_joint_angle.png"):
+    names = ["results.md", "results.json"] + [f"results_{h}.png" for h in evaluate.HOLDOUTS] + \
+        ["results_style_joint_angle.png"]
+    for name in names:
         assert (out / name).stat().st_size > 0, name
+    assert set(names[2:]) <= set(results["plots"])
     for png in results["plots"]:
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
     md = (out / "results.md").read_text()
     assert report.markdown(json.loads((out / "results.json").read_text())) == md  # rebuilt from the JSON alone
     for m in METHODS:
-        assert f"| {m} |" in md
-    assert "| truth |" in md and "L=45" in md and "angry, old, proud" in md
+        assert md.count(f"| {m} |") >= 3 * len(report.METRIC_TITLES), m  # every table of every hold-out
+    for title in report.HOLDOUT_TITLES.values():
+        assert f"## {title}" in md and f"**{title}**" in md  # a section and an acceptance table
+    assert "| truth |" in md and "L=180" in md and "angry, old, proud" in md and "dash, walk-back, byebye" in md
 
 
-def test_quick_run_has_every_method_length_and_finite_metrics(quick):
+def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     results, _ = quick
-    inb = results["inbetween"]
-    assert inb["windows"] == Settings.quick_run().max_windows
-    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "foot_skate", "validity", "jerk"}
-    for group in (inb["methods"], results["diagnostics"]["variants"]):
-        for m, per_length in group.items():
-            assert set(per_length) == {str(n) for n in LENGTHS}, m
+    holds = results["holdouts"]
+    assert list(holds) == list(evaluate.HOLDOUTS)
+    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "naturalness", "validity", "jerk"}
+    for name, hold in holds.items():
+        inb = hold["inbetween"]
+        lengths = evaluate.CMU_LENGTHS if name == "cmu" else LENGTHS
+        assert inb["lengths"] == list(lengths) and inb["windows"] == Settings.quick_run().max_windows
+        assert set(inb["methods"]) == set(METHODS)
+        for m, per_length in inb["methods"].items():
+            assert set(per_length) == {str(n) for n in lengths}, (name, m)
             for n, scores in per_length.items():
-                assert keys <= set(scores), (m, n)
-                assert all(math.isfinite(v) for v in _finite_numbers(scores)), (m, n, scores)
-    assert set(inb["methods"]) == set(METHODS)
-    assert set(results["diagnostics"]["variants"]) == set(VARIANTS)
-    cross = results["cross_clip"]
-    assert cross["pairs"] == Settings.quick_run().pairs
-    assert set(cross["methods"]) == set(METHODS)
+                assert keys <= set(scores), (name, m, n)
+                assert all(math.isfinite(v) for v in _finite_numbers(scores)), (name, m, n)
+                assert len(scores["per_window"]["naturalness"]) == inb["windows"]
+        for n in map(str, lengths):
+            t = inb["truth"][n]
+            assert {"skate", "naturalness", "validity", "jerk"} <= set(t)
+            assert t["naturalness"] > 0  # the truth is never compared with its own frames
+            assert all(inb["methods"][m][n]["l2q"] > 0 and inb["methods"][m][n]["mpjpe_cm"] > 0
+                       for m in METHODS)
+        # per content: the windows of every content add up; the means match the overall figure
+        pc = inb["per_content"]
+        assert sum(c["windows"] for c in pc.values()) == inb["windows"]
+        m, n = "slerp", "30"
+        overall = sum(c["windows"] * c["methods"][m][n]["l2q"] for c in pc.values()) / inb["windows"]
+        assert overall == pytest.approx(inb["methods"][m][n]["l2q"], rel=1e-9)
+    assert set(holds["content"]["inbetween"]["per_content"]) <= set(evaluate.TEST_CONTENTS)
+    cross = holds["style"]["cross_clip"]
+    assert cross["pairs"] == Settings.quick_run().pairs and set(cross["methods"]) == set(METHODS)
     assert all(p["a"] != p["b"] for p in cross["pair_list"])
     assert all(math.isfinite(v) for v in _finite_numbers(cross["methods"]))
+    assert holds["cmu"]["cross_clip"] is None  # one test clip
     assert set(results["speed"]["latency"]) == set(METHODS) - {"zero-velocity"}
     assert all(v["median_us"] > 0 for v in results["speed"]["latency"].values())
 
 
-def test_quick_run_split_and_sanity(quick):
+def test_quick_run_splits(quick):
     results, _ = quick
-    split = results["split"]
-    test_styles = {evaluate.parse_name(n)["style"] for n in split["test_files"]}
-    assert test_styles == set(evaluate.TEST_STYLES)
-    assert not set(split["train_files"]) & set(split["test_files"])
-    assert all(evaluate.parse_name(n)["style"] not in evaluate.TEST_STYLES for n in split["train_files"])
-    inb, var = results["inbetween"]["methods"], results["diagnostics"]["variants"]
-    for n in map(str, LENGTHS):
-        # The true posture as key must beat holding the last frame; errors are positive.
-        assert var["oracle-key"][n]["l2q"] < inb["zero-velocity"][n]["l2q"]
-        assert all(inb[m][n]["l2q"] > 0 and inb[m][n]["mpjpe_cm"] > 0 for m in METHODS)
+    holds = results["holdouts"]
+    style, content, cmu = (holds[h]["split"] for h in evaluate.HOLDOUTS)
+    assert {evaluate.parse_name(n)["style"] for n in style["test_files"]} == set(evaluate.TEST_STYLES)
+    assert all(evaluate.parse_name(n)["style"] not in evaluate.TEST_STYLES for n in style["train_files"])
+    assert {evaluate.parse_name(n)["content"] for n in content["test_files"]} == set(evaluate.TEST_CONTENTS)
+    assert all(evaluate.parse_name(n)["content"] not in evaluate.TEST_CONTENTS for n in content["train_files"])
+    for s in (style, content):
+        assert not set(s["train_files"]) & set(s["test_files"])
+        assert s["fps"] == pytest.approx(30.0, rel=1e-4) and s["cm_per_unit"] == 1.0
+    assert cmu["fps"] == pytest.approx(120.0, rel=1e-4)
+    assert cmu["train_frames"] + cmu["test_frames"] == 2752 and abs(cmu["train_frames"] - cmu["test_frames"]) <= 1
+    assert cmu["cm_per_unit"] == pytest.approx(2.54 / 0.45)
+    # Feet by name on both skeletons; the skate height follows the leg length (2.5 cm on an 80 cm leg).
+    assert holds["style"]["feet"]["joints"] == ["Foot_L", "Toes_L", "Foot_R", "Toes_R"]
+    assert holds["cmu"]["feet"]["joints"] == ["LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase"]
+    for h in holds.values():
+        assert h["feet"]["skate_height_cm"] == pytest.approx(2.5 * h["feet"]["leg_length_cm"] / 80.0)
 
 
 @pytest.fixture(scope="module")
 def tiny_state(data_dir, bandai_files):
-    state = evaluate.prepare(data_dir, TINY, 0, log=lambda m: None)
-    state["engines"] = evaluate.make_engines(state)
+    split = evaluate.load_split("style", data_dir, TINY_STYLE)
+    state = evaluate.prepare(split, TINY_STYLE, 0, log=lambda m: None)
+    state["engines"] = evaluate.make_engines(state)  # the diagnostics read whole clips
     return state
 
 
 def test_truth_as_prediction_scores_zero_error(tiny_state):
     state = tiny_state
     ctx = state["ctx"]
-    windows = evaluate.make_windows(state, TINY, 0)
+    windows = evaluate.make_windows(state, TINY_STYLE, 0)
     length = 15
-    span = N_PAST + length + 10
+    span = N_PAST + length + N_FUTURE
     tr = np.stack([state["test"][c].rotations[s: s + span] for c, s in windows])
     tp = np.stack([state["test"][c].positions[s: s + span] for c, s in windows])
     sl = slice(N_PAST, N_PAST + length)
-    got = evaluate.score_inbetween(ctx, tr, tp, tr[:, sl], tp[:, sl], length)
+    natural = evaluate.naturalness_fn(ctx, evaluate.natural_reference(ctx, state["test"]), windows, length)
+    got = evaluate.score_inbetween(ctx, tr, tp, tr[:, sl], tp[:, sl], length,
+                                   natural=natural(*(evaluate.rebuilt_frames(t, t[:, sl]) for t in (tr, tp))))
     for k in ("l2q", "l2p", "npss", "mpjpe_cm", "root_error_cm", "pose_error_cm"):
         assert got[k] == pytest.approx(0.0, abs=1e-9), k
-    ref = evaluate.score_truth(ctx, tr, tp, length)
-    for k in ("foot_skate", "validity", "jerk"):
+    seam_on = slice(N_PAST - 1, sl.stop)  # the last past frame and the gap
+    ref = evaluate.score_truth(ctx, tr, tp, length, natural=natural(tr[:, seam_on], tp[:, seam_on]))
+    for k in ("skate", "contact_skate", "validity", "jerk", "naturalness"):
         assert got[k] == pytest.approx(ref[k], rel=1e-12), k
     # A perturbed prediction is not free.
-    bad = evaluate.score_inbetween(ctx, tr, tp, tr[:, sl][:, ::-1], tp[:, sl], length)
-    assert bad["l2q"] > 0.01 and bad["l2p"] > 0.01
+    bad_r = tr[:, sl][:, ::-1]
+    bad = evaluate.score_inbetween(ctx, tr, tp, bad_r, tp[:, sl], length,
+                                   natural=natural(evaluate.rebuilt_frames(tr, bad_r),
+                                                   evaluate.rebuilt_frames(tp, tp[:, sl])))
+    assert bad["l2q"] > 0.01 and bad["l2p"] > 0.01 and bad["naturalness"] > got["naturalness"]
+    # One call scores several methods' windows in a row, each as if alone.
+    both = natural(np.concatenate([tr[:, seam_on], evaluate.rebuilt_frames(tr, bad_r)]),
+                   np.concatenate([tp[:, seam_on], tp[:, seam_on]]))
+    np.testing.assert_allclose(both, got["per_window"]["naturalness"] + bad["per_window"]["naturalness"])
 
 
-def test_same_seed_same_numbers(data_dir, bandai_files, tmp_path):
+def test_naturalness_finds_a_copy_of_real_motion_and_ignores_the_windows_own_frames(tiny_state):
+    state, length = tiny_state, 15
+    ctx = state["ctx"]
+    ref = evaluate.natural_reference(ctx, state["test"])
+    stride = round(evaluate.NATURAL_STRIDE_S * ctx.fps)
+    s1 = 1 + 4 * stride - N_PAST  # clip 1's gap starts at a reference window's first frame
+    clip = state["test"][1]
+    gap = slice(s1 + N_PAST - 1, s1 + N_PAST + length)  # the last past frame and the gap
+    r, p = clip.rotations[None, gap], clip.positions[None, gap]
+    own = evaluate.naturalness_fn(ctx, ref, [(1, s1)], length)(r, p)  # its own frames are left out
+    other = evaluate.naturalness_fn(ctx, ref, [(0, 0)], length)(r, p)  # said to come from clip 0
+    assert other[0] == pytest.approx(0.0, abs=1e-6)
+    assert own[0] > 0.01
+
+
+def test_diagnostics_oracle_key_beats_holding_the_last_frame(tiny_state):
+    settings = dataclasses.replace(TINY_STYLE, diagnostics=True)
+    windows = evaluate.make_windows(tiny_state, settings, 0)
+    inb, diag, _ = evaluate.run_inbetween(tiny_state, windows, settings, 0, log=lambda m: None, diagnostics=True)
+    assert set(diag["variants"]) == set(VARIANTS)
+    for n in map(str, LENGTHS):
+        assert set(diag["variants"]["oracle-key"]) == {str(k) for k in LENGTHS}
+        # The true posture as key must beat holding the last frame.
+        assert diag["variants"]["oracle-key"][n]["l2q"] < inb["methods"]["zero-velocity"][n]["l2q"]
+        assert diag["key_distance"][n]["upm_key_to_true"] > 0
+
+
+def test_same_seed_same_numbers(data_dir, cmu_file, tmp_path):
     a = evaluate.run(data_dir, tmp_path / "a", seed=3, settings=TINY, log=lambda m: None)
     b = evaluate.run(data_dir, tmp_path / "b", seed=3, settings=TINY, log=lambda m: None)
     for key in evaluate.QUALITY_KEYS:
-        assert a[key] == b[key], key
-    assert a["map"]["neurons"] == b["map"]["neurons"]
-    c = evaluate.run(data_dir, tmp_path / "c", seed=4, settings=dataclasses.replace(TINY), log=lambda m: None)
-    assert c["cross_clip"]["pair_list"] != a["cross_clip"]["pair_list"]
+        assert a[key].keys() == b[key].keys(), key
+    for name, hold in a["holdouts"].items():
+        for key in ("split", "inbetween", "cross_clip"):
+            assert hold[key] == b["holdouts"][name][key], (name, key)
+        assert hold["map"]["neurons"] == b["holdouts"][name]["map"]["neurons"]
+    assert len(a["holdouts"]["cmu"]["inbetween"]["window_list"]) == TINY.max_windows
+
+
+def test_the_seed_picks_the_windows(tiny_state):
+    a, b = (evaluate.make_windows(tiny_state, TINY_STYLE, seed) for seed in (3, 4))
+    assert a != b and len(a) == len(b) == TINY_STYLE.max_windows
+    assert a == evaluate.make_windows(tiny_state, TINY_STYLE, 3)

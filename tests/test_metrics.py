@@ -137,3 +137,60 @@ def test_l2q_is_invariant_to_a_common_turn():
     b = quat.normalize(rng.normal(size=(2, 3, 4, 4)))
     turn = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.7)
     assert metrics.l2q(quat.mul(turn, a), quat.mul(turn, b)) == pytest.approx(metrics.l2q(a, b), rel=1e-12)
+
+
+def test_weighted_skate_hand_case_counts_a_foot_sliding_above_the_contact_height():
+    fps, up, H = 10.0, 1, 2.5
+    # Two foot joints over 3 frames: joint 0 planted at height 0 (the ground), joint 1 sliding
+    # 10 cm per frame (100 cm/s) at 2 cm, then at 5 cm (2 H: weight 0).
+    pos = np.zeros((3, 2, 3))
+    pos[:, 1, 0] = [0.0, 10.0, 20.0]
+    pos[:, 1, 1] = [2.0, 2.0, 5.0]
+    w0 = 2.0 - 2.0 ** (2.0 / H)                        # step 0: mean height 2 cm
+    w1 = max(0.0, 2.0 - 2.0 ** (3.5 / H))              # step 1: mean height 3.5 cm -> 0
+    got = metrics.weighted_skate(pos[None], fps, up, H)
+    assert got.shape == (1,)
+    assert got[0] == pytest.approx((w0 * 100.0 + w1 * 100.0) / 4)  # mean over 2 steps x 2 joints
+    assert metrics.weighted_skate(pos[None], fps, up, H, steps=slice(0, 1))[0] == pytest.approx(w0 * 100.0 / 2)
+    # The contact-based measure never sees that foot (too fast to be a contact).
+    contacts = metrics.foot_contacts(pos, fps, up, floor=np.zeros(2))
+    assert not contacts[:, 1].any()
+    # Offsets: joint 1 planted 2 cm higher than joint 0 (as an ankle above a toe) slides on the ground.
+    off = metrics.weighted_skate(pos[None, :2], fps, up, H, offset=np.array([0.0, 2.0]), steps=slice(0, 1))
+    assert off[0] == pytest.approx(100.0 / 2)
+    # The ground is per window: the same window lifted 50 cm scores the same.
+    lifted = pos + np.array([0.0, 50.0, 0.0])
+    assert metrics.weighted_skate(np.stack([pos, lifted]), fps, up, H).tolist() == pytest.approx([got[0]] * 2)
+
+
+def _turned(gpos, grot, angle, shift):
+    turn = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), angle)
+    return quat.mul_vec(turn, gpos) + shift, quat.mul(turn, grot)
+
+
+def test_motion_features_are_pose_and_velocity_in_the_characters_frame():
+    rng = np.random.default_rng(5)
+    gpos = rng.normal(size=(4, 3, 3))
+    grot = quat.normalize(rng.normal(size=(4, 3, 4)))
+    f = metrics.motion_features(gpos, grot, root=0, up=1, fps=30.0)
+    assert f.shape == (3, 6 * 3 + 1)
+    # Invariant to a turn about up and a move on (and above) the floor... except the root height.
+    p2, r2 = _turned(gpos, grot, 1.1, np.array([5.0, 0.0, -3.0]))
+    np.testing.assert_allclose(metrics.motion_features(p2, r2, 0, 1, 30.0), f, atol=1e-12)
+    # A root facing along +z (identity rotation) moving 1 unit per frame along x at 30 fps.
+    pos = np.zeros((2, 1, 3))
+    pos[1, 0, 0] = 1.0
+    pos[:, 0, 1] = 0.9
+    rot = np.zeros((2, 1, 4))
+    rot[..., 0] = 1.0
+    np.testing.assert_allclose(metrics.motion_features(pos, rot, 0, 1, 30.0)[0], [0, 0, 0, 0.9, 30.0, 0, 0])
+
+
+def test_nearest_window_distance_hand_case_with_exclusion():
+    ref = np.array([[0.0, 0.0], [3.0, 4.0], [1.0, 1.0]])
+    q = np.array([[3.0, 4.0], [0.0, 0.0]])
+    np.testing.assert_allclose(metrics.nearest_window_distance(q, ref), [0.0, 0.0], atol=1e-7)
+    exclude = np.array([[False, True, True], [True, True, False]])
+    # query 0 may only use ref 0 (distance 5, RMS over 2 features); query 1 only ref 2 (sqrt 2).
+    np.testing.assert_allclose(metrics.nearest_window_distance(q, ref, exclude),
+                               [5.0 / math.sqrt(2), 1.0], atol=1e-12)

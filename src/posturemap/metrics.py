@@ -20,9 +20,13 @@ In-betweening"; code: ubisoft/ubisoft-laforge-animation-dataset, ``lafan1/benchm
   LaFAN1 subtracts the mean too, which cancels in the difference);
 - :func:`npss`: LaFAN1's ``fast_npss`` on the flattened global quaternions.
 
-The others: :func:`mpjpe` (mean per-joint position error, clip unit), :func:`foot_skate`
-(horizontal foot speed in ground contact, unit/s), :func:`pose_validity` (distance to the
-nearest training posture) and :func:`jerk` (third derivative of positions, unit/s^3).
+The others: :func:`mpjpe` (mean per-joint position error, clip unit), :func:`weighted_skate`
+(the standard foot-skate measure: horizontal foot speed weighted by closeness to the ground,
+unit/s, no contact detection), :func:`foot_skate` (the older measure: speed over detected
+contact steps only, which misses a foot sliding above the contact height), :func:`pose_validity`
+(distance to the nearest training posture), :func:`motion_features` and
+:func:`nearest_window_distance` (naturalness: distance of a window to its nearest real window)
+and :func:`jerk` (third derivative of positions, unit/s^3).
 """
 
 from __future__ import annotations
@@ -35,6 +39,9 @@ from . import quat
 # Foot contact thresholds (Bandai: centimetres at 30 fps); see :func:`foot_contacts`.
 CONTACT_HEIGHT = 3.0
 CONTACT_SPEED = 50.0
+# Height scale H of :func:`weighted_skate` in leg lengths (thigh + shin): 2.5 cm on Bandai's
+# 80 cm leg, the H of the standard measure (Zhang et al. 2018, "Mode-adaptive neural networks").
+SKATE_HEIGHT_LEGS = 2.5 / 80.0
 
 
 def align_signs(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -189,6 +196,70 @@ def foot_skate(pos: np.ndarray, fps: float, up: int, contacts: np.ndarray) -> tu
     """
     v = horizontal_speed(pos, fps, up)[contacts]
     return (float(v.mean()) if v.size else 0.0), int(v.size)
+
+
+def weighted_skate(pos: np.ndarray, fps: float, up: int, height: float, offset: np.ndarray | None = None,
+                   steps: slice = slice(None)) -> np.ndarray:
+    """The standard foot-skate measure: horizontal foot speed weighted by closeness to the ground.
+
+    pos : ndarray (..., T, K, 3), global positions of K foot joints (ankles and toes) over a
+        window of T frames; fps : frames per second; up : up axis
+    height : H, in the unit of ``pos`` (e.g. ``SKATE_HEIGHT_LEGS`` times the leg length)
+    offset : ndarray (K,), each joint's own height when planted (e.g. an ankle is higher than a
+        toe; default 0): heights are measured above it
+    steps : the frame steps to average over (entry ``t`` = frame ``t`` to ``t + 1``; default all)
+
+    Per window, the ground is the lowest joint height (above its offset) over all T frames and
+    K joints; per joint and step, ``h`` = the mean height above the ground at the two ends,
+    ``w = clip(2 - 2 ** (h / H), 0, 1)`` (1 on the ground, 0 from H above it) and the skate
+    is ``w`` times the horizontal speed. No contact is detected, so a foot sliding near the
+    ground always counts. Returns ndarray (...,): the mean over the chosen steps and the K
+    joints, in unit/s.
+    """
+    h = pos[..., up] - (0.0 if offset is None else np.asarray(offset))  # (..., T, K)
+    h = h - h.min(axis=(-2, -1), keepdims=True)
+    w = np.clip(2.0 - np.exp2(0.5 * (h[..., 1:, :] + h[..., :-1, :]) / height), 0.0, 1.0)
+    return (w * horizontal_speed(pos, fps, up))[..., steps, :].mean(axis=(-2, -1))
+
+
+def motion_features(gpos: np.ndarray, grot: np.ndarray, root: int, up: int, fps: float) -> np.ndarray:
+    """Pose and velocity of every frame after the first, in the character's own frame.
+
+    gpos : ndarray (..., T, J, 3), global positions; grot : ndarray (..., T, J, 4), global
+    rotations; root : index of the joint carrying the trajectory; up : up axis.
+    Per frame t >= 1, turned by minus the root's heading (about ``up``) at t: the joints'
+    positions relative to the root, the root's height, and every joint's velocity from
+    t - 1 to t (unit/s). Invariant to where the window is on the floor and which way it faces.
+    Returns ndarray (..., T-1, 6 J + 1): ``3 J`` pose, 1 root height and ``3 J`` velocity
+    columns, in the unit of ``gpos`` (velocities per second).
+    """
+    up_v = np.zeros(3)
+    up_v[up] = 1.0
+    heading, _ = quat.heading_twist(grot[..., 1:, root, :], up_v)  # (..., T-1, 4)
+    turn = quat.inv(heading)[..., None, :]
+    rel = quat.mul_vec(turn, gpos[..., 1:, :, :] - gpos[..., 1:, root: root + 1, :])
+    vel = quat.mul_vec(turn, np.diff(gpos, axis=-3)) * fps
+    lead = rel.shape[:-2]
+    return np.concatenate([rel.reshape(*lead, -1), gpos[..., 1:, root, up][..., None],
+                           vel.reshape(*lead, -1)], axis=-1)
+
+
+def nearest_window_distance(query: np.ndarray, ref: np.ndarray, exclude: np.ndarray | None = None,
+                            ref_sq: np.ndarray | None = None) -> np.ndarray:
+    """Distance from each query window to its nearest reference window (naturalness).
+
+    query : ndarray (N, D), ref : ndarray (M, D): windows as flat feature vectors in one
+    normalised space; exclude : bool (N, M), pairs not to consider (e.g. a reference window
+    overlapping the query's own frames), or None; ref_sq : (M,) the squared norms of ``ref``
+    when already known. Returns (N,): the root mean square over the D features of the
+    difference to the nearest allowed reference window (inf if none).
+    """
+    q, r = np.asarray(query, dtype=float), np.asarray(ref, dtype=float)
+    ref_sq = (r * r).sum(1) if ref_sq is None else ref_sq
+    d2 = (q * q).sum(1)[:, None] + ref_sq[None, :] - 2.0 * q @ r.T
+    if exclude is not None:
+        d2 = np.where(exclude, np.inf, d2)
+    return np.sqrt(np.maximum(d2.min(axis=1), 0.0) / q.shape[1])
 
 
 def build_posture_index(postures: np.ndarray) -> cKDTree:

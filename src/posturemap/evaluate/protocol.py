@@ -1,0 +1,215 @@
+"""The bench's protocol: hold-outs and their splits, windows, methods, settings.
+
+See :mod:`posturemap.evaluate` for the protocol in words.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..motion import Motion, length_unit
+from ..transition import DEFAULT_METHOD
+from ..transition import METHODS as ENGINE_METHODS
+
+HOLDOUTS = ("style", "content", "cmu")
+TEST_STYLES = ("angry", "old", "proud")
+TEST_CONTENTS = ("dash", "walk-back", "byebye")
+LENGTHS = (5, 15, 30, 45)
+CMU_FILE = Path("cmu") / "01_01.bvh"
+CMU_LENGTHS = (5, 15, 20, 30, 45, 60, 120, 180)  # 5-45 frames, and 20-180: the 30 fps durations
+N_PAST = 10
+N_FUTURE = 10
+STRIDE = 40
+STATS_WINDOW, STATS_STRIDE = 50, 20  # LaFAN1 get_train_stats
+CROSS_LENGTH = 20
+_BASELINES = ("slerp", "inertialize", "spline")
+FEET = "+feet"  # suffix: the method with foot locking (posturemap.feet)
+DEFAULT_SPEC = DEFAULT_METHOD + FEET  # what `posturemap transition` does by default
+# Every method of the engine (new ones join automatically), foot-locked variants, and the
+# two built here.
+_FOOT_LOCKED = tuple(m + FEET for m in dict.fromkeys(("upm-valid", DEFAULT_METHOD)) if m in ENGINE_METHODS)
+METHODS = (("zero-velocity",) + tuple(m for m in _BASELINES if m in ENGINE_METHODS)
+           + tuple(m for m in ENGINE_METHODS if m not in _BASELINES) + _FOOT_LOCKED + ("som",))
+
+
+def method_spec(m: str) -> tuple[str, bool]:
+    """Engine method and foot locking of a method name of this benchmark."""
+    return (m[: -len(FEET)], True) if m.endswith(FEET) else (m, False)
+
+
+VARIANTS = ("blend-key", "oracle-key", "self-map-key", "spline-v0", "blend-key-v0", "upm-lerp-root")
+SWEEP_LENGTHS = (15, 30, 45)
+SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
+FOOT_PATTERN = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)
+FLOOR_PERCENTILE = 5.0
+UNIT_CM = {"m": 100.0, "cm": 1.0, "mm": 0.1, "inch": 2.54}
+ASF_UNIT_CM = 2.54 / 0.45  # CMU's BVH conversions keep the ASF unit, 1/0.45 inch
+QUALITY_KEYS = ("holdouts", "diagnostics")
+
+_NAME = re.compile(r"^dataset-1_(?P<content>[^_]+)_(?P<style>[^_]+)_(?P<id>\d+)$")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How much of the benchmark to run (see :meth:`full` and :meth:`quick_run`).
+
+    holdouts : which hold-outs of :data:`HOLDOUTS` to run
+    train_stride : use every n-th training clip (sorted by name; Bandai hold-outs)
+    max_windows : at most this many test windows per hold-out (a seeded random subset), None for all
+    pairs : number of random cross-clip pairs
+    som_epochs : passes of MiniSom over the training features (a fraction: that share of one pass)
+    latency_calls : timed generate calls per method
+    bench_scripts : run the scripts of ``bench/`` (slow)
+    diagnostics : key distances and stand-in keys of the keyed methods (style hold-out)
+    sweep : also score ``upm`` over a grid of ``alpha`` and ``key_at`` (with diagnostics)
+    plots : write the PNG plots
+    """
+
+    quick: bool = False
+    holdouts: tuple = HOLDOUTS
+    train_stride: int = 1
+    max_windows: int | None = None
+    pairs: int = 100
+    som_epochs: float = 4
+    latency_calls: int = 2000
+    bench_scripts: bool = True
+    diagnostics: bool = True
+    sweep: bool = True
+    plots: bool = True
+
+    @classmethod
+    def full(cls) -> Settings:
+        return cls()
+
+    @classmethod
+    def quick_run(cls) -> Settings:
+        return cls(quick=True, train_stride=4, max_windows=8, pairs=10, som_epochs=0.25, latency_calls=100,
+                   bench_scripts=False, diagnostics=False, sweep=False)
+
+
+# -- data ---------------------------------------------------------------------------------
+def parse_name(path: str | Path) -> dict | None:
+    """``{"content", "style", "id"}`` of a Bandai file name, or None for another name."""
+    m = _NAME.match(Path(path).stem)
+    return m.groupdict() if m else None
+
+
+def split_files(files: list[Path], test_styles=TEST_STYLES, test_contents=()) -> tuple[list[Path], list[Path]]:
+    """(train, test): test = files whose style is in ``test_styles`` or whose content is in
+    ``test_contents``; others (and any file whose name does not follow the Bandai pattern)
+    are training files. Both sorted."""
+    train, test = [], []
+    for f in sorted(files):
+        info = parse_name(f)
+        held = info is not None and (info["style"] in test_styles or info["content"] in test_contents)
+        (test if held else train).append(f)
+    return train, test
+
+
+@dataclass
+class Split:
+    """One hold-out: training and test motions and how to measure them.
+
+    train, test : lists of Motion (one skeleton); train_names, test_names : their names
+    contents : motion type of each test clip (per-content tables)
+    lengths : transition lengths (frames); rule : the split in words
+    cm : centimetres per unit of the clips; unit : how that unit was found
+    train_clips_all : training clips before ``Settings.train_stride``
+    """
+
+    name: str
+    rule: str
+    train: list
+    train_names: list
+    test: list
+    test_names: list
+    contents: list
+    lengths: tuple
+    cm: float
+    unit: str
+    train_clips_all: int
+
+
+def unit_cm(motion: Motion) -> tuple[float, str]:
+    """Centimetres per unit of a clip, and how it was found (:func:`posturemap.motion.length_unit`;
+    a clip of unknown unit is taken to be in CMU's ASF unit, 1/0.45 inch)."""
+    u = length_unit(motion)
+    if u in UNIT_CM:
+        return UNIT_CM[u], u
+    return ASF_UNIT_CM, "ASF unit (1/0.45 inch, assumed for a body of unknown unit, as CMU's)"
+
+
+def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
+    """Read the clips of one hold-out of :data:`HOLDOUTS` (see the module doc)."""
+    from .. import bvh
+
+    data_dir = Path(data_dir)
+    if name == "cmu":
+        path = data_dir / CMU_FILE
+        m = bvh.read(path)
+        half = len(m) // 2
+        cm, unit = unit_cm(m)
+        return Split(name, f"{CMU_FILE.name}: training = frames 0-{half - 1}, test = frames {half}-{len(m) - 1}",
+                     [m[:half]], [f"{CMU_FILE.name}[0:{half}]"], [m[half:]], [f"{CMU_FILE.name}[{half}:{len(m)}]"],
+                     [CMU_FILE.stem], CMU_LENGTHS, cm, unit, 1)
+    if name not in ("style", "content"):
+        raise ValueError(f"unknown hold-out {name!r}; valid: {', '.join(HOLDOUTS)}")
+    files = sorted((data_dir / "bandai1").glob("*.bvh"))
+    if not files:
+        raise FileNotFoundError(str(data_dir / "bandai1"))
+    if name == "style":
+        train_f, test_f = split_files(files, TEST_STYLES)
+        rule = f"test = every clip of the styles {', '.join(TEST_STYLES)}; training = the other styles"
+    else:
+        train_f, test_f = split_files(files, (), TEST_CONTENTS)
+        rule = (f"test = every clip of the contents (motion types) {', '.join(TEST_CONTENTS)}; "
+                "training = the other contents, every style")
+    used = train_f[:: settings.train_stride]
+    train, test = [bvh.read(f) for f in used], [bvh.read(f) for f in test_f]
+    cm, unit = unit_cm(test[0])
+    contents = [(parse_name(f) or {"content": "other"})["content"] for f in test_f]
+    return Split(name, rule, train, [f.name for f in used], test, [f.name for f in test_f], contents,
+                 LENGTHS, cm, unit, len(train_f))
+
+
+def window_starts(num_frames: int, window: int, stride: int = STRIDE) -> list[int]:
+    """First frames of the windows of one clip (LaFAN1: ``while start + window < frames``)."""
+    return list(range(0, max(num_frames - window, 0), stride))
+
+
+def foot_joints(names) -> np.ndarray:
+    """Indices of the joints named like feet, ankles, toes or heels."""
+    return np.array([j for j, n in enumerate(names) if FOOT_PATTERN.search(n)], dtype=np.int64)
+
+
+def make_windows(state: dict, settings: Settings, seed: int) -> list[tuple[int, int]]:
+    """(test clip index, first frame) of every window used, in a fixed order."""
+    window = N_PAST + max(state["split"].lengths) + N_FUTURE
+    wins = [(c, s) for c, m in enumerate(state["test"]) for s in window_starts(len(m), window)]
+    if settings.max_windows is not None and len(wins) > settings.max_windows:
+        rng = np.random.default_rng(seed)
+        keep = np.sort(rng.choice(len(wins), settings.max_windows, replace=False))
+        wins = [wins[i] for i in keep]
+    return wins
+
+
+def random_pairs(lengths: list[int], count: int, seed: int, length: int = CROSS_LENGTH) -> list[tuple]:
+    """``count`` seeded (a, b, a_end, b_start) with a != b (unless there is one clip only), 10
+    real frames on both sides."""
+    rng = np.random.default_rng(seed)
+    ok = [i for i, n in enumerate(lengths) if n >= N_PAST + N_FUTURE]
+    pairs = []
+    while len(pairs) < count:
+        a, b = rng.choice(ok, 2, replace=len(ok) < 2)
+        a_end = int(rng.integers(N_PAST - 1, lengths[a]))
+        b_start = int(rng.integers(0, lengths[b] - N_FUTURE + 1))
+        pairs.append((int(a), int(b), a_end, b_start))
+    return pairs
+
+
+def _log(msg: str):
+    print(msg, flush=True)

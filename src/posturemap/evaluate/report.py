@@ -1,0 +1,382 @@
+"""The report of ``posturemap bench``: results.md and the PNG plots, from the results dict.
+
+Everything comes from the dict :func:`posturemap.evaluate.run` writes to results.json, so the
+report can be rebuilt from that file alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .. import metrics
+from ..features import CLASSES
+
+HOLDOUT_TITLES = {
+    "style": "Style hold-out (unseen styles of known motion types)",
+    "content": "Content hold-out (motion types absent from the library)",
+    "cmu": "CMU 01_01 at 120 fps (library from the first half, gaps in the second)",
+}
+PLOT_METRICS = (("l2q", "L2Q (global quaternions)"), ("l2p", "L2P (normalised global positions)"),
+                ("skate", "foot skate (cm/s)"), ("naturalness", "naturalness (distance to nearest real window)"))
+# The issue's acceptance criteria (issue 11, "What must be shown").
+SKATE_LENGTHS = (15, 30, 45)
+SKATE_FACTOR = 1.5
+GOAL_LENGTHS = (30, 45)
+GOAL_FACTOR = 0.7
+
+
+def plot(results: dict, examples: dict, out: Path) -> list[str]:
+    """PNG plots per hold-out: L2Q, L2P, foot skate and naturalness against length (truth as a
+    black line where it has a value); one joint's angle through a window at 30 frames.
+
+    ``examples`` (from :func:`posturemap.evaluate.run_inbetween`, per hold-out, may be empty):
+    per method and ``truth`` the local rotations (F, J, 4) of one window at 30 frames, with
+    ``clip``, ``window`` and the skeleton's ``joints``. Returns the names of the files written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for name, hold in results["holdouts"].items():
+        inb = hold["inbetween"]
+        methods, lengths = list(inb["methods"]), inb["lengths"]
+        fig, axes = plt.subplots(2, 2, figsize=(12.5, 7.5), dpi=100)
+        for ax, (metric, label) in zip(axes.ravel(), PLOT_METRICS):
+            for i, m in enumerate(methods):  # ten colours; then the same colours dashed, dotted
+                ax.plot(lengths, [inb["methods"][m][str(n)].get(metric) for n in lengths], marker="o", ms=3,
+                        lw=2.2 if m == inb["default_method"] else 1.1, ls=("-", "--", ":")[min(i // 10, 2)],
+                        color=f"C{i % 10}", label=m)
+            if metric in inb["truth"][str(lengths[0])]:
+                ax.plot(lengths, [inb["truth"][str(n)][metric] for n in lengths], color="k", lw=2.5, ls="--",
+                        label="truth")
+            ax.set_xlabel("transition length (frames)")
+            ax.set_ylabel(label)
+            ax.set_xscale("log")
+            ax.set_xticks(lengths)
+            ax.set_xticklabels([str(n) for n in lengths])
+            ax.minorticks_off()
+            ax.grid(alpha=0.3)
+        fig.legend(*axes[1, 0].get_legend_handles_labels(), loc="center right", fontsize=8)
+        fig.suptitle(f"{HOLDOUT_TITLES.get(name, name)}: {inb['windows']} windows (thick: the default; "
+                     "dashed black: the truth)", fontsize=10)
+        fig.tight_layout(rect=(0, 0, 0.85, 1))
+        path = out / f"results_{name}.png"
+        fig.savefig(path)
+        plt.close(fig)
+        written.append(path.name)
+        example = examples.get(name) or {}
+        if example:
+            written.append(_plot_example(plt, example, methods, results["config"]["n_past"], out,
+                                         f"results_{name}_joint_angle.png"))
+    return written
+
+
+def _plot_example(plt, example: dict, methods: list[str], n_past: int, out: Path, filename: str) -> str:
+    names = example["joints"]
+    joint = next((j for j, n in enumerate(names) if re.search(r"lowerleg|knee|shin|leftleg", n, re.IGNORECASE)), 1)
+    _, s = example["window"]
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
+    t = np.arange(len(example["truth"])) - (n_past - 1)
+    for m in ["truth"] + methods:
+        ang = np.degrees(2 * np.arccos(np.clip(np.abs(example[m][:, joint, 0]), 0, 1)))
+        ax.plot(t, ang, lw=2.5 if m == "truth" else 1.2, color="k" if m == "truth" else None,
+                ls="-" if m == "truth" else "--", label=m)
+    ax.axvspan(1, 30, color="0.9")
+    ax.set_xlabel("frame (0 = last past-context frame; grey: the 30 rebuilt frames)")
+    ax.set_ylabel(f"{names[joint]} rotation angle (deg)")
+    ax.set_title(f"{example['clip']}, frames {s}..{s + len(t) - 1}", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(out / filename)
+    plt.close(fig)
+    return filename
+
+
+def _fmt(v, digits=3):
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        if abs(v) >= 1000:
+            return f"{v:,.0f}"
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def _table(rows: list[str], header: list[str], body: list[list]) -> None:
+    rows.append("| " + " | ".join(header) + " |")
+    rows.append("|" + "---|" * len(header))
+    for b in body:
+        rows.append("| " + " | ".join(_fmt(v) for v in b) + " |")
+    rows.append("")
+
+
+METRIC_TITLES = {
+    "l2q": "L2Q (global quaternions, LaFAN1; lower is better)",
+    "l2p": "L2P (global positions normalised as LaFAN1; lower is better)",
+    "npss": "NPSS (global quaternions; lower is better)",
+    "mpjpe_cm": "MPJPE (cm)",
+    "root_error_cm": "Root position error (cm)",
+    "pose_error_cm": "Root-relative joint position error (cm)",
+    "skate": "Foot skate (cm/s, height-weighted horizontal foot speed, no contact detection; truth row for reference)",
+    "naturalness": "Naturalness (distance to the nearest real window of unseen data, z-scored pose and velocity; "
+                   "truth row for reference; lower is more natural)",
+    "contact_skate": "Secondary: contact-based foot skate (cm/s over detected contact steps only; blind to a foot "
+                     "sliding above the contact height)",
+    "validity": "Pose validity (mean distance to the nearest training posture, feature units; truth row for reference)",
+    "jerk": "Jerk (cm/s^3; truth row for reference)",
+}
+
+
+def acceptance(inb: dict) -> dict:
+    """The issue's acceptance criteria per method, from one hold-out's in-betweening results.
+
+    Returns ``{method: {criterion: (passed, worst ratio)}}`` with the criteria ``skate`` (skate
+    at most 1.5x the truth's at 15, 30, 45 frames), ``l2q``/``l2p`` (no worse than slerp at any
+    length), ``goal`` (L2Q and L2P at most 0.7x slerp's at 30 and 45) and ``beats_baselines``
+    (L2Q and L2P below spline's and inertialize's at 30 and 45). A ratio is the method's figure
+    divided by the reference's; the worst over the lengths (and metrics) is reported.
+    """
+    lengths = inb["lengths"]
+    meth, truth = inb["methods"], inb["truth"]
+
+    def worst(m, metric, ref, ns, factor=1.0):
+        ratios = [meth[m][str(n)][metric] / ref[str(n)][metric] for n in ns if str(n) in ref]
+        r = max(ratios) if ratios else float("nan")
+        return r <= factor, r
+
+    out = {}
+    long_ns = [n for n in GOAL_LENGTHS if n in lengths]
+    for m in meth:
+        slerp = meth.get("slerp", {})
+        row = {"skate": worst(m, "skate", truth, [n for n in SKATE_LENGTHS if n in lengths], SKATE_FACTOR),
+               "l2q": worst(m, "l2q", slerp, lengths), "l2p": worst(m, "l2p", slerp, lengths)}
+        goal = [worst(m, k, slerp, long_ns, GOAL_FACTOR) for k in ("l2q", "l2p")]
+        row["goal"] = (all(g[0] for g in goal), max(g[1] for g in goal))
+        beats = [worst(m, k, meth[b], long_ns) for b in ("spline", "inertialize") if b in meth and b != m
+                 for k in ("l2q", "l2p")]
+        row["beats_baselines"] = (all(b[0] for b in beats), max(b[1] for b in beats)) if beats else (False, None)
+        out[m] = row
+    return out
+
+
+def _acceptance_rows(r: list[str], name: str, inb: dict) -> None:
+    acc = acceptance(inb)
+
+    def cell(v):
+        ok, ratio = v
+        return ("yes" if ok else "NO") + (f" ({ratio:.2f})" if ratio is not None else "")
+
+    r.append(f"**{HOLDOUT_TITLES.get(name, name)}** ({inb['windows']} windows):\n")
+    _table(r, ["method", f"skate <= {SKATE_FACTOR:g}x truth at 15/30/45", "L2Q <= slerp, every L",
+               "L2P <= slerp, every L", f"goal: L2Q, L2P <= {GOAL_FACTOR:g}x slerp at 30/45",
+               "L2Q, L2P < spline, inertialize at 30/45"],
+           [[m] + [cell(v[k]) for k in ("skate", "l2q", "l2p", "goal", "beats_baselines")] for m, v in acc.items()])
+
+
+def _series(per_length: dict, lengths, metric) -> str:
+    return " ".join(_fmt(per_length[str(n)].get(metric)) for n in lengths)
+
+
+def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
+    inb, sp, feet = hold["inbetween"], hold["split"], hold["feet"]
+    methods, lengths = list(inb["methods"]), inb["lengths"]
+    r.append(f"## {HOLDOUT_TITLES.get(name, name)}\n")
+    used = f" (every {cfg['train_stride']}th used)" if cfg["train_stride"] > 1 and name != "cmu" else ""
+    r.append(f"- Split: {sp['rule']}. Test: {sp['test_clips']} clips, {sp['test_frames']} frames; training: "
+             f"{sp['train_clips_all']} clips{used}, {sp['train_clips']} clips, {sp['train_frames']} frames "
+             f"({sp['fps']:g} fps, {sp['joints']} joints, unit: {sp['unit']}, {sp['cm_per_unit']:.4g} cm). "
+             "The map (and any library a method keeps), SOM, L2P statistics, planted foot heights and "
+             "validity index see the training side only.")
+    r.append(f"- Windows: {inb['windows']}, L = {', '.join(map(str, lengths))}.")
+    r.append(f"- Feet: {', '.join(feet['joints'])}; planted heights "
+             f"{', '.join(f'{v:.1f}' for v in feet['floor_cm'])} cm; skate H = {feet['skate_height_cm']:.2f} cm "
+             f"({cfg['skate_height_legs']:.4f} x leg length {feet['leg_length_cm']:.1f} cm).\n")
+    for metric, title in METRIC_TITLES.items():
+        r.append(f"### {title}\n")
+        body = [[m] + [inb["methods"][m][str(n)].get(metric) for n in lengths] for m in methods]
+        if metric in inb["truth"][str(lengths[0])]:
+            body.append(["truth"] + [inb["truth"][str(n)][metric] for n in lengths])
+        _table(r, ["method"] + [f"L={n}" for n in lengths], body)
+    r.append("### Every method against slerp, window by window\n")
+    r.append("Ratio of the means (method / slerp), mean difference with its 95% bootstrap interval, share of "
+             "windows where the method is better:\n")
+
+    def cell(m, n, k):
+        v = inb["vs_slerp"][m][str(n)][k]
+        ratio = "-" if v.get("ratio") is None else f"{v['ratio']:.2f}"
+        return f"{ratio}; {v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]; {100 * v['share_better']:.0f}%"
+
+    for k in ("l2q", "l2p"):
+        _table(r, ["method"] + [f"{k.upper()} L={n}" for n in lengths],
+               [[m] + [cell(m, n, k) for n in lengths] for m in methods if m != "slerp"])
+    r.append("### Per motion type (content)\n")
+    r.append("Each cell lists the values at L = " + ", ".join(map(str, lengths)) + ".\n")
+    for content, pc in inb["per_content"].items():
+        r.append(f"**{content}** ({pc['windows']} windows)\n")
+        body = [[m] + [_series(pc["methods"][m], lengths, k) for k in ("l2q", "l2p", "mpjpe_cm", "skate",
+                                                                        "naturalness")] for m in methods]
+        body.append(["truth", "", "", "", _series(pc["truth"], lengths, "skate"),
+                     _series(pc["truth"], lengths, "naturalness")])
+        _table(r, ["method", "L2Q", "L2P", "MPJPE cm", "skate cm/s", "naturalness"], body)
+    cc = hold.get("cross_clip")
+    if cc:
+        r.append(f"### Transitions between different clips ({cc['pairs']} seeded random pairs of test clips, "
+                 f"length {cc['length']}, align=True)\n")
+        keys = ("skate", "contact_skate", "validity", "validity_p95", "jerk")
+        body = [[m] + [cc["methods"][m][k] for k in keys] for m in methods]
+        body.append(["real frames at the seams"] + [cc["reference"][k] for k in keys])
+        _table(r, ["method", "skate cm/s", "contact skate cm/s", "validity", "validity p95", "jerk cm/s^3"], body)
+
+
+def markdown(results: dict) -> str:
+    """results.md from the results dict (as in results.json: the report can be redone from it)."""
+    r = []
+    cfg = results["config"]
+    holds = results["holdouts"]
+    r.append("# posturemap bench: results\n")
+    r.append(f"Run: `posturemap bench{' --quick' if cfg['quick'] else ''} --seed {cfg['seed']}` on "
+             f"{results['machine']['cpus']} CPUs (shared with other jobs), Python {results['machine']['python']}, "
+             f"code `{results['machine']['code']}`; wall time **{results['wall_seconds']:.0f} s** ("
+             + ", ".join(f"{k} {v:.0f} s" for k, v in results["section_seconds"].items()) + ").\n")
+    r.append("## Summary: the issue's acceptance criteria, per hold-out\n")
+    r.append(f"Ratios in brackets: the worst over the lengths (and over L2Q and L2P) of the method's figure "
+             f"divided by the reference's (truth's skate, slerp's, spline's and inertialize's errors); `yes` when "
+             f"the criterion holds. Skate: at most {SKATE_FACTOR:g}x the truth's at 15, 30, 45 frames. Goal: L2Q "
+             f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames.\n")
+    for name, hold in holds.items():
+        _acceptance_rows(r, name, hold["inbetween"])
+    r.append("## Protocol\n")
+    r.append("- Hold-outs: " + "; ".join(f"**{n}**: {h['split']['rule']}" for n, h in holds.items()) + ".")
+    r.append(f"- In-betweening: windows of {cfg['n_past']} past + L + {cfg['n_future']} future frames starting "
+             f"every {cfg['stride']} frames (windows of the longest L truncated per L, as LaFAN1). Every method sees "
+             f"the context only: the {cfg['n_past']} past frames as clip A, the {cfg['n_future']} future frames as "
+             "clip B, `align=False`, `alpha=0.5`, `key_at=L//2`; no method can read a frame of the gap.")
+    r.append("- L2Q, L2P, NPSS as in LaFAN1 (window frame: root centred, turned to face a fixed direction "
+             "at the last past frame; L2P divides by per-coordinate std of training windows of 50 frames, "
+             "stride 20; signs of quaternions made consistent with the truth). MPJPE and all cm figures: the "
+             "clip's unit times the hold-out's cm per unit.")
+    pct = next(iter(holds.values()))["feet"]["floor_percentile"]
+    r.append(f"- Foot skate (the standard measure): per window, the ground is the lowest height of any foot joint "
+             f"(ankles and toes) over the window's frames; per joint and frame step, the horizontal speed times "
+             f"`w = clip(2 - 2**(h / H), 0, 1)` with h the mean height above that ground at the step's two ends and "
+             f"H = {cfg['skate_height_legs']:.5f} leg lengths (2.5 cm on Bandai's 80 cm leg); the mean over the "
+             "L+1 steps from the last past frame to the first future frame and over the foot joints. No contact "
+             "detection: a foot sliding near the ground always counts. A planted ankle sits well above a toe (7.5 cm "
+             "on Bandai), so in effect the toes carry the measure (the truth's heel roll does not inflate its "
+             "figure). The older contact-based measure (speed over steps where the joint is within "
+             f"{metrics.CONTACT_HEIGHT:g} cm of its planted height, the {pct:g}th percentile of its height in "
+             f"training, at both ends and slower than {metrics.CONTACT_SPEED:g} cm/s) is kept as a secondary "
+             "table.")
+    r.append(f"- Naturalness: per frame, joint positions relative to the root, the root's height and every joint's "
+             f"velocity, all in the character's heading frame, z-scored over the reference frames; a window is "
+             f"described by at most {cfg['natural_frames']} evenly spaced rebuilt frames; its naturalness is the "
+             f"RMS distance to the nearest real window of the same length among the hold-out's test clips (data "
+             f"no library was built from), starting every {cfg['natural_stride_s']:g} s, leaving out windows that "
+             "overlap its own frames (so the truth row is the distance from real motion to other real motion).")
+    r.append("- Pose validity: distance (KD-tree) from each rebuilt posture to the nearest training posture "
+             "in the map's feature space (logmap radians, root height in leg lengths).")
+    r.append("- Jerk: every third difference of global positions that touches a rebuilt frame.\n")
+    for name, hold in holds.items():
+        _holdout_section(r, name, hold, cfg)
+    if results.get("diagnostics"):
+        _diagnostics_section(r, results)
+    _speed_section(r, results)
+    return "\n".join(r) + "\n"
+
+
+def _diagnostics_section(r: list[str], results: dict) -> None:
+    d = results["diagnostics"]
+    hold = results["holdouts"]["style"]
+    inb = hold["inbetween"]
+    lengths = inb["lengths"]
+    dm = inb["default_method"]
+    r.append("## Diagnostics (keyed methods, style hold-out)\n")
+    r.append("Distance in the map's feature space from candidate postures to the true posture at `key_at` "
+             "(mean over windows):\n")
+    keys = list(next(iter(d["key_distance"].values())))
+    _table(r, ["L"] + keys, [[n] + [d["key_distance"][str(n)][k] for k in keys] for n in lengths])
+    r.append("Per bone class (distance over that class's dimensions; the map's radius per class: "
+             + ", ".join(f"{c} {v:.3f}" for c, v in zip(CLASSES, hold["map"]["radius"])) + "):\n")
+    _table(r, ["L", "class", "blend to true", "upm key to true", "nearest neuron to true"],
+           [[n, cls, v["blend"], v["upm_key"], v["nearest_neuron"]]
+            for n in lengths for cls, v in d["key_distance_by_class"][str(n)].items()])
+    r.append("The same spline with stand-in keys (these read the whole clip on purpose: the oracle key is the "
+             "truth): `blend-key` = the alpha-blend itself (no map), `oracle-key` = the true posture at `key_at` "
+             "(an upper bound for any key), `self-map-key` = the key from a map learned from the window's clip "
+             "alone, without the missing frames (as `posturemap transition` does without `--map`).\n")
+    r.append("Stand-ins that test the spline itself: `spline-v0` = the keyless spline with zero angular velocity "
+             "at both seams (root translation keeps its velocity), `blend-key-v0` = `blend-key` with zero "
+             "angular seam velocity, `upm-lerp-root` = `upm`'s frames with the root translation of `slerp` "
+             "(LERP).\n")
+    for metric in ("l2q", "l2p", "root_error_cm", "pose_error_cm", "skate", "validity"):
+        body = [[v] + [d["variants"][v][str(n)][metric] for n in lengths] for v in d["variants"]]
+        refs = ("spline", "upm") + ((dm,) if dm != "upm" else ()) + ("slerp",)
+        body += [[m] + [inb["methods"][m][str(n)][metric] for n in lengths] for m in refs if m in inb["methods"]]
+        r.append(f"{metric}:\n")
+        _table(r, ["key"] + [f"L={n}" for n in lengths], body)
+    if d.get("sweep"):
+        r.append("upm with other `alpha` and `key_at` (L2Q / L2P):\n")
+        body = []
+        for n, rows in d["sweep"].items():
+            for v in rows.values():
+                body.append([n, v["alpha"], v["key_at"], v["l2q"], v["l2p"]])
+        _table(r, ["L", "alpha", "key_at", "L2Q", "L2P"], body)
+
+
+def _speed_section(r: list[str], results: dict) -> None:
+    cfg = results["config"]
+    spd = results["speed"]
+    r.append("## Speed\n")
+    r.append(f"On the {spd['holdout']} hold-out's map; the machine was shared with other jobs. Transition latency, "
+             f"`TransitionEngine.generate`, length {cfg['cross_length']}, {cfg['latency_calls']} "
+             "cross-clip calls per method (microseconds):\n")
+    _table(r, ["method", "median us", "p99 us", "neurons per class"],
+           [[m, v["median_us"], v["p99_us"], "/".join(map(str, v["neurons"]))] for m, v in spd["latency"].items()])
+    r.append("Training, per bone class, same features, same epochs as configured, UPM on one thread "
+             "against MiniSom at (about) the UPM's neuron count:\n")
+    _table(r, ["class", "samples", "dims", "UPM neurons", "UPM epochs", "UPM s", "UPM samples/s",
+               "SOM neurons", "SOM epochs", "SOM s", "SOM samples/s"],
+           [[t["class"], t["samples"], t["dims"], t["upm_neurons"], t["upm_epochs"], t["upm_seconds"],
+             t["upm_samples_per_s"], t["som_neurons"], t["som_epochs"], t["som_seconds"], t["som_samples_per_s"]]
+            for t in spd["training"]])
+    for name, b in spd["bench"].items():
+        r.append(f"### bench/{name}.py\n")
+        if b["status"] == "ok":
+            r.append((b.get("markdown") or "```\n" + json.dumps(b["result"], indent=1)[:3000] + "\n```") + "\n")
+        else:
+            r.append(f"Not run: {b['status']} ({b['reason']}).\n")
+
+
+_NUMBER_LIST = re.compile(r"\[(?:\s*(?:-?[0-9][0-9.eE+-]*|null)\s*,)*\s*(?:-?[0-9][0-9.eE+-]*|null)\s*\]")
+
+
+def dumps(results: dict) -> str:
+    """results.json's text: indented JSON with every list of numbers on one line."""
+    text = json.dumps(results, indent=1)
+    return _NUMBER_LIST.sub(lambda m: re.sub(r"\s+", "", m.group(0)).replace(",", ", "), text) + "\n"
+
+
+def jsonable(x):
+    """A JSON-ready copy: numpy scalars and arrays to Python, Paths to str, tuple keys joined."""
+    if isinstance(x, dict):
+        return {(k if isinstance(k, str) else "/".join(map(str, k)) if isinstance(k, tuple) else str(k)):
+                jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x

@@ -1,0 +1,491 @@
+"""The bench's run: train on each hold-out, rebuild the windows, score, write the report."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from .. import metrics
+from ..bvh import write_bytes_atomic
+from ..features import CLASSES
+from ..feet import leg_chains, leg_length
+from ..motion import Motion
+from ..skeleton import fk
+from ..transition import TransitionEngine, aligned
+from . import report
+from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
+from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
+                       STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS,
+                       TEST_STYLES, VARIANTS, Settings, Split, _log, foot_joints, load_split, make_windows,
+                       random_pairs, window_starts)
+from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, global_windows, natural_reference,
+                      naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
+                      score_truth, skate_scores, truth_globals, window_features)
+from .report import jsonable
+from .speed import latency, run_bench_script, training_speed
+
+def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
+    """Train the maps on a hold-out's training side; returns the shared state of the run."""
+    from ..model import PostureMap
+
+    train, test = split.train, split.test
+    log(f"{split.name} hold-out: {len(train)} training clips ({sum(map(len, train))} frames), "
+        f"{len(test)} test clips ({sum(map(len, test))} frames)")
+    t0 = time.perf_counter()
+    model = PostureMap(seed=seed).fit(train, list(split.train_names))
+    upm_seconds = time.perf_counter() - t0
+    space = model.space_
+    log(f"upm: {sum(model.neuron_counts())} neurons {model.neuron_counts()} in {upm_seconds:.1f} s "
+        f"(root {model.skeleton_.names[space.root]}, up axis {'XYZ'[space.up]})")
+    x_train = np.concatenate([space.encode(m) for m in train])
+    parts = space.split(x_train)
+    log(f"som: MiniSom per class, {settings.som_epochs} epoch(s)")
+    som, som_info = som_model(model, parts, settings.som_epochs, seed, log)
+
+    sk = model.skeleton_
+    root, up, fps = space.root, space.up, float(train[0].fps)
+    feet = foot_joints(sk.names)
+    # L2P statistics: training windows of 50 frames every 20, in the window frame (LaFAN1).
+    wins_r, wins_p = [], []
+    for m in train:
+        for s in window_starts(len(m), STATS_WINDOW, STATS_STRIDE):
+            wins_r.append(m.rotations[s: s + STATS_WINDOW])
+            wins_p.append(m.positions[s: s + STATS_WINDOW])
+    g_r, g_p = fk(sk.parents, np.stack(wins_r), np.stack(wins_p))
+    n_pos, _ = metrics.normalize_windows(g_p, g_r, root, up, N_PAST - 1)
+    _, std = metrics.position_stats(n_pos)
+    heights = np.concatenate([m.global_positions()[:, feet, up] for m in train])
+    floor = np.percentile(heights, FLOOR_PERCENTILE, axis=0)
+    skate_height = metrics.SKATE_HEIGHT_LEGS * leg_length(sk, leg_chains(sk))
+    ctx = Context(sk, space, root, up, fps, feet, floor, std,
+                  metrics.build_posture_index(x_train[:, space.active]), skate_height, split.cm)
+    return {"split": split, "train_files": split.train_names, "test_files": split.test_names,
+            "train": train, "test": test, "model": model, "som": som, "som_info": som_info,
+            "upm_seconds": upm_seconds, "ctx": ctx, "x_train": x_train, "stats_windows": len(wins_r)}
+
+
+def make_engines(state: dict) -> dict:
+    """One engine per key source, each holding every test clip (names = clip indices).
+
+    The whole clips serve the latency and the diagnostics (which read the truth on purpose);
+    in-betweening and cross-clip transitions use :func:`empty_engines`.
+    """
+    model = state["model"]
+    engines = {"upm": TransitionEngine(model), "som": TransitionEngine(state["som"]),
+               "fixed": TransitionEngine(fixed_key_model(model))}
+    for e in engines.values():
+        for c, m in enumerate(state["test"]):
+            e.add(str(c), m)
+    return engines
+
+
+def empty_engines(state: dict) -> dict:
+    """Engines of the map and of the SOM that hold no clip: a method can only see the clips
+    put in for one call (:func:`clips_in`), whatever it looks at besides the map."""
+    return {"upm": TransitionEngine(state["model"]), "som": TransitionEngine(state["som"])}
+
+
+@contextmanager
+def clips_in(engines: dict, clips: dict):
+    """Inside the block, every engine of ``engines`` holds ``clips`` (name -> Motion); after it,
+    they are gone again."""
+    try:
+        for e in engines.values():
+            for name, m in clips.items():
+                e.add(name, m)
+        yield
+    finally:
+        for e in engines.values():
+            for name in clips:
+                e.tracks.pop(name, None)
+
+
+def _generate(engines, method, clip, length, a_end, b_start, **kw):
+    """``method`` between frames ``a_end`` and ``b_start`` of one whole clip (diagnostics)."""
+    eng, base, feet = engine_call(engines, method)
+    r, p = eng.generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False, method=base,
+                        foot_lock=feet, **kw)
+    return r.copy(), p.copy()
+
+
+def generate_from_context(engines: dict, methods, past: Motion, future: Motion, length: int) -> dict:
+    """Each method's ``length`` frames between the past context (A) and the future context (B).
+
+    engines : from :func:`empty_engines`; while the methods run they hold these two clips only
+    (``align=False``), so no method can see a frame of the gap or another test clip.
+    Returns ``{method: (rotations (L, J, 4), positions (L, J, 3))}``, new arrays.
+    """
+    out = {}
+    with clips_in(engines, {"_past": past, "_future": future}):
+        for m in methods:
+            eng, base, feet = engine_call(engines, m)
+            r, p = eng.generate("_past", "_future", length, a_end=len(past) - 1, b_start=0, align=False,
+                                method=base, foot_lock=feet)
+            out[m] = (r.copy(), p.copy())
+    return out
+
+
+def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
+                  diagnostics: bool = False) -> tuple[dict, dict, dict]:
+    """Scores per method and length, the truth's, per content, the diagnostics; plus curves
+    for a plot. Returns ``(inbetween, diagnostics, example)`` (diagnostics empty unless asked).
+    """
+    ctx, engines = state["ctx"], empty_engines(state)
+    test, lengths = state["test"], state["split"].lengths
+    res = {"windows": len(windows), "lengths": list(lengths), "methods": {m: {} for m in METHODS},
+           "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS},
+           "window_list": [[state["test_files"][c], s] for c, s in windows]}
+    diag = {"key_distance": {}, "key_distance_by_class": {}, "variants": {v: {} for v in VARIANTS},
+            "sweep": {}} if diagnostics else {}
+    example = {}
+    ref = natural_reference(ctx, test)
+    for length in lengths:
+        t0 = time.perf_counter()
+        span = N_PAST + length + N_FUTURE
+        truth_r = np.stack([test[c].rotations[s: s + span] for c, s in windows])
+        truth_p = np.stack([test[c].positions[s: s + span] for c, s in windows])
+        preds = {m: (np.empty((len(windows), length) + truth_r.shape[2:]),
+                     np.empty((len(windows), length) + truth_p.shape[2:])) for m in METHODS}
+        for i, (c, s) in enumerate(windows):
+            past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
+            preds["zero-velocity"][0][i], preds["zero-velocity"][1][i] = past.rotations[-1], past.positions[-1]
+            made = generate_from_context(engines, METHODS[1:], past, future, length)
+            for m, (r, p) in made.items():
+                preds[m][0][i], preds[m][1][i] = r, p
+        sl = slice(N_PAST, N_PAST + length)
+        nat = naturalness_fn(ctx, ref, windows, length)(
+            np.concatenate([rebuilt_frames(truth_r, preds[m][0]) for m in METHODS] + [truth_r[:, N_PAST - 1: sl.stop]]),
+            np.concatenate([rebuilt_frames(truth_p, preds[m][1]) for m in METHODS] + [truth_p[:, N_PAST - 1: sl.stop]]))
+        nat = nat.reshape(len(METHODS) + 1, len(windows))
+        n = str(length)
+        truth_g = truth_globals(ctx, truth_r, truth_p)
+        for k, m in enumerate(METHODS):
+            res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=nat[k],
+                                                   truth_g=truth_g)
+        res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=nat[-1])
+        for m in METHODS:
+            res["vs_slerp"][m][n] = {
+                k: paired_difference(res["methods"][m][n]["per_window"][k],
+                                     res["methods"]["slerp"][n]["per_window"][k], seed)
+                for k in ("l2q", "l2p")}
+        if diagnostics:
+            run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, preds, diag)
+        if length == 30:  # plot a walking window when there is one
+            names = [state["test_files"][c] for c, _ in windows]
+            e = next((i for i, nm in enumerate(names) if "_walk_" in nm), 0)
+            example = {m: np.concatenate([truth_r[e, :N_PAST], preds[m][0][e], truth_r[e, N_PAST + length:]])
+                       for m in METHODS}
+            example["truth"] = truth_r[e]
+            example["window"] = windows[e]
+            example["clip"] = names[e]
+            example["joints"] = list(ctx.skeleton.names)
+        r = res["methods"]
+        log(f"  in-betweening L={length}: {len(windows)} windows in {time.perf_counter() - t0:.1f} s; "
+            + ", ".join(f"{m} L2Q {r[m][n]['l2q']:.3f}" for m in METHODS))
+    res["per_content"] = per_content(res, [state["split"].contents[c] for c, _ in windows])
+    return res, diag, example
+
+
+def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, preds, diag):
+    """Key distances and stand-in keys of the keyed methods at one length, into ``diag``.
+
+    These read the truth on purpose (the oracle key): they explain the keyed methods' errors,
+    they are not methods. ``preds`` holds the methods' frames (``upm``, ``slerp`` are used).
+    """
+    from ..model import PostureMap
+
+    ctx, engines, test = state["ctx"], state["engines"], state["test"]
+    space = state["model"].space_
+    fixed, upm, act = engines["fixed"].model, engines["upm"], space.active
+    vpreds = {v: (np.empty_like(preds["slerp"][0]), np.empty_like(preds["slerp"][1])) for v in VARIANTS}
+    key_at = length // 2
+    kd = {k: [] for k in ("a_to_true", "b_to_true", "blend_to_true", "upm_key_to_true",
+                          "upm_path_key_to_true", "som_key_to_true", "nearest_neuron_to_true",
+                          "upm_key_to_blend")}
+    kdc = {cls: {"blend": [], "upm_key": [], "nearest_neuron": []} for cls in CLASSES}
+    for i, (c, s) in enumerate(windows):
+        name = str(c)
+        a_end, b_start = s + N_PAST - 1, s + N_PAST + length
+        feats = upm.tracks[name].features
+        xa, xb, xt = feats[a_end], feats[b_start], feats[a_end + key_at]
+        blend = xa + 0.5 * (xb - xa)
+        k_upm, _ = upm.key_features(xa, xb, 0.5)
+        k_path, _ = upm.key_features(xa, xb, 0.5, path=True)
+        k_som, _ = engines["som"].key_features(xa, xb, 0.5)
+        k_near = space.merge([m.weights_[m.predict(xt[d][None])[0]]
+                              for m, d in zip(state["model"].maps_, space.class_dims)])
+        for key, v in (("a_to_true", xa), ("b_to_true", xb), ("blend_to_true", blend),
+                       ("upm_key_to_true", k_upm), ("upm_path_key_to_true", k_path),
+                       ("som_key_to_true", k_som), ("nearest_neuron_to_true", k_near)):
+            kd[key].append(float(np.linalg.norm((v - xt)[act])))
+        kd["upm_key_to_blend"].append(float(np.linalg.norm((k_upm - blend)[act])))
+        for cls, d in zip(CLASSES, space.class_dims):
+            for key, v in (("blend", blend), ("upm_key", k_upm), ("nearest_neuron", k_near)):
+                kdc[cls][key].append(float(np.linalg.norm((v - xt)[d])))
+        set_key(fixed, blend)
+        vpreds["blend-key"][0][i], vpreds["blend-key"][1][i] = _generate(engines, "blend-key", name, length,
+                                                                         a_end, b_start)
+        set_key(fixed, xt)
+        vpreds["oracle-key"][0][i], vpreds["oracle-key"][1][i] = _generate(engines, "oracle-key", name,
+                                                                           length, a_end, b_start)
+        # A map learned from this clip's context alone (the frames outside the gap), as
+        # `posturemap transition` does without --map: the clip's own style, no truth.
+        own = PostureMap(seed=seed).fit([centred(test[c][: a_end + 1], ctx.root, ctx.up),
+                                         centred(test[c][b_start:], ctx.root, ctx.up)])
+        eng = TransitionEngine(own)
+        eng.add(name, test[c])
+        r, p = eng.generate(name, name, length, a_end=a_end, b_start=b_start, align=False, method="upm")
+        vpreds["self-map-key"][0][i], vpreds["self-map-key"][1][i] = r, p
+        # Zero angular velocity at the seams: the window with the two frames before A's end
+        # and the one after B's start given the seam frame's rotations (positions kept).
+        seg_r = test[c].rotations[s: s + N_PAST + length + N_FUTURE].copy()
+        a_w, b_w = N_PAST - 1, N_PAST + length
+        seg_r[a_w - 2: a_w] = seg_r[a_w]
+        seg_r[b_w + 1] = seg_r[b_w]
+        fixed_eng = engines["fixed"]
+        fixed_eng.add("v0", Motion(ctx.skeleton, seg_r, test[c].positions[s: s + N_PAST + length + N_FUTURE],
+                                   ctx.fps))
+        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="spline")
+        vpreds["spline-v0"][0][i], vpreds["spline-v0"][1][i] = r, p
+        set_key(fixed, blend)
+        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="upm")
+        vpreds["blend-key-v0"][0][i], vpreds["blend-key-v0"][1][i] = r, p
+        # upm's frames with the root joint's translation of slerp (LERP root).
+        vpreds["upm-lerp-root"][0][i] = preds["upm"][0][i]
+        vpreds["upm-lerp-root"][1][i] = preds["upm"][1][i]
+        vpreds["upm-lerp-root"][1][i, :, ctx.root] = preds["slerp"][1][i, :, ctx.root]
+    n = str(length)
+    for v in VARIANTS:
+        diag["variants"][v][n] = score_inbetween(ctx, truth_r, truth_p, *vpreds[v], length)
+    diag["key_distance"][n] = {k: float(np.mean(v)) for k, v in kd.items()}
+    diag["key_distance_by_class"][n] = {cls: {k: float(np.mean(v)) for k, v in kv.items()}
+                                        for cls, kv in kdc.items()}
+    if settings.sweep and length in SWEEP_LENGTHS:
+        diag["sweep"][n] = sweep(state, windows, truth_r, truth_p, length)
+
+
+def sweep(state, windows, truth_r, truth_p, length) -> dict:
+    """upm's L2Q and L2P for alpha at 1/4, 1/2, 3/4 and key_at at a quarter, the default
+    (``length // 2``) and three quarters of the length."""
+    out = {}
+    engines, ctx = state["engines"], state["ctx"]
+    key_ats = sorted({max(1, round(SWEEP_FRACTIONS[0] * length)), max(1, length // 2),
+                      min(length, round(SWEEP_FRACTIONS[-1] * length))})
+    for fa in SWEEP_FRACTIONS:
+        for key_at in key_ats:
+            pr = np.empty((len(windows), length) + truth_r.shape[2:])
+            pp = np.empty((len(windows), length) + truth_p.shape[2:])
+            for i, (c, s) in enumerate(windows):
+                pr[i], pp[i] = _generate(engines, "upm", str(c), length, s + N_PAST - 1, s + N_PAST + length,
+                                         alpha=fa, key_at=key_at)
+            sc = score_inbetween(ctx, truth_r, truth_p, pr, pp, length, accuracy_only=True)
+            out[f"alpha={fa:g},key_at={key_at}"] = {"alpha": fa, "key_at": key_at,
+                                                    "l2q": sc["l2q"], "l2p": sc["l2p"]}
+    return out
+
+
+def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
+    """Foot skate, validity and jerk of transitions between two different test clips."""
+    t0 = time.perf_counter()
+    ctx, engines, test = state["ctx"], empty_engines(state), state["test"]
+    pairs = random_pairs([len(m) for m in test], settings.pairs, seed + 1)
+    length = CROSS_LENGTH
+    upm = engines["upm"]
+    seqs = {m: [] for m in METHODS}
+    reference = []
+    for a, b, a_end, b_start in pairs:
+        with clips_in(engines, {"a": test[a], "b": test[b]}):  # these two clips only
+            ta, tb = upm.tracks["a"], upm.tracks["b"]
+            dtheta, shift = upm.alignment(ta, tb, a_end, b_start, length)
+            b_part = aligned(tb, upm, b_start, dtheta, shift)[:N_FUTURE]
+            a_part = test[a][a_end - N_PAST + 1: a_end + 1]
+            for m in METHODS:
+                if m == "zero-velocity":
+                    r = np.repeat(a_part.rotations[-1:], length, axis=0)
+                    p = np.repeat(a_part.positions[-1:], length, axis=0)
+                else:
+                    eng, base, feet = engine_call(engines, m)
+                    r, p = eng.generate("a", "b", length, a_end=a_end, b_start=b_start, align=True,
+                                        method=base, foot_lock=feet)
+                seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
+                                np.concatenate([a_part.positions, p, b_part.positions])))
+        reference.append((a_part, b_part))
+    out = {"pairs": len(pairs), "length": length, "align": True, "methods": {}}
+    sl = slice(N_PAST, N_PAST + length)
+    steps = slice(N_PAST - 1, N_PAST + length)
+    parents = ctx.skeleton.parents
+    for m in METHODS:
+        rots = np.stack([s[0] for s in seqs[m]])
+        pos = np.stack([s[1] for s in seqs[m]])
+        _, gp = global_windows(rots, pos, parents)
+        skate, contact = skate_scores(ctx, gp, steps)
+        valid = metrics.pose_validity(window_features(ctx, rots[:, sl], pos[:, sl]), ctx.index)
+        out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact, "validity": float(valid.mean()),
+                             "validity_p95": float(np.percentile(valid, 95)),
+                             "jerk": metrics.jerk(gp[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm}
+    # Reference: the real frames on both sides of the seams (10 of A, 10 of B, separately).
+    real = [(np.stack([p.rotations for p in parts]), np.stack([p.positions for p in parts]))
+            for parts in zip(*reference)]
+    skates, contacts, jerks, valids = [], [], [], []
+    for rots, pos in real:
+        _, gp = global_windows(rots, pos, parents)
+        skate, contact = skate_scores(ctx, gp, slice(0, gp.shape[1] - 1))
+        skates.append(skate.mean())
+        contacts.append(contact)
+        jerks.append(metrics.jerk(gp, ctx.fps) * ctx.cm)
+        valids.append(metrics.pose_validity(window_features(ctx, rots, pos), ctx.index))
+    v = np.concatenate(valids)
+    out["reference"] = {"skate": float(np.mean(skates)), "contact_skate": float(np.mean(contacts)),
+                        "validity": float(v.mean()), "validity_p95": float(np.percentile(v, 95)),
+                        "jerk": float(np.mean(jerks))}
+    out["pair_list"] = [{"a": state["test_files"][a], "b": state["test_files"][b],
+                         "a_end": a_end, "b_start": b_start} for a, b, a_end, b_start in pairs]
+    log(f"  cross-clip: {len(pairs)} pairs in {time.perf_counter() - t0:.1f} s")
+    return out
+
+
+def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_log) -> tuple[dict, dict, dict, dict]:
+    """One hold-out end to end: read, train on its training side, in-betweening, cross-clip.
+
+    Returns ``(results, diagnostics, example, state)`` (diagnostics for the style hold-out
+    when ``settings.diagnostics``; ``state`` for the speed figures; it holds the engines of
+    :func:`make_engines` when the diagnostics ran).
+    """
+    split = load_split(name, data_dir, settings)
+    state = prepare(split, settings, seed, log)
+    diagnostics = settings.diagnostics and name == "style"
+    if diagnostics:
+        state["engines"] = make_engines(state)
+    windows = make_windows(state, settings, seed)
+    log(f"  in-betweening: {len(windows)} windows from {len(state['test'])} test clips")
+    inb, diag, example = run_inbetween(state, windows, settings, seed, log, diagnostics=diagnostics)
+    cross = run_cross(state, settings, seed, log) if len(state["test"]) >= 2 and settings.pairs else None
+    model, ctx = state["model"], state["ctx"]
+    out = {
+        "split": {"rule": split.rule, "test_clips": len(split.test), "test_frames": int(sum(map(len, split.test))),
+                  "train_clips_all": split.train_clips_all, "train_clips": len(split.train),
+                  "train_frames": int(sum(map(len, split.train))), "fps": ctx.fps,
+                  "joints": ctx.skeleton.num_joints, "unit": split.unit, "cm_per_unit": split.cm,
+                  "test_files": list(split.test_names), "train_files": list(split.train_names)},
+        "map": {"neurons": model.neuron_counts(), "radius": [m.radius_ for m in model.maps_],
+                "train_seconds": state["upm_seconds"], "som": state["som_info"]},
+        "feet": {"joints": [ctx.skeleton.names[j] for j in ctx.feet], "floor_cm": (ctx.floor * ctx.cm).tolist(),
+                 "floor_percentile": FLOOR_PERCENTILE, "skate_height_cm": ctx.skate_height * ctx.cm,
+                 "leg_length_cm": ctx.skate_height / metrics.SKATE_HEIGHT_LEGS * ctx.cm},
+        "inbetween": inb, "cross_clip": cross,
+    }
+    return out, diag, example, state
+
+
+def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log) -> dict:
+    """Run the benchmark; writes results.md, results.json and PNG plots into ``out``.
+
+    Returns the results dict (the content of results.json).
+    """
+    settings = settings or Settings.full()
+    t_start = time.perf_counter()
+    data_dir, out = Path(data_dir), Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    np.random.seed(seed)  # third-party code that draws from numpy's global generator
+    import platform
+
+    code = code_version()  # at the start: the code that runs, whatever changes meanwhile
+
+    sections = {}
+    clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        sections[name] = now - clock
+        clock = now
+
+    holdouts, examples, diag, speed_state = {}, {}, {}, None
+    for name in settings.holdouts:
+        holdouts[name], d, examples[name], state = run_holdout(name, data_dir, settings, seed, log)
+        diag = diag or d
+        if speed_state is None or name == "style":
+            speed_state = state
+        lap(f"{name} hold-out")
+    log("speed: latency")
+    if "engines" not in speed_state:
+        speed_state["engines"] = make_engines(speed_state)
+    speed = {"latency": latency(speed_state, settings.latency_calls, seed), "training": [], "bench": {},
+             "holdout": speed_state["split"].name}
+    log("speed: training")
+    speed["training"] = training_speed(speed_state, seed)
+    speed_state = state = None
+    lap("speed: latency and training")
+    for name in ("transition_speed", "train_speed", "bvh_load"):
+        if settings.bench_scripts:
+            log(f"speed: bench/{name}.py")
+            speed["bench"][name] = run_bench_script(name, data_dir, settings, seed, log)
+        else:
+            speed["bench"][name] = {"status": "skipped", "reason": "--quick skips the bench/ scripts"}
+        lap(f"bench/{name}.py")
+    results = {
+        "config": {"seed": seed, **dataclasses.asdict(settings), "n_past": N_PAST, "n_future": N_FUTURE,
+                   "stride": STRIDE, "cross_length": CROSS_LENGTH, "natural_frames": NATURAL_FRAMES,
+                   "natural_stride_s": NATURAL_STRIDE_S, "skate_height_legs": metrics.SKATE_HEIGHT_LEGS,
+                   "test_styles": list(TEST_STYLES), "test_contents": list(TEST_CONTENTS)},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code},
+        "holdouts": holdouts, "diagnostics": diag, "speed": speed, "section_seconds": sections,
+    }
+    results["plots"] = report.plot(results, examples, out) if settings.plots else []
+    results["wall_seconds"] = time.perf_counter() - t_start
+    results = round_per_window(jsonable(results))
+    write_bytes_atomic(out / "results.json", report.dumps(results).encode())
+    write_bytes_atomic(out / "results.md", report.markdown(results).encode())
+    log(f"wrote {out / 'results.md'}, {out / 'results.json'} and {len(results['plots'])} plots "
+        f"in {results['wall_seconds']:.0f} s")
+    return results
+
+
+def round_per_window(x, digits: int = 5):
+    """``x`` with every list under a ``per_window`` key rounded to ``digits`` significant digits
+    (the window-by-window figures are for inspection; every mean and interval is computed from
+    the full values before). Keeps results.json to about a megabyte."""
+    if isinstance(x, dict):
+        return {k: ({m: [None if v is None else float(f"{v:.{digits}g}") for v in vals] for m, vals in v.items()}
+                    if k == "per_window" else round_per_window(v, digits)) for k, v in x.items()}
+    if isinstance(x, list):
+        return [round_per_window(v, digits) for v in x]
+    return x
+
+
+def code_version() -> str | None:
+    """``git describe --always --dirty`` of the repository holding this file, or None."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).resolve().parent,
+                             capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def default_data_dir() -> Path:
+    """``$POSTUREMAP_DATA`` or ``../shared/data`` next to the repository."""
+    env = os.environ.get("POSTUREMAP_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[4] / "shared" / "data"
+
+
+def run_cli(args) -> int:
+    """Entry point of ``posturemap bench`` (``args.quick``, ``args.data``, ``args.out``, ``args.seed``)."""
+    from ..errors import UserError
+
+    data = Path(args.data) if args.data else default_data_dir()
+    if not (data / "bandai1").is_dir():
+        raise UserError(str(data), "no bandai1/ folder of BVH clips here (set --data or POSTUREMAP_DATA)")
+    if not (data / CMU_FILE).is_file():
+        raise UserError(str(data), f"no {CMU_FILE.as_posix()} here (the 120 fps hold-out; "
+                                   "set --data or POSTUREMAP_DATA)")
+    settings = Settings.quick_run() if args.quick else Settings.full()
+    run(data, args.out, seed=args.seed, settings=settings)
+    return 0
