@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +24,7 @@ from posturemap import bvh
 from posturemap.model import PostureMap
 from posturemap.transition import transition
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-VENDOR = Path(__file__).resolve().parent.parent / "src" / "posturemap" / "web" / "static" / "vendor"
+from pagekit import CHROMIUM, VENDOR, page_results, vendored  # noqa: E402
 PAIRS = [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "dance-short_normal_001"),
          ("run_normal_001", "walk-back_normal_001")]
 ORIGIN = "http://consumer.test"
@@ -36,8 +32,6 @@ ORIGIN = "http://consumer.test"
 if not os.path.exists(CHROMIUM):
     pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium; .ci/run does)",
                 allow_module_level=True)
-
-from playwright.sync_api import sync_playwright
 
 PAGE = """<!doctype html><meta charset="utf-8"><title>BVHLoader</title>
 <script type="importmap">{"imports": {"three": "/vendor/three.module.js", "three/addons/": "/vendor/addons/"}}</script>
@@ -95,34 +89,10 @@ def outputs(bandai_paths, tmp_path_factory):
 def loaded(outputs):
     if not (VENDOR / "addons" / "loaders" / "BVHLoader.js").is_file():
         pytest.fail(f"{VENDOR} has no three.js: run `make web`")
-    files = {"/vendor/" + str(p.relative_to(VENDOR)): p.read_bytes() for p in VENDOR.rglob("*.js")}
+    files = vendored()
     files.update({f"/bvh/{n}.bvh": path.read_bytes() for n, (path, _) in outputs.items()})
     files["/"] = (PAGE % json.dumps(list(outputs))).encode()
-
-    def serve(route):
-        path = route.request.url.removeprefix(ORIGIN).split("?")[0]
-        body = files.get(path)
-        if body is None:
-            return route.fulfill(status=404, body="not found")
-        kind = ("text/html" if path == "/" else "text/javascript" if path.endswith(".js") else "text/plain")
-        route.fulfill(status=200, body=body, content_type=kind + "; charset=utf-8")
-
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        page = browser.new_page()
-        errors = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-        page.route(f"{ORIGIN}/**", serve)
-        page.goto(ORIGIN + "/")
-        deadline = time.monotonic() + 60
-        while not page.evaluate("!!window.__results") and not errors:
-            assert time.monotonic() < deadline, "BVHLoader did not finish"
-            time.sleep(0.05)
-        results = page.evaluate("window.__results")
-        browser.close()
-    assert errors == [], errors
-    return results
+    return page_results(ORIGIN, files, "BVHLoader")
 
 
 @pytest.mark.parametrize("name", [f"{a.split('_')[0]}-to-{b.split('_')[0]}" for a, b in PAIRS])

@@ -14,6 +14,7 @@ import pytest
 from posturemap import bvh, cli, sample
 from posturemap.bvh import BVHError
 from posturemap.motion import Motion
+from clikit import assert_refused, run  # noqa: E402,F401
 
 
 @pytest.fixture(scope="module")
@@ -21,22 +22,6 @@ def walk_text():
     return bvh.dumps(sample.clips()["walk"])
 
 
-def run(capsys, *argv):
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_refused(capsys, path, *argv, words=()):
-    code, out, err = run(capsys, *argv)
-    assert code == 2, (code, out, err)
-    assert "Traceback" not in err
-    lines = err.splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"posturemap: error: {path}"), lines[0]
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 def with_frame_time(text: str, value: str) -> str:

@@ -21,7 +21,6 @@ import os
 import shutil
 import struct
 import subprocess
-import time
 import warnings
 from pathlib import Path
 
@@ -35,12 +34,10 @@ from posturemap.motion import Motion, up_axis
 from posturemap.skeleton import fk
 from posturemap.transition import transition
 
+from pagekit import CHROMIUM, VENDOR, page_results, vendored  # noqa: E402
+
 REPO = Path(__file__).resolve().parent.parent
 VALIDATE = REPO / "tests" / "js" / "validate_gltf.cjs"
-VENDOR = REPO / "src" / "posturemap" / "web" / "static" / "vendor"
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 ORIGIN = "http://gltf.test"
 LENGTH = 20
 
@@ -311,40 +308,15 @@ def test_three_js_gltfloader_loads_the_motion(files, walk_run):
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium; .ci/run does)")
     if not (VENDOR / "addons" / "loaders" / "GLTFLoader.js").is_file():
         pytest.fail(f"{VENDOR} has no GLTFLoader: run `make web`")
-    from playwright.sync_api import sync_playwright
-
     out, parts = walk_run
     sk = out.skeleton
     n_a = parts[0][2]
     frames = [n_a - 5, n_a + LENGTH // 2, n_a + LENGTH + 7]  # in A, in the transition, in B
     spec = {"files": list(files), "frames": frames, "fps": out.fps, "joints": list(sk.names)}
-    served = {"/vendor/" + str(p.relative_to(VENDOR)): p.read_bytes() for p in VENDOR.rglob("*.js")}
+    served = vendored()
     served.update({f"/files/{name}": path.read_bytes() for name, path in files.items()})
     served["/"] = (PAGE % json.dumps(spec)).encode()
-
-    def serve(route):
-        path = route.request.url.removeprefix(ORIGIN).split("?")[0]
-        body = served.get(path)
-        if body is None:
-            return route.fulfill(status=404, body="not found")
-        kind = "text/html" if path == "/" else "text/javascript" if path.endswith(".js") else "application/octet-stream"
-        route.fulfill(status=200, body=body, content_type=kind)
-
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        page = browser.new_page()
-        errors = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-        page.route(f"{ORIGIN}/**", serve)
-        page.goto(ORIGIN + "/")
-        deadline = time.monotonic() + 60
-        while not page.evaluate("!!window.__results") and not errors:
-            assert time.monotonic() < deadline, "GLTFLoader did not finish"
-            time.sleep(0.05)
-        results = page.evaluate("window.__results")
-        browser.close()
-    assert errors == [], errors
+    results = page_results(ORIGIN, served, "GLTFLoader")
 
     rotating = sum(any(c.endswith("rotation") for c in ch) for ch in sk.channels)
     moving = sum(sk.has_position(j) for j in range(sk.num_joints))

@@ -18,6 +18,7 @@ import pytest
 from posturemap import bvh, cli, sample
 from posturemap.mapfile import MAX_ARRAY_BYTES, MapFileError
 from posturemap.model import PostureMap
+from clikit import assert_refused, run  # noqa: E402,F401
 
 
 @pytest.fixture(scope="module")
@@ -64,23 +65,6 @@ def with_meta_text(raw: bytes, text: str) -> bytes:
     return build(raw, None, meta=np.frombuffer(text.encode(), dtype=np.uint8))
 
 
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_refused(capsys, path, *argv, words=()):
-    """``posturemap ARGV`` fails as the contract says, naming ``path``; returns the message."""
-    code, out, err = run(capsys, *argv)
-    assert code == 2, (code, out, err)
-    assert "Traceback" not in err
-    lines = err.splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"posturemap: error: {path}: "), lines[0]
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 def inspect_refuses(capsys, tmp_path, data: bytes, *words) -> str:

@@ -10,15 +10,9 @@ import math
 import numba as nb
 import numpy as np
 
+from .numba_kernels import _mul
+
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
-
-
-@nb.njit(**_OPTS)
-def _mul(a0, a1, a2, a3, b0, b1, b2, b3):
-    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
 
 
 @nb.njit(**_OPTS)
