@@ -418,3 +418,20 @@ def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engin
     report = {}
     transition(clips[name], clips[name], model, length=5, a_end=40, b_start=46, align=False, report=report)
     assert report == {"method": "spline"}
+
+
+def test_standing_seams_are_left_to_interpolation(model, clips):
+    leg = model.library_.leg
+    still = retrieval.Seams(np.zeros((7, 3)), np.zeros((7, 3)), np.array([0.1 * leg, 0.0, 0.05 * leg, 0.0, 90.0]))
+    moving = retrieval.Seams(np.zeros((7, 3)), np.zeros((7, 3)), np.array([0.0, 0.0, 1.2 * leg, 0.1, 90.0]))
+    assert retrieval.still_weight(still, still, leg, 1) == 0.0
+    assert retrieval.still_weight(still, moving, leg, 1) == 1.0  # one moving seam is enough
+    half = retrieval.Seams(np.zeros((7, 3)), np.zeros((7, 3)), np.array([0.35 * leg, 0.0, 0.0, 0.0, 90.0]))
+    assert retrieval.still_weight(half, still, leg, 1) == pytest.approx(0.5)
+    # A bow (the feet stay put): the parts fall back to interpolation and say so.
+    eng = TransitionEngine(model)
+    eng.add("bow", clips["bow_happy_001"])
+    r, p = (x.copy() for x in eng.generate("bow", "bow", 30, a_end=20, b_start=51, align=False, method="retrieval"))
+    assert eng.last["retrieval"]["confidence"] == 0.0
+    fb = eng.generate("bow", "bow", 30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
+    assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
