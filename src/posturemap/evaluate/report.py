@@ -242,7 +242,8 @@ def markdown(results: dict) -> str:
     cfg = results["config"]
     holds = results["holdouts"]
     r.append("# posturemap bench: results\n")
-    r.append(f"Run: `posturemap bench{' --quick' if cfg['quick'] else ''} --seed {cfg['seed']}` on "
+    scripts = "" if cfg["quick"] or cfg.get("bench_scripts", True) else " without the bench/ scripts"
+    r.append(f"Run: `posturemap bench{' --quick' if cfg['quick'] else ''} --seed {cfg['seed']}`{scripts} on "
              f"{results['machine']['cpus']} CPUs (shared with other jobs), Python {results['machine']['python']}, "
              f"code `{results['machine']['code']}`; wall time **{results['wall_seconds']:.0f} s** ("
              + ", ".join(f"{k} {v:.0f} s" for k, v in results["section_seconds"].items()) + ").\n")

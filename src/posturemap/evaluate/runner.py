@@ -426,7 +426,8 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
             log(f"speed: bench/{name}.py")
             speed["bench"][name] = run_bench_script(name, data_dir, settings, seed, log)
         else:
-            speed["bench"][name] = {"status": "skipped", "reason": "--quick skips the bench/ scripts"}
+            speed["bench"][name] = {"status": "skipped", "reason": "--quick skips the bench/ scripts" if settings.quick
+                                    else "this run left the bench/ scripts out (Settings.bench_scripts=False)"}
         lap(f"bench/{name}.py")
     results = {
         "config": {"seed": seed, **dataclasses.asdict(settings), "n_past": N_PAST, "n_future": N_FUTURE,
