@@ -184,7 +184,7 @@ def _finite_numbers(d):
 def test_quick_run_writes_every_file(quick):
     results, out = quick
     names = ["results.md", "results.json"] + [f"results_{h}.png" for h in evaluate.HOLDOUTS] + \
-        ["results_style_joint_angle.png"]
+        ["results_style_joint_angle.png", "results_style_filmstrip.png"]
     for name in names:
         assert (out / name).stat().st_size > 0, name
     assert set(names[2:]) <= set(results["plots"])

@@ -75,7 +75,36 @@ def plot(results: dict, examples: dict, out: Path) -> list[str]:
         if example:
             written.append(_plot_example(plt, example, methods, results["config"]["n_past"], out,
                                          f"results_{name}_joint_angle.png"))
+            if "positions" in example:
+                written.append(_filmstrip_example(example, inb["default_method"], results["config"]["n_past"], out,
+                                                  f"results_{name}_filmstrip.png", HOLDOUT_TITLES.get(name, name)))
     return written
+
+
+FILMSTRIP_METHODS = ("slerp", "spline", "inertialize", "upm", "upm-valid+feet")
+
+
+def _filmstrip_example(example: dict, default: str, n_past: int, out: Path, filename: str, title: str) -> str:
+    """One window at 30 frames as side-view filmstrips, one row each: the truth, the baselines
+    and the default (:func:`posturemap.preview.filmstrip_rows`; the 30 rebuilt frames in colour,
+    the context grey)."""
+    from ..preview import filmstrip_rows
+    from ..skeleton import fk
+
+    parents = np.asarray(example["parents"])
+    rows = []
+    for m in ("truth",) + tuple(x for x in FILMSTRIP_METHODS if x in example["positions"]) + (default,):
+        local_r = example["truth"] if m == "truth" else example[m]
+        _, g = fk(parents, local_r, example["positions"][m])
+        gap = len(g) - 2 * n_past
+        rows.append((m, [("context", g[:n_past], None), ("truth" if m == "truth" else "transition",
+                                                         g[n_past: n_past + gap], None), ("context", g[n_past + gap:], None)]))
+    _, s = example["window"]
+    filmstrip_rows(rows, out / filename, parents, up=int(example["up"]), fps=float(example["fps"]),
+                   feet=[int(j) for j in example["feet"]],
+                   title=f"{title}: {example['clip']}, frames {s}..{s + len(example['truth']) - 1}; "
+                         f"the {len(example['truth']) - 2 * n_past} rebuilt frames in colour")
+    return filename
 
 
 def _plot_example(plt, example: dict, methods: list[str], n_past: int, out: Path, filename: str) -> str:

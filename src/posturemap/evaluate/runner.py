@@ -181,6 +181,11 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
             example = {m: np.concatenate([truth_r[e, :N_PAST], preds[m][0][e], truth_r[e, N_PAST + length:]])
                        for m in METHODS}
             example["truth"] = truth_r[e]
+            example["positions"] = {m: np.concatenate([truth_p[e, :N_PAST], preds[m][1][e], truth_p[e, N_PAST + length:]])
+                                    for m in METHODS}
+            example["positions"]["truth"] = truth_p[e]
+            example["parents"], example["up"] = ctx.skeleton.parents, ctx.up
+            example["feet"], example["fps"] = ctx.feet, ctx.fps
             example["window"] = windows[e]
             example["clip"] = names[e]
             example["joints"] = list(ctx.skeleton.names)
