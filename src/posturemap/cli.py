@@ -282,11 +282,15 @@ def build_parser(words=None) -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="file to write: .bvh (A's skeleton and channels), or .glb / .gltf (glTF 2.0: "
                         "metres, Y up, one animation; the clip's unit is guessed from its body height)")
-    r.add_argument("--map", metavar="MAP", help="posture map from `posturemap train` (default: learn one from A and B)")
+    r.add_argument("--map", metavar="MAP", help="posture map (and motion library) from `posturemap train` "
+                                                "(default: learn one from A and B)")
     r.add_argument("--length", type=_positive_int, default=20, help="in-between frames (20)")
     r.add_argument("--key-at", type=_positive_int, default=None,
-                   help="position of the key among the in-between frames, 1..length (default length/2)")
-    r.add_argument("--alpha", type=float, default=0.5, help="control parameter: 0 keys near A, 1 near B (0.5)")
+                   help="position of the key among the in-between frames, 1..length (default length/2; "
+                        "key-posture methods only)")
+    r.add_argument("--alpha", type=float, default=0.5,
+                   help="control parameter (0.5): retrieval prefers motion that continues A at 0, that arrives "
+                        "in B at 1; the key-posture methods put the key near A at 0, near B at 1")
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
@@ -300,7 +304,8 @@ def build_parser(words=None) -> argparse.ArgumentParser:
         from .transition import DEFAULT_METHOD, METHODS
 
         r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                       help=f"transition method ({DEFAULT_METHOD})")
+                       help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under 0.25 s, real motion "
+                            "retrieved from the map's library for longer ones; see the README)")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
