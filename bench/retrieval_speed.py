@@ -100,7 +100,7 @@ def compare_indexes(rt, queries, log=None) -> dict:
 
     faiss.omp_set_num_threads(1)
     lib = rt.lib
-    mats = rt._matrices()
+    mats = rt.matrices
     nxt = np.minimum(np.arange(len(lib)) + 1, lib.clip_end - 1)
     knn = {}
     for name in ("faiss-flat", "faiss-hnsw"):

@@ -17,7 +17,7 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
    continue A, and averages them;
 3. **removes the seam errors** with offsets that decay smoothly from each seam (value and
-   velocity, cubic Hermite over the gap), so rotations, root height and trajectory meet A and
+   velocity, cubic Hermite over :data:`BLEND_S` seconds, at most the gap), so rotations, root height and trajectory meet A and
    B with continuous position and velocity; in in-betweening the root's horizontal error at B
    is spread over the whole gap (smoothstep) so it lands exactly on B; in transitions B takes
    the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
@@ -42,7 +42,7 @@ import numpy as np
 from . import kernels, quat
 from .features import wrap_diff
 from .feet import lock_feet
-from .library import MotionLibrary, key_joints, part_masks
+from .library import MotionLibrary, clip_features, key_joints, part_masks
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
 TOP_K = 8  # segments averaged per part
@@ -52,17 +52,18 @@ PREFILTER = 192  # of those, the best matches at natural speed that become segme
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
 FALLBACK_SHORT = ("spline", 0.6)  # gaps shorter than this many seconds fall back to this method
+W_VEL = 1.0  # weight of velocities against positions in the match
+W_ROOT = (1.0, 1.0, 0.5)  # root velocity, turning rate, height
+W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
+W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
+DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
+STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_weight
 
 
 def fallback_method(length: int, fps: float) -> str:
     """The interpolating method a part falls back to: on gaps under ``FALLBACK_SHORT[1]`` seconds
     the seam velocities matter most (``spline``), on longer ones the map keys (``upm-valid``)."""
     return FALLBACK_SHORT[0] if (length + 1) / fps < FALLBACK_SHORT[1] else FALLBACK
-W_VEL = 1.0  # weight of velocities against positions in the match
-W_ROOT = (1.0, 1.0, 0.5)  # root velocity, turning rate, height
-W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
-W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
-DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
 
 
 @dataclass
@@ -117,8 +118,6 @@ class Retriever:
         pos = track.motion.positions[frames].copy()
         grot, gp = np.empty(rots.shape), np.empty(pos.shape)
         kernels.fk(sk.parents, rots, pos, grot, gp)
-        from .library import clip_features
-
         # Key joints relative to the clip's own root, in its own heading frame.
         p, v, r = clip_features(gp, track.gpos[frames], track.heading[frames], self.keys, eng._up,
                                 track.motion.fps)
@@ -185,6 +184,13 @@ class Retriever:
         ok = lib.clip_of[s] == lib.clip_of[e]
         return s[ok], e[ok]  # may repeat a segment found from both seams: see search
 
+    @property
+    def matrices(self):
+        """:meth:`_matrices`, built on first use."""
+        if self._mats is None:
+            self._mats = self._matrices()
+        return self._mats
+
     def _matrices(self):
         """Per part, the weighted matching features of every library frame as two matrices:
         ``P`` (N, Dp) positions (and the root's height) and ``V`` (N, Dv) velocities (and the
@@ -227,9 +233,7 @@ class Retriever:
         the warp ``(e - s) / lib.fps`` over ``d / fps``.
         """
         lib = self.lib
-        if self._mats is None:
-            self._mats = self._matrices()
-        pm, vm = self._mats[part]
+        pm, vm = self.matrices[part]
         rho = ((e - s) / lib.fps) / (d / fps)  # warp: source duration / gap duration
         rate = 1.0 / rho
         nxt = np.minimum(e + 1, lib.clip_end[e] - 1)
@@ -268,9 +272,7 @@ class Retriever:
         """
         if len(frames) <= keep:
             return frames
-        if self._mats is None:
-            self._mats = self._matrices()
-        pm, vm = self._mats[part]
+        pm, vm = self.matrices[part]
         fv = np.minimum(frames + 1, self.lib.clip_end[frames] - 1) if end else frames
         c = seam_costs(pm, vm, frames, fv, *self.query_vectors(part, q), np.ones(len(frames)))
         return frames[np.argpartition(c, keep - 1)[:keep]]
@@ -299,9 +301,6 @@ class Retriever:
         keep[1:] = (s[best][1:] != s[best][:-1]) | (e[best][1:] != e[best][:-1])
         best = best[keep][:k]
         return s[best], e[best], total[best], ca[best], cb[best]
-
-
-STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_weight
 
 
 def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
