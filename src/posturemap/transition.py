@@ -570,8 +570,7 @@ class TransitionEngine:
         if lib is not None and len(lib):
             if getattr(self, "_retriever", None) is None or self._retriever.lib is not lib:
                 self._retriever = retrieval.Retriever(self, lib)
-            res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align,
-                                     **getattr(self, "retrieval_options", {}))
+            res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align)
         # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
         # retrieved parts leave open (joints above the root, local translations).
         fallback = retrieval.fallback_method(length, ta.motion.fps)
