@@ -318,7 +318,8 @@ class TransitionEngine:
         """Key posture vector (D,) and the chosen neuron per class, between ``xa`` and ``xb``."""
         space = self.model.space_
         if self._circular is None and not path:
-            if self._flat_of != [id(m.weights_) for m in self.model.maps_]:
+            maps = self.model.maps_
+            if self._flat_of is None or any(w is not m.weights_ for w, m in zip(self._flat_of, maps)):
                 self._flatten_maps()
             key = space.fill.copy()
             chosen = np.empty(len(self.model.maps_), dtype=np.int64)
@@ -393,7 +394,7 @@ class TransitionEngine:
         self._wflat = np.concatenate([m.weights_.ravel() for m in maps])
         self._woff = np.concatenate([[0], np.cumsum([m.weights_.size for m in maps])[:-1]]).astype(np.int64)
         self._wn = np.array([m.n_neurons for m in maps], dtype=np.int64)
-        self._flat_of = [id(m.weights_) for m in maps]
+        self._flat_of = [m.weights_ for m in maps]  # the arrays themselves: an id() can be reused
 
     def _nearest(self, c: int, x: np.ndarray) -> int:
         m = self.model.maps_[c]
