@@ -914,3 +914,22 @@ def test_fk_kernel_matches_skeleton_fk(clips):
     ref_r, ref_p = fk(m.skeleton.parents, m.rotations, m.positions)
     np.testing.assert_allclose(grot, ref_r, atol=1e-12)
     np.testing.assert_allclose(gpos, ref_p, atol=1e-9)
+
+
+def test_engine_reads_replaced_map_weights(clips, model):
+    # The one-call key kernel works on a flattened copy of the maps; replacing a map's weights
+    # (as the benchmark's fixed-key stand-ins do before every call) must reach the next key.
+    import copy
+
+    own = copy.deepcopy(model)
+    engine = TransitionEngine(own)
+    engine.add(WALK, clips[WALK])
+    xa, xb = own.encode(clips[WALK][10])[0], own.encode(clips[WALK][40])[0]
+    key1, _ = engine.key_features(xa, xb, 0.5)
+    for c, m in enumerate(own.maps_):
+        m.weights_ = np.ascontiguousarray(m.weights_[:1] + 0.25)  # one neuron, moved
+    key2, chosen = engine.key_features(xa, xb, 0.5)
+    assert chosen == [0] * len(own.maps_)
+    for c, m in enumerate(own.maps_):
+        assert np.allclose(key2[own.space_.class_dims[c]], m.weights_[0])
+    assert not np.allclose(key1, key2)
