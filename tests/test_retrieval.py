@@ -274,7 +274,7 @@ def test_map_file_keeps_the_library(model, engine, tmp_path):
     assert np.array_equal(r1, eng.generate(name, name, **args)[0])
 
 
-@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index", "not-unit", "ints"])
+@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index", "not-unit", "ints", "missing"])
 def test_a_damaged_library_is_refused(model, tmp_path, damage):
     path = tmp_path / "lib.npz"
     model.save(path)
@@ -291,8 +291,10 @@ def test_a_damaged_library_is_refused(model, tmp_path, damage):
         arrays["library_win"] = arrays["library_win"] + 100000
     elif damage == "not-unit":
         arrays["library_rots"] = arrays["library_rots"] * 2
-    else:
+    elif damage == "ints":
         arrays["library_pose"] = arrays["library_pose"].astype(np.int64)
+    else:
+        del arrays["library_rots"]
     np.savez(path, **arrays)
     with pytest.raises(MapFileError, match="library"):
         PostureMap.load(path)

@@ -269,6 +269,10 @@ class MotionLibrary:
     @classmethod
     def from_parts(cls, meta: dict, arrays: dict, sk: Skeleton, n_neurons: int) -> "MotionLibrary":
         """A library from saved arrays, each checked (dtype, shape, finite, ranges); raises ValueError."""
+        missing = [f"metadata '{k}'" for k in ("frames", "fps", "leg", "up") if k not in meta]
+        missing += [f"array 'library_{k}'" for k in ARRAYS + ("lower", "upper") if k not in arrays]
+        if missing:
+            raise ValueError(f"library lacks {', '.join(missing)}")
         n = int(meta["frames"])
         j = sk.num_joints
         legs = len(leg_chains(sk))
