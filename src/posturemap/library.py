@@ -317,8 +317,9 @@ class MotionLibrary:
 def feature_scales(lib: MotionLibrary) -> np.ndarray:
     """One scale per feature block, so that each block weighs alike (Holden et al. 2020).
 
-    Returns (5,): lower pose, lower velocity, upper pose, upper velocity, root blocks use the
-    mean standard deviation of their coordinates over the library (1 where a block is empty).
+    Returns (7,): lower pose, lower velocity, upper pose, upper velocity (the mean standard
+    deviation of their coordinates over the library, 1 where a block is empty), then the
+    root's velocity, turning rate and height (their standard deviations, at least 1e-6).
     """
     kl = len(lib.lower)
 
@@ -326,8 +327,10 @@ def feature_scales(lib: MotionLibrary) -> np.ndarray:
         return float(np.mean(np.std(x.reshape(len(x), -1), axis=0))) if x.size else 1.0
 
     s = np.array([spread(lib.pose[:, :kl]), spread(lib.vel[:, :kl]), spread(lib.pose[:, kl:]),
-                  spread(lib.vel[:, kl:]), 1.0])
-    return np.where(s > 1e-9, s, 1.0)
+                  spread(lib.vel[:, kl:])])
+    root = [float(np.mean(np.std(lib.root[:, :3], axis=0))), float(np.std(lib.root[:, 3])),
+            float(np.std(lib.root[:, 4]))] if len(lib) else [1.0] * 3
+    return np.concatenate([np.where(s > 1e-9, s, 1.0), np.maximum(root, 1e-6)])
 
 
 def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibrary:

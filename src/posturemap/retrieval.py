@@ -42,7 +42,7 @@ import numpy as np
 from . import kernels, quat
 from .features import wrap_diff
 from .feet import lock_feet
-from .library import MotionLibrary, clip_features, key_joints, part_masks
+from .library import INDEX_CLASS, MotionLibrary, clip_features, key_joints, part_masks
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
 TOP_K = 8  # segments averaged per part
@@ -89,19 +89,14 @@ class Retriever:
         lower, upper = key_joints(sk)
         self.keys = np.concatenate([lower, upper])
         self.kl = len(lower)
-        lib = library
-        rv = lib.root[:, :3]
-        self.root_scale = np.array([max(float(np.mean(np.std(rv, axis=0))), 1e-6),
-                                    max(float(np.std(lib.root[:, 3])), 1e-6),
-                                    max(float(np.std(lib.root[:, 4])), 1e-6)])
         space = engine.model.space_
         self.space = space
-        cmap = engine.model.maps_[1]
+        cmap = engine.model.maps_[INDEX_CLASS]
         self.cmap = cmap
         dim_joint = np.concatenate([np.repeat(space.joints, 3), [space.root]])
         self.part_dims = [np.flatnonzero(space.active & m[dim_joint]) for m in (self.lower_mask, self.upper_mask)]
         # Columns of the index map's vectors that belong to each part (all, if a part has none).
-        index_dims = space.class_dims[1]
+        index_dims = space.class_dims[INDEX_CLASS]
         self.index_cols = []
         for dims in self.part_dims:
             cols = np.flatnonzero(np.isin(index_dims, dims))
@@ -145,7 +140,7 @@ class Retriever:
         """
         lib, cmap = self.lib, self.cmap
         cols = self.index_cols[part] if part is not None else slice(None)
-        q = x[self.space.class_dims[1]][cols]
+        q = x[self.space.class_dims[INDEX_CLASS]][cols]
         w = cmap.weights_[:, cols]
         if np.isfinite(cmap.period_).any():  # euler features: angles on the circle
             diff = np.abs(w - q)
@@ -195,34 +190,29 @@ class Retriever:
         """Per part, the weighted matching features of every library frame as two matrices:
         ``P`` (N, Dp) positions (and the root's height) and ``V`` (N, Dv) velocities (and the
         root's velocity and turning rate), so that a seam costs ``|P - p|^2 + |V / warp - v|^2``."""
-        lib, kl = self.lib, self.kl
-        out = []
-        for part, cols in ((0, slice(0, kl)), (1, slice(kl, None))):
-            sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
-            pm = [lib.pose[:, cols].reshape(len(lib), -1) / sp]
-            vm = [lib.vel[:, cols].reshape(len(lib), -1) * (math.sqrt(W_VEL) / sv)]
-            if part == 0:
-                w = np.sqrt(np.array(W_ROOT)) / self.root_scale
-                pm.append(lib.root[:, 4:5] * w[2])
-                vm += [lib.root[:, :3] * w[0], lib.root[:, 3:4] * w[1]]
-            out.append((np.ascontiguousarray(np.concatenate(pm, axis=1), dtype=np.float32),
-                        np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32)))
-        return out
+        lib = self.lib
+        return [self.rows(part, lib.pose, lib.vel, lib.root) for part in (0, 1)]
 
-    def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
-        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
-        if part in q.vectors:
-            return q.vectors[part]
+    def rows(self, part: int, pose, vel, root) -> tuple[np.ndarray, np.ndarray]:
+        """Frames' features (``pose``, ``vel`` (N, K, 3), ``root`` (N, 5)) as the weighted rows
+        ``P`` (N, Dp) and ``V`` (N, Dv) of ``part``, float32 (see :meth:`_matrices`)."""
         lib, kl = self.lib, self.kl
         cols = slice(0, kl) if part == 0 else slice(kl, None)
         sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
-        p = [q.pose[cols].ravel() / sp]
-        v = [q.vel[cols].ravel() * (math.sqrt(W_VEL) / sv)]
+        pm = [pose[:, cols].reshape(len(pose), -1) / sp]
+        vm = [vel[:, cols].reshape(len(vel), -1) * (math.sqrt(W_VEL) / sv)]
         if part == 0:
-            w = np.sqrt(np.array(W_ROOT)) / self.root_scale
-            p.append(q.root[4:5] * w[2])
-            v += [q.root[:3] * w[0], q.root[3:4] * w[1]]
-        q.vectors[part] = (np.concatenate(p).astype(np.float32), np.concatenate(v).astype(np.float32))
+            w = np.sqrt(np.array(W_ROOT)) / lib.scale[4:7]
+            pm.append(root[:, 4:5] * w[2])
+            vm += [root[:, :3] * w[0], root[:, 3:4] * w[1]]
+        return (np.ascontiguousarray(np.concatenate(pm, axis=1), dtype=np.float32),
+                np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32))
+
+    def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
+        if part not in q.vectors:
+            p, v = self.rows(part, q.pose[None], q.vel[None], q.root[None])
+            q.vectors[part] = (p[0], v[0])
         return q.vectors[part]
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
