@@ -3,7 +3,7 @@
 File sets: every ``bandai1/*.bvh`` (174 short clips, 22 joints with 6 channels each) and
 ``cmu/01_01.bvh`` (one long clip, 2752 frames at 120 fps). Readers:
 
-- ``posturemap``: ``posturemap.bvh.read`` (hierarchy, frames and Euler-to-quaternion).
+- ``posturemap``: ``posturemap.io.bvh.read`` (hierarchy, frames and Euler-to-quaternion).
 - ``bvhio``: ``bvhio.readAsBvh``, its fastest full read (``readAsHierarchy`` does more work
   on top of it and is about ten times slower).
 - ``pybvh``: ``pybvh.read_bvh_file(path, world_up="+y")``; the explicit up axis skips its

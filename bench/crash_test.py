@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from posturemap import bvh, sample
-from posturemap.fileio import TEMP_PREFIX
+from posturemap.io import bvh
+from posturemap import sample
+from posturemap.io.fileio import TEMP_PREFIX
 
 
 def _cmd(folder: Path, length: int, *extra) -> list[str]:

@@ -38,8 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from posturemap import bvh, cli, sample
-from posturemap.model import PostureMap
+from posturemap.io import bvh
+from posturemap import cli, sample
+from posturemap.learn.model import PostureMap
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from test_fuzz_bvh import _cut, mutate  # noqa: E402 - the BVH mutations, shared with the reader's fuzz test

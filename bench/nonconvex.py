@@ -45,7 +45,7 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 
-from posturemap.upm import UniformPostureMap
+from posturemap.learn.upm import UniformPostureMap
 
 
 def default_data_dir() -> Path:
@@ -76,7 +76,9 @@ def arm_swing(data_dir: Path, joint: str = "UpperArm_L") -> np.ndarray | None:
     files = sorted((data_dir / "bandai1").glob("*.bvh"))
     if not files:
         return None
-    from posturemap import bvh, features, quat
+    from posturemap.io import bvh
+    from posturemap.learn import features
+    from posturemap.core import quat
 
     motions = [bvh.read(f) for f in files]
     space = features.fit_space(motions, "logmap")

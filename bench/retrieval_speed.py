@@ -2,7 +2,7 @@
 
 All on Bandai-Namco dataset 1 (``<data>/bandai1``), a map (with its motion library) trained on
 every clip with default parameters, every clip prepared once in a
-:class:`posturemap.transition.TransitionEngine`:
+:class:`posturemap.synth.engine.TransitionEngine`:
 
 - **latency**: one 30-frame transition between two different clips (seeded draws of clips,
   seams and alpha; B moved to continue A), ``retrieval`` with its foot lock next to the
@@ -12,7 +12,7 @@ every clip with default parameters, every clip prepared once in a
   rotations jittered by a seeded random rotation of about 1 degree per joint and frame (the
   map is the same; the copies' frames are indexed through it);
 - **index**: how the candidate frames are found, each followed by the same exact re-rank of
-  the same cost (:meth:`posturemap.retrieval.Retriever.search`), against the exhaustive search
+  the same cost (:meth:`posturemap.synth.retrieval.Retriever.search`), against the exhaustive search
   (every start frame of the library with every warp):
   ``upm`` (the map's inverted index, then the best frames at natural speed),
   ``faiss-flat`` (exact k nearest neighbours of the seam features, ``faiss.IndexFlatL2``) and
@@ -52,8 +52,8 @@ GOAL_MS = 1.0
 
 def jittered(motion, rng, degrees: float):
     """A copy of ``motion`` with every local rotation turned by a small random rotation."""
-    from posturemap import quat
-    from posturemap.motion import Motion
+    from posturemap.core import quat
+    from posturemap.core.motion import Motion
 
     axis = rng.normal(size=motion.rotations.shape[:-1] + (3,))
     axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
@@ -96,7 +96,7 @@ def compare_indexes(rt, queries, log=None) -> dict:
     """Recall@1, cost ratio and search time of each index against the exhaustive search."""
     import faiss
 
-    from posturemap import retrieval
+    from posturemap.synth import retrieval
 
     faiss.omp_set_num_threads(1)
     lib = rt.lib
@@ -150,11 +150,11 @@ def compare_indexes(rt, queries, log=None) -> dict:
 
 def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
     """Every measurement above; returns a JSON-ready dict."""
-    from posturemap import bvh
-    from posturemap.library import build_library
-    from posturemap.model import PostureMap
-    from posturemap.retrieval import Retriever
-    from posturemap.transition import TransitionEngine
+    from posturemap.io import bvh
+    from posturemap.synth.library import build_library
+    from posturemap.learn.model import PostureMap
+    from posturemap.synth.retrieval import Retriever
+    from posturemap.synth.engine import TransitionEngine
 
     files = sorted((Path(data_dir) / "bandai1").glob("*.bvh"))
     if quick:

@@ -50,8 +50,9 @@ class Server:
     """``posturemap serve`` in a subprocess: ``base`` URL, ``host:port``, and its stderr log lines."""
 
     def __init__(self, folder: Path):
-        from posturemap import bvh, sample
-        from posturemap.model import PostureMap
+        from posturemap.io import bvh
+        from posturemap import sample
+        from posturemap.learn.model import PostureMap
 
         folder = Path(folder)
         clips = sample.clips()

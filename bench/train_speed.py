@@ -51,10 +51,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 
-from posturemap import bvh, features
-from posturemap.features import CLASSES
-from posturemap.model import PostureMap
-from posturemap.upm import UniformPostureMap
+from posturemap.io import bvh
+from posturemap.learn import features
+from posturemap.learn.features import CLASSES
+from posturemap.learn.model import PostureMap
+from posturemap.learn.upm import UniformPostureMap
 
 GOAL_RATIO = 10.0  # UPM samples/s at least 10x MiniSom's
 GOAL_FULL_SECONDS = 10.0  # all of bandai1 with defaults
@@ -95,7 +96,7 @@ def timed_upm(X, seq, radius, seed=0):
 
 def radius_for(X, seq, target, tol=0.03, max_steps=10):
     """Radius whose map has ``target`` neurons +- ``tol`` (secant on log-log); (radius, neurons, steps)."""
-    from posturemap.upm import auto_radius
+    from posturemap.learn.upm import auto_radius
 
     r = auto_radius(X, np.full(X.shape[1], np.inf))
     pts = []

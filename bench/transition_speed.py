@@ -2,7 +2,7 @@
 
 Three measurements, all on Bandai-Namco dataset 1 (``<data>/bandai1``):
 
-- **engine**: a :class:`posturemap.transition.TransitionEngine` holding a map trained on all
+- **engine**: a :class:`posturemap.synth.engine.TransitionEngine` holding a map trained on all
   clips (``PostureMap().fit``, default parameters) and every clip prepared once; one call of
   ``generate`` (key posture, spline, root alignment: the in-between frames' local rotations and
   positions) is timed with ``time.perf_counter_ns``. Clip pairs, seam frames (``a_end``,
@@ -141,7 +141,7 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
 
 def bench_functional(model, clips, lengths, methods, calls, rng, log) -> dict:
     """Median/p99 of ``transition(A, B, model, ...)`` per method (an engine per call)."""
-    from posturemap.transition import transition
+    from posturemap.synth.engine import transition
 
     out = {}
     for m in methods:
@@ -191,9 +191,9 @@ def bench_cli(path_a: Path, path_b: Path, map_path: str | None, runs: int, workd
 
 def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
     """Run the benchmark; returns a JSON-ready dict (see :func:`markdown`)."""
-    from posturemap import bvh
-    from posturemap.model import PostureMap
-    from posturemap.transition import METHODS, TransitionEngine
+    from posturemap.io import bvh
+    from posturemap.learn.model import PostureMap
+    from posturemap.synth.engine import METHODS, TransitionEngine
 
     data_dir = Path(data_dir)
     files = sorted((data_dir / "bandai1").glob("*.bvh"))

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from posturemap import kernels, sample
+from posturemap.core import kernels
+from posturemap import sample
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import bvh
-from posturemap.model import PostureMap
-from posturemap.transition import DEFAULT_METHOD, KEYED
+from posturemap.io import bvh
+from posturemap.learn.model import PostureMap
+from posturemap.synth.engine import DEFAULT_METHOD, KEYED
 from posturemap.web.server import LOOPBACK_HOSTS, create_app, running
 
 CHROMIUM = "/usr/bin/chromium"
@@ -49,7 +49,7 @@ def clips(bandai_paths):
 def base_url(clips):
     """The real server on a free localhost port, with a small map trained here."""
     # bow first: the map takes its root joint and up axis from its first clip, and
-    # posturemap.motion reads walk_normal_001 as Z-up (it walks far from the origin, where Bandai's
+    # posturemap.core.motion reads walk_normal_001 as Z-up (it walks far from the origin, where Bandai's
     # joint_Root stays) and run_normal_001's root as joint_Root (which carries its trajectory).
     order = ["bow_normal_001"] + [n for n in clips if n != "bow_normal_001"]
     model = PostureMap(seed=0).fit([clips[n] for n in order], order)
@@ -329,7 +329,7 @@ def test_retrieval_shows_its_source_and_confidence(studio, clips):
 
 
 def test_export_as_glb_downloads_the_shown_result(studio, clips):
-    from posturemap import gltf
+    from posturemap.io import gltf
 
     page = studio.page
     studio.choose("run_normal_001", "walk_normal_001", a_end=15, b_start=30, length=24)

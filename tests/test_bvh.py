@@ -18,11 +18,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from posturemap import bvh, cli, motion as motion_mod, quat, sample
-from posturemap.bvh import BVHError
+from posturemap.io import bvh
+from posturemap import cli, sample
+from posturemap.core import motion as motion_mod, quat
+from posturemap.io.bvh import BVHError
 from posturemap.errors import UserError
-from posturemap.motion import Motion, concatenate
-from posturemap.skeleton import Skeleton
+from posturemap.core.motion import Motion, concatenate
+from posturemap.core.skeleton import Skeleton
 
 # --- an independent reader and FK (no posturemap code) ----------------------------------------
 
@@ -660,7 +662,7 @@ def test_cmu_keeps_its_own_unit(cmu_file):
 
 
 def test_bandai_is_y_up_centimetres(bandai_files):
-    # Independent of posturemap.motion: the body's extent (joints other than joint_Root, which
+    # Independent of posturemap.core.motion: the body's extent (joints other than joint_Root, which
     # mostly stays at the origin while Hips travels) is largest along Y, in cm.
     for path in bandai_files:
         m, raw = load_real(str(path))
@@ -675,7 +677,7 @@ def test_bandai_is_y_up_centimetres(bandai_files):
 
 
 def test_bandai_up_axis_and_unit_in_place(bandai_files):
-    # Clips that stay in place: posturemap.motion agrees (Y up, centimetres).
+    # Clips that stay in place: posturemap.core.motion agrees (Y up, centimetres).
     for path in [p for p in bandai_files if re.search(r"_(bow|bye|byebye|call|guide)_", p.name)]:
         m, _ = load_real(str(path))
         assert motion_mod.up_axis(m) == 1, path.name

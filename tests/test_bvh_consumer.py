@@ -1,8 +1,8 @@
 """Transition outputs in a real consumer of BVH: three.js's BVHLoader in headless Chromium.
 
 The issue "Motion transitions" asks for three outputs made with
-:func:`posturemap.transition.transition` on Bandai clips (walk -> run, bow -> dance-short,
-run -> walk-back) and written with :func:`posturemap.bvh.write` to import in a real BVH reader.
+:func:`posturemap.synth.engine.transition` on Bandai clips (walk -> run, bow -> dance-short,
+run -> walk-back) and written with :func:`posturemap.io.bvh.write` to import in a real BVH reader.
 They are loaded with the vendored ``BVHLoader`` (``make web``) in a page served through
 Playwright's request routing (no server): each must give one track per joint and channel kind
 with one key per frame, one bone per joint and End Site, the file's frame time, and rotations
@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import bvh
-from posturemap.model import PostureMap
-from posturemap.transition import transition
+from posturemap.io import bvh
+from posturemap.learn.model import PostureMap
+from posturemap.synth.engine import transition
 
 from pagekit import CHROMIUM, VENDOR, page_results, vendored  # noqa: E402
 PAIRS = [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "dance-short_normal_001"),

@@ -11,9 +11,10 @@ import os
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, sample
-from posturemap.bvh import BVHError
-from posturemap.motion import Motion
+from posturemap.io import bvh
+from posturemap import cli, sample
+from posturemap.io.bvh import BVHError
+from posturemap.core.motion import Motion
 from clikit import assert_refused, run  # noqa: E402,F401
 
 
@@ -84,7 +85,7 @@ def test_issue12_chain_of_9999_joints_reads_in_linear_time(tmp_path, capsys):
     # Bone classes were found with a scan of all joints per joint on the spine and an ancestor
     # walk per joint (quadratic: 13-24 s); now one pass each. The time itself is measured by
     # bench/fuzz_long.py (no timing asserts in unit tests): here the result must be right.
-    from posturemap.features import assign_classes, subtree_mask
+    from posturemap.learn.features import assign_classes, subtree_mask
 
     path = tmp_path / "chain.bvh"
     path.write_text(chain(9999))
@@ -158,7 +159,7 @@ def test_issue12_cmu_frames_written_with_the_files_own_values(cmu_file, start):
 
 
 def test_issue12_cmu_transition_keeps_a_and_continues_smoothly(cmu_file):
-    from posturemap.transition import transition
+    from posturemap.synth.engine import transition
 
     m = bvh.read(cmu_file)
     original = _frame_values(cmu_file.read_text())
@@ -174,7 +175,7 @@ def test_issue12_cmu_transition_keeps_a_and_continues_smoothly(cmu_file):
 
 
 def test_generated_run_between_file_frames_continues_by_whole_turns():
-    from posturemap.bvh import _continue_runs
+    from posturemap.io.bvh import _continue_runs
 
     out = np.array([[170.0], [179.0], [-170.0], [-160.0], [200.0]])  # rows 2-3 generated (wrapped)
     fixed = np.array([True, True, False, False, True])
@@ -196,7 +197,7 @@ def test_changed_joints_are_recomputed_not_copied(tmp_path):
 
 
 def test_gltf_writer_refuses_non_finite_motion_too(tmp_path):
-    from posturemap import gltf
+    from posturemap.io import gltf
 
     m = sample.clips()["walk"]
     rots = m.rotations.copy()

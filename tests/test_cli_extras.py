@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import posturemap
-from posturemap import bvh, cli, demo, errors, preview
+from posturemap.io import bvh, preview
+from posturemap import cli, demo, errors
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -69,7 +69,7 @@ def test_foot_joints_and_centred(sample_clips):
 
 
 def test_key_model_stands_in_for_the_maps_only(sample_clips):
-    from posturemap.model import PostureMap
+    from posturemap.learn.model import PostureMap
 
     model = PostureMap(seed=0).fit([sample_clips["walk"]])
     km = evaluate.fixed_key_model(model)
@@ -80,7 +80,7 @@ def test_key_model_stands_in_for_the_maps_only(sample_clips):
 
 
 def test_methods_cover_the_engine_and_todays_default():
-    from posturemap.transition import METHODS as ENGINE
+    from posturemap.synth.engine import METHODS as ENGINE
 
     assert set(ENGINE) <= set(METHODS)
     assert {"zero-velocity", "som", "upm-valid" + evaluate.FEET, evaluate.DEFAULT_SPEC} <= set(METHODS)
@@ -140,8 +140,8 @@ def test_acceptance_criteria_hand_cases():
 
 
 def test_the_engine_sees_the_context_frames_only(sample_clips):
-    from posturemap.model import PostureMap
-    from posturemap.transition import TransitionEngine
+    from posturemap.learn.model import PostureMap
+    from posturemap.synth.engine import TransitionEngine
 
     walk = sample_clips["walk"]
     seen = []

@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posturemap import bvh, metrics, quat
-from posturemap.feet import (FADE, contact_runs, leg_chains, leg_length, lock_weights_and_targets,
+from posturemap.io import bvh
+from posturemap.evaluate import metrics
+from posturemap.core import quat
+from posturemap.synth.feet import (FADE, contact_runs, leg_chains, leg_length, lock_weights_and_targets,
                              two_bone_ik)
-from posturemap.skeleton import fk
-from posturemap.transition import TransitionEngine
+from posturemap.core.skeleton import fk
+from posturemap.synth.engine import TransitionEngine
 
 
 def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):

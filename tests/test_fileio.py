@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import bvh, fileio, sample
-from posturemap.fileio import TEMP_PREFIX, write_bytes_atomic
+from posturemap.io import bvh, fileio
+from posturemap import sample
+from posturemap.io.fileio import TEMP_PREFIX, write_bytes_atomic
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -86,7 +87,7 @@ def test_keyboard_interrupt_removes_the_temp_file(tmp_path, monkeypatch):
 
 _SIGNAL_SCRIPT = textwrap.dedent("""
     import os, sys, time
-    from posturemap import fileio
+    from posturemap.io import fileio
     real = os.fsync
     def slow(fd):
         print("writing", flush=True)

@@ -15,9 +15,9 @@ import re
 import numpy as np
 import pytest
 
-from posturemap import bvh
-from posturemap.bvh import BVHError
-from posturemap.motion import Motion
+from posturemap.io import bvh
+from posturemap.io.bvh import BVHError
+from posturemap.core.motion import Motion
 
 MAX_FRAMES = 40
 

@@ -32,8 +32,8 @@ def test_mutated_map_that_decodes_to_nan_is_refused_by_validation(tmp_path):
     # the transition decoded NaN rotations (the BVH writer then refused to write them).
     import numpy as np
 
-    from posturemap.mapfile import MapFileError
-    from posturemap.model import PostureMap
+    from posturemap.io.mapfile import MapFileError
+    from posturemap.learn.model import PostureMap
 
     raw = fuzz_cli.good_map(tmp_path)
     m = fuzz_cli._members(raw)

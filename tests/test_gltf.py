@@ -1,4 +1,4 @@
-"""glTF 2.0 export (posturemap.gltf): the container against the specification, the Khronos
+"""glTF 2.0 export (posturemap.io.gltf): the container against the specification, the Khronos
 glTF-Validator, and three.js's GLTFLoader in the real browser.
 
 The walk -> run transition on Bandai clips (as ``posturemap transition`` without ``--map``
@@ -27,12 +27,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, gltf, quat
+from posturemap.io import bvh, gltf
+from posturemap import cli
+from posturemap.core import quat
 from posturemap.errors import UserError
-from posturemap.model import PostureMap
-from posturemap.motion import Motion, up_axis
-from posturemap.skeleton import fk
-from posturemap.transition import transition
+from posturemap.learn.model import PostureMap
+from posturemap.core.motion import Motion, up_axis
+from posturemap.core.skeleton import fk
+from posturemap.synth.engine import transition
 
 from pagekit import CHROMIUM, VENDOR, page_results, vendored  # noqa: E402
 
@@ -177,7 +179,7 @@ def test_unknown_unit_takes_a_body_height_and_an_explicit_scale_wins(sample_clip
                  walk.rotations, walk.positions * 0.15, walk.fps)
     unit_odd, s_odd = gltf.guess_scale(odd)
     assert unit_odd == "unknown"
-    from posturemap.motion import body_height
+    from posturemap.core.motion import body_height
     assert body_height(odd) * s_odd == pytest.approx(gltf.ASSUMED_HEIGHT_M)
     doc, _ = gltf.build(walk, metres_per_unit=0.5)
     assert doc["asset"]["extras"]["metres_per_unit"] == 0.5 and unit in gltf.METRES_PER

@@ -1,6 +1,6 @@
 """The two kernel backends (numpy, numba) against each other, and a start-up without numba.
 
-``posturemap.kernels`` runs numpy until something calls ``kernels.compiled()``; every hot
+``posturemap.core.kernels`` runs numpy until something calls ``kernels.compiled()``; every hot
 kernel must give the same answer either way. ``import posturemap`` and one command-line
 transition with ``--map`` must not import numba at all (a structural check, in a fresh
 process: the timing is ``bench/startup.py``'s job).
@@ -16,9 +16,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from posturemap import bvh, kernels, quat
-from posturemap.model import PostureMap
-from posturemap.transition import METHODS, transition
+from posturemap.io import bvh
+from posturemap.core import kernels, quat
+from posturemap.learn.model import PostureMap
+from posturemap.synth.engine import METHODS, transition
 
 
 def random_quats(rng, shape) -> np.ndarray:
@@ -177,7 +178,7 @@ def test_import_posturemap_does_not_import_numba():
     assert not any(loaded.values()), loaded
     import posturemap
     from posturemap import transition as imported_name
-    from posturemap.model import PostureMap as model_class
+    from posturemap.learn.model import PostureMap as model_class
 
     assert posturemap.PostureMap is model_class
     assert posturemap.transition is transition is imported_name  # the function, not the module

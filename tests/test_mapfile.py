@@ -15,9 +15,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, sample
-from posturemap.mapfile import MAX_ARRAY_BYTES, MapFileError
-from posturemap.model import PostureMap
+from posturemap.io import bvh
+from posturemap import cli, sample
+from posturemap.io.mapfile import MAX_ARRAY_BYTES, MapFileError
+from posturemap.learn.model import PostureMap
 from clikit import assert_refused, run  # noqa: E402,F401
 
 
@@ -256,7 +257,7 @@ def test_fifo_named_like_a_map_is_refused_at_once(tmp_path, capsys):
 
 
 def test_map_error_class_is_still_exported_from_model():
-    from posturemap import model
+    from posturemap.learn import model
 
     assert model.MapFileError is MapFileError
 
@@ -271,7 +272,7 @@ def test_zip_bomb_member_is_refused_before_inflating(map_bytes, tmp_path, capsys
 
 
 def test_more_neurons_than_the_cap_refused_from_the_header(map_bytes, tmp_path, capsys, monkeypatch):
-    from posturemap import mapfile
+    from posturemap.io import mapfile
 
     monkeypatch.setattr(mapfile, "MAX_NEURONS", 50)  # the sample map's classes have more
     inspect_refuses(capsys, tmp_path, map_bytes, "weights", "does not fit the metadata")

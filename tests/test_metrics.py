@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from posturemap import metrics, quat
+from posturemap.evaluate import metrics
+from posturemap.core import quat
 
 S2 = math.sqrt(0.5)
 

@@ -12,12 +12,14 @@ import zipfile
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, quat, sample
+from posturemap.io import bvh
+from posturemap import cli, sample
+from posturemap.core import quat
 from posturemap.errors import UserError
-from posturemap.features import CLASSES
-from posturemap.model import FORMAT, VERSION, MapFileError, PostureMap
-from posturemap.motion import Motion
-from posturemap.skeleton import Skeleton
+from posturemap.learn.features import CLASSES
+from posturemap.learn.model import FORMAT, VERSION, MapFileError, PostureMap
+from posturemap.core.motion import Motion
+from posturemap.core.skeleton import Skeleton
 
 
 

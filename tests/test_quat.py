@@ -1,4 +1,4 @@
-"""posturemap.quat cross-checked against scipy.spatial.transform.Rotation.
+"""posturemap.core.quat cross-checked against scipy.spatial.transform.Rotation.
 
 scipy stores quaternions (x, y, z, w); posturemap (w, x, y, z). Uppercase scipy Euler orders
 are intrinsic, as in BVH and posturemap.
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from posturemap import quat
+from posturemap.core import quat
 
 TAIT_BRYAN = [o for o in quat.EULER_ORDERS if o[0] != o[2]]
 PROPER = [o for o in quat.EULER_ORDERS if o[0] == o[2]]

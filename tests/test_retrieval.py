@@ -12,12 +12,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, quat, retrieval
-from posturemap.library import MotionLibrary, key_joints
-from posturemap.model import MapFileError, PostureMap
-from posturemap.motion import Motion
-from posturemap.skeleton import fk
-from posturemap.transition import TransitionEngine, transition
+from posturemap.io import bvh
+from posturemap import cli
+from posturemap.core import quat
+from posturemap.synth import retrieval
+from posturemap.synth.library import MotionLibrary, key_joints
+from posturemap.learn.model import MapFileError, PostureMap
+from posturemap.core.motion import Motion
+from posturemap.core.skeleton import fk
+from posturemap.synth.engine import TransitionEngine, transition
 
 LIBRARY = ("walk_normal_001", "walk_happy_001", "walk_tired_001", "run_normal_001", "run_happy_001",
            "walk-left_normal_001", "walk-right_normal_001", "dash_normal_001")
@@ -345,7 +348,7 @@ def paths_for_cli(bandai_paths):
 
 
 def test_compiled_replay_matches_the_numpy_reference(model):
-    from posturemap import retrieval_numba
+    from posturemap.synth import retrieval_numba
 
     lib = model.library_
     rng = np.random.default_rng(5)
@@ -366,7 +369,7 @@ def test_compiled_replay_matches_the_numpy_reference(model):
 
 
 def test_compiled_seam_costs_match_numpy(model, monkeypatch):
-    from posturemap import retrieval_numba
+    from posturemap.synth import retrieval_numba
 
     rng = np.random.default_rng(6)
     pm = rng.normal(size=(500, 7)).astype(np.float32)
@@ -407,7 +410,7 @@ def test_inspect_describes_the_library(model, tmp_path, capsys):
 
 
 def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engine, clips, model):
-    from posturemap.transition import AUTO_SHORT_S
+    from posturemap.synth.engine import AUTO_SHORT_S
 
     name = HELD_OUT[0]
     for length, expected in ((5, "spline"), (int(AUTO_SHORT_S * 30) + 1, "retrieval"), (30, "retrieval")):

@@ -97,7 +97,7 @@ def test_issue12_trickling_client_does_not_block_others(srv):
 # -- in-process: timeouts and concurrency (short limits) --------------------------------------
 @pytest.fixture(scope="module")
 def app(sample_clips):
-    from posturemap.model import PostureMap
+    from posturemap.learn.model import PostureMap
 
     model = PostureMap(seed=0).fit(list(sample_clips.values()), list(sample_clips))
     return web.create_app(sample_clips, model)

@@ -3,7 +3,7 @@
 Real clips come from Bandai-Namco dataset 1 (``bandai_files``; skipped with a reason when the
 data folder is absent): one PostureMap is trained once per module on five clips (walk, run,
 bow, dance, walk-back; about a second). Kernels and spline bases are checked on seeded random
-data against the numpy reference in :mod:`posturemap.quat`. The CLI runs in-process.
+data against the numpy reference in :mod:`posturemap.core.quat`. The CLI runs in-process.
 """
 
 from __future__ import annotations
@@ -14,13 +14,15 @@ import os
 import numpy as np
 import pytest
 
-from posturemap import bvh, cli, kernels, quat
+from posturemap.io import bvh
+from posturemap import cli
+from posturemap.core import kernels, quat
 from posturemap.errors import UserError
-from posturemap.features import root_global, upright_rest, wrap_diff
-from posturemap.model import PostureMap
-from posturemap.motion import Motion, concatenate, root_index, up_axis
-from posturemap.skeleton import fk
-from posturemap.transition import (
+from posturemap.learn.features import root_global, upright_rest, wrap_diff
+from posturemap.learn.model import PostureMap
+from posturemap.core.motion import Motion, concatenate, root_index, up_axis
+from posturemap.core.skeleton import fk
+from posturemap.synth.engine import (
     ACCEPT,
     KEY_POSTURE,
     KEYED,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posturemap.upm import MIN_EDGE_SUPPORT, UniformPostureMap, auto_radius
+from posturemap.learn.upm import MIN_EDGE_SUPPORT, UniformPostureMap, auto_radius
 
 TWO_PI = 2.0 * np.pi
 
@@ -35,7 +35,7 @@ def moved(w, x, gain, period):
 
 
 def reference_upm(X, radius, neighborhood, learning_rate, epochs, seed, period=None, sequences=None):
-    """Algorithm 1 as documented in posturemap.upm, in plain Python (the test oracle).
+    """Algorithm 1 as documented in posturemap.learn.upm, in plain Python (the test oracle).
 
     Seeded shuffle per epoch; insert when the nearest neuron is farther than R; else move the
     winner by eta*(x - w) and graph neighbours within ``hops`` (and within R of x) by

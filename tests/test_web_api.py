@@ -26,10 +26,11 @@ with warnings.catch_warnings():  # starlette 1.x prefers httpx2 for its test cli
     warnings.simplefilter("ignore")
     from starlette.testclient import TestClient
 
-from posturemap import bvh, quat
-from posturemap.model import PostureMap
-from posturemap.motion import Motion
-from posturemap.transition import DEFAULT_METHOD, KEYED, METHODS, transition
+from posturemap.io import bvh
+from posturemap.core import quat
+from posturemap.learn.model import PostureMap
+from posturemap.core.motion import Motion
+from posturemap.synth.engine import DEFAULT_METHOD, KEYED, METHODS, transition
 from posturemap.web import server
 from posturemap.web.server import LOOPBACK_HOSTS, MAX_BODY, MAX_LENGTH, create_app
 
@@ -262,7 +263,7 @@ def test_export_matches_transition_on_bandai(bandai):
 def test_server_trained_map_lines_clips_up_on_bandai(bandai):
     """The map learnt by the server takes Hips as root and Y as up whatever the clip order.
 
-    (posturemap.motion reads walk_normal_001 as Z-up and run_normal_001's root as joint_Root; the
+    (posturemap.core.motion reads walk_normal_001 as Z-up and run_normal_001's root as joint_Root; the
     studio puts first a clip read like the majority, since map and engine follow their first clip.)
     """
     app = create_app(bandai)

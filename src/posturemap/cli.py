@@ -32,7 +32,8 @@ def _data_folder(given: str | None) -> str:
 def _cmd_bench(args) -> int:
     require_extra("bench", "minisom", "matplotlib", what="bench")
     args.data = _data_folder(args.data)
-    from . import evaluate, kernels
+    from . import evaluate
+    from .core import kernels
 
     kernels.compiled()  # hundreds of files to read, maps to train, transitions to time
     return evaluate.run_cli(args)
@@ -101,10 +102,10 @@ def _radius(text: str):
 
 
 def _cmd_train(args) -> int:
-    from . import kernels
-    from .bvh import read_inputs
-    from .features import load_class_overrides
-    from .model import PostureMap
+    from .core import kernels
+    from .io.bvh import read_inputs
+    from .learn.features import load_class_overrides
+    from .learn.model import PostureMap
 
     _check_output(args.output)
     kernels.compiled()  # training needs them; reading many files is faster with them too
@@ -135,10 +136,10 @@ def _check_output(path: str):
 
 
 def _cmd_transition(args) -> int:
-    from . import bvh, gltf
-    from .model import PostureMap
-    from .motion import up_axis
-    from .transition import KEYED, transition
+    from .io import bvh, gltf
+    from .learn.model import PostureMap
+    from .core.motion import up_axis
+    from .synth.engine import KEYED, transition
 
     as_gltf = gltf.is_gltf_path(args.output)
     if args.split_animations and not as_gltf:
@@ -172,8 +173,8 @@ def _cmd_transition(args) -> int:
     else:
         bvh.write(args.output, out)
     if args.preview:
-        from . import preview
-        from .motion import length_unit
+        from .io import preview
+        from .core.motion import length_unit
 
         preview.transition_filmstrip(out, a_end + 1, args.length, args.preview,
                                      up=model.space_.up if model is not None else up_axis(out),
@@ -202,12 +203,12 @@ def describe_retrieval(info) -> str:
 def _cmd_inspect(args) -> int:
     import json
 
-    from .features import CLASSES, assign_classes
-    from .model import PostureMap
+    from .learn.features import CLASSES, assign_classes
+    from .learn.model import PostureMap
 
     if args.path.lower().endswith(".bvh"):
-        from . import bvh
-        from .motion import root_index, summary
+        from .io import bvh
+        from .core.motion import root_index, summary
 
         m = bvh.read(args.path)
         jc = assign_classes(m.skeleton, root_index(m))
@@ -301,7 +302,7 @@ def build_parser(words=None) -> argparse.ArgumentParser:
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     if words is None or "transition" in words:  # the one option that needs the library (numpy)
-        from .transition import DEFAULT_METHOD, METHODS
+        from .synth.engine import DEFAULT_METHOD, METHODS
 
         r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                        help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under 0.25 s, real motion "

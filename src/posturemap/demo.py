@@ -19,10 +19,12 @@ import re
 import shlex
 import time
 
-from . import bvh, gltf, kernels, sample
-from .model import PostureMap
-from .motion import length_unit, summary
-from .transition import DEFAULT_METHOD, transition
+from .io import bvh, gltf
+from .core import kernels
+from . import sample
+from .learn.model import PostureMap
+from .core.motion import length_unit, summary
+from .synth.engine import DEFAULT_METHOD, transition
 
 SAMPLE_PAIRS = [("walk", "wave"), ("wave", "run"), ("run", "walk")]
 DATA_PAIRS = [("walk", "run"), ("bow", "dance"), ("run", "walk-back")]
@@ -100,7 +102,7 @@ def run(out: str, data: str | None = None, log=print) -> dict:
         log(f"out   {stem}.bvh, .glb: {len(result)} frames ({n_a} of A + {LENGTH} {DEFAULT_METHOD} frames "
             f"+ {len(clips[b])} of B) in {ms:.1f} ms{note}")
         if pictures:
-            from . import preview
+            from .io import preview
 
             preview.transition_filmstrip(result, n_a, LENGTH, stem + ".png", up=model.space_.up,
                                          title=f"{short(a)} -> {short(b)}: {LENGTH} {DEFAULT_METHOD} frames",

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import quat
-from .motion import Motion
-from .skeleton import Skeleton
+from .core import quat
+from .core.motion import Motion
+from .core.skeleton import Skeleton
 
 _ROT = ("Zrotation", "Xrotation", "Yrotation")
 _POS = ("Xposition", "Yposition", "Zposition")

@@ -36,17 +36,17 @@ as clip A and the 10 future frames as clip B (``a_end`` = A's last frame, ``b_st
 of the gap. Methods (:data:`METHODS`):
 
 - ``zero-velocity``: holds the last past-context frame (local rotations and root position);
-- every method of :data:`posturemap.transition.METHODS` (new ones join automatically), through
+- every method of :data:`posturemap.synth.engine.METHODS` (new ones join automatically), through
   :class:`TransitionEngine` on a map fitted on the hold-out's training clips; ``+feet``
   (:data:`FEET`) variants for ``upm-valid`` and the default method;
 - ``som``: ``upm`` with the key taken from a classic fixed-grid SOM (MiniSom) per bone class,
   with about the neuron count of the UPM class map (:func:`som_grid`), trained on the same
   features; the key is the SOM neuron nearest the alpha-blend, then the same B-spline.
 
-Metrics (:mod:`posturemap.metrics`) on the rebuilt frames, per method and length, overall and
+Metrics (:mod:`posturemap.evaluate.metrics`) on the rebuilt frames, per method and length, overall and
 per motion type (content): L2Q, L2P, NPSS (LaFAN1), MPJPE, root position error and
 root-relative joint position error (cm); foot skate, the standard height-weighted measure
-(:func:`posturemap.metrics.weighted_skate`, cm/s, H = 2.5 cm per 80 cm of leg, ground = the
+(:func:`posturemap.evaluate.metrics.weighted_skate`, cm/s, H = 2.5 cm per 80 cm of leg, ground = the
 lowest foot joint over the window, over the L + 1 frame steps from the last past-context
 frame to the first future-context frame; no contact detection), with the older contact-based
 measure as a secondary column (``contact_skate``); naturalness (:func:`naturalness_fn`: each

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..features import CLASSES
-from ..motion import Motion
-from ..transition import TransitionEngine
+from ..learn.features import CLASSES
+from ..core.motion import Motion
+from ..synth.engine import TransitionEngine
 from .protocol import VARIANTS, method_spec
 
 def som_grid(n: int) -> tuple[int, int]:
@@ -122,7 +122,7 @@ def centred(motion: Motion, root: int, up: int) -> Motion:
     """``motion`` with the root's horizontal translation set to 0 in every frame.
 
     Postures exclude the horizontal position, so a map learned from it is the same; but
-    :func:`posturemap.motion.up_axis` measures the spread of all joints, including a fixed
+    :func:`posturemap.core.motion.up_axis` measures the spread of all joints, including a fixed
     top joint at the origin (Bandai's ``joint_Root``), and takes the walking direction for up
     once the character is far from the origin. Centring keeps it right.
     """

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..motion import Motion, length_unit
-from ..transition import DEFAULT_METHOD
-from ..transition import METHODS as ENGINE_METHODS
+from ..core.motion import Motion, length_unit
+from ..synth.engine import DEFAULT_METHOD
+from ..synth.engine import METHODS as ENGINE_METHODS
 
 HOLDOUTS = ("style", "content", "cmu")
 TEST_STYLES = ("angry", "old", "proud")
@@ -27,7 +27,7 @@ STRIDE = 40
 STATS_WINDOW, STATS_STRIDE = 50, 20  # LaFAN1 get_train_stats
 CROSS_LENGTH = 20
 _BASELINES = ("slerp", "inertialize", "spline")
-FEET = "+feet"  # suffix: the method with foot locking (posturemap.feet)
+FEET = "+feet"  # suffix: the method with foot locking (posturemap.synth.feet)
 DEFAULT_SPEC = DEFAULT_METHOD + FEET  # what `posturemap transition` does by default
 # Every method of the engine (new ones join automatically), foot-locked variants, and the
 # two built here.
@@ -135,7 +135,7 @@ class Split:
 
 
 def unit_cm(motion: Motion) -> tuple[float, str]:
-    """Centimetres per unit of a clip, and how it was found (:func:`posturemap.motion.length_unit`;
+    """Centimetres per unit of a clip, and how it was found (:func:`posturemap.core.motion.length_unit`;
     a clip of unknown unit is taken to be in CMU's ASF unit, 1/0.45 inch)."""
     u = length_unit(motion)
     if u in UNIT_CM:
@@ -145,7 +145,7 @@ def unit_cm(motion: Motion) -> tuple[float, str]:
 
 def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
     """Read the clips of one hold-out of :data:`HOLDOUTS` (see the module doc)."""
-    from .. import bvh
+    from ..io import bvh
 
     data_dir = Path(data_dir)
     if name == "cmu":

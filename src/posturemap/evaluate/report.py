@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import metrics
-from ..features import CLASSES
+from . import metrics
+from ..learn.features import CLASSES
 
 HOLDOUT_TITLES = {
     "style": "Style hold-out (unseen styles of known motion types)",
@@ -86,10 +86,10 @@ FILMSTRIP_METHODS = ("slerp", "spline", "inertialize", "upm", "upm-valid+feet")
 
 def _filmstrip_example(example: dict, default: str, n_past: int, out: Path, filename: str, title: str) -> str:
     """One window at 30 frames as side-view filmstrips, one row each: the truth, the baselines
-    and the default (:func:`posturemap.preview.filmstrip_rows`; the 30 rebuilt frames in colour,
+    and the default (:func:`posturemap.io.preview.filmstrip_rows`; the 30 rebuilt frames in colour,
     the context grey)."""
-    from ..preview import filmstrip_rows
-    from ..skeleton import fk
+    from ..io.preview import filmstrip_rows
+    from ..core.skeleton import fk
 
     parents = np.asarray(example["parents"])
     rows = []

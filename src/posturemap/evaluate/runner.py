@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import metrics
-from ..bvh import write_bytes_atomic
-from ..features import CLASSES
-from ..feet import leg_chains, leg_length
-from ..motion import Motion
-from ..skeleton import fk
-from ..transition import TransitionEngine, aligned
+from . import metrics
+from ..io.bvh import write_bytes_atomic
+from ..learn.features import CLASSES
+from ..synth.feet import leg_chains, leg_length
+from ..core.motion import Motion
+from ..core.skeleton import fk
+from ..synth.engine import TransitionEngine, aligned
 from . import report
 from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
 from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
@@ -31,7 +31,7 @@ from .speed import latency, run_bench_script, training_speed
 
 def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
     """Train the maps on a hold-out's training side; returns the shared state of the run."""
-    from ..model import PostureMap
+    from ..learn.model import PostureMap
 
     train, test = split.train, split.test
     log(f"{split.name} hold-out: {len(train)} training clips ({sum(map(len, train))} frames), "
@@ -202,7 +202,7 @@ def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, pr
     These read the truth on purpose (the oracle key): they explain the keyed methods' errors,
     they are not methods. ``preds`` holds the methods' frames (``upm``, ``slerp`` are used).
     """
-    from ..model import PostureMap
+    from ..learn.model import PostureMap
 
     ctx, engines, test = state["ctx"], state["engines"], state["test"]
     space = state["model"].space_

@@ -6,9 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import metrics, quat
-from ..motion import Motion
-from ..skeleton import fk
+from . import metrics
+from ..core import quat
+from ..core.motion import Motion
+from ..core.skeleton import fk
 from .protocol import N_FUTURE, N_PAST
 
 NATURAL_FRAMES = 10  # naturalness compares at most this many evenly spaced frames of a window

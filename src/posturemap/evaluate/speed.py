@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import CLASSES
+from ..learn.features import CLASSES
 from .baselines import engine_call
 from .protocol import CROSS_LENGTH, METHODS, Settings, _log, random_pairs
 from .report import jsonable
@@ -37,7 +37,7 @@ def latency(state: dict, calls: int, seed: int) -> dict:
 
 def training_speed(state: dict, seed: int) -> list[dict]:
     """Per class: UPM (one thread) against MiniSom on the same features and neuron count."""
-    from ..upm import UniformPostureMap
+    from ..learn.upm import UniformPostureMap
 
     model, parts = state["model"], state["model"].space_.split(state["x_train"])
     seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(state["train"])])

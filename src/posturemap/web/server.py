@@ -1,6 +1,6 @@
 """Local web server of the transition studio (``posturemap serve``).
 
-One :class:`~posturemap.transition.TransitionEngine` holds every clip and the posture map in
+One :class:`~posturemap.synth.engine.TransitionEngine` holds every clip and the posture map in
 memory; the page asks for transitions as its sliders move and gets three.js-ready tracks back.
 
 Endpoints (JSON unless noted; every error is ``{"error": message, "field": name or null}``):
@@ -76,10 +76,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import bvh
+from ..io import bvh
 from ..errors import UserError
-from ..motion import Motion, body_height, concatenate, length_unit, root_index, up_axis
-from ..transition import DEFAULT_METHOD, KEYED, METHODS, TransitionEngine, aligned
+from ..core.motion import Motion, body_height, concatenate, length_unit, root_index, up_axis
+from ..synth.engine import DEFAULT_METHOD, KEYED, METHODS, TransitionEngine, aligned
 
 try:  # the "web" extra
     from starlette.applications import Starlette
@@ -239,7 +239,7 @@ class Studio:
 
     # -- training ---------------------------------------------------------------------------
     def _train(self, epochs: int, seed: int):
-        from ..model import PostureMap
+        from ..learn.model import PostureMap
 
         frames = sum(len(m) for m in self.clips.values())
         self._set_status(state="training", message=f"learning a posture map from {len(self.clips)} clips "
@@ -483,7 +483,7 @@ class Studio:
 
         ``fmt`` is one of :data:`EXPORT_FORMATS`: ``bvh`` (the clips' skeleton and channels),
         ``glb`` or ``gltf`` (glTF 2.0 in metres, Y up: the whole result as one animation, then
-        A's part, the transition and B's part as three more; see :mod:`posturemap.gltf`).
+        A's part, the transition and B's part as three more; see :mod:`posturemap.io.gltf`).
         A result the writers refuse (non-finite values) is a 422.
         """
         out = self.generate(p)
@@ -491,7 +491,7 @@ class Studio:
         try:
             if fmt == "bvh":
                 return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
-            from .. import gltf
+            from ..io import gltf
 
             parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
             data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
@@ -915,12 +915,12 @@ def run_cli(args) -> int:
     if missing:
         log(f"posturemap: warning: {STATIC_DIR / 'vendor'} lacks three.js ({', '.join(missing)}); "
             "run `make web` in the repository (the page cannot draw without it)")
-    from .. import kernels
+    from ..core import kernels
     kernels.compiled()  # many transitions (and maybe training) ahead: compiled kernels pay off
     clips = load_clips(args.inputs, log)
     model = None
     if args.map:
-        from ..model import PostureMap
+        from ..learn.model import PostureMap
         model = PostureMap.load(args.map)
         model.check_skeleton(next(iter(clips.values())).skeleton, next(iter(clips)))
     sock = _listen(args.host, args.port)

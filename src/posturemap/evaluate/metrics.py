@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import quat
+from ..core import quat
 
 # Foot contact thresholds (Bandai: centimetres at 30 fps); see :func:`foot_contacts`.
 CONTACT_HEIGHT = 3.0

@@ -4,7 +4,7 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 (``t = d = L + 1``). For each body part (``lower``: root and legs, carrying the trajectory;
 ``upper``: spine, arms and head) it:
 
-1. **searches** the motion library (:mod:`posturemap.library`) for segments ``[s, e]`` of one
+1. **searches** the motion library (:mod:`posturemap.synth.library`) for segments ``[s, e]`` of one
    clip whose start continues A (key joint positions and velocities in the heading frame, the
    root's velocity, turning rate and height) and whose end arrives in B, over time warps
    ``(e - s) / d`` of :data:`WARPS` (velocities compared at the warped speed); in
@@ -23,7 +23,7 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), fading in and out while the foot is in the air
-   (:func:`posturemap.feet.lock_feet` with the segment's contacts);
+   (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
 5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
    rotations between the segment and A / B at the seams (degrees per joint, the larger seam),
    times how much the root moves at the seams (:func:`still_weight`: standing gestures are
@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels, quat
-from .features import wrap_diff
+from ..core import kernels, quat
+from ..learn.features import wrap_diff
 from .feet import lock_feet
 from .library import INDEX_CLASS, MotionLibrary, clip_features, key_joints, part_masks
 
@@ -372,7 +372,7 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves) -> n
     """The new frames' rotations (L, M, 4) of ``joints``: each segment sampled, its seams
     corrected (:func:`offset_rotations`), the segments averaged (:func:`average_rotations`).
 
-    Where numba is in use, one compiled kernel (:func:`posturemap.retrieval_numba.replay`) does the same.
+    Where numba is in use, one compiled kernel (:func:`posturemap.synth.retrieval_numba.replay`) does the same.
     """
     if _compiled() is not None:
         out = np.empty((curves.shape[1], len(joints), 4))
@@ -397,7 +397,7 @@ def seam_costs(pm, vm, frames, vframes, p, v, rate) -> np.ndarray:
 
 
 def _compiled():
-    """The compiled retrieval kernels once this process uses numba (:func:`posturemap.kernels.compiled`:
+    """The compiled retrieval kernels once this process uses numba (:func:`posturemap.core.kernels.compiled`:
     training, the studio, benchmarks), else None (a single CLI transition stays in numpy)."""
     if kernels.backend() != "numba":
         return None

@@ -1,7 +1,7 @@
 """The numba-compiled kernels (cached on disk): UPM training and the per-transition hot path.
 
-Imported only through :func:`posturemap.kernels.compiled` (``import posturemap`` does not load
-numba). The same maths as :mod:`posturemap.kernels`' numpy versions and :mod:`posturemap.quat`
+Imported only through :func:`posturemap.core.kernels.compiled` (``import posturemap`` does not load
+numba). The same maths as :mod:`posturemap.core.kernels`' numpy versions and :mod:`posturemap.core.quat`
 (the readable, tested references; the tests cross-check the two), written as loops so that one
 transition costs a few microseconds instead of hundreds of numpy dispatches. Quaternions are
 (w, x, y, z).
@@ -139,7 +139,7 @@ def nearest(W, x, period):
     return best_i
 
 
-# -- Uniform Posture Map training (see posturemap.upm) ------------------------------------
+# -- Uniform Posture Map training (see posturemap.learn.upm) ------------------------------------
 @nb.njit(cache=True, fastmath=_FAST, nogil=True)
 def sqdist(x, W, n, period, out):
     d_count = x.shape[0]
@@ -359,7 +359,7 @@ def key_from_blend(weights, offsets, counts, dim_index, dim_offsets, blend, key,
 def fk(parents, rots, positions, grot, gpos):
     """Forward kinematics of (N, J) local rotations/translations into ``grot``/``gpos``.
 
-    Same as :func:`posturemap.skeleton.fk` (parents before children, -1 for roots).
+    Same as :func:`posturemap.core.skeleton.fk` (parents before children, -1 for roots).
     """
     for n in range(rots.shape[0]):
         for j in range(parents.shape[0]):

@@ -9,7 +9,7 @@ B's first frames), each in its own colour, in two views:
 - **top**: the real ground plan: the path of the body's centre, the figures' feet, and
   footprints where a foot is planted.
 
-Foot contacts (low and slow ankles, with :mod:`posturemap.feet`'s thresholds in leg lengths)
+Foot contacts (low and slow ankles, with :mod:`posturemap.synth.feet`'s thresholds in leg lengths)
 are marked with filled dots in both views. Inputs are plain arrays of global joint positions;
 :func:`transition_filmstrip` builds the segments of a transition result; :func:`filmstrip_rows`
 stacks side views (e.g. the truth and each method on one window). matplotlib is imported
@@ -23,9 +23,9 @@ import os
 
 import numpy as np
 
-from .errors import UserError, require_extra
-from .feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains
-from .motion import Motion
+from ..errors import UserError, require_extra
+from ..synth.feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains
+from ..core.motion import Motion
 
 COLOURS = {"A": "#7a8491", "transition": "#e8590c", "B": "#1c7ed6", "context": "#7a8491", "truth": "#212529"}
 OTHER_COLOURS = ("#2b8a3e", "#862e9c", "#c92a2a", "#495057")
@@ -282,7 +282,7 @@ def transition_filmstrip(result: Motion, a_frames: int, length: int, path, up: i
     B's first ``context`` frames (default context: one second, at most what each part has).
 
     ``result`` holds A's ``a_frames`` frames, then the new frames, then B's (as
-    :func:`posturemap.transition.transition` returns it).
+    :func:`posturemap.synth.engine.transition` returns it).
     """
     context = int(round(result.fps)) if context is None else context
     t0, t1 = a_frames, a_frames + length

@@ -12,7 +12,7 @@ A map file is a ZIP archive of ``.npy`` members (``numpy.savez``), read here wit
   ``c{c}_witness (n,)``, ``c{c}_period (d,)``, where ``d`` is the number of the class's
   active dimensions;
 - ``library_*``: the motion library's per-frame arrays (shapes checked by
-  :meth:`posturemap.library.MotionLibrary.from_parts`).
+  :meth:`posturemap.synth.library.MotionLibrary.from_parts`).
 
 :func:`read` checks, in this order and before the next step reads anything: the path is a
 regular file of at most :data:`MAX_FILE_BYTES`; the archive has at most :data:`MAX_MEMBERS`
@@ -43,10 +43,10 @@ import zlib
 
 import numpy as np
 
-from .errors import UserError
-from .features import CLASSES
+from ..errors import UserError
+from ..learn.features import CLASSES
 from .fileio import open_regular
-from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
+from ..core.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS
 
 FORMAT = "posturemap-map"
 VERSION = 1

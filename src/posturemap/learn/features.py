@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import quat
-from .errors import UserError
-from .motion import Motion, root_index, up_axis, up_vector
+from ..core import quat
+from ..errors import UserError
+from ..core.motion import Motion, root_index, up_axis, up_vector
 
 CLASSES = ("body", "global", "medium", "detail")
 MODES = ("euler", "logmap")
@@ -277,7 +277,7 @@ def upright_rest(grot: np.ndarray, up: int) -> np.ndarray:
     The root's own axis that points up on average, ``u = mean(grot^-1 up)``, and the
     shortest turn taking ``u`` onto the world's up axis: for Bandai's Hips (bones along X) a
     quarter turn about Z, for a Y-up Hips the identity. Headings are measured on
-    ``grot * rest^-1`` (see :func:`posturemap.quat.heading_tilt`).
+    ``grot * rest^-1`` (see :func:`posturemap.core.quat.heading_tilt`).
     """
     upv = up_vector(up)
     u = quat.mul_vec(quat.inv(grot), np.broadcast_to(upv, grot.shape[:-1] + (3,))).mean(axis=0)

@@ -16,7 +16,7 @@ frames; retrieval replays real motion:
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back to
-    ``upm-valid`` by confidence (:mod:`posturemap.retrieval`). ``alpha`` weighs the match at A's
+    ``upm-valid`` by confidence (:mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
     end (0: continue A's motion) against the match at B's start (1: arrive in B's motion).
 ``upm`` (paper)
     Key posture from the four class maps: per class, the neuron nearest the ``alpha``-blend of
@@ -37,7 +37,7 @@ frames; retrieval replays real motion:
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
 
-Foot locking (:mod:`posturemap.feet`, on by default in :func:`transition`) pins planted feet.
+Foot locking (:mod:`posturemap.synth.feet`, on by default in :func:`transition`) pins planted feet.
 
 Root alignment (default): B is turned about the up axis and moved so that it continues A:
 its start lies where A's root, moving at the mean of the two clips' seam velocities, gets to
@@ -52,11 +52,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from . import kernels, quat
-from .errors import UserError
+from ..core import kernels, quat
+from ..errors import UserError
 from .feet import leg_chains, lock_feet
-from .features import TWO_PI, root_global, upright_rest
-from .motion import Motion, concatenate, root_index, up_axis, up_vector
+from ..learn.features import TWO_PI, root_global, upright_rest
+from ..core.motion import Motion, concatenate, root_index, up_axis, up_vector
 
 METHODS = ("auto", "retrieval", "upm", "upm-path", "upm-valid", "spline", "slerp", "inertialize")
 KEYED = ("auto", "retrieval", "upm", "upm-path", "upm-valid")  # need a map; alpha steers them
@@ -453,7 +453,7 @@ class TransitionEngine:
                  foot_lock: bool = True):
         """The in-between frames: local rotations (length, J, 4) and positions (length, J, 3).
 
-        ``foot_lock`` keeps planted feet still (:mod:`posturemap.feet`; costs a forward
+        ``foot_lock`` keeps planted feet still (:mod:`posturemap.synth.feet`; costs a forward
         kinematics pass, about a millisecond).
 
         Also sets ``self.last`` (key posture, chosen neurons, alignment) for inspection.
@@ -563,7 +563,7 @@ class TransitionEngine:
         return out_r, out_p
 
     def _retrieval(self, ta, tb, a, b, length, key_at, alpha, a_end, b_start, align, foot_lock):
-        """``method="retrieval"`` (:mod:`posturemap.retrieval`), with its fallback blended by confidence."""
+        """``method="retrieval"`` (:mod:`posturemap.synth.retrieval`), with its fallback blended by confidence."""
         from . import retrieval
 
         lib = getattr(self.model, "library_", None)
@@ -693,7 +693,7 @@ def transition(a: Motion, b: Motion, model=None, length: int = 20, key_at: int |
     b_start : first frame of B used
     align : move and turn B to continue A; False leaves B's root exactly where it is
     method : one of :data:`METHODS`
-    foot_lock : keep planted feet still in the new frames (:mod:`posturemap.feet`)
+    foot_lock : keep planted feet still in the new frames (:mod:`posturemap.synth.feet`)
     report : a dict to fill with what was done: ``method`` (the one used, for ``auto``) and,
         for retrieval, ``retrieval`` (source clip and frames per body part, match cost in map
         radii, confidence; None when nothing fitted and the fallback was used)

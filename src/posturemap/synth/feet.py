@@ -22,8 +22,8 @@ import re
 
 import numpy as np
 
-from . import quat
-from .skeleton import Skeleton
+from ..core import quat
+from ..core.skeleton import Skeleton
 
 # Thresholds in leg lengths (thigh + shin bone, from the skeleton's offsets; 80 cm for Bandai).
 CONTACT_HEIGHT = 0.042  # above its floor (about 3.4 cm)

@@ -1,5 +1,5 @@
 """Compiled replay of retrieved segments (numba; cached on disk): see
-:func:`posturemap.retrieval.replay_rotations`, whose numpy path is the reference it is tested
+:func:`posturemap.synth.retrieval.replay_rotations`, whose numpy path is the reference it is tested
 against. Loaded only in processes that already use numba (training, the studio, benchmarks).
 Quaternions are (w, x, y, z) tuples inside; nothing is allocated per frame."""
 
@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .numba_kernels import _mul
+from ..core.numba_kernels import _mul
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 

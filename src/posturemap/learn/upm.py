@@ -35,7 +35,7 @@ MIN_EDGE_SUPPORT = 2
 
 def _kernels():
     """The compiled training kernels (numba; compiled once and cached on disk)."""
-    from . import kernels
+    from ..core import kernels
 
     return {"epoch": kernels.upm_epoch, "two_nearest": kernels.two_nearest,
             "nearest_sample_dist": kernels.nearest_sample_dist, "sqdist": kernels.sqdist}

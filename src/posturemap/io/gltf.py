@@ -31,10 +31,10 @@ import struct
 
 import numpy as np
 
-from . import quat
-from .errors import UserError
-from .motion import AXES, Motion, body_height, length_unit, up_axis
-from .skeleton import fk
+from ..core import quat
+from ..errors import UserError
+from ..core.motion import AXES, Motion, body_height, length_unit, up_axis
+from ..core.skeleton import fk
 
 SUFFIXES = (".glb", ".gltf")
 METRES_PER = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
@@ -52,7 +52,7 @@ def up_rotation(up: int) -> np.ndarray:
 
 
 def guess_scale(motion: Motion) -> tuple[str, float]:
-    """The clip's length unit (:func:`posturemap.motion.length_unit`) and metres per unit.
+    """The clip's length unit (:func:`posturemap.core.motion.length_unit`) and metres per unit.
 
     An unknown unit takes the scale that makes the body :data:`ASSUMED_HEIGHT_M` tall.
     """
@@ -128,7 +128,7 @@ def build(motion: Motion, parts=None, split: bool = False, name: str = "motion",
     split : also write one animation per part (each starting at time 0)
     name : name of the scene, the top node's skin and the whole animation
     metres_per_unit : scale to metres (default: :func:`guess_scale`)
-    up : the clip's up axis 0, 1, 2 (default: read from the data, :func:`posturemap.motion.up_axis`)
+    up : the clip's up axis 0, 1, 2 (default: read from the data, :func:`posturemap.core.motion.up_axis`)
     """
     sk = motion.skeleton
     frames = motion.num_frames
@@ -213,7 +213,7 @@ def build(motion: Motion, parts=None, split: bool = False, name: str = "motion",
     if split:
         animations += [animation(label, start, stop) for label, start, stop in parts]
 
-    from . import __version__
+    from .. import __version__
     extras = {"source_unit": unit, "metres_per_unit": scale, "source_up_axis": AXES[up],
               "fps": float(motion.fps), "frames": frames}
     if parts:
@@ -258,7 +258,7 @@ def gltf_text(doc: dict, data: bytes) -> str:
 def dumps(motion: Motion, binary: bool = True, **options) -> bytes:
     """The file's bytes: ``.glb`` (``binary``) or ``.gltf``; ``options`` as for :func:`build`.
 
-    A motion with NaN or infinite values raises :class:`~posturemap.bvh.BVHError` (nothing to write).
+    A motion with NaN or infinite values raises :class:`~posturemap.io.bvh.BVHError` (nothing to write).
     """
     from .bvh import check_finite
 

@@ -1,6 +1,6 @@
 """Read and write BVH motion capture files.
 
-Reading gives a :class:`~posturemap.motion.Motion`; writing reproduces the hierarchy and the
+Reading gives a :class:`~posturemap.core.motion.Motion`; writing reproduces the hierarchy and the
 channel layout (any rotation order per joint, 3- or 6-channel joints, End Sites). Joints with
 position channels take their translation from the channels (the OFFSET is kept for writing
 back); the others use their OFFSET.
@@ -8,7 +8,7 @@ back); the others use their OFFSET.
 The frame data is read in one pass without per-line Python work: only the header of a large
 ASCII file is decoded, a numba kernel parses the numbers straight from the bytes and another
 turns Euler angles into quaternions, once numba is loaded in the process
-(:func:`posturemap.kernels.compiled`; until then, e.g. for the two files of one command-line
+(:func:`posturemap.core.kernels.compiled`; until then, e.g. for the two files of one command-line
 transition, the general numpy path reads everything). Text the kernel does not recognise (unusual whitespace or
 number syntax, a wrong line) goes through the general numpy path, which is the reference for
 what is accepted and for the error messages; numbers the kernel parses come out bit-identical
@@ -26,11 +26,11 @@ import re
 
 import numpy as np
 
-from . import quat
-from .errors import UserError
+from ..core import quat
+from ..errors import UserError
 from .fileio import read_regular, write_bytes_atomic  # noqa: F401 - write_bytes_atomic kept here for callers
-from .motion import Motion
-from .skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
+from ..core.motion import Motion
+from ..core.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
 MAX_DEPTH = MAX_JOINTS  # joints on one chain from a root (the parser keeps its own stack)
@@ -643,12 +643,12 @@ def _fast_kernels():
     """The compiled kernels (see :class:`_Kernels`), or None to parse with numpy.
 
     Compiled only once something in this process has loaded numba through
-    :func:`posturemap.kernels.compiled` (training, the studio, benchmarks; ``train`` and
+    :func:`posturemap.core.kernels.compiled` (training, the studio, benchmarks; ``train`` and
     ``serve`` load it before reading): reading a few files with numpy (about 20 ms a MB) is
     faster than importing numba (about half a second). Compiled code is cached on disk, so
     only the very first read on a machine pays for compilation.
     """
-    from . import kernels
+    from ..core import kernels
 
     if kernels.backend() != "numba":
         return None

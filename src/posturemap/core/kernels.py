@@ -3,13 +3,13 @@
 ``import posturemap`` does not import numba (importing it costs about half a second, more
 than a whole command-line transition needs). The per-transition kernels below are plain numpy
 until :func:`compiled` is called; from then on the same names run the numba versions of
-:mod:`posturemap.numba_kernels` (compiled once, cached on disk), which cost microseconds
+:mod:`posturemap.core.numba_kernels` (compiled once, cached on disk), which cost microseconds
 instead of a few hundred numpy dispatches. :func:`compiled` is called by whatever runs many
 transitions or trains a map: UPM training (the training kernels below are only compiled:
 ``kernels.upm_epoch`` and the like load them), the studio server, the benchmarks, the demo.
 A single ``posturemap transition`` with ``--map`` stays in numpy.
 
-Both versions compute the same maths (the tests cross-check them and :mod:`posturemap.quat`);
+Both versions compute the same maths (the tests cross-check them and :mod:`posturemap.core.quat`);
 callers use the module attribute (``kernels.fk(...)``), never a name imported from it, so that
 they follow the switch. Quaternions are (w, x, y, z); every kernel writes into ``out`` arrays
 given by the caller.
@@ -119,7 +119,7 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
 def fk(parents, rots, positions, grot, gpos):
     """Forward kinematics of (N, J) local rotations/translations into ``grot``/``gpos``.
 
-    Same as :func:`posturemap.skeleton.fk` (parents before children, -1 for roots).
+    Same as :func:`posturemap.core.skeleton.fk` (parents before children, -1 for roots).
     """
     grot[...], gpos[...] = _fk_reference(parents, rots, positions)
 

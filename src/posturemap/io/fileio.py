@@ -23,7 +23,7 @@ import stat
 import tempfile
 import threading
 
-from .errors import UserError
+from ..errors import UserError
 
 TEMP_PREFIX = ".tmp-"
 

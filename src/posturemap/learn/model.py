@@ -4,8 +4,8 @@ A map file is a ``.npz`` archive without pickles: a ``meta`` entry holding UTF-8
 name, version, skeleton, feature configuration, class assignment, training parameters and
 quality figures) and plain numeric arrays (per class: weights, edges, hits, witness samples,
 periods; the feature space's reference rotations, fill values and active dimensions; the
-motion library's arrays). The format and its validation are in :mod:`posturemap.mapfile`;
-files are written atomically (:func:`posturemap.fileio.write_bytes_atomic`).
+motion library's arrays). The format and its validation are in :mod:`posturemap.io.mapfile`;
+files are written atomically (:func:`posturemap.io.fileio.write_bytes_atomic`).
 """
 
 from __future__ import annotations
@@ -19,13 +19,14 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from . import features, mapfile
-from .errors import UserError
+from . import features
+from ..io import mapfile
+from ..errors import UserError
 from .features import CLASSES, FeatureSpace
-from .fileio import write_bytes_atomic
-from .mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
-from .motion import Motion
-from .skeleton import Skeleton
+from ..io.fileio import write_bytes_atomic
+from ..io.mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
+from ..core.motion import Motion
+from ..core.skeleton import Skeleton
 from .upm import UniformPostureMap
 
 
@@ -35,15 +36,15 @@ class PostureMap:
     Parameters
     ----------
     radius : float or "auto"
-        Radius of every class map (``auto``: per class, see :func:`posturemap.upm.auto_radius`).
+        Radius of every class map (``auto``: per class, see :func:`posturemap.learn.upm.auto_radius`).
     neighborhood, learning_rate, epochs, seed :
-        As for :class:`~posturemap.upm.UniformPostureMap`.
+        As for :class:`~posturemap.learn.upm.UniformPostureMap`.
     features : "logmap" or "euler"
-        Posture feature mode (see :mod:`posturemap.features`).
+        Posture feature mode (see :mod:`posturemap.learn.features`).
     classes : dict or None
         Joint name to class name overrides.
     library : True, "recorded" or False
-        Keep the training motion for retrieval transitions (:mod:`posturemap.library`): True
+        Keep the training motion for retrieval transitions (:mod:`posturemap.synth.library`): True
         searches every clip as recorded and played backwards, "recorded" only as recorded.
 
     Attributes (after ``fit``)
@@ -120,8 +121,8 @@ class PostureMap:
         return self
 
     def _build_library(self, motions, names):
-        from .library import build_library
-        from .transition import TransitionEngine
+        from ..synth.library import build_library
+        from ..synth.engine import TransitionEngine
 
         engine = TransitionEngine(self)
         tracks = [engine.add(str(i), m) for i, m in enumerate(motions)]
@@ -185,7 +186,7 @@ class PostureMap:
     def load(cls, path: str) -> "PostureMap":
         """Read a map file; a corrupt, truncated, foreign or hostile file raises :class:`MapFileError`.
 
-        Every metadata field and array is checked first (:func:`posturemap.mapfile.read`).
+        Every metadata field and array is checked first (:func:`posturemap.io.mapfile.read`).
         """
         path = os.fspath(path)
         meta, arrays = mapfile.read(path)
@@ -198,7 +199,7 @@ class PostureMap:
 
     @classmethod
     def _from_parts(cls, meta: dict, arrays: dict) -> "PostureMap":
-        """A map from metadata and arrays checked by :func:`posturemap.mapfile.read`."""
+        """A map from metadata and arrays checked by :func:`posturemap.io.mapfile.read`."""
         p = meta["params"]
         self = cls(p["radius"], p["neighborhood"], p["learning_rate"], p["epochs"], p["seed"], p["features"])
         self.skeleton_ = Skeleton.from_dict(meta["skeleton"])
@@ -219,7 +220,7 @@ class PostureMap:
         self.info_ = meta.get("info", {})
         self.library_ = None
         if "library" in meta:
-            from .library import MotionLibrary
+            from ..synth.library import MotionLibrary
 
             if not isinstance(meta["library"], dict):
                 raise ValueError("library metadata is not an object")

@@ -7,10 +7,10 @@ Kovar et al. 2002; motion matching, Clavet 2016 and Holden et al. 2020).
 Per library frame (all training clips, one after another; ``clip_start`` marks the clips):
 
 - ``rots (N, J, 4)`` local rotations, the root's replaced by its tilt (as in a transition
-  :class:`~posturemap.transition.Track`), float32;
+  :class:`~posturemap.synth.engine.Track`), float32;
 - ``gpos (N, 3)`` the root's global position and ``heading (N,)`` its turn about the up axis
   (radians, continuous within a clip): the root trajectory;
-- ``contacts (N, legs)`` planted feet (low and slow ankles, thresholds of :mod:`posturemap.feet`);
+- ``contacts (N, legs)`` planted feet (low and slow ankles, thresholds of :mod:`posturemap.synth.feet`);
 - matching features, each in the frame's own heading frame (so they do not depend on where the
   character stands or faces): ``pose (N, K, 3)`` key joints (ankles, knees, wrists, head)
   relative to the root, their velocities ``vel (N, K, 3)`` (per second, backward difference)
@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import quat
+from ..core import quat
 from .feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains, leg_length
-from .skeleton import Skeleton, fk
+from ..core.skeleton import Skeleton, fk
 
 INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)
 FLOOR_PERCENTILE = 5.0  # a clip's floor under each ankle: this percentile of its heights
@@ -49,7 +49,7 @@ ARRAYS = ("clip_start", "rots", "gpos", "heading", "contacts", "pose", "vel", "r
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joint indices matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
-    Found by name (leg chains of :func:`posturemap.feet.leg_chains`; "hand"/"wrist" without a
+    Found by name (leg chains of :func:`posturemap.synth.feet.leg_chains`; "hand"/"wrist" without a
     finger word; "head"); where a skeleton has no such name, the deepest joints of the part.
     """
     chains = leg_chains(sk)
@@ -144,7 +144,7 @@ def motion_features(pose: np.ndarray, root_pos: np.ndarray, heading: np.ndarray,
 def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.ndarray:
     """Planted feet (F, legs) of one clip from its global ankle positions (F, legs, 3).
 
-    A foot is planted while its ankle is within :data:`posturemap.feet.CONTACT_HEIGHT` leg
+    A foot is planted while its ankle is within :data:`posturemap.synth.feet.CONTACT_HEIGHT` leg
     lengths of the clip's floor under it and moves slower than ``CONTACT_SPEED`` leg lengths
     per second horizontally (the same thresholds as the foot lock).
     """
@@ -334,9 +334,9 @@ def feature_scales(lib: MotionLibrary) -> np.ndarray:
 
 
 def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibrary:
-    """A library of the clips behind ``tracks`` (:class:`~posturemap.transition.Track`, one skeleton).
+    """A library of the clips behind ``tracks`` (:class:`~posturemap.synth.engine.Track`, one skeleton).
 
-    ``model`` (a fitted :class:`~posturemap.model.PostureMap`) gives the index class map whose
+    ``model`` (a fitted :class:`~posturemap.learn.model.PostureMap`) gives the index class map whose
     winners index the frames. ``reverse``: also search every clip played backwards.
     """
     sk = tracks[0].motion.skeleton
