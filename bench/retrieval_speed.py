@@ -67,14 +67,16 @@ def time_methods(engine, names, lengths, calls, rng, log=None) -> dict:
     draws = _draws(rng, lengths, calls + 20)
     for a, b, a_end, b_start, alpha in draws[:20]:  # warm-up
         for m, feet in METHODS:
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, feet)
+            engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
+                            method=m, foot_lock=feet)
     times = {m: [] for m, _ in METHODS}
     gc.collect()
     for i, (a, b, a_end, b_start, alpha) in enumerate(draws[20:]):
         k = i % len(METHODS)
         for m, feet in METHODS[k:] + METHODS[:k]:
             t0 = time.perf_counter_ns()
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, feet)
+            engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
+                            method=m, foot_lock=feet)
             times[m].append(time.perf_counter_ns() - t0)
     return {m: _stats(t) for m, t in times.items()}
 

@@ -99,11 +99,13 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
     for m in methods:  # the very first call: compiled kernels loaded, bases and graphs built
         a, b, a_end, b_start, alpha = _draws(rng, lengths, 1)[0]
         t0 = time.perf_counter_ns()
-        engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
+        engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end,
+                        b_start=b_start, method=m, foot_lock=False)
         first_ms[m] = (time.perf_counter_ns() - t0) / 1e6
     for a, b, a_end, b_start, alpha in _draws(rng, lengths, warmup):
         for m in methods:
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
+            engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end,
+                        b_start=b_start, method=m, foot_lock=False)
     times = {m: [] for m in methods}
     cpu_times = {m: [] for m in methods}
     clock, cpu_clock = time.perf_counter_ns, time.thread_time_ns
@@ -114,7 +116,8 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
         for m in methods[k:] + methods[:k]:  # rotate the order: no method always runs first
             c0 = cpu_clock()
             t0 = clock()
-            engine.generate(na, nb, LENGTH, None, alpha, a_end, b_start, True, m, False)
+            engine.generate(na, nb, length=LENGTH, alpha=alpha, a_end=a_end,
+                        b_start=b_start, method=m, foot_lock=False)
             t1 = clock()
             cpu_times[m].append(cpu_clock() - c0)
             times[m].append(t1 - t0)
@@ -127,7 +130,8 @@ def bench_engine(engine, names, lengths, methods, calls, warmup, rng, log) -> di
     for m in methods:
         for a, b, a_end, b_start, alpha in draws:
             t0 = clock()
-            engine.generate(names[a], names[b], LENGTH, None, alpha, a_end, b_start, True, m, False)
+            engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end,
+                        b_start=b_start, method=m, foot_lock=False)
             b2b[m].append(clock() - t0)
     out = {}
     for m in methods:

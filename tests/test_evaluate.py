@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from posturemap import evaluate
+from posturemap.core import joints
 from posturemap.evaluate import report
 from posturemap.evaluate import LENGTHS, METHODS, N_FUTURE, N_PAST, VARIANTS, Settings
 
@@ -59,7 +60,7 @@ def test_som_grid():
 
 def test_foot_joints_and_centred(sample_clips):
     names = ("Hips", "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L", "LeftToeBase", "Hand_R")
-    assert evaluate.foot_joints(names).tolist() == [3, 4, 5]
+    assert joints.foot_joints(names).tolist() == [3, 4, 5]
     walk = sample_clips["walk"]
     c = evaluate.centred(walk, 0, 1)
     assert np.all(c.positions[:, 0, [0, 2]] == 0.0)

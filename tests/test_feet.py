@@ -8,8 +8,8 @@ import pytest
 from posturemap.io import bvh
 from posturemap.evaluate import metrics
 from posturemap.core import quat
-from posturemap.synth.feet import (FADE, contact_runs, leg_chains, leg_length, lock_weights_and_targets,
-                             two_bone_ik)
+from posturemap.core.joints import leg_chains, leg_length
+from posturemap.synth.feet import FADE, contact_runs, lock_weights_and_targets, two_bone_ik
 from posturemap.core.skeleton import fk
 from posturemap.synth.engine import TransitionEngine
 

@@ -16,7 +16,8 @@ from posturemap.io import bvh
 from posturemap import cli
 from posturemap.core import quat
 from posturemap.synth import retrieval
-from posturemap.synth.library import MotionLibrary, key_joints
+from posturemap.core.joints import key_joints
+from posturemap.synth.library import MotionLibrary
 from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion
 from posturemap.core.skeleton import fk
@@ -153,7 +154,7 @@ def test_planted_feet_stay_within_a_centimetre(engine, clips):
     ankles = [c[2] for c in engine._legs]
     held = 0
     for name, a_end, b_start in windows(clips, 30, 8, seed=2):
-        rots, pos = engine.generate(name, name, 30, a_end=a_end, b_start=b_start, align=False,
+        rots, pos = engine.generate(name, name, length=30, a_end=a_end, b_start=b_start, align=False,
                                     method="retrieval", foot_lock=True)
         planted = engine.last["planted"]
         _, g = fk(sk.parents, rots, pos)
@@ -197,11 +198,11 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     bows = PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED))
     eng = TransitionEngine(bows)
     eng.add("run", clips["run_proud_001"])
-    rots, pos = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False, method="retrieval")
+    rots, pos = eng.generate("run", "run", length=30, a_end=40, b_start=71, align=False, method="retrieval")
     rots, pos = rots.copy(), pos.copy()
     info = eng.last["retrieval"]
     assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[1]
-    fb_r, fb_p = eng.generate("run", "run", 30, a_end=40, b_start=71, align=False,
+    fb_r, fb_p = eng.generate("run", "run", length=30, a_end=40, b_start=71, align=False,
                               method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
@@ -210,7 +211,7 @@ def test_a_related_library_is_confident_for_the_legs(engine, clips):
     # Walks and runs of other styles: the legs move alike (the arms carry more of the style).
     conf = []
     for name, a_end, b_start in windows(clips, 30, 8, seed=3):
-        engine.generate(name, name, 30, a_end=a_end, b_start=b_start, align=False, method="retrieval")
+        engine.generate(name, name, length=30, a_end=a_end, b_start=b_start, align=False, method="retrieval")
         conf.append(engine.last["retrieval"]["parts"]["lower"]["confidence"])
     assert np.median(conf) > 0.5, conf
 
@@ -220,10 +221,10 @@ def test_a_map_without_library_uses_the_fallback(clips):
     assert bare.library_ is None
     eng = TransitionEngine(bare)
     eng.add("w", clips["walk_angry_001"])
-    r, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method="retrieval")
+    r, _ = eng.generate("w", "w", length=20, a_end=30, b_start=51, method="retrieval")
     r = r.copy()
     assert eng.last["retrieval"] is None
-    fb, _ = eng.generate("w", "w", 20, a_end=30, b_start=51, method=retrieval.fallback_method(20, 30.0))
+    fb, _ = eng.generate("w", "w", length=20, a_end=30, b_start=51, method=retrieval.fallback_method(20, 30.0))
     assert np.array_equal(r, fb)
 
 
@@ -250,7 +251,7 @@ def test_alpha_trades_the_match_at_a_against_the_match_at_b(engine, clips):
         b_start = int(rng.integers(0, len(clips[b]) - 20))
         costs = []
         for alpha in (0.0, 0.25, 0.5, 0.75, 1.0):
-            engine.generate(a, b, 24, alpha=alpha, a_end=a_end, b_start=b_start, method="retrieval")
+            engine.generate(a, b, length=24, alpha=alpha, a_end=a_end, b_start=b_start, method="retrieval")
             p = engine.last["retrieval"]["parts"]["lower"]
             costs.append((p["cost_a"], p["cost_b"]))
         ca, cb = np.array(costs).T
@@ -320,7 +321,7 @@ def test_a_clip_at_another_frame_rate_replays_the_library_at_its_speed(model, cl
     length = 119  # one second
     warps = []
     for a_end in (100, 250, 400):
-        eng.generate("w", "w", length, a_end=a_end, b_start=a_end + length + 1, align=False, method="retrieval")
+        eng.generate("w", "w", length=length, a_end=a_end, b_start=a_end + length + 1, align=False, method="retrieval")
         info = eng.last["retrieval"]["parts"]["lower"]
         warps.append(info["warp"])
         frames = info["frames"][1] - info["frames"][0]
@@ -390,7 +391,7 @@ def test_a_library_shorter_than_the_gap_falls_back(clips):
     tiny = PostureMap(seed=0).fit([short, clips["run_normal_001"][:10]], ["short walk", "short run"])
     eng = TransitionEngine(tiny)
     eng.add("w", clips["walk_angry_001"])
-    r, p = eng.generate("w", "w", 30, a_end=20, b_start=51, align=False, method="retrieval", foot_lock=True)
+    r, p = eng.generate("w", "w", length=30, a_end=20, b_start=51, align=False, method="retrieval", foot_lock=True)
     assert eng.last["retrieval"] is None  # no clip holds a 23..41-frame segment
     assert np.all(np.isfinite(r)) and np.all(np.isfinite(p))
 
@@ -414,10 +415,10 @@ def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engin
 
     name = HELD_OUT[0]
     for length, expected in ((5, "spline"), (int(AUTO_SHORT_S * 30) + 1, "retrieval"), (30, "retrieval")):
-        r1 = engine.generate(name, name, length, a_end=40, b_start=41 + length, align=False, method="auto",
+        r1 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False, method="auto",
                              foot_lock=True)[0].copy()
         assert engine.last["method"] == expected
-        r2 = engine.generate(name, name, length, a_end=40, b_start=41 + length, align=False, method=expected,
+        r2 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False, method=expected,
                              foot_lock=True)[0]
         assert np.array_equal(r1, r2)
     report = {}
@@ -436,7 +437,7 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     # A bow (the feet stay put): the parts fall back to interpolation and say so.
     eng = TransitionEngine(model)
     eng.add("bow", clips["bow_happy_001"])
-    r, p = (x.copy() for x in eng.generate("bow", "bow", 30, a_end=20, b_start=51, align=False, method="retrieval"))
+    r, p = (x.copy() for x in eng.generate("bow", "bow", length=30, a_end=20, b_start=51, align=False, method="retrieval"))
     assert eng.last["retrieval"]["confidence"] == 0.0
-    fb = eng.generate("bow", "bow", 30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
+    fb = eng.generate("bow", "bow", length=30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])

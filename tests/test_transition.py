@@ -22,20 +22,10 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.engine import (
-    ACCEPT,
-    KEY_POSTURE,
-    KEYED,
-    METHODS,
-    TransitionEngine,
-    aligned,
-    hermite_basis,
-    inertialize_basis,
-    key_spline_basis,
-    keys_spline_basis,
-    linear_basis,
-    transition,
-)
+from posturemap.synth.bases import hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis
+from posturemap.synth.engine import TransitionEngine, transition
+from posturemap.synth.keys import ACCEPT
+from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
 
 UP = 1  # Bandai dataset 1 is Y up (data README): the checks below use the known axis
 WALK, RUN, BOW, DANCE, BACK = ("walk_normal_001", "run_normal_001", "bow_normal_001",
@@ -274,7 +264,7 @@ def test_frame_at_key_at_is_the_key_posture(clips, model, method):
         engine = TransitionEngine(model)
         engine.add("a", clips[a])
         engine.add("b", clips[b])
-        engine.generate("a", "b", length, key_at, alpha, a_end, b_start, method=method)
+        engine.generate("a", "b", length=length, key_at=key_at, alpha=alpha, a_end=a_end, b_start=b_start, method=method)
         out = transition(clips[a], clips[b], model, length=length, key_at=key_at, alpha=alpha, foot_lock=False,
                          a_end=a_end, b_start=b_start, method=method)
         last = len(clips[a]) - 1 if a_end is None else a_end
@@ -586,7 +576,7 @@ def test_methods_without_a_key_need_no_map(clips, method):
 def test_keyed_methods_without_a_map_raise(clips, method):
     with pytest.raises(UserError) as e:
         transition(clips[WALK], clips[RUN], None, method=method)
-    assert e.value.where == "--method" and method in str(e.value)
+    assert e.value.field == "method" and method in str(e.value)
     engine = TransitionEngine(skeleton=clips[WALK].skeleton)
     engine.add("a", clips[WALK])
     engine.add("b", clips[RUN])
@@ -594,19 +584,42 @@ def test_keyed_methods_without_a_map_raise(clips, method):
         engine.generate("a", "b", method=method)
 
 
-@pytest.mark.parametrize("kwargs, option", [
-    ({"a_end": 195}, "--a-end"), ({"a_end": -1}, "--a-end"),
-    ({"b_start": 24}, "--b-start"), ({"b_start": -3}, "--b-start"),
-    ({"key_at": 0}, "--key-at"), ({"key_at": 21}, "--key-at"),
-    ({"length": 5, "key_at": 6}, "--key-at"),
-    ({"alpha": -0.01}, "--alpha"), ({"alpha": 1.5}, "--alpha"), ({"alpha": float("nan")}, "--alpha"),
-    ({"method": "cubic"}, "--method"), ({"length": 0}, "--length"),
+@pytest.mark.parametrize("kwargs, field", [
+    ({"a_end": 195}, "a_end"), ({"a_end": -1}, "a_end"),
+    ({"b_start": 24}, "b_start"), ({"b_start": -3}, "b_start"),
+    ({"key_at": 0}, "key_at"), ({"key_at": 21}, "key_at"),
+    ({"length": 5, "key_at": 6}, "key_at"),
+    ({"alpha": -0.01}, "alpha"), ({"alpha": 1.5}, "alpha"), ({"alpha": float("nan")}, "alpha"),
+    ({"alpha": "0.5"}, "alpha"), ({"alpha": True}, "alpha"), ({"length": 2.5}, "length"),
+    ({"align": 1}, "align"), ({"foot_lock": None}, "foot_lock"),
+    ({"method": "cubic"}, "method"), ({"length": 0}, "length"), ({"length": 10 ** 309}, "length"),
 ])
-def test_argument_errors_name_the_option(clips, model, kwargs, option):
+def test_argument_errors_name_the_field(clips, model, kwargs, field):
     assert (len(clips[WALK]), len(clips[RUN])) == (195, 24)  # the values above rely on these
-    with pytest.raises(UserError) as e:
+    with pytest.raises(RequestError) as e:
         transition(clips[WALK], clips[RUN], model, **kwargs)
-    assert e.value.where == option and str(e.value).startswith(option)
+    assert e.value.field == field and str(e.value).startswith(field + ":")
+    # The engine and a request object refuse it the same way, with the same words.
+    with pytest.raises(RequestError) as e2:
+        TransitionRequest(**kwargs).resolved(195, 24)
+    assert str(e2.value) == str(e.value)
+
+
+def test_one_set_of_defaults_for_the_api_the_engine_and_a_request(clips, model):
+    # transition() with no options, the engine with no options and an explicit default request
+    # make the same frames: one place holds the defaults.
+    a, b = clips[WALK], clips[RUN]
+    out = transition(a, b, model)
+    engine = TransitionEngine(model)
+    engine.add("a", a)
+    engine.add("b", b)
+    rots, pos = engine.generate("a", "b")
+    req = TransitionRequest().resolved(len(a), len(b))
+    assert (req.length, req.alpha, req.method, req.key_at, req.a_end, req.b_start, req.align, req.foot_lock) == \
+        (20, 0.5, "auto", 10, len(a) - 1, 0, True, True)
+    np.testing.assert_array_equal(out.rotations[len(a): len(a) + 20], rots)
+    rots2, _ = engine.generate("a", "b", req)
+    np.testing.assert_array_equal(rots2, out.rotations[len(a): len(a) + 20])
 
 
 def test_different_skeletons_raise(clips, model, sample_clips):
@@ -635,7 +648,7 @@ def test_engine_reuses_buffers_and_matches_the_functional_api(clips, model):
         a_end = int(rng.integers(1, len(clips[a])))
         b_start = int(rng.integers(0, len(clips[b]) - 1))
         alpha = float(rng.random())
-        rots, pos = engine.generate(a, b, 20, 7, alpha, a_end, b_start, method=method, foot_lock=False)
+        rots, pos = engine.generate(a, b, length=20, key_at=7, alpha=alpha, a_end=a_end, b_start=b_start, method=method, foot_lock=False)
         if first is None:
             first = (rots, pos)
         assert rots is first[0] and pos is first[1], "a call of the same length must reuse the buffers"
@@ -643,12 +656,12 @@ def test_engine_reuses_buffers_and_matches_the_functional_api(clips, model):
                          b_start=b_start, method=method)
         np.testing.assert_array_equal(out.rotations[a_end + 1: a_end + 21], rots)
         np.testing.assert_array_equal(out.positions[a_end + 1: a_end + 21], pos)
-        b_part = aligned(engine.tracks[b], engine, b_start, engine.last["dtheta"], engine.last["shift"])
+        b_part = engine.continuation(b, b_start)
         np.testing.assert_array_equal(out.rotations[a_end + 21:], b_part.rotations)
     # Another length has its own buffers; the first ones stay.
-    short = engine.generate(WALK, RUN, 10)
+    short = engine.generate(WALK, RUN, length=10)
     assert short[0] is not first[0] and short[0].shape[0] == 10
-    assert engine.generate(RUN, WALK, 20)[0] is first[0]
+    assert engine.generate(RUN, WALK, length=20)[0] is first[0]
 
 
 # -- compiled kernels against the numpy reference (quat.py) ----------------------------------------
@@ -800,7 +813,7 @@ def test_euler_features_work_for_transitions(clips, euler_model, method):
         engine = TransitionEngine(euler_model)
         engine.add("a", clips[a])
         engine.add("b", clips[b])
-        engine.generate("a", "b", 20, key_at, alpha, a_end, b_start, method=method)
+        engine.generate("a", "b", length=20, key_at=key_at, alpha=alpha, a_end=a_end, b_start=b_start, method=method)
         out = transition(clips[a], clips[b], euler_model, length=20, key_at=key_at, alpha=alpha, foot_lock=False,
                          a_end=a_end, b_start=b_start, method=method)
         last = len(clips[a]) - 1 if a_end is None else a_end
@@ -927,10 +940,10 @@ def test_engine_reads_replaced_map_weights(clips, model):
     engine = TransitionEngine(own)
     engine.add(WALK, clips[WALK])
     xa, xb = own.encode(clips[WALK][10])[0], own.encode(clips[WALK][40])[0]
-    key1, _ = engine.key_features(xa, xb, 0.5)
+    key1, _ = engine.keys.key_features(xa, xb, 0.5)
     for c, m in enumerate(own.maps_):
         m.weights_ = np.ascontiguousarray(m.weights_[:1] + 0.25)  # one neuron, moved
-    key2, chosen = engine.key_features(xa, xb, 0.5)
+    key2, chosen = engine.keys.key_features(xa, xb, 0.5)
     assert chosen == [0] * len(own.maps_)
     for c, m in enumerate(own.maps_):
         assert np.allclose(key2[own.space_.class_dims[c]], m.weights_[0])

@@ -8,6 +8,7 @@ import sys
 
 from . import __version__
 from .errors import UserError, require_extra
+from .synth.request import DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHODS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -139,7 +140,8 @@ def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
     from .core.motion import up_axis
-    from .synth.engine import KEYED, transition
+    from .synth.engine import transition
+    from .synth.request import KEYED, RequestError, TransitionRequest
 
     as_gltf = gltf.is_gltf_path(args.output)
     if args.split_animations and not as_gltf:
@@ -160,10 +162,15 @@ def _cmd_transition(args) -> int:
     elif args.method in KEYED:
         model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
     report = {}
-    out = transition(a, b, model, length=args.length, key_at=args.key_at, alpha=args.alpha,
-                     a_end=args.a_end, b_start=args.b_start, align=not args.no_align, method=args.method,
-                     foot_lock=not args.no_foot_lock, report=report)
-    a_end = len(a) - 1 if args.a_end is None else args.a_end
+    request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
+                                a_end=args.a_end, b_start=args.b_start, align=not args.no_align,
+                                foot_lock=not args.no_foot_lock)
+    try:
+        request = request.resolved(len(a), len(b))
+        out = transition(a, b, model, request, report=report)
+    except RequestError as e:  # shown as the option that set the field
+        raise UserError("--" + e.field.replace("_", "-"), e.what) from None
+    a_end = request.a_end
     used = report.get("method", args.method)
     if as_gltf:
         stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
@@ -252,10 +259,8 @@ def _cmd_inspect(args) -> int:
     return 0
 
 
-def build_parser(words=None) -> argparse.ArgumentParser:
-    """The argument parser; ``words`` (the command line's words) leaves out the ``transition``
-    command's ``--method`` unless they hold ``transition``, so that ``posturemap --help`` and
-    ``--version`` import no numpy (default: everything)."""
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (imports no numpy: ``posturemap --help`` answers at once)."""
     p = _Parser(prog="posturemap",
                 description="Natural, real-time motion transitions between motion-capture clips "
                             "with a Uniform Posture Map.")
@@ -285,12 +290,12 @@ def build_parser(words=None) -> argparse.ArgumentParser:
                         "metres, Y up, one animation; the clip's unit is guessed from its body height)")
     r.add_argument("--map", metavar="MAP", help="posture map (and motion library) from `posturemap train` "
                                                 "(default: learn one from A and B)")
-    r.add_argument("--length", type=_positive_int, default=20, help="in-between frames (20)")
+    r.add_argument("--length", type=_positive_int, default=DEFAULT_LENGTH, help=f"in-between frames ({DEFAULT_LENGTH})")
     r.add_argument("--key-at", type=_positive_int, default=None,
                    help="position of the key among the in-between frames, 1..length (default length/2; "
                         "key-posture methods only)")
-    r.add_argument("--alpha", type=float, default=0.5,
-                   help="control parameter (0.5): retrieval prefers motion that continues A at 0, that arrives "
+    r.add_argument("--alpha", type=float, default=DEFAULT_ALPHA,
+                   help=f"control parameter ({DEFAULT_ALPHA}): retrieval prefers motion that continues A at 0, that arrives "
                         "in B at 1; the key-posture methods put the key near A at 0, near B at 1")
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
@@ -301,12 +306,9 @@ def build_parser(words=None) -> argparse.ArgumentParser:
                         "first second, planted feet); needs matplotlib: pip install 'posturemap[preview]'")
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
-    if words is None or "transition" in words:  # the one option that needs the library (numpy)
-        from .synth.engine import DEFAULT_METHOD, METHODS
-
-        r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                       help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under 0.25 s, real motion "
-                            "retrieved from the map's library for longer ones; see the README)")
+    r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under 0.25 s, real motion "
+                        "retrieved from the map's library for longer ones; see the README)")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
@@ -340,7 +342,7 @@ def build_parser(words=None) -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(set(argv))
+    parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

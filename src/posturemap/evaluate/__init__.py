@@ -75,9 +75,9 @@ from . import report
 from .baselines import (KeyModel, KeyTable, centred, engine_call, fixed_key_model, grid_edges, set_key, som_grid,
                         som_model, train_som)
 from .protocol import (ASF_UNIT_CM, CMU_FILE, CMU_LENGTHS, CROSS_LENGTH, DEFAULT_SPEC, FEET, FLOOR_PERCENTILE,
-                       FOOT_PATTERN, HOLDOUTS, LENGTHS, METHODS, N_FUTURE, N_PAST, QUALITY_KEYS, STATS_STRIDE,
+                       HOLDOUTS, LENGTHS, METHODS, N_FUTURE, N_PAST, QUALITY_KEYS, STATS_STRIDE,
                        STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS, TEST_STYLES, UNIT_CM,
-                       VARIANTS, Settings, Split, foot_joints, load_split, make_windows, method_spec, parse_name,
+                       VARIANTS, Settings, Split, load_split, make_windows, method_spec, parse_name,
                        random_pairs, split_files, unit_cm, window_starts)
 from .runner import (clips_in, code_version, default_data_dir, empty_engines, generate_from_context,
                      make_engines, prepare, round_per_window, run, run_cli, run_cross, run_diagnostics,
@@ -89,10 +89,10 @@ from .speed import bench_dir, latency, run_bench_script, training_speed
 
 __all__ = ["report", "KeyModel", "KeyTable", "centred", "engine_call", "fixed_key_model", "grid_edges",
            "set_key", "som_grid", "som_model", "train_som", "ASF_UNIT_CM", "CMU_FILE", "CMU_LENGTHS",
-           "CROSS_LENGTH", "DEFAULT_SPEC", "FEET", "FLOOR_PERCENTILE", "FOOT_PATTERN", "HOLDOUTS",
+           "CROSS_LENGTH", "DEFAULT_SPEC", "FEET", "FLOOR_PERCENTILE", "HOLDOUTS",
            "LENGTHS", "METHODS", "N_FUTURE", "N_PAST", "QUALITY_KEYS", "STATS_STRIDE", "STATS_WINDOW",
            "STRIDE", "SWEEP_FRACTIONS", "SWEEP_LENGTHS", "TEST_CONTENTS", "TEST_STYLES", "UNIT_CM",
-           "VARIANTS", "Settings", "Split", "foot_joints", "load_split", "make_windows", "method_spec",
+           "VARIANTS", "Settings", "Split", "load_split", "make_windows", "method_spec",
            "parse_name", "random_pairs", "split_files", "unit_cm", "window_starts", "code_version",
            "default_data_dir", "generate_from_context", "clips_in", "empty_engines", "round_per_window",
            "make_engines", "prepare", "run", "run_cli", "run_cross", "run_diagnostics", "run_holdout",

@@ -44,7 +44,6 @@ def method_spec(m: str) -> tuple[str, bool]:
 VARIANTS = ("blend-key", "oracle-key", "self-map-key", "spline-v0", "blend-key-v0", "upm-lerp-root")
 SWEEP_LENGTHS = (15, 30, 45)
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
-FOOT_PATTERN = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)
 FLOOR_PERCENTILE = 5.0
 UNIT_CM = {"m": 100.0, "cm": 1.0, "mm": 0.1, "inch": 2.54}
 ASF_UNIT_CM = 2.54 / 0.45  # CMU's BVH conversions keep the ASF unit, 1/0.45 inch
@@ -179,11 +178,6 @@ def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
 def window_starts(num_frames: int, window: int, stride: int = STRIDE) -> list[int]:
     """First frames of the windows of one clip (LaFAN1: ``while start + window < frames``)."""
     return list(range(0, max(num_frames - window, 0), stride))
-
-
-def foot_joints(names) -> np.ndarray:
-    """Indices of the joints named like feet, ankles, toes or heels."""
-    return np.array([j for j, n in enumerate(names) if FOOT_PATTERN.search(n)], dtype=np.int64)
 
 
 def make_windows(state: dict, settings: Settings, seed: int) -> list[tuple[int, int]]:

@@ -13,15 +13,15 @@ import numpy as np
 from . import metrics
 from ..io.bvh import write_bytes_atomic
 from ..learn.features import CLASSES
-from ..synth.feet import leg_chains, leg_length
+from ..core.joints import foot_joints, leg_chains, leg_length
 from ..core.motion import Motion
 from ..core.skeleton import fk
-from ..synth.engine import TransitionEngine, aligned
+from ..synth.engine import TransitionEngine
 from . import report
 from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
 from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
                        STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS,
-                       TEST_STYLES, VARIANTS, Settings, Split, _log, foot_joints, load_split, make_windows,
+                       TEST_STYLES, VARIANTS, Settings, Split, _log, load_split, make_windows,
                        random_pairs, window_starts)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, global_windows, natural_reference,
                       naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
@@ -108,7 +108,7 @@ def clips_in(engines: dict, clips: dict):
 def _generate(engines, method, clip, length, a_end, b_start, **kw):
     """``method`` between frames ``a_end`` and ``b_start`` of one whole clip (diagnostics)."""
     eng, base, feet = engine_call(engines, method)
-    r, p = eng.generate(clip, clip, length, a_end=a_end, b_start=b_start, align=False, method=base,
+    r, p = eng.generate(clip, clip, length=length, a_end=a_end, b_start=b_start, align=False, method=base,
                         foot_lock=feet, **kw)
     return r.copy(), p.copy()
 
@@ -124,7 +124,7 @@ def generate_from_context(engines: dict, methods, past: Motion, future: Motion, 
     with clips_in(engines, {"_past": past, "_future": future}):
         for m in methods:
             eng, base, feet = engine_call(engines, m)
-            r, p = eng.generate("_past", "_future", length, a_end=len(past) - 1, b_start=0, align=False,
+            r, p = eng.generate("_past", "_future", length=length, a_end=len(past) - 1, b_start=0, align=False,
                                 method=base, foot_lock=feet)
             out[m] = (r.copy(), p.copy())
     return out
@@ -219,9 +219,9 @@ def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, pr
         feats = upm.tracks[name].features
         xa, xb, xt = feats[a_end], feats[b_start], feats[a_end + key_at]
         blend = xa + 0.5 * (xb - xa)
-        k_upm, _ = upm.key_features(xa, xb, 0.5)
-        k_path, _ = upm.key_features(xa, xb, 0.5, path=True)
-        k_som, _ = engines["som"].key_features(xa, xb, 0.5)
+        k_upm, _ = upm.keys.key_features(xa, xb, 0.5)
+        k_path, _ = upm.keys.key_features(xa, xb, 0.5, path=True)
+        k_som, _ = engines["som"].keys.key_features(xa, xb, 0.5)
         k_near = space.merge([m.weights_[m.predict(xt[d][None])[0]]
                               for m, d in zip(state["model"].maps_, space.class_dims)])
         for key, v in (("a_to_true", xa), ("b_to_true", xb), ("blend_to_true", blend),
@@ -244,7 +244,7 @@ def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, pr
                                          centred(test[c][b_start:], ctx.root, ctx.up)])
         eng = TransitionEngine(own)
         eng.add(name, test[c])
-        r, p = eng.generate(name, name, length, a_end=a_end, b_start=b_start, align=False, method="upm")
+        r, p = eng.generate(name, name, length=length, a_end=a_end, b_start=b_start, align=False, method="upm")
         vpreds["self-map-key"][0][i], vpreds["self-map-key"][1][i] = r, p
         # Zero angular velocity at the seams: the window with the two frames before A's end
         # and the one after B's start given the seam frame's rotations (positions kept).
@@ -255,10 +255,10 @@ def run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, pr
         fixed_eng = engines["fixed"]
         fixed_eng.add("v0", Motion(ctx.skeleton, seg_r, test[c].positions[s: s + N_PAST + length + N_FUTURE],
                                    ctx.fps))
-        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="spline")
+        r, p = fixed_eng.generate("v0", "v0", length=length, a_end=a_w, b_start=b_w, align=False, method="spline")
         vpreds["spline-v0"][0][i], vpreds["spline-v0"][1][i] = r, p
         set_key(fixed, blend)
-        r, p = fixed_eng.generate("v0", "v0", length, a_end=a_w, b_start=b_w, align=False, method="upm")
+        r, p = fixed_eng.generate("v0", "v0", length=length, a_end=a_w, b_start=b_w, align=False, method="upm")
         vpreds["blend-key-v0"][0][i], vpreds["blend-key-v0"][1][i] = r, p
         # upm's frames with the root joint's translation of slerp (LERP root).
         vpreds["upm-lerp-root"][0][i] = preds["upm"][0][i]
@@ -307,7 +307,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         with clips_in(engines, {"a": test[a], "b": test[b]}):  # these two clips only
             ta, tb = upm.tracks["a"], upm.tracks["b"]
             dtheta, shift = upm.alignment(ta, tb, a_end, b_start, length)
-            b_part = aligned(tb, upm, b_start, dtheta, shift)[:N_FUTURE]
+            b_part = upm.continuation("b", b_start, turn=dtheta, shift=shift)[:N_FUTURE]
             a_part = test[a][a_end - N_PAST + 1: a_end + 1]
             for m in METHODS:
                 if m == "zero-velocity":
@@ -315,7 +315,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
                     p = np.repeat(a_part.positions[-1:], length, axis=0)
                 else:
                     eng, base, feet = engine_call(engines, m)
-                    r, p = eng.generate("a", "b", length, a_end=a_end, b_start=b_start, align=True,
+                    r, p = eng.generate("a", "b", length=length, a_end=a_end, b_start=b_start, align=True,
                                         method=base, foot_lock=feet)
                 seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
                                 np.concatenate([a_part.positions, p, b_part.positions])))

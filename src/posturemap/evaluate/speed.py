@@ -24,11 +24,11 @@ def latency(state: dict, calls: int, seed: int) -> dict:
             continue
         eng, meth, feet = engine_call(engines, m)
         for a, b, a_end, b_start in pairs[:20]:  # warm-up: compiled kernels, caches
-            eng.generate(str(a), str(b), CROSS_LENGTH, a_end=a_end, b_start=b_start, method=meth, foot_lock=feet)
+            eng.generate(str(a), str(b), length=CROSS_LENGTH, a_end=a_end, b_start=b_start, method=meth, foot_lock=feet)
         times = np.empty(len(pairs))
         for i, (a, b, a_end, b_start) in enumerate(pairs):
             t0 = time.perf_counter_ns()
-            eng.generate(str(a), str(b), CROSS_LENGTH, a_end=a_end, b_start=b_start, method=meth, foot_lock=feet)
+            eng.generate(str(a), str(b), length=CROSS_LENGTH, a_end=a_end, b_start=b_start, method=meth, foot_lock=feet)
             times[i] = time.perf_counter_ns() - t0
         out[m] = {"median_us": float(np.median(times)) / 1e3, "p99_us": float(np.percentile(times, 99)) / 1e3,
                   "calls": len(pairs), "neurons": [int(t.n_neurons) for t in eng.model.maps_]}

@@ -24,7 +24,7 @@ import os
 import numpy as np
 
 from ..errors import UserError, require_extra
-from ..synth.feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains
+from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains
 from ..core.motion import Motion
 
 COLOURS = {"A": "#7a8491", "transition": "#e8590c", "B": "#1c7ed6", "context": "#7a8491", "truth": "#212529"}

@@ -12,46 +12,21 @@ in-between frames are made:
    the ends of a run, by analytic two-bone IK on thigh and shin (Holden's formulation); the
    foot keeps its global orientation.
 
-Joints are found by name: an ankle ("foot"/"ankle", not a toe) whose parent and grandparent are
-the shin and the thigh.
+Legs are found by name (:func:`posturemap.core.joints.leg_chains`); thresholds in leg lengths
+(:mod:`posturemap.core.joints`).
 """
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from ..core import quat
+from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length
 from ..core.skeleton import Skeleton
 
-# Thresholds in leg lengths (thigh + shin bone, from the skeleton's offsets; 80 cm for Bandai).
-CONTACT_HEIGHT = 0.042  # above its floor (about 3.4 cm)
-CONTACT_SPEED = 0.75  # leg lengths per second (about 60 cm/s)
 FADE = 3  # frames to fade the lock in and out
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther than the
 #                           first fades out, and is gone at the second (the leg would stretch)
-
-
-def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
-    """(thigh, shin, ankle) joint indices of each leg, found by name."""
-    out = []
-    for j, name in enumerate(sk.names):
-        n = name.split(":")[-1].lower()
-        if re.search(r"foot|ankle", n) and not re.search(r"toe|end", n):
-            shin = int(sk.parents[j])
-            thigh = int(sk.parents[shin]) if shin >= 0 else -1
-            if thigh >= 0:
-                out.append((thigh, shin, j))
-    return out
-
-
-def leg_length(sk: Skeleton, chains) -> float:
-    """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit."""
-    if not chains:
-        return 1.0
-    return float(np.mean([np.linalg.norm(sk.offsets[shin]) + np.linalg.norm(sk.offsets[ankle])
-                          for _, shin, ankle in chains]))
 
 
 def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):

@@ -29,68 +29,18 @@ Bytes per frame are reported by :meth:`MotionLibrary.nbytes_per_frame`.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..core import quat
-from .feet import CONTACT_HEIGHT, CONTACT_SPEED, leg_chains, leg_length
+from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length
+from ..core.joints import part_masks  # noqa: F401 - retrieval's body parts, with its key joints
 from ..core.skeleton import Skeleton, fk
 
 INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)
 FLOOR_PERCENTILE = 5.0  # a clip's floor under each ankle: this percentile of its heights
-_HAND = re.compile(r"hand|wrist", re.IGNORECASE)
-_NOT_HAND = re.compile(r"thumb|index|middle|ring|pinky|finger|end|site", re.IGNORECASE)
-_HEAD = re.compile(r"head", re.IGNORECASE)
 ARRAYS = ("clip_start", "rots", "gpos", "heading", "contacts", "pose", "vel", "root", "win")
-
-
-def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
-    """Joint indices matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
-
-    Found by name (leg chains of :func:`posturemap.synth.feet.leg_chains`; "hand"/"wrist" without a
-    finger word; "head"); where a skeleton has no such name, the deepest joints of the part.
-    """
-    chains = leg_chains(sk)
-    lower = [c[2] for c in chains] + [c[1] for c in chains]
-    leg_joints = {j for c in chains for j in c}
-    names = [n.split(":")[-1] for n in sk.names]
-    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n)]
-    upper = [j for j in upper if not any(_HAND.search(names[p]) for p in _ancestors(sk, j))]
-    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)][:1]
-    if not upper:  # no names: the leaves outside the legs
-        leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
-        upper = leaves[:3]
-    return np.array(lower, dtype=np.int64), np.array(upper, dtype=np.int64)
-
-
-def _ancestors(sk: Skeleton, j: int) -> list[int]:
-    out = []
-    p = int(sk.parents[j])
-    while p >= 0:
-        out.append(p)
-        p = int(sk.parents[p])
-    return out
-
-
-def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:
-    """Joint masks (J,) of the body parts retrieved separately: ``lower`` (the root and the legs'
-    subtrees: the root carries the trajectory) and ``upper`` (the root's other descendants:
-    spine, arms, head). Joints above the root (a reference node) are in neither."""
-    j = sk.num_joints
-    lower = np.zeros(j, dtype=bool)
-    for thigh, _, _ in leg_chains(sk):
-        lower[thigh] = True
-    below = np.zeros(j, dtype=bool)
-    below[root] = True
-    for k in range(j):  # parents come first
-        p = sk.parents[k]
-        if p >= 0:
-            lower[k] |= lower[p]
-            below[k] |= below[p]
-    lower[root] = True
-    return lower & below, below & ~lower
 
 
 def heading_frame(v: np.ndarray, heading: np.ndarray, up: int) -> np.ndarray:
@@ -144,7 +94,7 @@ def motion_features(pose: np.ndarray, root_pos: np.ndarray, heading: np.ndarray,
 def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.ndarray:
     """Planted feet (F, legs) of one clip from its global ankle positions (F, legs, 3).
 
-    A foot is planted while its ankle is within :data:`posturemap.synth.feet.CONTACT_HEIGHT` leg
+    A foot is planted while its ankle is within :data:`posturemap.core.joints.CONTACT_HEIGHT` leg
     lengths of the clip's floor under it and moves slower than ``CONTACT_SPEED`` leg lengths
     per second horizontally (the same thresholds as the foot lock).
     """

@@ -59,10 +59,8 @@ from __future__ import annotations
 import asyncio
 import base64
 import contextlib
-import copy
 import hashlib
 import json
-import math
 import os
 import queue
 import re
@@ -79,7 +77,10 @@ import numpy as np
 from ..io import bvh
 from ..errors import UserError
 from ..core.motion import Motion, body_height, concatenate, length_unit, root_index, up_axis
-from ..synth.engine import DEFAULT_METHOD, KEYED, METHODS, TransitionEngine, aligned
+from ..synth.engine import TransitionEngine
+from ..synth.request import FIELDS as REQUEST_FIELDS
+from ..synth.request import (DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, KEYED, METHODS, RequestError,
+                             TransitionRequest, describe)
 
 try:  # the "web" extra
     from starlette.applications import Starlette
@@ -111,8 +112,7 @@ def _pool_size() -> int:
 
 POOL_SIZE = _pool_size()
 MAX_LENGTH = 600              # in-between frames (20 s at 30 fps)
-DEFAULT_LENGTH = 20
-FIELDS = ("a", "b", "a_end", "b_start", "length", "key_at", "alpha", "method", "align", "foot_lock")
+FIELDS = ("a", "b") + REQUEST_FIELDS
 EXPORT_FORMATS = {"bvh": "text/plain; charset=utf-8", "glb": "model/gltf-binary", "gltf": "model/gltf+json"}
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 _RESERVED = re.compile(r"[\[\]\.:/]")
@@ -128,18 +128,12 @@ class ApiError(Exception):
 
 @dataclass(frozen=True)
 class Params:
-    """A validated transition request (frame indices into the source clips)."""
+    """A validated transition request: the clips' names and the resolved request (frame indices
+    into the source clips, defaults filled in)."""
 
     a: str
     b: str
-    a_end: int
-    b_start: int
-    length: int
-    key_at: int
-    alpha: float
-    method: str
-    align: bool
-    foot_lock: bool = True
+    request: TransitionRequest
 
 
 def bone_names(names: tuple[str, ...]) -> list[str]:
@@ -153,10 +147,6 @@ def bone_names(names: tuple[str, ...]) -> list[str]:
         seen.add(b)
         out.append(b)
     return out
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
 
 
 # -- the studio state ---------------------------------------------------------------------
@@ -216,7 +206,7 @@ class Studio:
             engine.add(name, m)
         name = next(iter(self.clips))
         # Compile the kernels now rather than on the first request.
-        engine.generate(name, name, 2, 1, 0.5, None, 0, True, KEYED[0] if model is not None else "spline")
+        engine.generate(name, name, length=2, method=KEYED[0] if model is not None else "spline")
         return engine
 
     @staticmethod
@@ -229,12 +219,8 @@ class Studio:
         """
         pool = queue.SimpleQueue()
         pool.put(engine)
-        shared = {id(engine.model): engine.model, id(engine.tracks): engine.tracks}
-        library = getattr(engine.model, "library_", None)
-        if library is not None:  # the motion library too (a retriever built before the copy keeps it)
-            shared[id(library)] = library
         for _ in range(POOL_SIZE - 1):
-            pool.put(copy.deepcopy(engine, dict(shared)))
+            pool.put(engine.fork())
         return pool
 
     # -- training ---------------------------------------------------------------------------
@@ -311,7 +297,7 @@ class Studio:
             "clips": [{"name": n, "frames": len(self.clips[n]), "fps": float(self.clips[n].fps),
                        "duration": round(len(self.clips[n]) / self.clips[n].fps, 6)} for n in self.names],
             "methods": list(METHODS), "keyed": list(KEYED), "default_method": DEFAULT_METHOD,
-            "defaults": {"length": DEFAULT_LENGTH, "alpha": 0.5, "align": True, "foot_lock": True},
+            "defaults": {"length": DEFAULT_LENGTH, "alpha": DEFAULT_ALPHA, "align": True, "foot_lock": True},
             "limits": {"length": [1, MAX_LENGTH], "body_bytes": MAX_BODY},
             "status": self.status(),
         }
@@ -341,7 +327,7 @@ class Studio:
     # -- requests -----------------------------------------------------------------------------
     def _clip(self, name, field: str) -> Motion:
         if not isinstance(name, str):
-            raise ApiError(422, f"{field}: must be a clip name (a string), got {_kind(name)}", field)
+            raise ApiError(422, f"{field}: must be a clip name (a string), got {describe(name)}", field)
         if name not in self.clips:
             shown = name if len(name) <= 80 else name[:77] + "..."
             raise ApiError(404, f"{field}: unknown clip {shown!r} (GET /api/clips lists them)", field)
@@ -350,7 +336,7 @@ class Studio:
     def params(self, raw: dict) -> Params:
         """Validate a request body (a dict from JSON); raises :class:`ApiError`."""
         if not isinstance(raw, dict):
-            raise ApiError(422, f"body must be a JSON object, got {_kind(raw)}")
+            raise ApiError(422, f"body must be a JSON object, got {describe(raw)}")
         unknown = sorted(str(k) for k in raw if k not in FIELDS)
         if unknown:
             shown = ", ".join(repr(k[:40]) for k in unknown[:5])
@@ -362,34 +348,12 @@ class Studio:
         if abs(ma.fps - mb.fps) > 1e-6 * ma.fps:
             raise ApiError(422, f"clips {raw['a']!r} ({ma.fps:g} fps) and {raw['b']!r} ({mb.fps:g} fps) "
                                 f"have different frame rates", "b")
-        a_end = _int(raw, "a_end", len(ma) - 1, 0, len(ma) - 1, f"clip A {raw['a']!r}")
-        b_start = _int(raw, "b_start", 0, 0, len(mb) - 1, f"clip B {raw['b']!r}")
-        length = _int(raw, "length", DEFAULT_LENGTH, 1, MAX_LENGTH, None)
-        key_at = _int(raw, "key_at", max(1, length // 2), 1, length, None)
-        alpha = raw.get("alpha", 0.5)
-        if alpha is None:
-            alpha = 0.5
-        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)):
-            raise ApiError(422, f"alpha: must be a number between 0 and 1, got {_kind(alpha)}", "alpha")
-        if not (0 <= alpha <= 1 and math.isfinite(alpha)):  # range first: a 309-digit int has no float
-            raise ApiError(422, f"alpha: must be between 0 and 1, got {_kind(alpha)}", "alpha")
-        method = raw.get("method", DEFAULT_METHOD)
-        if method is None:
-            method = DEFAULT_METHOD
-        if not isinstance(method, str) or method not in METHODS:
-            got = repr(method[:40]) if isinstance(method, str) else _kind(method)
-            raise ApiError(422, f"method: unknown method {got} (choose from {', '.join(METHODS)})", "method")
-        align = raw.get("align", True)
-        if align is None:
-            align = True
-        if not isinstance(align, bool):
-            raise ApiError(422, f"align: must be true or false, got {_kind(align)}", "align")
-        foot_lock = raw.get("foot_lock", True)
-        if foot_lock is None:
-            foot_lock = True
-        if not isinstance(foot_lock, bool):
-            raise ApiError(422, f"foot_lock: must be true or false, got {_kind(foot_lock)}", "foot_lock")
-        return Params(raw["a"], raw["b"], a_end, b_start, length, key_at, float(alpha), method, align, foot_lock)
+        try:
+            req = TransitionRequest.from_fields(raw).resolved(len(ma), len(mb), max_length=MAX_LENGTH,
+                                                              names=(raw["a"], raw["b"]))
+        except RequestError as e:
+            raise ApiError(422, f"{e.field}: {e.what}", e.field) from None
+        return Params(raw["a"], raw["b"], req)
 
     def _new_frames(self, p: Params, with_b: bool = False):
         """The in-between frames and how B continues A.
@@ -404,30 +368,27 @@ class Studio:
             s = dict(self._status)
         engine = pool.get()  # blocks only while all POOL_SIZE engines are busy
         try:
-            if p.method in KEYED and engine.model is None:
+            req = p.request
+            if req.keyed and engine.model is None:
                 if s["state"] == "training":
-                    raise ApiError(503, f"method: {p.method!r} needs the posture map, still training "
+                    raise ApiError(503, f"method: {req.method!r} needs the posture map, still training "
                                         f"({100 * s['progress']:.0f}%); try again in a moment", "method")
-                raise ApiError(503, f"method: {p.method!r} needs a posture map and none is available"
+                raise ApiError(503, f"method: {req.method!r} needs a posture map and none is available"
                                     + (f" ({s['message']})" if s["message"] else ""), "method")
             try:
-                rots, pos = engine.generate(p.a, p.b, p.length, p.key_at, p.alpha, p.a_end, p.b_start,
-                                            p.align, p.method, p.foot_lock)
-            except UserError as e:
-                raise ApiError(422, str(e).lstrip("-")) from None
+                rots, pos = engine.generate(p.a, p.b, req)
+            except RequestError as e:
+                raise ApiError(422, f"{e.field}: {e.what}", e.field) from None
             rots, pos = rots.copy(), pos.copy()
             last = dict(engine.last)
             keyed_joints = engine.model.space_.joints.copy() if engine.model is not None else None
-            top = int(engine._chain[0]) if len(engine._chain) else int(engine._root)
-            up = int(engine._up)
-            if p.align:
+            if req.align:
                 turn, shift = float(last["dtheta"]), np.asarray(last["shift"], dtype=np.float64)
             else:
                 turn, shift = 0.0, np.zeros(3)
-            b_part = None
-            if with_b:
-                b_part = (aligned(engine.tracks[p.b], engine, p.b_start, turn, shift) if p.align
-                          else self.clips[p.b][p.b_start:])
+            b_part = engine.continuation(p.b, req.b_start, req.align) if with_b else None
+            top = engine.alignment_joint
+            up = engine.up
         finally:
             pool.put(engine)
         return rots, pos, last, keyed_joints, b_part, (top, up, turn, shift)
@@ -436,7 +397,7 @@ class Studio:
         """The whole result as one Motion: A[0..a_end], the new frames, then B's part."""
         rots, pos, _, _, b_part, _ = self._new_frames(p, with_b=True)
         a = self.clips[p.a]
-        return concatenate([a[: p.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
+        return concatenate([a[: p.request.a_end + 1], Motion(a.skeleton, rots, pos, a.fps),
                             Motion(a.skeleton, b_part.rotations, b_part.positions, a.fps)])
 
     def transition(self, p: Params) -> dict:
@@ -448,31 +409,31 @@ class Studio:
         from ``GET /api/clip/{name}``, so an answer stays small however long the clips are.
         """
         rots, pos, last, keyed_joints, _, (top, up, turn, shift) = self._new_frames(p)
-        t0, t1 = p.a_end + 1, p.a_end + p.length
+        t0, t1 = p.request.a_end + 1, p.request.a_end + p.request.length
         fps = float(self.clips[p.a].fps)
-        frames = p.a_end + 1 + p.length + len(self.clips[p.b]) - p.b_start
+        frames = p.request.a_end + 1 + p.request.length + len(self.clips[p.b]) - p.request.b_start
         key = None
         if last.get("key") is not None:
             krots, height = last["key"]
-            key = {"frame": p.a_end + p.key_at, "index": p.key_at,
+            key = {"frame": p.request.a_end + p.request.key_at, "index": p.request.key_at,
                    "joints": [self.skeleton.names[j] for j in keyed_joints],
                    "bones": [self.bones[j] for j in keyed_joints],
                    "quaternions": np.round(krots[:, [1, 2, 3, 0]], 6).tolist(),
                    "root_height": round(float(height), 4),
                    "neurons": [int(k) for k in last["neurons"]]}
         return {
-            "a": p.a, "b": p.b, "method": p.method,
-            "params": {"a_end": p.a_end, "b_start": p.b_start, "length": p.length, "key_at": p.key_at,
-                       "alpha": p.alpha, "align": p.align, "foot_lock": p.foot_lock},
+            "a": p.a, "b": p.b, "method": p.request.method,
+            "params": {"a_end": p.request.a_end, "b_start": p.request.b_start, "length": p.request.length, "key_at": p.request.key_at,
+                       "alpha": p.request.alpha, "align": p.request.align, "foot_lock": p.request.foot_lock},
             "fps": fps, "frames": frames, "duration": round((frames - 1) / fps, 6),
-            "segments": {"a": [0, p.a_end], "transition": [t0, t1], "b": [t1 + 1, frames - 1]},
+            "segments": {"a": [0, p.request.a_end], "transition": [t0, t1], "b": [t1 + 1, frames - 1]},
             "transition": [t0, t1],
-            "seams": [p.a_end, t1 + 1],
+            "seams": [p.request.a_end, t1 + 1],
             "key_frame": key["frame"] if key else None,
             "key": key,
-            **({"retrieval": last["retrieval"], "method_used": last.get("method", p.method)}
+            **({"retrieval": last["retrieval"], "method_used": last.get("method", p.request.method)}
                if "retrieval" in last else {}),
-            "source": {"a": [0, p.a_end], "b": [p.b_start, len(self.clips[p.b]) - 1]},
+            "source": {"a": [0, p.request.a_end], "b": [p.request.b_start, len(self.clips[p.b]) - 1]},
             "alignment": {"joint": self.bones[top], "up": up, "turn": round(turn, 9),
                           "shift": np.round(shift, 6).tolist()},
             "inbetween": self.tracks(rots, pos, fps),
@@ -487,13 +448,13 @@ class Studio:
         A result the writers refuse (non-finite values) is a 422.
         """
         out = self.generate(p)
-        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.method}")[:120]
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}_{p.request.method}")[:120]
         try:
             if fmt == "bvh":
                 return bvh.dumps(out).encode("utf-8"), stem + ".bvh", EXPORT_FORMATS[fmt]
             from ..io import gltf
 
-            parts = gltf.transition_parts(p.a_end + 1, p.length, len(out))
+            parts = gltf.transition_parts(p.request.a_end + 1, p.request.length, len(out))
             data = gltf.dumps(out, binary=fmt == "glb", parts=parts, split=True, up=self.up,
                               name=re.sub(r"[^A-Za-z0-9._-]+", "_", f"{p.a}_to_{p.b}")[:120])
         except UserError as e:  # the writers refuse non-finite values
@@ -508,42 +469,10 @@ def export_format(raw) -> str:
     if fmt is None:
         return "bvh"
     if not isinstance(fmt, str) or fmt not in EXPORT_FORMATS:
-        got = repr(fmt[:40]) if isinstance(fmt, str) else _kind(fmt)
+        got = repr(fmt[:40]) if isinstance(fmt, str) else describe(fmt)
         raise ApiError(422, f"format: unknown export format {got} (choose from {', '.join(EXPORT_FORMATS)})",
                        "format")
     return fmt
-
-
-def _kind(v) -> str:
-    if v is None:
-        return "null"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        text = repr(v) if not isinstance(v, int) or abs(v) < 10 ** 40 else f"a {len(str(abs(v)))}-digit number"
-        return text if len(text) <= 40 else text[:37] + "..."
-    if isinstance(v, str):
-        return "a string"
-    if isinstance(v, list):
-        return "an array"
-    if isinstance(v, dict):
-        return "an object"
-    return type(v).__name__
-
-
-def _int(raw: dict, field: str, default: int, lo: int, hi: int, where: str | None) -> int:
-    v = raw.get(field)
-    if v is None:
-        return default
-    if isinstance(v, float) and math.isfinite(v) and v == int(v):
-        v = int(v)
-    if not _is_int(v):
-        raise ApiError(422, f"{field}: must be a whole number, got {_kind(v)}", field)
-    if not lo <= v <= hi:
-        what = f"frame {_kind(v)} is outside {where} (frames {lo}..{hi})" if where else \
-               f"must be between {lo} and {hi}, got {_kind(v)}"
-        raise ApiError(422, f"{field}: {what}", field)
-    return v
 
 
 def query_params(query) -> dict:

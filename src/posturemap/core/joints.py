@@ -1,0 +1,109 @@
+"""What joints are, from their names: legs, feet, hands, head; body parts; contact thresholds.
+
+The one place that knows joint names (BVH files name joints freely: ``LeftFoot``, ``l_ankle``,
+``mixamorig:LeftToeBase``); everything that needs a leg, a foot or a hand asks here. Names are
+matched case-insensitively after any ``namespace:`` prefix.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .skeleton import Skeleton
+
+# Foot contact thresholds, in leg lengths (thigh + shin bone, from the skeleton's offsets; 80 cm
+# for Bandai), so that they hold for any unit and body size.
+CONTACT_HEIGHT = 0.042  # above the foot's floor (about 3.4 cm on Bandai)
+CONTACT_SPEED = 0.75  # leg lengths per second (about 60 cm/s on Bandai)
+
+FOOT_PATTERN = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)  # every joint of a foot
+_ANKLE = re.compile(r"foot|ankle", re.IGNORECASE)
+_NOT_ANKLE = re.compile(r"toe|end", re.IGNORECASE)
+_HAND = re.compile(r"hand|wrist", re.IGNORECASE)
+_NOT_HAND = re.compile(r"thumb|index|middle|ring|pinky|finger|end|site", re.IGNORECASE)
+_HEAD = re.compile(r"head", re.IGNORECASE)
+
+
+def short_name(name: str) -> str:
+    """A joint name without its ``namespace:`` prefix."""
+    return name.split(":")[-1]
+
+
+def ancestors(parents: np.ndarray, j: int) -> list[int]:
+    """The joints above ``j``, top first."""
+    chain = []
+    p = int(parents[j])
+    while p >= 0:
+        chain.append(p)
+        p = int(parents[p])
+    return chain[::-1]
+
+
+def foot_joints(names) -> np.ndarray:
+    """Indices of the joints named like feet, ankles, toes or heels."""
+    return np.array([j for j, n in enumerate(names) if FOOT_PATTERN.search(short_name(n))], dtype=np.int64)
+
+
+def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
+    """(thigh, shin, ankle) joint indices of each leg: an ankle ("foot"/"ankle", not a toe or an
+    end site) whose parent and grandparent are the shin and the thigh."""
+    out = []
+    for j, name in enumerate(sk.names):
+        n = short_name(name)
+        if _ANKLE.search(n) and not _NOT_ANKLE.search(n):
+            shin = int(sk.parents[j])
+            thigh = int(sk.parents[shin]) if shin >= 0 else -1
+            if thigh >= 0:
+                out.append((thigh, shin, j))
+    return out
+
+
+def leg_length(sk: Skeleton, chains=None) -> float:
+    """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit; 1.0
+    without legs. ``chains`` defaults to :func:`leg_chains`."""
+    chains = leg_chains(sk) if chains is None else chains
+    if not chains:
+        return 1.0
+    return float(np.mean([np.linalg.norm(sk.offsets[shin]) + np.linalg.norm(sk.offsets[ankle])
+                          for _, shin, ankle in chains]))
+
+
+def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
+
+    Found by name (the legs of :func:`leg_chains`; "hand"/"wrist" without a finger word, the
+    outermost of a chain of them; "head"); where a skeleton has no such names, the leaves
+    outside the legs.
+    """
+    chains = leg_chains(sk)
+    lower = [c[2] for c in chains] + [c[1] for c in chains]
+    leg_joints = {j for c in chains for j in c}
+    names = [short_name(n) for n in sk.names]
+    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n)]
+    upper = [j for j in upper if not any(_HAND.search(names[p]) for p in ancestors(sk.parents, j))]
+    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)][:1]
+    if not upper:  # no names: the leaves outside the legs
+        leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
+        upper = leaves[:3]
+    return np.array(lower, dtype=np.int64), np.array(upper, dtype=np.int64)
+
+
+def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:
+    """Joint masks (J,) of the two body parts: ``lower`` (the root and the legs' subtrees: the
+    root carries the trajectory) and ``upper`` (the root's other descendants: spine, arms,
+    head). Joints above the root (a reference node) are in neither."""
+    j = sk.num_joints
+    lower = np.zeros(j, dtype=bool)
+    for thigh, _, _ in leg_chains(sk):
+        lower[thigh] = True
+    below = np.zeros(j, dtype=bool)
+    below[root] = True
+    for k in range(j):  # parents come first
+        p = sk.parents[k]
+        if p >= 0:
+            lower[k] |= lower[p]
+            below[k] |= below[p]
+    lower[root] = True
+    return lower & below, below & ~lower
