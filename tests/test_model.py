@@ -511,3 +511,47 @@ def test_cli_output_folder_checked_before_training(bvh_dir, tmp_path):
     out = tmp_path / "no" / "such" / "map.npz"
     code, _, err = run_cli("train", bvh_dir / "walk.bvh", "-o", out)
     check_one_error_line(code, err, str(out), "output folder does not exist")
+
+
+def test_predict_and_score_follow_the_class_maps(sample_clips):
+    # predict: per frame and class, the nearest neuron, checked by brute force on the class's
+    # posture vectors; score: minus the mean distance to it in radii, averaged over classes.
+    walk, run = sample_clips["walk"], sample_clips["run"]
+    model = PostureMap(seed=0, library=False).fit([walk])
+    win = model.predict(run)
+    parts = model.space_.split(model.encode(run))
+    assert win.shape == (len(run), len(model.maps_))
+    per_class = []
+    for c, (m, x) in enumerate(zip(model.maps_, parts)):
+        d = m.distances(x)
+        np.testing.assert_array_equal(win[:, c], np.argmin(d, axis=1))
+        per_class.append(d.min(axis=1).mean() / m.radius_)
+    assert model.score(run) == pytest.approx(-np.mean(per_class))
+    assert model.score([walk]) > model.score(run)  # its own data is covered better
+    assert model.score(walk) == model.score([walk])
+
+
+def test_partial_fit_grows_the_maps_and_the_library(sample_clips):
+    walk, run = sample_clips["walk"], sample_clips["run"]
+    model = PostureMap(seed=0).fit([walk], ["walk"])
+    before = model.score(run)
+    neurons = model.neuron_counts()
+    frames = len(model.library_)
+    model.partial_fit([run], ["run"])
+    assert model.score(run) > before  # the new motion is now covered
+    assert all(n1 >= n0 for n0, n1 in zip(neurons, model.neuron_counts()))
+    assert sum(model.neuron_counts()) > sum(neurons)
+    assert model.info_["clips"] == 2 and model.info_["frames"] == len(walk) + len(run)
+    # The library holds both clips (recorded and reversed), the new one indexed by the grown map.
+    lib = model.library_
+    assert len(lib) == frames + 2 * len(run)
+    assert lib.clip_names[:2] == ("walk", "run")
+    s = int(lib.clip_start[1])
+    others = np.arange(run.skeleton.num_joints) != model.space_.root  # the root's is its tilt there
+    np.testing.assert_allclose(lib.rots[s: s + len(run)][:, others], run.rotations[:, others], atol=1e-6)
+    idx = model.space_.class_dims[1]
+    win = model.maps_[1].predict(model.encode(run)[:, idx])
+    np.testing.assert_array_equal(lib.win[s: s + len(run)], win)
+    # Another fps or skeleton is refused, naming the clip.
+    with pytest.raises(UserError, match="fps"):
+        model.partial_fit([Motion(run.skeleton, run.rotations, run.positions, run.fps * 2)], ["fast"])

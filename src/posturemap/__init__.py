@@ -12,8 +12,8 @@ Interactive Motion Transitions of an Articulated Body" (ICCSA 2004), implemented
 
 The package's folders are its architecture (``docs/architecture.md``): ``core`` (quaternions,
 skeletons, motions), ``io`` (files), ``learn`` (the maps), ``synth`` (transitions), ``evaluate``
-(the benchmark) and ``web`` (the studio). The names below are the public API; ``bvh`` and
-``gltf`` are the reader/writer modules.
+(the benchmark) and ``web`` (the studio). The names below are the public API; ``bvh``,
+``gltf`` and ``preview`` are the reader/writer modules.
 """
 
 import importlib
@@ -24,9 +24,9 @@ __version__ = "0.1.0"
 _EXPORTS = {"BVHError": "io.bvh", "UserError": "errors", "MapFileError": "io.mapfile",
             "PostureMap": "learn.model", "Motion": "core.motion", "Skeleton": "core.skeleton",
             "DEFAULT_METHOD": "synth.engine", "METHODS": "synth.engine", "TransitionEngine": "synth.engine",
-            "transition": "synth.engine", "TransitionRequest": "synth.request",
+            "transition": "synth.engine", "TransitionRequest": "synth.request", "RequestError": "synth.request",
             "UniformPostureMap": "learn.upm", "MotionLibrary": "synth.library"}
-_MODULES = {"bvh": "io.bvh", "gltf": "io.gltf"}  # ``from posturemap import bvh`` reads files
+_MODULES = {"bvh": "io.bvh", "gltf": "io.gltf", "preview": "io.preview"}  # ``from posturemap import bvh``
 __all__ = sorted(_EXPORTS) + sorted(_MODULES) + ["__version__"]
 
 

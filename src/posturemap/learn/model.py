@@ -120,6 +120,57 @@ class PostureMap:
         }
         return self
 
+    def partial_fit(self, motions: list[Motion], names: list[str] | None = None, progress=None) -> "PostureMap":
+        """Grow the fitted maps with more motions (same skeleton and fps); returns ``self``.
+
+        The feature space stays the one ``fit`` chose; each class map grows as
+        :meth:`UniformPostureMap.partial_fit` does (neurons adapt, samples beyond the radius
+        become new neurons). The new clips join the motion library, indexed by the grown map;
+        the earlier clips keep the index entries they had (their winners when they were added:
+        retrieval re-ranks every candidate exactly, so a neuron that moved since costs recall,
+        not correctness; ``fit`` on all clips gives the exact index). Unfitted, this is ``fit``.
+        """
+        if not hasattr(self, "maps_"):
+            return self.fit(motions, names, progress)
+        if not motions:
+            raise ValueError("no training motions")
+        names = names or [f"clip {self.info_['clips'] + i}" for i in range(len(motions))]
+        fps = float(self.info_["fps"])
+        for name, m in zip(names, motions):
+            self.check_skeleton(m.skeleton, name)
+            if abs(m.fps - fps) > 1e-6 * fps:
+                raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps")
+        parts = self.space_.split(np.concatenate([self.space_.encode(m) for m in motions]))
+        seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
+        for c, m in enumerate(self.maps_):
+            cb = None
+            if progress is not None:
+                cb = lambda e, n, err, c=c: progress(CLASSES[c], e, int(self.epochs), n)  # noqa: E731
+            m.partial_fit(parts[c], seq, cb)
+        if self.library_ is not None:
+            self.library_ = self.library_.joined(self._build_library(motions, names))
+        self.info_["clips"] += len(motions)
+        self.info_["frames"] += int(len(seq))
+        for c, m in enumerate(self.maps_):
+            self.info_["quality"][CLASSES[c]].update(
+                neurons=m.n_neurons, quantization_error=m.quantization_error_,
+                topographic_error=m.topographic_error_, invalid_neurons=m.invalid_fraction_, edges=int(len(m.edges_)))
+        return self
+
+    def predict(self, motion: Motion) -> np.ndarray:
+        """The winning neuron of each frame in each class map: int array (F, 4), columns in
+        :data:`~posturemap.learn.features.CLASSES` order."""
+        parts = self.space_.split(self.encode(motion))
+        return np.stack([m.predict(x) for m, x in zip(self.maps_, parts)], axis=1)
+
+    def score(self, motions) -> float:
+        """How well the maps cover ``motions`` (a Motion or a list): minus the mean distance of
+        their postures to the nearest neuron, in map radii, averaged over the four classes
+        (higher is better, 0 when every posture is a neuron; above -1 means within one radius)."""
+        motions = [motions] if isinstance(motions, Motion) else list(motions)
+        parts = self.space_.split(np.concatenate([self.encode(m) for m in motions]))
+        return -float(np.mean([m.quantization_error(x) / m.radius_ for m, x in zip(self.maps_, parts)]))
+
     def _build_library(self, motions, names):
         from ..synth.library import build_library
         from ..synth.engine import TransitionEngine

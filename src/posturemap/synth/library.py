@@ -192,6 +192,18 @@ class MotionLibrary:
         out["lower"], out["upper"] = self.lower, self.upper
         return out
 
+    def joined(self, other: "MotionLibrary") -> "MotionLibrary":
+        """This library's recorded clips followed by ``other``'s (one skeleton, fps and up axis):
+        one index over both, their reversed copies made again."""
+        a, b = self.arrays(), other.arrays()
+        per_frame = [k for k in ARRAYS if k != "clip_start"]
+        starts = np.concatenate([a["clip_start"], a["clip_start"][-1] + b["clip_start"][1:]])
+        names = (tuple(self.clip_names[: self.num_recorded_clips])
+                 + tuple(other.clip_names[: other.num_recorded_clips]))
+        return MotionLibrary(self.fps, self.up, self.leg, starts, clip_names=names, lower=self.lower,
+                             upper=self.upper, reverse=self.reverse,
+                             **{k: np.concatenate([a[k], b[k]]) for k in per_frame})
+
     def source_frames(self, s: int, e: int) -> tuple[str, int, int]:
         """The recorded clip and its frame numbers of library frames ``s..e`` (one clip):
         ``(name, first, last)``, with ``first > last`` for a clip played backwards."""
