@@ -101,14 +101,18 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FAST)
-def nearest_linear(W, x):
-    """Index of the row of ``W (n, d)`` nearest ``x (d,)`` (Euclidean; vectorises well)."""
+def _nearest_row(W, x, period, wrap):
+    """Index of the row of ``W (n, d)`` nearest ``x (d,)``; with ``wrap``, dimensions wrap at
+    ``period`` (inf: linear). Without it the inner loop is a plain squared distance, which
+    LLVM vectorises (the branch on ``wrap`` is hoisted out of the loops)."""
     best = np.inf
     best_i = 0
     for i in range(W.shape[0]):
         acc = 0.0
         for k in range(W.shape[1]):
-            d = W[i, k] - x[k]
+            d = abs(W[i, k] - x[k])
+            if wrap:
+                d = min(d, period[k] - d)
             acc += d * d
         if acc < best:
             best = acc
@@ -119,24 +123,11 @@ def nearest_linear(W, x):
 @nb.njit(cache=True, nogil=True, fastmath=_FAST)
 def nearest(W, x, period):
     """Index of the row of ``W (n, d)`` nearest ``x (d,)``; ``period`` per dimension (inf: linear)."""
-    linear = True
+    wrap = False
     for k in range(period.shape[0]):
         if period[k] < np.inf:
-            linear = False
-    if linear:
-        return nearest_linear(W, x)
-    best = np.inf
-    best_i = 0
-    for i in range(W.shape[0]):
-        acc = 0.0
-        for k in range(W.shape[1]):
-            d = abs(W[i, k] - x[k])
-            d = min(d, period[k] - d)
-            acc += d * d
-        if acc < best:
-            best = acc
-            best_i = i
-    return best_i
+            wrap = True
+    return _nearest_row(W, x, period, wrap)
 
 
 # -- Uniform Posture Map training (see posturemap.learn.upm) ------------------------------------

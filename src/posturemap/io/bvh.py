@@ -515,26 +515,22 @@ def _parse_frames_kernel(buf, num_frames, num_channels, out, slow):
         start = i
         sign = 1.0 - 2.0 * (c == 45)
         i += (c == 45) | (c == 43)
-        # Digits, a point, digits; the whitespace at the end of buf stops every loop.
+        # Digits, a point, digits (one loop); the whitespace at the end of buf stops it.
         mantissa = 0
-        first = i
-        d = np.int64(buf[i]) - 48
-        while np.uint64(d) < 10:
-            mantissa = mantissa * 10 + d
-            i += 1
+        digits = 0
+        exponent = 0  # minus the digits after the point
+        point = False
+        while True:
             d = np.int64(buf[i]) - 48
-        digits = i - first
-        exponent = 0
-        if d == -2:  # "."
-            i += 1
-            first = i
-            d = np.int64(buf[i]) - 48
-            while np.uint64(d) < 10:
+            if np.uint64(d) < 10:
                 mantissa = mantissa * 10 + d
-                i += 1
-                d = np.int64(buf[i]) - 48
-            exponent = first - i
-            digits -= exponent
+                digits += 1
+                exponent -= point
+            elif d == -2 and not point:  # "."
+                point = True
+            else:
+                break
+            i += 1
         if digits == 0:
             return 3, num_slow
         c = buf[i]
