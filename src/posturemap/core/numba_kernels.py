@@ -180,14 +180,7 @@ def upm_epoch(X, order, start, W, n, witness, ptr, idx, period, r2, eta0, step0,
             n = 1
             continue
         sqdist(x, W, n, period, dist)
-        b = 0
-        c = -1
-        for j in range(1, n):
-            if dist[j] < dist[b]:
-                c = b
-                b = j
-            elif c < 0 or dist[j] < dist[c]:
-                c = j
+        b, c = _two_smallest(dist, n)
         if dist[b] > r2:
             W[n, :] = x
             witness[n] = i
@@ -227,19 +220,27 @@ def upm_epoch(X, order, start, W, n, witness, ptr, idx, period, r2, eta0, step0,
                         witness[v] = i
     return order.shape[0], n, step - step0
 
+
+@nb.njit(cache=True, nogil=True)
+def _two_smallest(dist, n):
+    """Indices of the smallest and second smallest of ``dist[:n]`` (second -1 when n == 1)."""
+    b = 0
+    c = -1
+    for j in range(1, n):
+        if dist[j] < dist[b]:
+            c = b
+            b = j
+        elif c < 0 or dist[j] < dist[c]:
+            c = j
+    return b, c
+
+
 @nb.njit(cache=True, nogil=True)
 def two_nearest(X, W, n, period, win, second, err):
     dist = np.empty(n)
     for i in range(X.shape[0]):
         sqdist(X[i], W, n, period, dist)
-        b = 0
-        c = -1
-        for j in range(1, n):
-            if dist[j] < dist[b]:
-                c = b
-                b = j
-            elif c < 0 or dist[j] < dist[c]:
-                c = j
+        b, c = _two_smallest(dist, n)
         win[i] = b
         second[i] = c
         err[i] = math.sqrt(dist[b])
