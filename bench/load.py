@@ -2,7 +2,7 @@
 
 Starts ``posturemap serve`` (the procedural sample clips with a saved map, as
 ``bench/server_fuzz.py`` does) twice, side by side in the same run: with the engine pool
-(:data:`posturemap.web.server.POOL_SIZE` engines, the default) and with one engine
+(:data:`posturemap.web.studio.POOL_SIZE` engines, the default) and with one engine
 (``POSTUREMAP_ENGINES=1``: every transition waits for the one before, as the former global
 lock did). Each client keeps one connection open and posts seeded random transitions
 (``upm``, ``spline``, ``auto``; random clips, lengths, alpha) back to back. Reports per setting
@@ -100,7 +100,7 @@ def run(seconds: float, seed: int) -> dict:
 
 
 def markdown(results: dict, seconds: float) -> str:
-    from posturemap.web.server import POOL_SIZE
+    from posturemap.web.studio import POOL_SIZE
 
     lines = ["# Studio server under load", "",
              f"`python bench/load.py --seconds {seconds:g}`: `posturemap serve` on the procedural sample clips",

@@ -197,7 +197,8 @@ def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
     """Run the benchmark; returns a JSON-ready dict (see :func:`markdown`)."""
     from posturemap.io import bvh
     from posturemap.learn.model import PostureMap
-    from posturemap.synth.engine import METHODS, TransitionEngine
+    from posturemap.synth.engine import TransitionEngine
+    from posturemap.synth.request import METHODS
 
     data_dir = Path(data_dir)
     files = sorted((data_dir / "bandai1").glob("*.bvh"))

@@ -21,8 +21,9 @@ import pytest
 
 from posturemap.io import bvh
 from posturemap.learn.model import PostureMap
-from posturemap.synth.engine import DEFAULT_METHOD, KEYED
-from posturemap.web.server import LOOPBACK_HOSTS, create_app, running
+from posturemap.synth.request import DEFAULT_METHOD, KEYED
+from posturemap.web.server import create_app, running
+from posturemap.web.studio import LOOPBACK_HOSTS
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

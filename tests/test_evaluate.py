@@ -81,7 +81,7 @@ def test_key_model_stands_in_for_the_maps_only(sample_clips):
 
 
 def test_methods_cover_the_engine_and_todays_default():
-    from posturemap.synth.engine import METHODS as ENGINE
+    from posturemap.synth.request import METHODS as ENGINE
 
     assert set(ENGINE) <= set(METHODS)
     assert {"zero-velocity", "som", "upm-valid" + evaluate.FEET, evaluate.DEFAULT_SPEC} <= set(METHODS)

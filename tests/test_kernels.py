@@ -19,7 +19,8 @@ import pytest
 from posturemap.io import bvh
 from posturemap.core import kernels, quat
 from posturemap.learn.model import PostureMap
-from posturemap.synth.engine import METHODS, transition
+from posturemap.synth.engine import transition
+from posturemap.synth.request import METHODS
 
 
 def random_quats(rng, shape) -> np.ndarray:

@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 
 from posturemap.web import server as web
+from posturemap.web import guards
+from posturemap.web.studio import POOL_SIZE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 import server_fuzz  # noqa: E402
@@ -104,7 +106,7 @@ def app(sample_clips):
 
 
 def test_issue12_header_timeout_closes_a_trickling_connection(app, monkeypatch):
-    monkeypatch.setattr(web, "HEADER_TIMEOUT", 0.5)
+    monkeypatch.setattr(guards, "HEADER_TIMEOUT", 0.5)
     with web.running(app) as base:
         port = int(base.rsplit(":", 1)[1])
         s = socket.create_connection(("127.0.0.1", port), timeout=5)
@@ -121,7 +123,7 @@ def test_issue12_header_timeout_closes_a_trickling_connection(app, monkeypatch):
 
 
 def test_issue12_body_timeout_is_408(app, monkeypatch):
-    monkeypatch.setattr(web, "BODY_TIMEOUT", 0.5)
+    monkeypatch.setattr(guards, "BODY_TIMEOUT", 0.5)
     with web.running(app) as base:
         port = int(base.rsplit(":", 1)[1])
         with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
@@ -141,7 +143,7 @@ def test_engine_pool_shares_clips_and_keeps_buffers_apart(app):
             break
     for e in engines:
         studio._pool.put(e)
-    assert len(engines) == web.POOL_SIZE >= 2
+    assert len(engines) == POOL_SIZE >= 2
     assert all(e.tracks is studio.engine.tracks and e.model is studio.engine.model for e in engines)
     assert len({id(e) for e in engines}) == len(engines)
 

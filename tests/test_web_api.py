@@ -30,9 +30,12 @@ from posturemap.io import bvh
 from posturemap.core import quat
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion
-from posturemap.synth.engine import DEFAULT_METHOD, KEYED, METHODS, transition
-from posturemap.web import server
-from posturemap.web.server import LOOPBACK_HOSTS, MAX_BODY, MAX_LENGTH, create_app
+from posturemap.synth.engine import transition
+from posturemap.synth.request import DEFAULT_METHOD, KEYED, METHODS
+from posturemap.web import server, studio
+from posturemap.web.guards import MAX_BODY
+from posturemap.web.server import create_app
+from posturemap.web.studio import LOOPBACK_HOSTS, MAX_LENGTH
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +132,7 @@ def test_one_clip_as_tracks(client, sample_clips):
 
 
 def test_bone_names_are_safe_for_three_js():
-    assert server.bone_names(("Hips", "left arm", "a.b:c/d[0]", "a.b:c/d[0]", "...")) == \
+    assert studio.bone_names(("Hips", "left arm", "a.b:c/d[0]", "a.b:c/d[0]", "...")) == \
         ["Hips", "left_arm", "abcd0", "abcd0_2", "joint4"]
 
 
@@ -467,7 +470,7 @@ def test_random_garbage_never_gives_500(client):
     values = [None, True, False, 0, -1, 1, 2**31, 2**64, -2**63, 0.5, -0.0, 1e-300, 1e308, 3.7, "", "walk", "run",
               "wave", "upm", "spline", "x" * 300, "\u0000", "\ud7ff", [], [1], {}, {"a": 1}, "../..", "%2e%2e",
               "NaN", "1e400"]
-    fields = list(server.FIELDS) + ["", "__proto__", "pad"]
+    fields = list(studio.FIELDS) + ["", "__proto__", "pad"]
     statuses = set()
     for i in range(400):
         kind = rng.integers(0, 4)

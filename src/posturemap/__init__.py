@@ -23,7 +23,7 @@ __version__ = "0.1.0"
 # (and so ``posturemap --help``) loads no numpy; the first name used loads its module.
 _EXPORTS = {"BVHError": "io.bvh", "UserError": "errors", "MapFileError": "io.mapfile",
             "PostureMap": "learn.model", "Motion": "core.motion", "Skeleton": "core.skeleton",
-            "DEFAULT_METHOD": "synth.engine", "METHODS": "synth.engine", "TransitionEngine": "synth.engine",
+            "DEFAULT_METHOD": "synth.request", "METHODS": "synth.request", "TransitionEngine": "synth.engine",
             "transition": "synth.engine", "TransitionRequest": "synth.request", "RequestError": "synth.request",
             "UniformPostureMap": "learn.upm", "MotionLibrary": "synth.library"}
 _MODULES = {"bvh": "io.bvh", "gltf": "io.gltf", "preview": "io.preview"}  # ``from posturemap import bvh``

@@ -24,7 +24,8 @@ from .core import kernels
 from . import sample
 from .learn.model import PostureMap
 from .core.motion import length_unit, summary
-from .synth.engine import DEFAULT_METHOD, transition
+from .synth.engine import transition
+from .synth.request import DEFAULT_METHOD
 
 SAMPLE_PAIRS = [("walk", "wave"), ("wave", "run"), ("run", "walk")]
 DATA_PAIRS = [("walk", "run"), ("bow", "dance"), ("run", "walk-back")]

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.motion import Motion, length_unit
-from ..synth.engine import DEFAULT_METHOD
-from ..synth.engine import METHODS as ENGINE_METHODS
+from ..synth.request import DEFAULT_METHOD
+from ..synth.request import METHODS as ENGINE_METHODS
 
 HOLDOUTS = ("style", "content", "cmu")
 TEST_STYLES = ("angry", "old", "proud")

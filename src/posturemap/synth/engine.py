@@ -58,8 +58,7 @@ from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_b
                     linear_basis)
 from .feet import lock_feet
 from .keys import VELOCITY_HORIZON_S, MapKeys
-from .request import (DEFAULT_METHOD, KEY_POSTURE, KEYED, METHODS, RequestError,  # noqa: F401 - the catalogue
-                      TransitionRequest)
+from .request import METHODS, RequestError, TransitionRequest
 from .trajectory import Track, aligned, alignment, ancestors, make_track, rotate_about_up
 
 AUTO_SHORT_S = 0.25  # auto: gaps shorter than this (seconds) use `spline`, longer ones `retrieval`
@@ -384,10 +383,10 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     Parameters
     ----------
     a, b : Motion with one skeleton (and the map's, when ``model`` is given)
-    model : PostureMap or None; needed for the :data:`KEYED` methods (``auto``, ``retrieval``,
+    model : PostureMap or None; needed for the :data:`~posturemap.synth.request.KEYED` methods (``auto``, ``retrieval``,
         ``upm``...)
     request : a :class:`TransitionRequest` (default: its defaults), and/or its fields as
-        keywords: ``length`` (20), ``alpha`` (0.5), ``method`` (:data:`DEFAULT_METHOD`),
+        keywords: ``length`` (20), ``alpha`` (0.5), ``method`` (``"auto"``),
         ``key_at``, ``a_end`` (A's last frame), ``b_start`` (0), ``align`` (True),
         ``foot_lock`` (True); see :class:`TransitionRequest` for their meaning
     report : a dict to fill with what was done: ``method`` (the one used, for ``auto``) and,
