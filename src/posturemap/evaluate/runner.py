@@ -307,18 +307,21 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         with clips_in(engines, {"a": test[a], "b": test[b]}):  # these two clips only
             ta, tb = upm.tracks["a"], upm.tracks["b"]
             dtheta, shift = upm.alignment(ta, tb, a_end, b_start, length)
-            b_part = upm.continuation("b", b_start, turn=dtheta, shift=shift)[:N_FUTURE]
+            b_part = upm.continuation("b", b_start, turn=dtheta, shift=shift)[:N_FUTURE]  # the reference's
             a_part = test[a][a_end - N_PAST + 1: a_end + 1]
             for m in METHODS:
                 if m == "zero-velocity":
                     r = np.repeat(a_part.rotations[-1:], length, axis=0)
                     p = np.repeat(a_part.positions[-1:], length, axis=0)
+                    placed = b_part
                 else:
                     eng, base, feet = engine_call(engines, m)
                     r, p = eng.generate("a", "b", length=length, a_end=a_end, b_start=b_start, align=True,
                                         method=base, foot_lock=feet)
-                seqs[m].append((np.concatenate([a_part.rotations, r, b_part.rotations]),
-                                np.concatenate([a_part.positions, p, b_part.positions])))
+                    # B where this method put it (retrieval carries its own placement of B).
+                    placed = eng.continuation("b", b_start)[:N_FUTURE]
+                seqs[m].append((np.concatenate([a_part.rotations, r, placed.rotations]),
+                                np.concatenate([a_part.positions, p, placed.positions])))
         reference.append((a_part, b_part))
     out = {"pairs": len(pairs), "length": length, "align": True, "methods": {}}
     sl = slice(N_PAST, N_PAST + length)
