@@ -37,9 +37,10 @@ export const state = {
   // -- drawing --------------------------------------------------------------------------------
   needsRender: true,        // something changed: draw at the next animation frame (any module)
   drawing: false,           // inside draw(): the camera controls' own change event is ours (scene.js)
-  // Resolution (scene.js): the pixel ratio factor now, whether full frames are slow, when the
-  // view last changed, whether the last frame was at full resolution, and when and at which
-  // scale the last frame was drawn (its cost shows at the next animation frame).
+  // Resolution (scene.js): the pixel ratio factor now, whether full frames are slow (scene.js
+  // starts it true in the lite profile only), when the view last changed, whether the last frame
+  // was at full resolution, and when and at which scale the last frame was drawn (its cost shows
+  // at the next animation frame).
   quality: { scale: 1, slow: true, lastChange: 0, refined: true, renderedAt: null, renderedScale: 1 },
   plotCache: { key: null }, // joint angle series of the shown results (panels.js)
   pendingTiming: null,      // steps of the update waiting to be drawn (studio.js, see the hook's timings)
