@@ -375,6 +375,24 @@ def test_page_and_security_headers(client):
         assert client.get(f"/static/{f}").status_code == 200
 
 
+def test_page_modules_are_served_as_javascript(client):
+    """Every module the page imports by a relative path (app.js, then js/*.js) is served as a
+    JavaScript module (a browser refuses a module of another type), and every file in js/ is used."""
+    seen, todo = set(), ["app.js"]
+    while todo:
+        path = todo.pop()
+        r = client.get(f"/static/{path}")
+        assert r.status_code == 200, path
+        assert r.headers["content-type"].split(";")[0] in ("text/javascript", "application/javascript"), path
+        seen.add(path)
+        for spec in re.findall(r"""^\s*(?:import|export)\b[^'"]*?from\s+['"](\.{1,2}/[^'"]+)['"]""", r.text, re.M):
+            target = os.path.normpath(os.path.join(os.path.dirname(path), spec))
+            if target not in seen:
+                todo.append(target)
+    on_disk = {f"js/{p.name}" for p in (server.STATIC_DIR / "js").glob("*.js")}
+    assert on_disk and on_disk <= seen, sorted(on_disk - seen)
+
+
 def test_vendored_three_is_the_pinned_version(client):
     with open(os.path.join(os.path.dirname(__file__), "..", "package.json")) as f:
         pinned = json.load(f)["dependencies"]["three"]
