@@ -2,7 +2,7 @@
 // plays them with three.js (Bone / Skeleton, AnimationClip with <bone>.quaternion and
 // <bone>.position tracks, AnimationMixer). No CDN: three.js is vendored next to this file.
 //
-// This entry wires the modules in js/ (docs/architecture-studio.md): the DOM events to their
+// This entry wires the modules in js/ (docs/studio-page.md): the DOM events to their
 // handlers, the test hook's actions, and the start. Everything that changes is in js/state.js.
 import * as THREE from 'three';
 import { createCharacters } from './js/character.js';
