@@ -9,7 +9,8 @@ from posturemap.io import bvh
 from posturemap.evaluate import metrics
 from posturemap.core import quat
 from posturemap.core.joints import leg_chains, leg_length
-from posturemap.synth.feet import FADE, contact_runs, lock_weights_and_targets, two_bone_ik
+from posturemap.synth import feet
+from posturemap.synth.feet import FADE, MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, two_bone_ik
 from posturemap.core.skeleton import fk
 from posturemap.synth.engine import TransitionEngine
 
@@ -65,7 +66,8 @@ def test_lock_targets_from_a_and_b_and_fades_in_the_air():
     horiz = np.zeros((length, 3))
     horiz[:, 0] = np.arange(length) * 2.0  # the free foot slides along x
     a_spot, b_spot = np.array([-1.0, 0, 0]), np.array([45.0, 0, 0])
-    w, target = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
+    w, target, raised = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
+    assert not raised.any()  # no run is planted all through: no step
     assert np.all(w[:5] == 1) and np.all(w[15:] == 1) and np.all(w[10:12] == 1)
     np.testing.assert_array_equal(target[:5], np.tile(a_spot, (5, 1)))
     np.testing.assert_array_equal(target[15:], np.tile(b_spot, (5, 1)))
@@ -74,12 +76,72 @@ def test_lock_targets_from_a_and_b_and_fades_in_the_air():
     assert w[5] == pytest.approx(1 - 1 / (FADE + 1)) and w[6] == pytest.approx(1 - 2 / (FADE + 1))
     np.testing.assert_array_equal(target[5:7], np.tile(a_spot, (2, 1)))  # fading out of A's spot
     # Not planted at A's end: the first run gets its own spot and fades in.
-    w2, t2 = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
+    w2, t2, _ = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
     np.testing.assert_array_equal(t2[:5], np.tile(horiz[2], (5, 1)))
     # A fast low foot is swinging, not planted.
-    w3, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
-                                     speed=np.full(length, 5.0), speed_tol=1.0)
+    w3, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
+                                        speed=np.full(length, 5.0), speed_tol=1.0)
     assert not w3.any()
+
+
+@pytest.mark.parametrize("step, lift", [(9, 8.0), (9, 100.0), (40, 8.0), (0, 8.0)])
+def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift):
+    # Planted at A's end, all through the gap and at B's start, on two different spots: the foot
+    # holds A's spot, steps (target moving monotonically, lifted on a half sine no higher than
+    # `lift` and half the step's length) and holds B's spot; it never jumps.
+    length = 20
+    h = np.zeros(length)
+    horiz = np.zeros((length, 3))
+    a_spot, b_spot = np.array([0.0, 0, 0]), np.array([30.0, 0, 4.0])
+    w, target, raised = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, 0.0, 1.0, step=step, lift=lift)
+    assert np.all(w == 1)
+    k = min(step, length - 2)
+    k0 = (length - k) // 2
+    np.testing.assert_array_equal(target[:k0], np.tile(a_spot, (k0, 1)))
+    np.testing.assert_array_equal(target[k0 + k:], np.tile(b_spot, (length - k0 - k, 1)))
+    along = (target - a_spot) @ (b_spot - a_spot) / np.sum((b_spot - a_spot) ** 2)
+    assert np.all(np.diff(along) >= 0) and along[0] == 0 and along[-1] == 1
+    dist = np.linalg.norm(b_spot - a_spot)
+    # The largest move in one frame: a smoothstep over k + 1 intervals moves at most 1.5 / (k + 1).
+    moves = np.linalg.norm(np.diff(target, axis=0), axis=1)
+    assert moves.max() <= dist * 1.5 / (k + 1) + 1e-9
+    assert not raised[:k0].any() and not raised[k0 + k:].any()
+    if k:
+        assert raised.max() == pytest.approx(min(lift, dist / 2), rel=0.05)
+        assert np.all(raised[k0: k0 + k] > 0)
+
+
+def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
+    # Transitions from a bow to a walk, B placed to continue A: between two frames where a foot
+    # is fully locked it moves at most as fast as the step's smoothstep allows (1.5 / (step + 1)
+    # of the largest A-to-B distance the lock accepts). Without the step (STEP_S = 0, as before
+    # it existed) a foot planted at both seams jumps from A's spot to B's in one frame.
+    by_name = {p.name: p for p in bandai_files}
+    a = bvh.read(by_name["dataset-1_bow_normal_001.bvh"])
+    b = bvh.read(by_name["dataset-1_walk_normal_001.bvh"])
+    e = TransitionEngine(None, a.skeleton)
+    e.add("a", a)
+    e.add("b", b)
+    ankles = [c[2] for c in e._legs]
+    leg = leg_length(a.skeleton)
+    bound = MAX_DRIFT[1] * leg * 1.5 / (round(STEP_S * a.fps) + 1)
+
+    def worst_held_move():
+        rng = np.random.default_rng(3)
+        worst = 0.0
+        for _ in range(8):
+            kw = dict(length=20, a_end=int(rng.integers(2, len(a))), b_start=int(rng.integers(0, len(b) - 2)),
+                      method="spline", foot_lock=True)
+            r, p = e.generate("a", "b", **kw)
+            g = fk(e.skeleton.parents, r, p)[1][:, ankles]
+            held = (e.last["planted"][1:] == 1) & (e.last["planted"][:-1] == 1)
+            move = np.linalg.norm(np.diff(np.delete(g, 1, axis=-1), axis=0), axis=-1)[held]
+            worst = max(worst, float(move.max(initial=0.0)))
+        return worst
+
+    assert worst_held_move() <= bound
+    monkeypatch.setattr(feet, "STEP_S", 0.0)
+    assert worst_held_move() > 3 * bound  # the jump the step replaces
 
 
 @pytest.mark.parametrize("pair", [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "walk_happy_001")])

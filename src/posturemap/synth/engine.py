@@ -244,11 +244,12 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     kernels.exp_relative(frames[:, :s0].reshape(length, j_count, 3), ref, out_r)
     out_p[:] = frames[:, s0 + 4:].reshape(length, j_count, 3)
     kernels.compose_root(eng._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
-    if req.foot_lock and eng._legs:
-        b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
-        lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, up, ta.feet[ia[1:]], b_feet, ta.motion.fps)
     eng.last = {"key": None if keys is None else keys["key"], "neurons": None if keys is None else keys["neurons"],
                 "dtheta": dtheta, "shift": shift}
+    if req.foot_lock and eng._legs:
+        b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
+        eng.last["planted"] = lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, up, ta.feet[ia[1:]], b_feet,
+                                        ta.motion.fps)
     return out_r, out_p
 
 

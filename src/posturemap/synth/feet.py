@@ -7,7 +7,9 @@ in-between frames are made:
    and in the new frames);
 2. every run of ground frames gets one spot: A's last foot position if the run starts at A's
    end with the foot planted there, B's first if it ends at B's start with the foot planted,
-   otherwise the foot's position in the middle of the run;
+   otherwise the foot's position in the middle of the run. A foot planted all through a gap, on
+   A's spot at one end and B's at the other, makes a step between them in the middle of the run
+   (lifted, over ``STEP_S`` seconds) instead of jumping;
 3. the ankle is pulled onto that spot (height kept), fading in and out over a few frames at
    the ends of a run, by analytic two-bone IK on thigh and shin (Holden's formulation); the
    foot keeps its global orientation.
@@ -27,6 +29,8 @@ from ..core.skeleton import Skeleton
 FADE = 3  # frames to fade the lock in and out
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther than the
 #                           first fades out, and is gone at the second (the leg would stretch)
+STEP_S = 0.3  # seconds of the step from A's spot to B's of a foot planted all through a gap
+STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 
 
 def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
@@ -64,8 +68,8 @@ def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
 
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
-                             speed_tol=np.inf, on=None):
-    """Per frame of the new frames: lock weight (L,) and horizontal target (L, 3).
+                             speed_tol=np.inf, on=None, step=0, lift=0.0):
+    """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
     ``a_on``/``b_on`` whether the foot is planted at A's end / B's start and ``a_spot``/``b_spot``
@@ -75,6 +79,11 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     while the foot is in the air, so the foot never slides along the ground to catch up.
     ``on`` (L,) bool, when given, says which frames are planted instead (e.g. the contacts of
     a retrieved real segment).
+
+    A run planted at both A's end and B's start holds A's spot, then steps to B's over the
+    ``step`` frames in its middle (at most the run but one frame at each end): the target moves
+    with a smoothstep while the foot rises by ``lift`` (at most half the step's length) on a
+    half sine and comes down on B's spot. The lift (L,) is added to the ankle's height.
     """
     length = len(h)
     if on is None:
@@ -82,15 +91,23 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         if speed is not None:
             on &= speed < speed_tol
     weight = np.zeros(length)
+    raised = np.zeros(length)
     target = horiz.copy()
     for start, stop in contact_runs(on):
         from_a = start == 0 and a_on
         to_b = stop == length and b_on
         spot = np.empty((stop - start, 3))
         if from_a and to_b:
-            # Planted all through: stay on A's spot, then B's, meeting half way.
-            mid = (stop - start) // 2
-            spot[:mid], spot[mid:] = a_spot, b_spot
+            # Planted all through: A's spot, a step in the middle of the run, B's spot.
+            n = stop - start
+            k = min(step, n - 2)
+            k0 = (n - k) // 2
+            spot[:k0], spot[k0 + k:] = a_spot, b_spot
+            if k > 0:
+                u = np.arange(1, k + 1) / (k + 1.0)
+                spot[k0: k0 + k] = a_spot + (u * u * (3 - 2 * u))[:, None] * (b_spot - a_spot)
+                high = min(lift, 0.5 * float(np.linalg.norm(b_spot - a_spot)))
+                raised[start + k0: start + k0 + k] = high * np.sin(np.pi * u)
         elif from_a:
             spot[:] = a_spot
         elif to_b:
@@ -105,7 +122,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
                 if 0 <= t < length and not on[t] and w > weight[t]:
                     weight[t] = w
                     target[t] = where
-    return weight, target
+    return weight, target, raised
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
@@ -147,8 +164,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                 on[: runs[0][1]] = False
             if runs and runs[-1][1] == len(on) and not b_on:
                 on[runs[-1][0]:] = False
-        weight, target = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
-                                                  b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol, on)
+        weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
+                                                          b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
+                                                          on, round(STEP_S * fps), STEP_LIFT * body)
         drift = np.linalg.norm(target - horiz, axis=-1) / body
         lo, hi = MAX_DRIFT
         weight *= np.clip((hi - drift) / (hi - lo), 0.0, 1.0)
@@ -158,7 +176,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
             continue
         goal = gpos[frames, ankle] * flat
         goal = goal + weight[frames, None] * (target[frames] - goal)
-        goal[:, up] = gpos[frames, ankle, up]
+        goal[:, up] = gpos[frames, ankle, up] + weight[frames] * raised[frames]
         foot_global = grot[frames, ankle]
         new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
                                           grot[frames, thigh], grot[frames, shin],
