@@ -163,11 +163,17 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
 
 
 # -- on real data -------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def quick(data_dir, bandai_files, cmu_file, tmp_path_factory):
+# The checks below run on a smaller run than `posturemap bench --quick` (a third of its training
+# clips, 3 windows, 2 pairs: a few seconds); the slow set runs them on the real quick run too.
+SMALL = dataclasses.replace(Settings.quick_run(), train_stride=12, max_windows=3, pairs=2, latency_calls=10)
+
+
+@pytest.fixture(scope="module", params=[pytest.param(SMALL, id="small"),
+                                        pytest.param(Settings.quick_run(), id="quick", marks=pytest.mark.slow)])
+def quick(request, data_dir, bandai_files, cmu_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    results = evaluate.run(data_dir, out, seed=0, settings=Settings.quick_run(), log=lambda m: None)
-    return results, out
+    results = evaluate.run(data_dir, out, seed=0, settings=request.param, log=lambda m: None)
+    return results, out, request.param
 
 
 def _finite_numbers(d):
@@ -182,7 +188,7 @@ def _finite_numbers(d):
 
 
 def test_quick_run_writes_every_file(quick):
-    results, out = quick
+    results, out, _ = quick
     names = ["results.md", "results.json"] + [f"results_{h}.png" for h in evaluate.HOLDOUTS] + \
         ["results_style_joint_angle.png", "results_style_filmstrip.png"]
     for name in names:
@@ -201,14 +207,14 @@ def test_quick_run_writes_every_file(quick):
 
 
 def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
-    results, _ = quick
+    results, _, settings = quick
     holds = results["holdouts"]
     assert list(holds) == list(evaluate.HOLDOUTS)
     keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "naturalness", "validity", "jerk"}
     for name, hold in holds.items():
         inb = hold["inbetween"]
         lengths = evaluate.CMU_LENGTHS if name == "cmu" else LENGTHS
-        assert inb["lengths"] == list(lengths) and inb["windows"] == Settings.quick_run().max_windows
+        assert inb["lengths"] == list(lengths) and inb["windows"] == settings.max_windows
         assert set(inb["methods"]) == set(METHODS)
         for m, per_length in inb["methods"].items():
             assert set(per_length) == {str(n) for n in lengths}, (name, m)
@@ -230,7 +236,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
         assert overall == pytest.approx(inb["methods"][m][n]["l2q"], rel=1e-9)
     assert set(holds["content"]["inbetween"]["per_content"]) <= set(evaluate.TEST_CONTENTS)
     cross = holds["style"]["cross_clip"]
-    assert cross["pairs"] == Settings.quick_run().pairs and set(cross["methods"]) == set(METHODS)
+    assert cross["pairs"] == settings.pairs and set(cross["methods"]) == set(METHODS)
     assert all(p["a"] != p["b"] for p in cross["pair_list"])
     assert all(math.isfinite(v) for v in _finite_numbers(cross["methods"]))
     assert holds["cmu"]["cross_clip"] is None  # one test clip
@@ -239,7 +245,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
 
 
 def test_quick_run_splits(quick):
-    results, _ = quick
+    results, _, _ = quick
     holds = results["holdouts"]
     style, content, cmu = (holds[h]["split"] for h in evaluate.HOLDOUTS)
     assert {evaluate.parse_name(n)["style"] for n in style["test_files"]} == set(evaluate.TEST_STYLES)
