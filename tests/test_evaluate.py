@@ -330,6 +330,7 @@ def test_diagnostics_oracle_key_beats_holding_the_last_frame(tiny_state):
         assert diag["key_distance"][n]["upm_key_to_true"] > 0
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_same_seed_same_numbers(data_dir, cmu_file, tmp_path):
     a = evaluate.run(data_dir, tmp_path / "a", seed=3, settings=TINY, log=lambda m: None)
     b = evaluate.run(data_dir, tmp_path / "b", seed=3, settings=TINY, log=lambda m: None)
