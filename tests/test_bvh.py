@@ -271,9 +271,11 @@ def load_real(path: str):
     return bvh.read(path), parse_raw(text)
 
 
-@pytest.fixture(scope="module")
-def real_files(bandai_files, cmu_file) -> list[str]:
-    return [str(p) for p in bandai_files] + [str(cmu_file)]
+@pytest.fixture(scope="module", params=[pytest.param(8, id="every-8th"),
+                                        pytest.param(1, id="all", marks=pytest.mark.slow)])
+def real_files(request, bandai_files, cmu_file) -> list[str]:
+    """Every 8th Bandai clip (by name) and CMU in the quick set; every clip in the slow set."""
+    return [str(p) for p in bandai_files[::request.param]] + [str(cmu_file)]
 
 
 # --- (b) real files against the independent FK ------------------------------------------------
