@@ -157,9 +157,16 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
     past, future = walk[20: 20 + N_PAST], walk[45: 45 + N_FUTURE]
     out = evaluate.generate_from_context(engines, ["upm-valid+feet", "som"], past, future, 15)
     assert seen == [(["_future", "_past"], N_PAST, N_FUTURE, N_PAST - 1, 0, False)] * 2
-    for r, p in out.values():
-        assert r.shape == (15, walk.skeleton.num_joints, 4) and p.shape == (15, walk.skeleton.num_joints, 3)
     assert engines["upm"].tracks == {} and engines["som"].tracks == {}  # the context clips do not stay behind
+    # The frames are what a fresh engine holding only the two context clips makes (both engines
+    # here hold the same map; "som" runs upm on its engine's map, "upm-valid+feet" locks the feet).
+    for name, method, feet in (("upm-valid+feet", "upm-valid", True), ("som", "upm", False)):
+        ref = TransitionEngine(model)
+        ref.add("a", past)
+        ref.add("b", future)
+        r, p = ref.generate("a", "b", 15, a_end=N_PAST - 1, b_start=0, align=False, method=method, foot_lock=feet)
+        np.testing.assert_array_equal(out[name][0], r)
+        np.testing.assert_array_equal(out[name][1], p)
 
 
 # -- on real data -------------------------------------------------------------------------------
