@@ -1,10 +1,11 @@
-# posturemap: `make demo` sets everything up and runs the pipeline; `make test` runs the tests.
+# posturemap: `make demo` sets everything up and runs the pipeline; `make test` runs the tests
+# (the quick set, under a minute); `make test-slow` the slow ones; `make test-all` both (CI).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
 
-.PHONY: demo test bench bench-quick serve clean web studio-docs wheel-smoke
+.PHONY: demo test test-slow test-all bench bench-quick serve clean web studio-docs wheel-smoke
 
 # The package with what `demo` and `serve` use (the studio's server, the filmstrip pictures).
 $(VENV)/.installed: pyproject.toml
@@ -43,7 +44,15 @@ $(VENDOR)/.stamp: node_modules/.package-lock.json
 
 web: $(VENDOR)/.stamp
 
+# The quick set (under a minute on 2 cores). Tests marked `slow` (longer fuzzing, the full-size
+# quick benchmark, more transitions on real clips, ...) run in `test-slow`; CI (.ci/run) runs both.
 test: $(VENV)/.test-installed web
+	$(PY) -m pytest -q -m "not slow"
+
+test-slow: $(VENV)/.test-installed web
+	$(PY) -m pytest -q -m slow
+
+test-all: $(VENV)/.test-installed web
 	$(PY) -m pytest -q
 
 # The evaluation (docs/results.md is a full run's output) and the studio.

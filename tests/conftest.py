@@ -19,6 +19,18 @@ from posturemap import sample
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """With ``POSTUREMAP_NO_SKIP=1`` (set by .ci/run) a skipped test fails: CI must never pass
+    because the data, Chromium or an extra was missing."""
+    outcome = yield
+    report = outcome.get_result()
+    if os.environ.get("POSTUREMAP_NO_SKIP") == "1" and report.skipped and not hasattr(report, "wasxfail"):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        report.outcome = "failed"
+        report.longrepr = f"skipped, but POSTUREMAP_NO_SKIP=1 forbids skips: {reason}"
+
+
 @pytest.fixture(scope="session", autouse=True)
 def compiled_kernels():
     """The suite runs with the compiled kernels loaded, as training, the studio and the

@@ -236,6 +236,7 @@ def test_traversal_and_malformed_requests_get_4xx(studio, base_url):
     assert r.status == 422 and "alpha" in r.json()["error"]
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_slider_moves_update_one_by_one(studio, clips):
     """50 alpha moves: one request and one timed update each; the keyless comparison is reused.
 
@@ -267,6 +268,7 @@ def test_slider_moves_update_one_by_one(studio, clips):
     assert studio.errors == []
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_screenshot(browser, base_url, tmp_path):
     """The studio mid-transition (the default method: real motion retrieved, its source in the
     panel) with a comparison overlay, drawn with the render profile a GPU gets (antialiasing,

@@ -158,17 +158,32 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
     past, future = walk[20: 20 + N_PAST], walk[45: 45 + N_FUTURE]
     out = evaluate.generate_from_context(engines, ["upm-valid+feet", "som"], past, future, 15)
     assert seen == [(["_future", "_past"], N_PAST, N_FUTURE, N_PAST - 1, 0, False)] * 2
-    for r, p in out.values():
-        assert r.shape == (15, walk.skeleton.num_joints, 4) and p.shape == (15, walk.skeleton.num_joints, 3)
     assert engines["upm"].tracks == {} and engines["som"].tracks == {}  # the context clips do not stay behind
+    # The frames are what a fresh engine holding only the two context clips makes (both engines
+    # here hold the same map; "som" runs upm on its engine's map, "upm-valid+feet" locks the feet).
+    for name, method, feet in (("upm-valid+feet", "upm-valid", True), ("som", "upm", False)):
+        ref = TransitionEngine(model)
+        ref.add("a", past)
+        ref.add("b", future)
+        r, p = ref.generate("a", "b", 15, a_end=N_PAST - 1, b_start=0, align=False, method=method, foot_lock=feet)
+        np.testing.assert_array_equal(out[name][0], r)
+        np.testing.assert_array_equal(out[name][1], p)
 
 
 # -- on real data -------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def quick(data_dir, bandai_files, cmu_file, tmp_path_factory):
+# The checks below run on a smaller run than `posturemap bench --quick` (a third of its training
+# clips, 3 windows, 2 pairs, no plots: a few seconds); the slow set runs them on the real quick
+# run too, plots included.
+SMALL = dataclasses.replace(Settings.quick_run(), train_stride=12, max_windows=3, pairs=2, latency_calls=10,
+                            plots=False)
+
+
+@pytest.fixture(scope="module", params=[pytest.param(SMALL, id="small"),
+                                        pytest.param(Settings.quick_run(), id="quick", marks=pytest.mark.slow)])
+def quick(request, data_dir, bandai_files, cmu_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    results = evaluate.run(data_dir, out, seed=0, settings=Settings.quick_run(), log=lambda m: None)
-    return results, out
+    results = evaluate.run(data_dir, out, seed=0, settings=request.param, log=lambda m: None)
+    return results, out, request.param
 
 
 def _finite_numbers(d):
@@ -183,13 +198,16 @@ def _finite_numbers(d):
 
 
 def test_quick_run_writes_every_file(quick):
-    results, out = quick
+    results, out, settings = quick
     names = ["results.md", "results.json"] + [f"results_{h}.png" for h in evaluate.HOLDOUTS] + \
         ["results_style_joint_angle.png", "results_style_filmstrip.png"]
+    if not settings.plots:
+        names = names[:2]
+        assert not results.get("plots") and not list(out.glob("*.png"))
     for name in names:
         assert (out / name).stat().st_size > 0, name
-    assert set(names[2:]) <= set(results["plots"])
-    for png in results["plots"]:
+    assert set(names[2:]) <= set(results.get("plots") or [])
+    for png in results.get("plots") or []:
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert json.loads((out / "results.json").read_text()) == json.loads(json.dumps(results))
     md = (out / "results.md").read_text()
@@ -202,14 +220,14 @@ def test_quick_run_writes_every_file(quick):
 
 
 def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
-    results, _ = quick
+    results, _, settings = quick
     holds = results["holdouts"]
     assert list(holds) == list(evaluate.HOLDOUTS)
     keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "naturalness", "validity", "jerk"}
     for name, hold in holds.items():
         inb = hold["inbetween"]
         lengths = evaluate.CMU_LENGTHS if name == "cmu" else LENGTHS
-        assert inb["lengths"] == list(lengths) and inb["windows"] == Settings.quick_run().max_windows
+        assert inb["lengths"] == list(lengths) and inb["windows"] == settings.max_windows
         assert set(inb["methods"]) == set(METHODS)
         for m, per_length in inb["methods"].items():
             assert set(per_length) == {str(n) for n in lengths}, (name, m)
@@ -231,7 +249,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
         assert overall == pytest.approx(inb["methods"][m][n]["l2q"], rel=1e-9)
     assert set(holds["content"]["inbetween"]["per_content"]) <= set(evaluate.TEST_CONTENTS)
     cross = holds["style"]["cross_clip"]
-    assert cross["pairs"] == Settings.quick_run().pairs and set(cross["methods"]) == set(METHODS)
+    assert cross["pairs"] == settings.pairs and set(cross["methods"]) == set(METHODS)
     assert all(p["a"] != p["b"] for p in cross["pair_list"])
     assert all(math.isfinite(v) for v in _finite_numbers(cross["methods"]))
     assert holds["cmu"]["cross_clip"] is None  # one test clip
@@ -240,7 +258,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
 
 
 def test_quick_run_splits(quick):
-    results, _ = quick
+    results, _, _ = quick
     holds = results["holdouts"]
     style, content, cmu = (holds[h]["split"] for h in evaluate.HOLDOUTS)
     assert {evaluate.parse_name(n)["style"] for n in style["test_files"]} == set(evaluate.TEST_STYLES)
@@ -325,6 +343,7 @@ def test_diagnostics_oracle_key_beats_holding_the_last_frame(tiny_state):
         assert diag["key_distance"][n]["upm_key_to_true"] > 0
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_same_seed_same_numbers(data_dir, cmu_file, tmp_path):
     a = evaluate.run(data_dir, tmp_path / "a", seed=3, settings=TINY, log=lambda m: None)
     b = evaluate.run(data_dir, tmp_path / "b", seed=3, settings=TINY, log=lambda m: None)

@@ -134,6 +134,7 @@ def test_bvh_write_bytes_atomic_is_still_importable():
 
 
 # -- kill -9 while the CLI writes ---------------------------------------------------------------
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_issue12_kill_9_leaves_the_old_or_the_new_file(tmp_path):
     """A few seeded kills of ``posturemap transition`` at random times (bench/crash_test.py: many)."""
     sys.path.insert(0, str(REPO / "bench"))

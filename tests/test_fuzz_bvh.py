@@ -15,11 +15,13 @@ import re
 import numpy as np
 import pytest
 
+from posturemap.core import quat
 from posturemap.io import bvh
 from posturemap.io.bvh import BVHError
 from posturemap.core.motion import Motion
 
 MAX_FRAMES = 40
+FUZZ_COUNT = 700  # mutations per source in the quick runs; the slow ones make 1500-2500
 
 TOKENS = [
     "{", "}", "{ }", "}}", "NaN", "nan", "-nan", "inf", "-inf", "Infinity", "1e999", "-1e999", "1e308",
@@ -151,11 +153,103 @@ def check_motion(m: Motion):
         assert np.all(np.isfinite(m.global_positions()))
 
 
+# Every message the reader may give, as a regex of BVHError.what, with what must hold of the
+# line it names (``line`` is that line's text, ``m`` the match); None: only the message is checked.
+def _tokens(line):
+    return line.split()
+
+
+def _nonfinite(token):
+    try:
+        return not np.isfinite(float(token))
+    except ValueError:
+        return False
+
+
+ERRORS = {
+    r"binary data, not a BVH text file": None,
+    r"empty file": None,
+    r"no HIERARCHY section \(not a BVH file\?\)": None,
+    r"missing MOTION section( \(unbalanced braces\))?": None,
+    r"expected '\{', found (.+)": lambda line, m: repr(_tokens(line)[0][:40]) == m[1],
+    r"MOTION before the hierarchy's braces are closed": lambda line, m: _tokens(line)[0].upper() == "MOTION",
+    r"no joints before MOTION": lambda line, m: _tokens(line)[0].upper() == "MOTION",
+    r"expected HIERARCHY, found (.+)": lambda line, m: repr(_tokens(line)[0][:40]) == m[1],
+    r"ROOT inside another joint": lambda line, m: _tokens(line)[0].upper() == "ROOT",
+    r"JOINT outside any ROOT": lambda line, m: _tokens(line)[0].upper() == "JOINT",
+    r"JOINT inside an End Site": lambda line, m: _tokens(line)[0].upper() == "JOINT",
+    r"(ROOT|JOINT) without a name": lambda line, m: len(_tokens(line)) == 1,
+    r"End Site in the wrong place": lambda line, m: _tokens(line)[0].upper() == "END",
+    r"'\{' without a joint": lambda line, m: _tokens(line)[0] == "{",
+    r"unexpected text after '\{'": lambda line, m: _tokens(line)[0] == "{" and len(_tokens(line)) > 1,
+    r"unbalanced '\}'": lambda line, m: _tokens(line)[0] == "}",
+    r"End Site without OFFSET": lambda line, m: _tokens(line)[0] == "}",
+    r"joint (.+) lacks OFFSET or CHANNELS": lambda line, m: _tokens(line)[0] == "}",
+    r"OFFSET outside a joint": lambda line, m: _tokens(line)[0].upper() == "OFFSET",
+    r"CHANNELS outside a joint": lambda line, m: _tokens(line)[0].upper() == "CHANNELS",
+    r"unexpected (.+) in HIERARCHY": lambda line, m: repr(_tokens(line)[0][:40]) == m[1],
+    r"OFFSET needs 3 numbers, found (\d+)": lambda line, m: len(_tokens(line)) - 1 == int(m[1]),
+    r"OFFSET has a non-numeric value": lambda line, m: _tokens(line)[0].upper() == "OFFSET",
+    r"OFFSET has a NaN or infinite value": lambda line, m: any(_nonfinite(t) for t in _tokens(line)[1:]),
+    r"CHANNELS needs a count": lambda line, m: _tokens(line)[0].upper() == "CHANNELS",
+    r"CHANNELS says (-?\d+) but lists (\d+)": lambda line, m: (int(m[1]) == int(_tokens(line)[1])
+                                                            and len(_tokens(line)) - 2 == int(m[2])),
+    r"unknown channel (.+)": lambda line, m: any(repr(t[:40]) == m[1] for t in _tokens(line)[2:]),
+    r"a channel is listed twice": lambda line, m: len({t.lower() for t in _tokens(line)[2:]}) < len(_tokens(line)) - 2,
+    r"(\d) rotation channels; need 0 or 3": lambda line, m: int(m[1]) != 3,
+    r"expected '(Frames:|Frame Time:)', found (.+)": lambda line, m: repr(" ".join(line.split())[:40]) == m[2],
+    r"MOTION without a frame count": lambda line, m: _tokens(line)[0].upper() == "MOTION",
+    r"frame count (.+) is not a number": lambda line, m: "FRAMES" in line.upper(),
+    r"frame count (.+) is not a whole number": lambda line, m: "FRAMES" in line.upper(),
+    r"absurd frame count (-?\d+)": lambda line, m: "FRAMES" in line.upper(),
+    r"missing 'Frame Time:'": None,
+    r"frame time (.+) is not a number": lambda line, m: "FRAME" in line.upper(),
+    r"frame time must be a positive number, got (.+)": lambda line, m: "FRAME" in line.upper(),
+    r"frame time (.+) is out of range \(must be a positive number from .*\)": lambda line, m: "FRAME" in line.upper(),
+    r"truncated: (\d+) frame lines but 'Frames: (\d+)'": lambda line, m: int(m[1]) < int(m[2]),
+    r"(\d+) frame lines beyond 'Frames: (\d+)'": lambda line, m: int(m[1]) >= 1 and line.strip() != "",
+    r"frame has (\d+) values, expected (\d+)": lambda line, m: (len(_tokens(line)) == int(m[1])
+                                                               and int(m[1]) != int(m[2])),
+    r"NaN or infinite value in frame data": lambda line, m: any(_nonfinite(t) for t in _tokens(line)),
+    r"non-numeric value (.+)": lambda line, m: any(repr(t[:40]) == m[1] for t in _tokens(line)),
+}
+ERROR_PATTERNS = [(re.compile(k), v) for k, v in ERRORS.items()]
+_LINE_BREAK = re.compile("\r\n|[\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")  # as str.splitlines()
+
+
+def error_kind(e: BVHError, data, label: str) -> str:
+    """The ERRORS pattern ``e`` matches, after checking the line it names; fails otherwise."""
+    assert str(e).startswith(label) and "\n" not in str(e), str(e)
+    assert e.path == label
+    text = data if isinstance(data, str) else _as_text(data)
+    lines = _LINE_BREAK.split(text)
+    for pattern, check in ERROR_PATTERNS:
+        m = pattern.fullmatch(e.what)
+        if m:
+            break
+    else:
+        pytest.fail(f"unknown message {e.what!r} for {label}")
+    if e.line is not None:
+        assert 1 <= e.line <= len(lines), (str(e), len(lines))
+        if check is not None:
+            line = lines[e.line - 1]
+            assert line.strip() and check(line, m), f"{e}: but line {e.line} is {line[:120]!r}"
+    return pattern.pattern
+
+
 def fuzz(sources: dict[str, bytes], count: int, seed: int, tmp_path, monkeypatch, compare_every: int = 3):
-    """Mutate each source ``count`` times; returns (accepted, rejected) counts."""
+    """Mutate each source ``count`` times; returns ``(accepted, {error pattern: count}, escapes)``.
+
+    Every rejection must be a BVHError with a known message whose line says what the message
+    claims; ``escapes`` lists the inputs (saved under ``tmp_path``) on which anything else
+    escaped ``bvh.loads``.
+    """
     rng = np.random.default_rng(seed)
     kernels = bvh._fast_kernels()
-    accepted = rejected = 0
+    assert kernels is not None  # the fast parser is the one under test; the general one checks it
+    accepted = 0
+    kinds: dict[str, int] = {}
+    escapes = []
     for name, original in sources.items():
         for k in range(count):
             data = mutate(original, rng)
@@ -165,14 +259,14 @@ def fuzz(sources: dict[str, bytes], count: int, seed: int, tmp_path, monkeypatch
             try:
                 result = bvh.loads(data, label)
             except BVHError as e:
-                assert str(e).startswith(label), str(e)
-                assert "\n" not in str(e)
+                kind = error_kind(e, data, label)
+                kinds[kind] = kinds.get(kind, 0) + 1
                 result = e
-                rejected += 1
             except Exception as e:  # noqa: BLE001 - that is the point of the test
                 saved = tmp_path / label
                 saved.write_bytes(data if isinstance(data, bytes) else data.encode("latin-1"))
-                pytest.fail(f"{type(e).__name__} escaped bvh.loads on {saved}: {e}")
+                escapes.append(f"{type(e).__name__} on {saved}: {e}")
+                continue
             else:
                 check_motion(result)
                 accepted += 1
@@ -180,6 +274,10 @@ def fuzz(sources: dict[str, bytes], count: int, seed: int, tmp_path, monkeypatch
                     back = bvh.loads(bvh.dumps(result), "round-trip")
                     assert back.skeleton.same_as(result.skeleton)
                     assert back.num_frames == result.num_frames
+                    np.testing.assert_allclose(back.positions, result.positions, rtol=1e-6, atol=1e-6)
+                    err = quat.angle_between(back.rotations, result.rotations).max()
+                    # 1e-4 rad: near gimbal lock the written Euler angles lose a few digits
+                    assert err < 1e-4 or _huge_number(data), (label, err)
             if k % compare_every == 0:  # the general parser agrees with the fast one
                 monkeypatch.setattr(bvh, "_fast_kernels", lambda: None)
                 try:
@@ -189,23 +287,59 @@ def fuzz(sources: dict[str, bytes], count: int, seed: int, tmp_path, monkeypatch
                 _assert_same_outcome(result, other, data, label)
             elif isinstance(data, bytes):  # bytes (header-only decoding) and str agree
                 _assert_same_outcome(result, _outcome(_as_text(data), label), data, label)
-    return accepted, rejected
+    return accepted, kinds, escapes
+
+
+# Messages each seeded run must produce (the mutations reach them; a reader that stops
+# checking one of these would let the inputs through or fail differently).
+FRAME_ERRORS = {
+    r"truncated: (\d+) frame lines but 'Frames: (\d+)'", r"(\d+) frame lines beyond 'Frames: (\d+)'",
+    r"frame has (\d+) values, expected (\d+)", r"NaN or infinite value in frame data", r"non-numeric value (.+)",
+}
+HIERARCHY_ERRORS = {
+    r"expected '\{', found (.+)", r"unbalanced '\}'", r"unknown channel (.+)", r"CHANNELS says (-?\d+) but lists (\d+)",
+    r"OFFSET needs 3 numbers, found (\d+)", r"missing MOTION section( \(unbalanced braces\))?",
+    r"unexpected (.+) in HIERARCHY", r"expected '(Frames:|Frame Time:)', found (.+)",
+}
+
+
+def check_run(accepted, kinds, escapes, total, min_accepted, required):
+    assert not escapes, f"{len(escapes)} exceptions other than BVHError escaped bvh.loads:\n" + "\n".join(escapes[:20])
+    rejected = sum(kinds.values())
+    assert accepted + rejected == total  # every input was either read or refused (no escape)
+    assert accepted >= min_accepted and rejected >= total // 2, (accepted, rejected)
+    missing = sorted(required - set(kinds))
+    assert not missing, f"no mutation produced {missing}; got {sorted(kinds)}"
 
 
 def test_fuzz_sample_clips(sample_clips, tmp_path, monkeypatch):
     sources = {name: _cut(bvh.dumps(clip)).encode() for name, clip in sample_clips.items()}
     sources["crlf"] = sources["walk"].replace(b"\n", b"\r\n")
-    accepted, rejected = fuzz(sources, count=2500, seed=1234, tmp_path=tmp_path, monkeypatch=monkeypatch)
-    assert accepted + rejected == 10000
-    assert accepted > 500 and rejected > 5000  # the mutations reach both outcomes
+    accepted, kinds, escapes = fuzz(sources, count=FUZZ_COUNT, seed=1234, tmp_path=tmp_path, monkeypatch=monkeypatch)
+    check_run(accepted, kinds, escapes, 4 * FUZZ_COUNT, FUZZ_COUNT // 5, FRAME_ERRORS | HIERARCHY_ERRORS)
+
+
+@pytest.mark.slow
+def test_fuzz_sample_clips_long(sample_clips, tmp_path, monkeypatch):
+    sources = {name: _cut(bvh.dumps(clip)).encode() for name, clip in sample_clips.items()}
+    sources["crlf"] = sources["walk"].replace(b"\n", b"\r\n")
+    accepted, kinds, escapes = fuzz(sources, count=2500, seed=4321, tmp_path=tmp_path, monkeypatch=monkeypatch)
+    check_run(accepted, kinds, escapes, 10000, 500, FRAME_ERRORS | HIERARCHY_ERRORS)
 
 
 def test_fuzz_real_files(bandai_files, cmu_file, tmp_path, monkeypatch):
     picks = [bandai_files[0], bandai_files[len(bandai_files) // 2], bandai_files[-1], cmu_file]
     sources = {p.stem: _cut(p.read_text()).encode() for p in picks}
-    accepted, rejected = fuzz(sources, count=1500, seed=99, tmp_path=tmp_path, monkeypatch=monkeypatch)
-    assert accepted + rejected == 6000
-    assert accepted > 300 and rejected > 3000
+    accepted, kinds, escapes = fuzz(sources, count=250, seed=99, tmp_path=tmp_path, monkeypatch=monkeypatch)
+    check_run(accepted, kinds, escapes, 1000, 50, FRAME_ERRORS | HIERARCHY_ERRORS)
+
+
+@pytest.mark.slow
+def test_fuzz_real_files_long(bandai_files, cmu_file, tmp_path, monkeypatch):
+    picks = [bandai_files[1], bandai_files[len(bandai_files) // 3], bandai_files[-2], cmu_file]
+    sources = {p.stem: _cut(p.read_text()).encode() for p in picks}
+    accepted, kinds, escapes = fuzz(sources, count=1500, seed=999, tmp_path=tmp_path, monkeypatch=monkeypatch)
+    check_run(accepted, kinds, escapes, 6000, 300, FRAME_ERRORS | HIERARCHY_ERRORS)
 
 
 def test_fuzz_large_inputs(sample_clips, tmp_path, monkeypatch):
@@ -216,8 +350,32 @@ def test_fuzz_large_inputs(sample_clips, tmp_path, monkeypatch):
     big = bvh.dumps(long_walk).encode()
     assert len(big) > 65536
     sources = {"big": big, "big-crlf": big.replace(b"\n", b"\r\n")}
-    accepted, rejected = fuzz(sources, count=300, seed=7, tmp_path=tmp_path, monkeypatch=monkeypatch)
-    assert accepted > 20 and rejected > 200
+    accepted, kinds, escapes = fuzz(sources, count=150, seed=7, tmp_path=tmp_path, monkeypatch=monkeypatch)
+    check_run(accepted, kinds, escapes, 300, 10, {r"truncated: (\d+) frame lines but 'Frames: (\d+)'",
+                                                        r"frame has (\d+) values, expected (\d+)", r"non-numeric value (.+)"})
+
+
+def test_fuzz_reports_what_escapes_and_unknown_messages(sample_clips, tmp_path, monkeypatch):
+    # The harness itself: an exception other than BVHError is collected (not swallowed), and a
+    # BVHError whose message or line is not one of ERRORS fails the test.
+    source = {"walk": _cut(bvh.dumps(sample_clips["walk"])).encode()}
+    real = bvh._parse_frames
+
+    def broken(raw, text, offset, last_lineno, num_frames, skeleton, path):
+        if num_frames % 3 == 1:
+            raise IndexError("a bug")
+        return real(raw, text, offset, last_lineno, num_frames, skeleton, path)
+
+    monkeypatch.setattr(bvh, "_parse_frames", broken)
+    _, _, escapes = fuzz(source, count=60, seed=5, tmp_path=tmp_path, monkeypatch=monkeypatch, compare_every=10**9)
+    assert escapes and all(e.startswith("IndexError on ") for e in escapes)
+    monkeypatch.setattr(bvh, "_parse_frames", real)
+    with pytest.raises(pytest.fail.Exception, match="unknown message"):
+        error_kind(BVHError("x.bvh", 3, "something new"), "a\nb\nc\n", "x.bvh")
+    with pytest.raises(AssertionError, match="but line 2 is"):  # the line does not hold what is claimed
+        error_kind(BVHError("x.bvh", 2, "frame has 2 values, expected 3"), "1 2\n1 2 3 4\n", "x.bvh")
+    with pytest.raises(AssertionError):  # a line beyond the file
+        error_kind(BVHError("x.bvh", 9, "NaN or infinite value in frame data"), "1 2\n", "x.bvh")
 
 
 def test_fuzz_sources_are_valid(sample_clips):

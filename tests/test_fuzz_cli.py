@@ -18,7 +18,9 @@ import fuzz_cli  # noqa: E402
 sys.path.pop(0)
 
 
-@pytest.mark.parametrize("kind, cases", [("bvh", 600), ("map", 400)])
+@pytest.mark.parametrize("kind, cases", [("bvh", 200), ("map", 150),
+                                         pytest.param("bvh", 600, marks=pytest.mark.slow),
+                                         pytest.param("map", 400, marks=pytest.mark.slow)])
 def test_issue12_cli_fuzz_has_no_escapes(tmp_path, kind, cases):
     result = fuzz_cli.fuzz(kind, cases, seed=12, folder=tmp_path)
     assert result["escapes"] == 0, result["examples"]

@@ -447,7 +447,20 @@ def check_one_error_line(code, err, *words):
         assert w in err[0], err[0]
 
 
-def test_cli_errors(bvh_dir, tmp_path, saved):
+def run_cli_here(capsys, *args):
+    """``posturemap ARGS`` in this process: (exit code, stdout, stderr lines)."""
+    try:
+        code = cli.main([str(a) for a in args])
+    except SystemExit as e:  # argparse errors
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err.splitlines()
+
+
+# In this process in the quick set; each case in a fresh interpreter (as users run it) in the slow set.
+@pytest.mark.parametrize("fresh", [pytest.param(False, id="in-process"),
+                                   pytest.param(True, id="fresh-process", marks=pytest.mark.slow)])
+def test_cli_errors(bvh_dir, tmp_path, saved, capsys, fresh):
     walk = bvh_dir / "walk.bvh"
     out = tmp_path / "out.npz"
     empty = tmp_path / "empty"
@@ -474,7 +487,7 @@ def test_cli_errors(bvh_dir, tmp_path, saved):
         (["train", walk, "--features", "quat", "-o", out], ["--features"]),
     ]
     for args, words in cases:
-        code, stdout, err = run_cli(*args)
+        code, stdout, err = run_cli(*args) if fresh else run_cli_here(capsys, *args)
         check_one_error_line(code, err, *words)
         assert stdout == ""
         assert not out.exists(), args  # nothing written when training fails

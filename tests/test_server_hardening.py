@@ -62,6 +62,7 @@ def test_issue12_malformed_requests_get_4xx_and_no_traceback(srv):
     assert srv.problems() == []
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_issue12_client_disconnect_mid_body_is_quiet(srv):
     before = len(srv.log)
     for _ in range(3):
@@ -90,6 +91,7 @@ def test_issue12_seeded_random_requests_never_5xx(srv):
     assert {200, 403, 415, 422} <= statuses  # the mix reaches the work, the guards and the validation
 
 
+@pytest.mark.slow  # seconds of waiting or a second full run: `make test-slow`
 def test_issue12_trickling_client_does_not_block_others(srv):
     result = server_fuzz.trickle_does_not_block(srv, 2.0)
     statuses = [s for _, s in result["latencies"]]

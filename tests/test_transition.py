@@ -217,18 +217,71 @@ def test_frame_count_and_clip_parts(clips, model, method, a_end, b_start, length
     last = len(a) - 1 if a_end is None else a_end
     assert len(out) == last + 1 + length + len(b) - b_start
     assert out.skeleton is a.skeleton and out.fps == a.fps
+    # A's part is A's frames, untouched.
     assert np.array_equal(out.rotations[: last + 1], a.rotations[: last + 1])
     assert np.array_equal(out.positions[: last + 1], a.positions[: last + 1])
-    assert np.all(np.isfinite(out.rotations)) and np.all(np.isfinite(out.positions))
+    # The new frames are what the engine makes for the same arguments.
+    engine = TransitionEngine(model)
+    engine.add("a", a)
+    engine.add("b", b)
+    rots, pos = engine.generate("a", "b", length, key_at, 0.5, a_end, b_start, method=method)
+    np.testing.assert_array_equal(out.rotations[last + 1: last + 1 + length], rots)
+    np.testing.assert_array_equal(out.positions[last + 1: last + 1 + length], pos)
+    np.testing.assert_allclose(np.linalg.norm(rots, axis=-1), 1.0, atol=1e-9)
+    assert np.all(np.isfinite(pos))
+    # B's part is B moved rigidly: every joint below the root turned by dtheta about up and
+    # shifted (global positions and rotations), local rotations below the root untouched.
+    tail = out[last + 1 + length:]
+    dtheta, shift = engine.last["dtheta"], engine.last["shift"]
+    sk = a.skeleton
+    hips = sk.index("Hips")
+    below = np.array([j for j in range(sk.num_joints) if hips in ancestors_and_self(sk.parents, j)])
+    g_tail, g_b = tail.global_positions(), b[b_start:].global_positions()
+    np.testing.assert_allclose(g_tail[:, below], about_up(g_b[:, below], dtheta) + shift, atol=1e-6)
+    turn = quat.from_axis_angle(up_vec(), np.float64(dtheta))
+    grot_tail = fk(sk.parents, tail.rotations, tail.positions)[0]
+    grot_b = fk(sk.parents, b.rotations[b_start:], b.positions[b_start:])[0]
+    assert quat.angle_between(grot_tail[:, below], quat.mul(np.broadcast_to(turn, grot_b[:, below].shape),
+                                                             grot_b[:, below])).max() < 1e-6
+    others = below[below != hips]
+    assert np.array_equal(tail.rotations[:, others], b.rotations[b_start:, others])
+    # Continuity at both seams: no joint jumps further than it moves elsewhere around them
+    # (the clip frames beside the seam and the new frames). The finer bounds are in
+    # test_seams_are_continuous_in_position_and_velocity.
+    g = out.global_positions()
+    step = np.linalg.norm(np.diff(g, axis=0), axis=-1).max(axis=-1)  # step[i]: frame i -> i+1
+    lo, hi = max(last - WINDOW, 0), min(last + length + WINDOW + 1, len(out) - 1)
+    for seam in (last, last + length):  # A's last -> first new; last new -> B's first
+        others_steps = np.delete(step[lo:hi], seam - lo)
+        assert step[seam] <= 3.0 * max(others_steps.max(), 1e-9) + 1.0, (method, seam, step[seam], others_steps.max())
+
+
+def ancestors_and_self(parents, j) -> set[int]:
+    out = {j}
+    while parents[j] >= 0:
+        j = int(parents[j])
+        out.add(j)
+    return out
 
 
 @pytest.mark.parametrize("length", [1, 2, 3])
 @pytest.mark.parametrize("method", KEYED)
 def test_default_key_at_works_for_short_transitions(clips, model, method, length):
-    # key_at defaults to length // 2, which is 0 (outside 1..length) for length 1.
+    # key_at defaults to max(1, length // 2): length // 2 is 0 (outside 1..length) for length 1.
     a, b = clips[RUN], clips[BACK]
     out = transition(a, b, model, length=length, method=method)
     assert len(out) == len(a) + length + len(b)
+    explicit = transition(a, b, model, length=length, key_at=max(1, length // 2), method=method)
+    np.testing.assert_array_equal(out.rotations, explicit.rotations)
+    np.testing.assert_array_equal(out.positions, explicit.positions)
+    if method in KEY_POSTURE:  # and that frame is the key posture
+        engine = TransitionEngine(model)
+        engine.add("a", a)
+        engine.add("b", b)
+        engine.generate("a", "b", length, method=method, foot_lock=False)
+        plain = transition(a, b, model, length=length, method=method, foot_lock=False)
+        at = len(a) + max(1, length // 2) - 1
+        assert_frame_is_key(plain[at], model, engine.last["key"], engine.last["neurons"], method, f"length {length}")
 
 
 # -- the key posture ------------------------------------------------------------------------
@@ -281,6 +334,46 @@ def test_frame_at_key_at_is_the_key_posture(clips, model, method):
         if 1 < key_at < length:
             before = out[last + key_at - 1].rotations[0, space.joints[1:]]
             assert quat.angle_between(before, engine.last["key"][0][1:]).max() > 1e-4
+
+
+@pytest.mark.parametrize("features", ["quat", "euler"])
+def test_upm_key_is_the_neuron_nearest_the_alpha_blend(clips, model, euler_model, features):
+    # Brute force with numpy: per class, the neuron of that class's map nearest the blend
+    # xa + alpha (xb - xa) of the seam postures (circular dimensions blended the short way
+    # round and wrapped, for Euler features); the engine's key must be that neuron's weights.
+    mdl = model if features == "quat" else euler_model
+    space = mdl.space_
+    circ = space.circular
+    names = [WALK, RUN, BOW, BACK]
+    engine = TransitionEngine(mdl)
+    for n in names:
+        engine.add(n, clips[n])
+    rng = np.random.default_rng(21)
+    checked = 0
+    for a, b in [(WALK, RUN), (BOW, BACK), (RUN, BOW), (BACK, WALK)]:
+        for alpha in (0.0, 0.25, 0.5, 0.8, 1.0):
+            a_end, b_start = int(rng.integers(len(clips[a]))), int(rng.integers(len(clips[b])))
+            xa, xb = mdl.encode(clips[a][a_end])[0], mdl.encode(clips[b][b_start])[0]
+            blend = xa + alpha * wrap_diff(xb, xa, circ)
+            blend = np.where(circ, np.mod(blend, 2 * np.pi), blend)
+            expected_key = space.fill.copy()
+            expected = []
+            for c, m in enumerate(mdl.maps_):
+                dims = space.class_dims[c]
+                d = np.linalg.norm(wrap_diff(m.weights_, blend[dims], circ[dims]), axis=1)
+                k = int(np.argmin(d))
+                assert np.sort(d)[1] - d[k] > 1e-9  # no tie: the nearest neuron is unambiguous
+                expected.append(k)
+                expected_key[dims] = m.weights_[k]
+            key, chosen = engine.key_features(xa, xb, alpha)
+            assert list(chosen) == expected, (features, a, b, alpha)
+            np.testing.assert_array_equal(key, expected_key)
+            engine.generate(a, b, alpha=alpha, a_end=a_end, b_start=b_start, method="upm")
+            assert list(engine.last["neurons"]) == expected, (features, a, b, alpha)
+            np.testing.assert_allclose(key_vector(mdl, engine.last["key"])[space.active & ~circ],
+                                       expected_key[space.active & ~circ], atol=1e-9)
+            checked += 1
+    assert checked == 20
 
 
 @pytest.mark.parametrize("method", NEURON_KEYS)
@@ -559,17 +652,54 @@ def test_alignment_faces_a_heading_even_when_a_ends_bent(clips, model):
 @pytest.mark.parametrize("method", METHODS)
 def test_every_method_runs_with_finite_output(clips, model, method):
     for a, b in PAIRS:
+        outs = []
         for alpha in (0.0, 0.5, 1.0):
             out = transition(clips[a], clips[b], model, alpha=alpha, method=method)
             assert len(out) == len(clips[a]) + 20 + len(clips[b])
             assert np.all(np.isfinite(out.rotations)) and np.all(np.isfinite(out.positions))
             np.testing.assert_allclose(np.linalg.norm(out.rotations, axis=-1), 1.0, atol=1e-9)
+            assert np.array_equal(out.rotations[: len(clips[a])], clips[a].rotations)
+            outs.append(out.rotations[len(clips[a]): len(clips[a]) + 20])
+        # alpha steers the methods that have a key (or a retrieval seam weighting), nothing else.
+        if method in KEY_POSTURE:
+            assert not np.allclose(outs[0], outs[2]), (method, a, b)
+        elif method not in KEYED:
+            assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2]), (method, a, b)
 
 
 @pytest.mark.parametrize("method", sorted(set(METHODS) - set(KEYED)))
-def test_methods_without_a_key_need_no_map(clips, method):
-    out = transition(clips[WALK], clips[RUN], None, method=method)
-    assert len(out) == len(clips[WALK]) + 20 + len(clips[RUN])
+def test_methods_without_a_key_need_no_map(clips, model, method):
+    a, b = clips[WALK], clips[RUN]
+    out = transition(a, b, None, method=method, foot_lock=False)
+    assert len(out) == len(a) + 20 + len(b)
+    new = out[len(a): len(a) + 20]
+    # Joints below the root: slerp goes from A's last to B's first frame along the shortest arc;
+    # spline and inertialize start from A's last frame and end in B's first.
+    sk = a.skeleton
+    joints = [j for j in range(sk.num_joints) if sk.parents[j] >= 0 and j != sk.index("Hips")
+              and sk.index("Hips") in ancestors_and_self(sk.parents, j)]
+    # Without a map, the same joints below the root as with one (the map's upright rest pose
+    # only changes how the root is split into heading and tilt).
+    with_map = transition(a, b, model, method=method, foot_lock=False)
+    np.testing.assert_allclose(np.abs(quat.dot(with_map.rotations[:, joints], out.rotations[:, joints])), 1.0,
+                               atol=1e-12)
+    np.testing.assert_allclose(with_map.positions[:, joints], out.positions[:, joints], atol=1e-9)
+    u = np.arange(1, 21) / 21.0
+    qa = np.broadcast_to(a.rotations[-1, joints], (20, len(joints), 4))
+    qb = np.broadcast_to(b.rotations[0, joints], (20, len(joints), 4))
+    if method == "slerp":
+        expected = quat.slerp(qa, qb, np.broadcast_to(u[:, None], (20, len(joints))))
+        got = new.rotations[:, joints]
+        np.testing.assert_allclose(got * np.sign(quat.dot(got, expected))[..., None], expected, atol=1e-9)
+        np.testing.assert_allclose(new.positions[:, joints],  # local translations: straight lines
+                                   a.positions[-1, joints] + u[:, None, None] * (b.positions[0, joints]
+                                                                                - a.positions[-1, joints]),
+                                   atol=1e-9)
+    else:
+        first = quat.angle_between(new.rotations[0, joints], a.rotations[-1, joints]).max()
+        last = quat.angle_between(new.rotations[-1, joints], b.rotations[0, joints]).max()
+        whole = quat.angle_between(a.rotations[-1, joints], b.rotations[0, joints]).max()
+        assert first < 0.5 * whole and last < 0.5 * whole, (first, last, whole)
 
 
 @pytest.mark.parametrize("method", KEYED)

@@ -1,0 +1,551 @@
+"""Every numba kernel against a plain numpy (or Python) reference, on seeded random input.
+
+One test per compiled function (helpers included: a wrong ``_mul`` would hide in every kernel
+that uses it), each comparing the compiled result with a reference written here or taken from
+:mod:`posturemap.core.quat`, :mod:`posturemap.core.skeleton`, scipy or the numpy path of the
+same module. Each test is registered with :func:`crosschecks`; ``test_every_kernel_is_crosschecked``
+lists the compiled functions of the kernel modules (and of any other module that mentions
+``njit``) and fails when one has no registered cross-check, so a new kernel cannot slip through.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import types
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from posturemap.core import kernels, quat
+from posturemap.core.skeleton import fk as fk_reference
+from posturemap.io import bvh
+from posturemap.synth import retrieval
+
+NK = kernels.compiled()  # posturemap.core.numba_kernels
+from posturemap.synth import retrieval_numba as RN  # noqa: E402 - needs numba loaded first
+
+BVH_KERNELS = bvh._fast_kernels()  # the BVH reader's two kernels, compiled once numba is in use
+SRC = Path(__file__).resolve().parent.parent / "src" / "posturemap"
+
+CHECKED: set[str] = set()  # "module:function" names with a cross-check below
+
+
+def crosschecks(*names):
+    """Register the decorated test as the cross-check of the compiled functions ``names``."""
+    CHECKED.update(names)
+    return lambda test: test
+
+
+def random_quats(rng, shape) -> np.ndarray:
+    """Unit quaternions (shape..., 4) with random signs (both hemispheres)."""
+    q = quat.normalize(rng.normal(size=tuple(shape) + (4,)))
+    return q * np.where(rng.random(tuple(shape) + (1,)) < 0.5, -1.0, 1.0)
+
+
+def same_rotation(a, b, atol=1e-12):
+    """Quaternions equal up to sign (q and -q are one rotation)."""
+    d = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
+    np.testing.assert_allclose(d, 1.0, atol=atol)
+
+
+def wrapped(d, period):
+    """Differences wrapped into [-p/2, p/2) where ``period`` is finite."""
+    p = np.where(np.isfinite(period), period, 1.0)
+    return np.where(np.isfinite(period), d - p * np.floor(d / p + 0.5), d)
+
+
+def periodic_sqdist(x, W, period):
+    """Squared distances (n,) from ``x (d,)`` to the rows of ``W (n, d)``: per dimension
+    min(|d|, p - |d|) where the period p is finite."""
+    d = np.abs(W - x)
+    d = np.where(np.isfinite(period), np.minimum(d, period - d), d)
+    return (d * d).sum(-1)
+
+
+def mixed_data(rng, n, d, circular_fraction=0.5, scale=1.0):
+    """Rows (n, d) and a period (d,): 2 pi on about ``circular_fraction`` of the dims, else inf."""
+    period = np.where(rng.random(d) < circular_fraction, 2 * np.pi, np.inf)
+    rows = np.where(np.isinf(period), rng.normal(scale=scale, size=(n, d)), rng.uniform(0, 2 * np.pi, (n, d)))
+    return rows, period
+
+
+# -- quaternion helpers ---------------------------------------------------------------------
+@crosschecks("numba_kernels:_mul", "numba_kernels:_rotate")
+def test_mul_and_rotate_match_quat():
+    rng = np.random.default_rng(101)
+    a, b = random_quats(rng, (50,)), random_quats(rng, (50,))
+    a[0] *= 3.0  # not unit: the product is still bilinear
+    v = rng.normal(scale=20.0, size=(50, 3))
+    for i in range(50):
+        np.testing.assert_allclose(NK._mul(*a[i], *b[i]), quat.mul(a[i], b[i]), atol=1e-15, rtol=1e-14)
+        if i:
+            np.testing.assert_allclose(NK._rotate(*a[i], *v[i]), quat.mul_vec(a[i], v[i]), atol=1e-12)
+            np.testing.assert_allclose(NK._rotate(*a[i], *v[i]), Rotation.from_quat(np.roll(a[i], -1)).apply(v[i]),
+                                       atol=1e-12)
+
+
+@crosschecks("retrieval_numba:_log_rel", "retrieval_numba:_row")
+def test_log_rel_is_the_short_arc_log_of_p_times_q_inverse():
+    rng = np.random.default_rng(102)
+    p, q = random_quats(rng, (60,)), random_quats(rng, (60,))
+    q[0] = p[0]  # zero
+    q[1] = quat.mul(quat.exp(np.array([1e-10, -2e-10, 0.0])), p[1])  # the series branch
+    q[2] = -p[2]  # same rotation, other sign
+    for i in range(60):
+        assert RN._row(p[i]) == tuple(p[i])
+        got = np.array(RN._log_rel(RN._row(p[i]), RN._row(q[i])))
+        rel = quat.mul(p[i], quat.inv(q[i]))
+        rel = rel if rel[0] >= 0 else -rel
+        np.testing.assert_allclose(got, Rotation.from_quat(np.roll(rel, -1)).as_rotvec(), atol=1e-12)
+        assert np.linalg.norm(got) <= np.pi + 1e-12
+    assert np.abs(RN._log_rel(RN._row(p[2]), RN._row(q[2]))).max() < 1e-12
+
+
+@crosschecks("retrieval_numba:_sample")
+def test_sample_is_the_sign_aligned_normalised_lerp():
+    rng = np.random.default_rng(103)
+    rots = random_quats(rng, (30, 4)).astype(np.float32)  # the library stores float32
+    for _ in range(40):
+        i0, i1, j = int(rng.integers(30)), int(rng.integers(30)), int(rng.integers(4))
+        f = float(rng.random())
+        a, b = rots[i0, j].astype(np.float64), rots[i1, j].astype(np.float64)
+        b = -b if a @ b < 0 else b
+        ref = (a + f * (b - a)) / np.linalg.norm(a + f * (b - a))
+        # 1e-7: numba's float() of a float32 stays float32, so b - a is rounded to float32
+        # (the numpy path subtracts in float64); float32 rows carry no more than that anyway.
+        np.testing.assert_allclose(RN._sample(rots, i0, i1, f, j), ref, atol=1e-7)
+        assert abs(np.linalg.norm(RN._sample(rots, i0, i1, f, j)) - 1.0) < 1e-12
+
+
+# -- per-transition kernels -----------------------------------------------------------------
+@crosschecks("numba_kernels:log_relative", "numba_kernels:exp_relative")
+def test_log_relative_and_exp_relative_match_scipy():
+    rng = np.random.default_rng(104)
+    n, j = 30, 6
+    ref, q = random_quats(rng, (j,)), random_quats(rng, (n, j))
+    q[0] = quat.mul(ref, quat.exp(rng.normal(size=(j, 3)) * 1e-10))  # the series branch
+    q[1] = -ref  # zero rotation on the other sign
+    out = np.empty((n, j, 3))
+    NK.log_relative(q, ref, out)
+    rel = quat.mul(quat.inv(ref), q)
+    rel = np.where(rel[..., :1] < 0, -rel, rel)
+    expected = Rotation.from_quat(np.roll(rel, -1, axis=-1).reshape(-1, 4)).as_rotvec().reshape(n, j, 3)
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    assert np.abs(out[1]).max() < 1e-12
+
+    r = rng.normal(scale=1.5, size=(n, j, 3))
+    r[0] = rng.normal(size=(j, 3)) * 1e-10  # the series branch
+    back = np.empty((n, j, 4))
+    NK.exp_relative(r, ref, back)
+    expected = quat.mul(ref, np.roll(Rotation.from_rotvec(r.reshape(-1, 3)).as_quat().reshape(n, j, 4), 1, axis=-1))
+    same_rotation(back, expected)
+    np.testing.assert_allclose(back[..., 0] * expected[..., 0] >= 0, True)  # the same sign as ref * exp(r)
+    np.testing.assert_allclose(back, expected, atol=1e-12)
+
+
+@crosschecks("numba_kernels:fk")
+def test_fk_matches_the_reference_forward_kinematics():
+    rng = np.random.default_rng(105)
+    parents = np.array([-1, 0, 1, 2, 1, 4, 0, 6, -1, 8])  # two roots
+    n = 12
+    rots, positions = random_quats(rng, (n, len(parents))), rng.normal(scale=30.0, size=(n, len(parents), 3))
+    grot, gpos = np.empty((n, len(parents), 4)), np.empty((n, len(parents), 3))
+    NK.fk(parents, rots, positions, grot, gpos)
+    ref_rot, ref_pos = fk_reference(parents, rots, positions)
+    np.testing.assert_allclose(grot, ref_rot, atol=1e-12)
+    np.testing.assert_allclose(gpos, ref_pos, atol=1e-10)
+    # Joint 5 by hand: 0 -> 1 -> 4 -> 5 with rotation matrices.
+    m = Rotation.from_quat(np.roll(rots[:, 0], -1, axis=-1))
+    p = positions[:, 0].copy()
+    for c in (1, 4, 5):
+        p = p + m.apply(positions[:, c])
+        m = m * Rotation.from_quat(np.roll(rots[:, c], -1, axis=-1))
+    np.testing.assert_allclose(gpos[:, 5], p, atol=1e-10)
+
+
+@pytest.mark.parametrize("chain_len", [0, 3])
+@crosschecks("numba_kernels:compose_root")
+def test_compose_root_puts_the_root_at_its_global_pose(chain_len):
+    # The defining property: after compose_root, forward kinematics through the root's
+    # ancestors gives the root the global rotation heading * tilt and the global position gpos.
+    rng = np.random.default_rng(106 + chain_len)
+    n, up = 15, 1
+    parents = np.array(list(range(-1, chain_len)) + [chain_len])  # chain 0..chain_len-1, root, child
+    root = chain_len
+    rots = random_quats(rng, (n, len(parents)))
+    positions = rng.normal(scale=40.0, size=(n, len(parents), 3))
+    gpos, heading = rng.normal(scale=100.0, size=(n, 3)), rng.uniform(-7, 7, n)
+    tilt = rots[:, root].copy()
+    r, p = rots.copy(), positions.copy()
+    NK.compose_root(np.arange(chain_len, dtype=np.int64), root, up, r, p, gpos, heading)
+    grot, g = fk_reference(parents, r, p)
+    turn = Rotation.from_rotvec(np.outer(heading, np.eye(3)[up]))
+    want = turn * Rotation.from_quat(np.roll(tilt, -1, axis=-1))
+    same_rotation(grot[:, root], np.roll(want.as_quat(), 1, axis=-1), atol=1e-12)
+    np.testing.assert_allclose(g[:, root], gpos, atol=1e-9)
+    others = np.arange(len(parents)) != root
+    np.testing.assert_array_equal(r[:, others], rots[:, others])  # nothing else changes
+    np.testing.assert_array_equal(p[:, others], positions[:, others])
+
+
+@pytest.mark.parametrize("circular", [False, True])
+@crosschecks("numba_kernels:nearest", "numba_kernels:nearest_linear", "numba_kernels:nearest_many")
+def test_nearest_kernels_match_a_brute_force_scan(circular):
+    rng = np.random.default_rng(107 + circular)
+    W, period = mixed_data(rng, 200, 9, 0.5 if circular else 0.0)
+    X, _ = mixed_data(np.random.default_rng(7), 40, 9, 0.0, scale=1.5)
+    X = np.where(np.isinf(period), X, np.mod(X * 3.0, 2 * np.pi))
+    W[17] = W[5]  # a tie: the lower index wins
+    X[0] = W[5]
+    truth = np.array([np.argmin(periodic_sqdist(x, W, period)) for x in X])
+    assert truth[0] == 5
+    got = [NK.nearest(W, x, period) for x in X]
+    assert got == truth.tolist()
+    many = np.empty(len(X), dtype=np.int64)
+    NK.nearest_many(W, X, period, many)
+    assert many.tolist() == truth.tolist()
+    if not circular:
+        assert [NK.nearest_linear(W, x) for x in X] == truth.tolist()
+    else:  # the periodic metric matters here: a linear scan picks other rows
+        assert [NK.nearest_linear(W, x) for x in X] != truth.tolist()
+
+
+@pytest.mark.parametrize("circular", [False, True])
+@crosschecks("numba_kernels:project_to_map")
+def test_project_to_map_matches_a_numpy_projection(circular):
+    rng = np.random.default_rng(109 + circular)
+    W, period = mixed_data(rng, 80, 6, 0.5 if circular else 0.0)
+    X = np.where(np.isinf(period), rng.normal(scale=2.0, size=(50, 6)), rng.uniform(-1, 7.5, (50, 6)))
+    k = np.array([np.argmin(periodic_sqdist(x, W, period)) for x in X])
+    diff = wrapped(X - W[k], period)
+    dist = np.linalg.norm(diff, axis=1)
+    limit = float(np.median(dist))
+    expected = W[k] + diff * np.minimum(1.0, limit / dist)[:, None]
+    expected = np.where(np.isfinite(period), np.mod(expected, np.where(np.isfinite(period), period, 1.0)), expected)
+    out, idx = np.empty_like(X), np.empty(len(X), dtype=np.int64)
+    NK.project_to_map(W, X, period, limit, out, idx)
+    assert idx.tolist() == k.tolist()
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    moved = dist > limit
+    assert moved.any() and (~moved).any()
+    np.testing.assert_allclose(np.linalg.norm(wrapped(out - W[k], period), axis=1),
+                               np.minimum(dist, limit), atol=1e-12)
+    if circular:
+        assert np.all((out[:, np.isfinite(period)] >= 0) & (out[:, np.isfinite(period)] < 2 * np.pi))
+
+
+@crosschecks("numba_kernels:key_from_blend")
+def test_key_from_blend_takes_the_nearest_neuron_of_each_class():
+    rng = np.random.default_rng(111)
+    dims = [np.array([6, 0, 3]), np.array([1, 2, 7]), np.array([5]), np.array([4, 8])]
+    maps = [rng.normal(size=(int(rng.integers(3, 60)), len(d))) for d in dims]
+    weights = np.concatenate([w.ravel() for w in maps])
+    offsets = np.concatenate([[0], np.cumsum([w.size for w in maps])[:-1]]).astype(np.int64)
+    counts = np.array([len(w) for w in maps], dtype=np.int64)
+    dim_index = np.concatenate(dims).astype(np.int64)
+    dim_offsets = np.concatenate([[0], np.cumsum([len(d) for d in dims])]).astype(np.int64)
+    for trial in range(20):
+        blend = rng.normal(size=9)
+        key, chosen = np.full(10, np.nan), np.empty(len(dims), dtype=np.int64)
+        NK.key_from_blend(weights, offsets, counts, dim_index, dim_offsets, blend, key, chosen)
+        for c, d in enumerate(dims):
+            best = int(np.argmin(np.linalg.norm(maps[c] - blend[d], axis=1)))
+            assert chosen[c] == best, (trial, c)
+            np.testing.assert_array_equal(key[d], maps[c][best])
+        assert np.isnan(key[9])  # dimensions of no class are left alone
+
+
+# -- UPM training ---------------------------------------------------------------------------
+@crosschecks("numba_kernels:sqdist")
+def test_sqdist_matches_numpy():
+    rng = np.random.default_rng(112)
+    W, period = mixed_data(rng, 50, 7)
+    x = np.where(np.isinf(period), rng.normal(size=7), rng.uniform(0, 2 * np.pi, 7))
+    out = np.full(50, -1.0)
+    NK.sqdist(x, W, 40, period, out)  # only the first n rows
+    np.testing.assert_allclose(out[:40], periodic_sqdist(x, W[:40], period), rtol=1e-12)
+    assert np.all(out[40:] == -1.0)
+
+
+def move_reference(w, x, gain, period):
+    d = wrapped(x - w, period)
+    v = w + gain * d
+    p = np.where(np.isfinite(period), period, 1.0)
+    v = np.where(np.isfinite(period), v - p * np.floor(v / p), v)
+    return np.where(np.isfinite(period) & (v >= p), 0.0, v)
+
+
+@crosschecks("numba_kernels:move")
+def test_move_steps_towards_the_sample_across_the_wrap():
+    rng = np.random.default_rng(113)
+    for _ in range(30):
+        w, period = mixed_data(rng, 1, 8)
+        w = w[0]
+        x = np.where(np.isinf(period), rng.normal(size=8), rng.uniform(0, 2 * np.pi, 8))
+        gain = float(rng.uniform(0, 1))
+        expected = move_reference(w, x, gain, period)
+        got = w.copy()
+        NK.move(got, x, gain, period)
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+    # Across the wrap: from 0.1 towards 2 pi - 0.1 is a step down through 0.
+    got = np.array([0.1])
+    NK.move(got, np.array([2 * np.pi - 0.1]), 0.75, np.array([2 * np.pi]))
+    np.testing.assert_allclose(got, [2 * np.pi - 0.05], atol=1e-12)
+
+
+def upm_epoch_reference(X, order, start, W, n, witness, edges_of, n_graph, period, r2, eta0, step0, total, hops,
+                        win, second):
+    """A plain Python UPM epoch (the paper's online rule), written without the kernel's buffers."""
+    cap = len(W)
+    step = step0
+    for s in range(start, len(order)):
+        if n >= cap:
+            return s, n, step - step0
+        i = order[s]
+        x = X[i]
+        eta = eta0 * max(0.0, 1.0 - step / total)
+        step += 1
+        if n == 0:
+            W[0], witness[0], win[i], second[i], n = x, i, 0, -1, 1
+            continue
+        dist = periodic_sqdist(x, W[:n], period)
+        ranked = np.argsort(dist, kind="stable")
+        b = int(ranked[0])
+        if dist[b] > r2:  # a new neuron at the sample
+            W[n], witness[n], win[i], second[i] = x, i, n, b
+            n += 1
+            continue
+        win[i], second[i] = b, (int(ranked[1]) if n > 1 else -1)
+        W[b] = move_reference(W[b], x, eta, period)
+        witness[b] = i
+        if hops > 0 and b < n_graph:
+            seen, frontier = {b}, [b]
+            for h in range(1, hops + 1):  # neighbours h edges away, moved less the farther
+                nxt = []
+                for u in frontier:
+                    for v in (edges_of.get(u, ()) if u < n_graph else ()):
+                        if v not in seen:
+                            seen.add(v)
+                            nxt.append(v)
+                            if dist[v] <= r2:
+                                W[v] = move_reference(W[v], x, eta * (1.0 - h / (hops + 1.0)), period)
+                                witness[v] = i
+                frontier = nxt
+    return len(order), n, step - step0
+
+
+@pytest.mark.parametrize("cap, hops, circular", [(60, 2, False), (60, 1, True), (12, 2, True), (60, 0, False)])
+@crosschecks("numba_kernels:upm_epoch")
+def test_upm_epoch_matches_a_plain_python_epoch(cap, hops, circular):
+    from posturemap.learn.upm import graph_csr
+
+    rng = np.random.default_rng(114 + cap + hops + circular)
+    d = 5
+    X, period = mixed_data(rng, 120, d, 0.6 if circular else 0.0)
+    n0 = 8
+    W0 = np.zeros((cap, d))
+    W0[:n0] = X[rng.choice(len(X), n0, replace=False)] + rng.normal(scale=0.1, size=(n0, d))
+    W0[:n0] = np.where(np.isfinite(period), np.mod(W0[:n0], 2 * np.pi), W0[:n0])
+    edges = np.array([(a, b) for a in range(n0) for b in range(a + 1, n0) if rng.random() < 0.4])
+    ptr, idx = graph_csr(edges, n0)
+    edges_of = {u: idx[ptr[u]: ptr[u + 1]].tolist() for u in range(n0)}
+    # A radius that both adds neurons and moves existing ones.
+    r2 = float(np.quantile([periodic_sqdist(x, W0[:n0], period).min() for x in X], 0.7))
+    order = rng.permutation(len(X))
+    args = dict(start=3, n=n0, period=period, r2=r2, eta0=0.5, step0=7, total=500.0, hops=hops)
+
+    W, witness = W0.copy(), np.full(cap, -1, dtype=np.int64)
+    win, second = np.full(len(X), -9, dtype=np.int64), np.full(len(X), -9, dtype=np.int64)
+    got = NK.upm_epoch(X, order, args["start"], W, args["n"], witness, ptr, idx, period, r2, 0.5, 7, 500.0, hops,
+                       win, second, np.empty(cap), np.full(cap, -1, dtype=np.int64), np.empty(cap, dtype=np.int64),
+                       np.empty(cap, dtype=np.int64))
+    W_ref, witness_ref = W0.copy(), np.full(cap, -1, dtype=np.int64)
+    win_ref, second_ref = np.full(len(X), -9, dtype=np.int64), np.full(len(X), -9, dtype=np.int64)
+    expected = upm_epoch_reference(X, order, 3, W_ref, n0, witness_ref, edges_of, n0, period, r2, 0.5, 7, 500.0,
+                                   hops, win_ref, second_ref)
+    assert tuple(got) == expected
+    np.testing.assert_allclose(W, W_ref, atol=1e-12)
+    np.testing.assert_array_equal(witness, witness_ref)
+    np.testing.assert_array_equal(win, win_ref)
+    np.testing.assert_array_equal(second, second_ref)
+    assert expected[1] > n0  # neurons were added
+    if cap == 12:
+        assert expected[0] < len(order)  # stopped early: the weight array is full
+    elif hops:
+        moved_neighbours = [v for v in range(n0) if not np.allclose(W[v], W0[v]) and witness[v] >= 0]
+        assert len(moved_neighbours) >= 2
+
+
+@crosschecks("numba_kernels:two_nearest")
+def test_two_nearest_matches_numpy():
+    rng = np.random.default_rng(115)
+    X, period = mixed_data(rng, 70, 6)
+    W, _ = mixed_data(rng, 30, 6)
+    W = np.where(np.isinf(period), W, np.mod(W, 2 * np.pi))
+    for n in (1, 25):
+        win, second, err = np.empty(70, dtype=np.int64), np.empty(70, dtype=np.int64), np.empty(70)
+        NK.two_nearest(X, W, n, period, win, second, err)
+        dist = np.array([periodic_sqdist(x, W[:n], period) for x in X])
+        ranked = np.argsort(dist, axis=1, kind="stable")
+        np.testing.assert_array_equal(win, ranked[:, 0])
+        np.testing.assert_array_equal(second, ranked[:, 1] if n > 1 else -1)
+        np.testing.assert_allclose(err, np.sqrt(dist.min(1)), rtol=1e-12)
+
+
+@crosschecks("numba_kernels:nearest_sample_dist")
+def test_nearest_sample_dist_matches_numpy():
+    rng = np.random.default_rng(116)
+    X, period = mixed_data(rng, 90, 5)
+    W, _ = mixed_data(rng, 25, 5)
+    W = np.where(np.isinf(period), W, np.mod(W, 2 * np.pi))
+    hint = rng.integers(-1, 90, 25)  # -1: no hint
+    got = NK.nearest_sample_dist(W, X, period, hint)
+    expected = np.array([np.sqrt(periodic_sqdist(w, X, period).min()) for w in W])
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+# -- retrieval --------------------------------------------------------------------------------
+@pytest.mark.parametrize("k", [1, 4])
+@crosschecks("retrieval_numba:replay")
+def test_replay_matches_the_numpy_retrieval_path(k):
+    rng = np.random.default_rng(117 + k)
+    n_lib, j, length = 200, 6, 9
+    lib = types.SimpleNamespace(rots=random_quats(rng, (n_lib, j)).astype(np.float32))
+    t = length + 4  # samples at -1 .. d + 1 of a gap d = length + 1
+    i0 = rng.integers(0, n_lib - 1, (k, t))
+    i1 = np.minimum(i0 + 1, n_lib - 1)
+    f = rng.random((k, t))
+    joints = np.array([0, 2, 3, 5])
+    a2, b2 = random_quats(rng, (2, len(joints))), random_quats(rng, (2, len(joints)))
+    curves = retrieval.hermite_offsets(length, 4.0)
+    expected = retrieval.average_rotations(retrieval.offset_rotations(
+        retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    out = np.empty((length, len(joints), 4))
+    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+    same_rotation(out, expected, atol=1e-12)
+    assert quat.angle_between(out, expected).max() < 1e-6  # float32 rounding (see _sample's test)
+
+
+@crosschecks("retrieval_numba:seam_costs")
+def test_seam_costs_match_numpy():
+    rng = np.random.default_rng(118)
+    pm, vm = rng.normal(size=(300, 7)).astype(np.float32), rng.normal(size=(300, 4)).astype(np.float32)
+    frames, vframes = rng.integers(0, 300, 120), rng.integers(0, 300, 120)
+    p, v = rng.normal(size=7).astype(np.float32), rng.normal(size=4).astype(np.float32)
+    rate = rng.uniform(0.5, 2.0, 120)
+    out = np.empty(120)
+    RN.seam_costs(pm, vm, frames, vframes, p, v, rate, out)
+    pm64, vm64 = pm.astype(np.float64), vm.astype(np.float64)
+    expected = (((pm64[frames] - p) ** 2).sum(1)
+                + ((rate[:, None] * vm64[vframes] - v.astype(np.float64)) ** 2).sum(1))
+    np.testing.assert_allclose(out, expected, rtol=1e-6)
+
+
+# -- BVH reading --------------------------------------------------------------------------------
+def _format_number(rng) -> str:
+    kind = int(rng.integers(6))
+    x = float(rng.normal(scale=10.0 ** int(rng.integers(-3, 4))))
+    if kind == 0:
+        return f"{x:.6f}"
+    if kind == 1:
+        return repr(x)  # up to 17 digits
+    if kind == 2:
+        return f"{x:.3e}".replace("e", "E" if rng.random() < 0.5 else "e")
+    if kind == 3:
+        return str(int(rng.integers(-500, 500))) + ("." if rng.random() < 0.3 else "")
+    if kind == 4:
+        return f"{x:.25f}"  # more than 18 digits: the kernel hands it to Python
+    return ("+" if rng.random() < 0.5 else "-") + f"{abs(x):.4f}e{int(rng.integers(-40, 40))}"
+
+
+@crosschecks("bvh:parse_frames")
+def test_parse_frames_kernel_matches_python_float():
+    rng = np.random.default_rng(119)
+    frames, channels = 25, 9
+    tokens = [[_format_number(rng) for _ in range(channels)] for _ in range(frames)]
+    seps = [" ", "\t", "  "]
+    ends = ["\n", "\r\n", "\r", "\n\n"]
+    text = "".join(rng.choice(seps).join(row) + rng.choice(ends) for row in tokens)
+    buf = np.frombuffer(text.encode("ascii"), dtype=np.uint8)
+    out, slow = np.full(frames * channels, np.nan), np.empty((4096, 3), dtype=np.int64)
+    status, num_slow = BVH_KERNELS.parse_frames(buf, frames, channels, out, slow)
+    assert status == 0
+    assert num_slow > 0  # some numbers took the slow path
+    for k, start, end in slow[:num_slow]:
+        out[k] = float(buf[start:end].tobytes())
+    expected = np.array([float(t) for row in tokens for t in row])
+    np.testing.assert_array_equal(out, expected)  # exact: correctly rounded, as float() is
+    # What the kernel refuses, and with which status (the caller then uses the general parser).
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    body = [ln for ln in lines if ln.strip()]
+    cases = {
+        1: "\n".join(body[:3] + [" ".join(body[3].split()[:-1])] + body[4:]) + "\n",  # a short line
+        2: "\n".join(body + body[:1]) + "\n",  # an extra line
+        3: "\n".join(body[:2] + [body[2].replace(body[2].split()[0], "1x", 1)] + body[3:]) + "\n",  # a bad number
+        5: "\n".join(body[:-1]) + "\n",  # a line missing
+    }
+    for want, case in cases.items():
+        buf = np.frombuffer(case.encode("ascii"), dtype=np.uint8)
+        status, _ = BVH_KERNELS.parse_frames(buf, frames, channels, np.empty(frames * channels), slow)
+        assert status == want, (want, status)
+
+
+@crosschecks("bvh:euler_to_quat")
+def test_euler_to_quat_kernel_matches_scipy():
+    rng = np.random.default_rng(120)
+    orders = ["ZXY", "XYZ", "ZYX", "YXZ", "XZY", "YZX"]
+    n_frames, n_joints = 40, len(orders)
+    values = rng.uniform(-180, 180, size=(n_frames, 3 * n_joints + 2))
+    values[:5] *= 7.0  # beyond +-180: reported
+    cols = np.arange(2, 2 + 3 * n_joints).reshape(n_joints, 3)[rng.permutation(n_joints)]
+    joints = np.arange(1, n_joints + 1)
+    axes = np.array([["XYZ".index(c) for c in o] for o in orders])
+    out = np.full((n_frames, n_joints + 2, 4), np.nan)
+    assert BVH_KERNELS.euler_to_quat(values, joints, cols, axes, out)
+    for n, order in enumerate(orders):
+        expected = np.roll(Rotation.from_euler(order, values[:, cols[n]], degrees=True).as_quat(), 1, axis=-1)
+        same_rotation(out[:, joints[n]], expected, atol=1e-12)
+        np.testing.assert_allclose(out[:, joints[n]], quat.from_euler(np.radians(values[:, cols[n]]), order),
+                                   atol=1e-12)
+    assert np.isnan(out[:, 0]).all() and np.isnan(out[:, -1]).all()  # other joints untouched
+    assert not BVH_KERNELS.euler_to_quat(values[5:], joints, cols, axes, out[5:])  # within [-180, 180]
+
+
+# -- nothing compiled goes unchecked ---------------------------------------------------------
+KERNEL_MODULES = {"numba_kernels": NK, "retrieval_numba": RN}
+
+
+def compiled_functions() -> set[str]:
+    """``module:function`` of every numba dispatcher defined in the kernel modules, plus the
+    BVH reader's compiled kernels."""
+    found = set()
+    for short, module in KERNEL_MODULES.items():
+        for name, obj in vars(module).items():
+            if isinstance(obj, numba.core.registry.CPUDispatcher) and obj.py_func.__module__ == module.__name__:
+                found.add(f"{short}:{name}")
+    import dataclasses
+
+    found |= {f"bvh:{f.name}" for f in dataclasses.fields(BVH_KERNELS)}
+    return found
+
+
+def test_every_kernel_is_crosschecked():
+    found = compiled_functions()
+    assert len(found) >= 20
+    missing = sorted(found - CHECKED)
+    assert not missing, f"compiled functions without a cross-check in {Path(__file__).name}: {missing}"
+    stale = sorted(CHECKED - found)
+    assert not stale, f"cross-checks of functions that no longer exist: {stale}"
+
+
+def test_no_other_module_compiles_kernels():
+    # A kernel in a new module must be added to KERNEL_MODULES (and cross-checked).
+    known = {SRC / "core" / "numba_kernels.py", SRC / "synth" / "retrieval_numba.py", SRC / "io" / "bvh.py"}
+    users = {p for p in SRC.rglob("*.py") if re.search(r"\b(njit|numba\.jit|nb\.jit|vectorize)\b", p.read_text())}
+    assert users - known == set(), f"modules compiling numba kernels not cross-checked here: {sorted(users - known)}"
+    for path in known:
+        importlib.import_module("posturemap." + ".".join(path.relative_to(SRC).with_suffix("").parts))
