@@ -165,7 +165,8 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
         ref = TransitionEngine(model)
         ref.add("a", past)
         ref.add("b", future)
-        r, p = ref.generate("a", "b", 15, a_end=N_PAST - 1, b_start=0, align=False, method=method, foot_lock=feet)
+        r, p = ref.generate("a", "b", length=15, a_end=N_PAST - 1, b_start=0, align=False, method=method,
+                            foot_lock=feet)
         np.testing.assert_array_equal(out[name][0], r)
         np.testing.assert_array_equal(out[name][1], p)
 

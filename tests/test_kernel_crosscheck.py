@@ -193,7 +193,7 @@ def test_compose_root_puts_the_root_at_its_global_pose(chain_len):
 
 
 @pytest.mark.parametrize("circular", [False, True])
-@crosschecks("numba_kernels:nearest", "numba_kernels:nearest_linear", "numba_kernels:nearest_many")
+@crosschecks("numba_kernels:nearest", "numba_kernels:_nearest_row", "numba_kernels:nearest_many")
 def test_nearest_kernels_match_a_brute_force_scan(circular):
     rng = np.random.default_rng(107 + circular)
     W, period = mixed_data(rng, 200, 9, 0.5 if circular else 0.0)
@@ -208,10 +208,12 @@ def test_nearest_kernels_match_a_brute_force_scan(circular):
     many = np.empty(len(X), dtype=np.int64)
     NK.nearest_many(W, X, period, many)
     assert many.tolist() == truth.tolist()
+    linear = [NK._nearest_row(W, x, period, False) for x in X]
     if not circular:
-        assert [NK.nearest_linear(W, x) for x in X] == truth.tolist()
+        assert linear == truth.tolist()
     else:  # the periodic metric matters here: a linear scan picks other rows
-        assert [NK.nearest_linear(W, x) for x in X] != truth.tolist()
+        assert linear != truth.tolist()
+        assert [NK._nearest_row(W, x, period, True) for x in X] == truth.tolist()
 
 
 @pytest.mark.parametrize("circular", [False, True])
@@ -380,7 +382,7 @@ def test_upm_epoch_matches_a_plain_python_epoch(cap, hops, circular):
         assert len(moved_neighbours) >= 2
 
 
-@crosschecks("numba_kernels:two_nearest")
+@crosschecks("numba_kernels:two_nearest", "numba_kernels:_two_smallest")
 def test_two_nearest_matches_numpy():
     rng = np.random.default_rng(115)
     X, period = mixed_data(rng, 70, 6)

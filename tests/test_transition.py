@@ -224,7 +224,8 @@ def test_frame_count_and_clip_parts(clips, model, method, a_end, b_start, length
     engine = TransitionEngine(model)
     engine.add("a", a)
     engine.add("b", b)
-    rots, pos = engine.generate("a", "b", length, key_at, 0.5, a_end, b_start, method=method)
+    rots, pos = engine.generate("a", "b", length=length, key_at=key_at, alpha=0.5, a_end=a_end, b_start=b_start,
+                                method=method)
     np.testing.assert_array_equal(out.rotations[last + 1: last + 1 + length], rots)
     np.testing.assert_array_equal(out.positions[last + 1: last + 1 + length], pos)
     np.testing.assert_allclose(np.linalg.norm(rots, axis=-1), 1.0, atol=1e-9)
@@ -278,7 +279,7 @@ def test_default_key_at_works_for_short_transitions(clips, model, method, length
         engine = TransitionEngine(model)
         engine.add("a", a)
         engine.add("b", b)
-        engine.generate("a", "b", length, method=method, foot_lock=False)
+        engine.generate("a", "b", length=length, method=method, foot_lock=False)
         plain = transition(a, b, model, length=length, method=method, foot_lock=False)
         at = len(a) + max(1, length // 2) - 1
         assert_frame_is_key(plain[at], model, engine.last["key"], engine.last["neurons"], method, f"length {length}")
@@ -365,7 +366,7 @@ def test_upm_key_is_the_neuron_nearest_the_alpha_blend(clips, model, euler_model
                 assert np.sort(d)[1] - d[k] > 1e-9  # no tie: the nearest neuron is unambiguous
                 expected.append(k)
                 expected_key[dims] = m.weights_[k]
-            key, chosen = engine.key_features(xa, xb, alpha)
+            key, chosen = engine.keys.key_features(xa, xb, alpha)
             assert list(chosen) == expected, (features, a, b, alpha)
             np.testing.assert_array_equal(key, expected_key)
             engine.generate(a, b, alpha=alpha, a_end=a_end, b_start=b_start, method="upm")

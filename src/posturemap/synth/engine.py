@@ -167,6 +167,9 @@ class TransitionEngine:
         by the next call with the same ``length``.
         """
         ta, tb = self.tracks[a], self.tracks[b]
+        if request is not None and not isinstance(request, TransitionRequest):
+            raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
+                            "(give its fields as keywords: length=..., alpha=...)")
         req = request if request is not None else TransitionRequest()
         if fields:
             req = req.replace(**fields)
