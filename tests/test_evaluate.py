@@ -12,6 +12,10 @@ import pytest
 
 from posturemap import evaluate
 from posturemap.core import joints
+from posturemap.core.skeleton import fk
+from posturemap.learn.features import root_global
+from posturemap.synth.engine import TransitionEngine
+from posturemap.synth.trajectory import rotate_about_up
 from posturemap.evaluate import report
 from posturemap.evaluate import LENGTHS, METHODS, N_FUTURE, N_PAST, VARIANTS, Settings
 
@@ -361,3 +365,42 @@ def test_the_seed_picks_the_windows(tiny_state):
     a, b = (evaluate.make_windows(tiny_state, TINY_STYLE, seed) for seed in (3, 4))
     assert a != b and len(a) == len(b) == TINY_STYLE.max_windows
     assert a == evaluate.make_windows(tiny_state, TINY_STYLE, 3)
+
+
+def test_cross_clip_sequences_put_b_where_each_method_placed_it(tiny_state, monkeypatch):
+    # Retrieval places B itself (its own turn and shift in engine.last); the cross-clip scores
+    # must join each method's new frames to B as that method placed it. Captured: the stacked
+    # sequences scored per method; B's root after the new frames must equal the placement the
+    # engine reported for that pair (a bug placed B by the interpolating alignment for every
+    # method, a jump at B's seam for retrieval).
+    from posturemap.evaluate import runner
+
+    seen, placed = [], []
+    real_generate = TransitionEngine.generate
+
+    def spy_generate(self, a, b, request=None, **kw):
+        out = real_generate(self, a, b, request, **kw)
+        placed.append((kw.get("method"), kw.get("foot_lock"), float(self.last["dtheta"]), np.array(self.last["shift"])))
+        return out
+
+    def spy_windows(rots, pos, parents):
+        seen.append((rots, pos))
+        return real_windows(rots, pos, parents)
+
+    real_windows = runner.global_windows
+    monkeypatch.setattr(TransitionEngine, "generate", spy_generate)
+    monkeypatch.setattr(runner, "global_windows", spy_windows)
+    settings = dataclasses.replace(TINY_STYLE, pairs=3)
+    out = runner.run_cross(tiny_state, settings, 0, log=lambda m: None)
+    methods = list(out["methods"])
+    root = tiny_state["ctx"].root
+    k = methods.index("auto")
+    rots, pos = seen[k]  # (pairs, N_PAST + length + N_FUTURE, J, ...)
+    autos = [p[2:] for p in placed if p[:2] == ("auto", False)]  # the method "auto" (no foot lock)
+    assert len(autos) == len(out["pair_list"]) == 3
+    length, up = out["length"], tiny_state["ctx"].up
+    for i, (pair, (turn, shift)) in enumerate(zip(out["pair_list"], autos)):
+        b = next(m for m, f in zip(tiny_state["test"], tiny_state["test_files"]) if f == pair["b"])
+        expect = rotate_about_up(root_global(b, root)[1][pair["b_start"]], turn, up) + shift
+        got = fk(b.skeleton.parents, rots[i], pos[i])[1][N_PAST + length, root]
+        np.testing.assert_allclose(got, expect, atol=1e-6)
