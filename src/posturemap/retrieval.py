@@ -464,12 +464,17 @@ class Result:
 
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
-             exhaustive: bool = False, top_k: int | None = None, blend: float | None = None) -> Result | None:
+             exhaustive: bool = False, top_k: int | None = None, blend: float | None = None,
+             skip_unconfident: bool = False) -> Result | None:
     """One retrieval transition (see the module docstring); None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
     trajectory (positions (L, 3), headings (L,)), B's turn and shift, the planted feet of the
     retrieved lower body (L, legs) and the report (source clips, frames, costs, confidence).
+
+    ``skip_unconfident``: a part whose confidence is 0 (the caller replaces it by the fallback)
+    is not replayed: its joints' rotations are left as the identity, and for the lower body the
+    trajectory, B's turn and shift and the contacts are None. The report is the same.
     """
     lib, eng = rt.lib, rt.engine
     up = eng._up
@@ -493,13 +498,28 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
                        d, fps, alpha, disp if p == 0 else None, top_k, exhaustive) for p in (0, 1)]
     if found[0] is None or found[1] is None:
         return None
+    # Confidence first: a part the caller replaces by the fallback need not be replayed.
+    still = still_weight(qa, qb, lib.leg, up)
+    dist = [rt.seam_distance(p, found[p][0][0], found[p][1][0], xa, xb) for p in (0, 1)]
+    conf = [float(np.clip((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0)) * still for c in dist]
     curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
     j_count = eng.skeleton.num_joints
     out = np.empty((length, j_count, 4))
-    parts, conf = {}, []
+    gpos = heading = dtheta = shift = contacts = None
+    parts = {}
     for p, (s, e, total, ca, cb) in enumerate(found):
-        i0, i1, f = segment_times(lib, s, e, d)
+        cost, c = dist[p], conf[p]
+        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
+        parts["lower" if p == 0 else "upper"] = {
+            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
+            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
+            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
+            "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
         mask = rt.lower_mask if p == 0 else rt.upper_mask
+        if skip_unconfident and c <= 0.0:
+            out[:, mask] = (1.0, 0.0, 0.0, 0.0)
+            continue
+        i0, i1, f = segment_times(lib, s, e, d)
         joints = np.flatnonzero(mask)
         out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
                                           curves)
@@ -532,17 +552,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
             gpos = np.empty((length, 3))
             gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
             heading = tr[:, 2]
-        cost = rt.seam_distance(p, s[0], e[0], xa, xb)
-        c = float(np.clip((CONF_RANGE[1] - cost) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0))
-        c *= still_weight(qa, qb, lib.leg, up)
-        conf.append(c)
-        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
-        parts["lower" if p == 0 else "upper"] = {
-            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
-            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
-            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
-            "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
-    frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
-    contacts = lib.contacts[frames]
+            frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
+            contacts = lib.contacts[frames]
     info = {"parts": parts, "confidence": round(min(conf), 3)}
     return Result(out, gpos, heading, dtheta, shift, contacts, info, conf)

@@ -571,7 +571,8 @@ class TransitionEngine:
         if lib is not None and len(lib):
             if getattr(self, "_retriever", None) is None or self._retriever.lib is not lib:
                 self._retriever = retrieval.Retriever(self, lib)
-            res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align)
+            res = retrieval.retrieve(self._retriever, ta, tb, a_end, b_start, length, alpha, align,
+                                     skip_unconfident=True)
         # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
         # retrieved parts leave open (joints above the root, local translations).
         fallback = retrieval.fallback_method(length, ta.motion.fps)
@@ -591,15 +592,20 @@ class TransitionEngine:
             out_r[:] = res.rots
             out_r[:, self._chain] = rots_fb[:, self._chain]
             out_p[:] = pos_fb
-            kernels.compose_root(self._chain, self._root, self._up, out_r, out_p, res.gpos, res.heading)
+            if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
+                kernels.compose_root(self._chain, self._root, self._up, out_r, out_p, res.gpos, res.heading)
             for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
-                if c < 1.0:
+                if c <= 0.0:
+                    out_r[:, mask] = rots_fb[:, mask]
+                elif c < 1.0:
                     out_r[:, mask] = quat.slerp(rots_fb[:, mask], out_r[:, mask], c)
-            if res.confidence[0] < 1.0:
+            if 0.0 < res.confidence[0] < 1.0:
                 r = self._root
                 out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
             dtheta, shift = res.dtheta, res.shift
-            if res.confidence[0] < 1.0 and align:  # B's place blended like the trajectory
+            if res.confidence[0] <= 0.0:
+                dtheta, shift = fb_last["dtheta"], fb_last["shift"]
+            elif res.confidence[0] < 1.0 and align:  # B's place blended like the trajectory
                 c = res.confidence[0]
                 g0 = tb.gpos[b_start]
                 end_fb = rotate_about_up(g0, fb_last["dtheta"], self._up) + fb_last["shift"]
