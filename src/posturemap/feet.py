@@ -22,7 +22,7 @@ import re
 
 import numpy as np
 
-from . import quat
+from . import kernels, quat
 from .skeleton import Skeleton
 
 # Thresholds in leg lengths (thigh + shin bone, from the skeleton's offsets; 80 cm for Bandai).
@@ -31,6 +31,13 @@ CONTACT_SPEED = 0.75  # leg lengths per second (about 60 cm/s)
 FADE = 3  # frames to fade the lock in and out
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther than the
 #                           first fades out, and is gone at the second (the leg would stretch)
+IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
+
+
+def _compiled():
+    """The compiled kernels once this process uses numba (:func:`posturemap.kernels.compiled`),
+    else None: then the numpy code below runs (it is also the reference the kernel is tested against)."""
+    return kernels.compiled() if kernels.backend() == "numba" else None
 
 
 def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
@@ -154,6 +161,14 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     flat[up] = 0.0
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
+    jit = _compiled()
+    if jit is not None:  # the same steps, compiled: one call for every leg and frame
+        legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
+        planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
+        jit.lock_legs(np.asarray(sk.parents, dtype=np.int64), legs, rots, grot, gpos, up,
+                      np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
+                      speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, weights)
+        return weights
     for leg, (thigh, shin, ankle) in enumerate(chains):
         h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
@@ -187,7 +202,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         foot_global = grot[frames, ankle]
         new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
                                           grot[frames, thigh], grot[frames, shin],
-                                          rots[frames, thigh], rots[frames, shin])
+                                          rots[frames, thigh], rots[frames, shin], IK_EPS)
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
         # Keep the foot's global orientation: its parent chain turned.

@@ -378,3 +378,162 @@ def fk(parents, rots, positions, grot, gpos):
                 gpos[n, j, 0] = gpos[n, p, 0] + dx
                 gpos[n, j, 1] = gpos[n, p, 1] + dy
                 gpos[n, j, 2] = gpos[n, p, 2] + dz
+
+
+# -- foot lock (see posturemap.feet.lock_feet, the numpy reference) ----------------------------
+@nb.njit(**_OPTS)
+def _unit(x, y, z):
+    n = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+    return x / n, y / n, z / n
+
+
+@nb.njit(**_OPTS)
+def _angle(ux, uy, uz, vx, vy, vz):
+    """Angle between two vectors (radians), as :func:`posturemap.feet.two_bone_ik` takes it."""
+    ux, uy, uz = _unit(ux, uy, uz)
+    vx, vy, vz = _unit(vx, vy, vz)
+    return math.acos(min(max(ux * vx + uy * vy + uz * vz, -1.0), 1.0))
+
+
+@nb.njit(**_OPTS)
+def _axis_angle_in(q, ax, ay, az, angle):
+    """The rotation by ``angle`` about the unit axis (ax, ay, az) given in world space,
+    expressed in the local frame of the global rotation ``q`` (a 4-vector)."""
+    x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], ax, ay, az)
+    h = 0.5 * angle
+    s = math.sin(h)
+    return math.cos(h), s * x, s * y, s * z
+
+
+@nb.njit(**_OPTS)
+def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps):
+    """:func:`posturemap.feet.two_bone_ik` for frame ``f``: writes the thigh's and shin's new
+    local rotations into ``rots[f]``, and the ankle's so that the foot keeps its global rotation."""
+    ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
+    bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
+    cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
+    lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
+    lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
+    lat = min(max(math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2), eps), lab + lcb - eps)
+    ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
+    ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)
+    ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
+    ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
+    ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
+    ux, uy, uz = cx - ax, cy - ay, cz - az
+    vx, vy, vz = bx - ax, by - ay, bz - az
+    x0, y0, z0 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    vx, vy, vz = tx - ax, ty - ay, tz - az
+    x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    a_gr, b_gr = grot[f, thigh], grot[f, shin]
+    r0 = _axis_angle_in(a_gr, x0, y0, z0, ac_ab_1 - ac_ab_0)
+    r1 = _axis_angle_in(b_gr, x0, y0, z0, ba_bc_1 - ba_bc_0)
+    r2 = _axis_angle_in(a_gr, x1, y1, z1, ac_at_0)
+    r20 = _mul(r2[0], r2[1], r2[2], r2[3], r0[0], r0[1], r0[2], r0[3])
+    th = _mul(rots[f, thigh, 0], rots[f, thigh, 1], rots[f, thigh, 2], rots[f, thigh, 3],
+              r20[0], r20[1], r20[2], r20[3])
+    sh = _mul(rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3], r1[0], r1[1], r1[2], r1[3])
+    return th, sh
+
+
+@nb.njit(**_OPTS)
+def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
+              fade, drift_lo, drift_hi, eps, weights):
+    """The whole of :func:`posturemap.feet.lock_feet` after its forward kinematics, every leg.
+
+    legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
+    grot/gpos (L, J, 4/3) their global rotations and positions; a_feet/b_feet (2, n, 3) ankle
+    positions in A's last two and B's first two frames; contacts (L, n) planted frames, or an
+    array with no rows to detect them from height and speed; weights (L, n) out.
+    """
+    n_l = rots.shape[0]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    on = np.empty(n_l, dtype=np.bool_)
+    weight = np.empty(n_l)
+    target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
+    goal = np.empty(3)
+    for leg in range(legs.shape[0]):
+        thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
+        floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
+        for t in range(n_l):
+            floor = min(floor, gpos[t, ankle, up])
+        da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
+        a_on = a_feet[1, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
+        b_on = b_feet[0, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        if contacts.shape[0] > 0:
+            for t in range(n_l):
+                on[t] = contacts[t, leg]
+            # A run at a seam where that clip's foot is not planted would jump.
+            first_stop = 0
+            while first_stop < n_l and on[first_stop]:
+                first_stop += 1
+            last_start = n_l
+            while last_start > 0 and on[last_start - 1]:
+                last_start -= 1
+            if first_stop > 0 and not a_on:
+                on[:first_stop] = False
+            if last_start < n_l and not b_on:
+                on[last_start:] = False
+        else:
+            pa, pb = a_feet[1, leg, a_], a_feet[1, leg, b_]
+            for t in range(n_l):
+                ha, hb = gpos[t, ankle, a_], gpos[t, ankle, b_]
+                speed = math.sqrt((ha - pa) ** 2 + (hb - pb) ** 2)
+                on[t] = gpos[t, ankle, up] < floor + height_tol and speed < speed_tol
+                pa, pb = ha, hb
+        # Lock weights and targets (posturemap.feet.lock_weights_and_targets).
+        for t in range(n_l):
+            weight[t] = 0.0
+            target[t, 0], target[t, 1] = gpos[t, ankle, a_], gpos[t, ankle, b_]
+        t = 0
+        while t < n_l:
+            if not on[t]:
+                t += 1
+                continue
+            start = t
+            while t < n_l and on[t]:
+                t += 1
+            stop = t
+            from_a = start == 0 and a_on
+            to_b = stop == n_l and b_on
+            mid = (stop - start) // 2
+            ma, mb = gpos[(start + stop - 1) // 2, ankle, a_], gpos[(start + stop - 1) // 2, ankle, b_]
+            for u in range(start, stop):
+                if from_a and (not to_b or u - start < mid):
+                    sa, sb = a_feet[1, leg, a_], a_feet[1, leg, b_]
+                elif to_b:
+                    sa, sb = b_feet[0, leg, a_], b_feet[0, leg, b_]
+                else:
+                    sa, sb = ma, mb
+                weight[u] = 1.0
+                target[u, 0], target[u, 1] = sa, sb
+            for k in range(1, fade + 1):
+                w = 1.0 - k / (fade + 1.0)
+                for side in range(2):
+                    tt = start - k if side == 0 else stop - 1 + k
+                    src = start if side == 0 else stop - 1
+                    if 0 <= tt < n_l and not on[tt] and w > weight[tt]:
+                        weight[tt] = w
+                        target[tt, 0], target[tt, 1] = target[src, 0], target[src, 1]
+        for t in range(n_l):
+            ha, hb = gpos[t, ankle, a_], gpos[t, ankle, b_]
+            drift = math.sqrt((target[t, 0] - ha) ** 2 + (target[t, 1] - hb) ** 2) / body
+            w = weight[t] * min(max((drift_hi - drift) / (drift_hi - drift_lo), 0.0), 1.0)
+            weights[t, leg] = w
+            if not w > 0.0:
+                continue
+            goal[a_] = ha + w * (target[t, 0] - ha)
+            goal[b_] = hb + w * (target[t, 1] - hb)
+            goal[up] = gpos[t, ankle, up]
+            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps)
+            # Keep the foot's global orientation: its parent chain turned.
+            p = parents[thigh]
+            sg = _mul(grot[t, p, 0], grot[t, p, 1], grot[t, p, 2], grot[t, p, 3], th[0], th[1], th[2], th[3])
+            sg = _mul(sg[0], sg[1], sg[2], sg[3], sh[0], sh[1], sh[2], sh[3])
+            ft = _mul(sg[0], -sg[1], -sg[2], -sg[3], grot[t, ankle, 0], grot[t, ankle, 1], grot[t, ankle, 2],
+                      grot[t, ankle, 3])
+            for c in range(4):
+                rots[t, thigh, c] = th[c]
+                rots[t, shin, c] = sh[c]
+                rots[t, ankle, c] = ft[c]
