@@ -437,3 +437,84 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert eng.last["retrieval"]["confidence"] == 0.0
     fb = eng.generate("bow", "bow", 30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
+
+
+def test_compiled_search_matches_the_numpy_steps(engine, clips):
+    from posturemap import kernels
+
+    assert retrieval._compiled() is not None  # the suite runs with numba loaded
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(8)
+    checked = 0
+    for i in range(12):
+        na, nb = HELD_OUT[i % 3], HELD_OUT[(i + 1 + i // 6) % 3]
+        ta, tb = engine.tracks[na], engine.tracks[nb]
+        a_end, b_start = int(rng.integers(1, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 1))
+        qa, qb = rt.seams(ta, [a_end - 1, a_end], 1), rt.seams(tb, [b_start, b_start + 1], 0)
+        d, alpha = float(rng.integers(6, 46)), (0.0, 0.5, 1.0, float(rng.random()))[i % 4]
+        disp = (float(rng.normal(scale=30)), float(rng.normal(scale=30)), float(rng.normal())) if i % 2 else None
+        for part in (0, 1):
+            sa, sb = rt.gather(ta.features[a_end], part), rt.gather(tb.features[b_start], part)
+            args = (part, qa, qb, sa, sb, d, 30.0, alpha, disp, 8)
+            got, ref = rt._search_compiled(*args), rt._search_numpy(*args)
+            assert (got is None) == (ref is None)
+            if ref is None:
+                continue
+            np.testing.assert_array_equal(got[0], ref[0])  # the same segments in the same order
+            np.testing.assert_array_equal(got[1], ref[1])
+            for g, r in zip(got[2:], ref[2:]):
+                np.testing.assert_allclose(g, r, rtol=1e-12)
+            checked += len(ref[0])
+    assert checked > 100
+    # The numpy backend's search (numpy costs, float64 squares) finds the same best segments.
+    with kernels.numpy_backend():
+        assert retrieval._compiled() is None
+        ref = rt.search(0, qa, qb, sa, sb, d, 30.0, alpha, None, 8)
+    got = rt.search(0, qa, qb, sa, sb, d, 30.0, alpha, None, 8)
+    np.testing.assert_array_equal(got[0][:3], ref[0][:3])
+    np.testing.assert_allclose(got[2], ref[2], rtol=1e-5)
+
+
+def test_compiled_selection_of_the_smallest():
+    from posturemap import retrieval_numba
+
+    rng = np.random.default_rng(9)
+    for n, keep in ((50, 7), (300, 192), (10, 20), (1, 1)):
+        c = rng.normal(size=n)
+        got = np.sort(retrieval_numba._smallest(c, keep))
+        want = np.sort(np.argsort(c)[:keep])
+        np.testing.assert_array_equal(got, want)
+    c = np.array([3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.0])  # ties at the cut: the first ones
+    np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, 4)), [1, 2, 3, 6])
+
+
+@pytest.mark.parametrize("circular", [False, True])
+def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular):
+    from types import SimpleNamespace
+
+    from posturemap.library import INDEX_CLASS
+
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(10)
+    dims = rt.space.class_dims[INDEX_CLASS]
+    # A stand-in index map (angles on the circle, or not) over a stand-in inverted index with
+    # empty neurons and neurons past the last indexed one.
+    n_neurons, n_frames = 700, 20000
+    period = np.full(len(dims), 2 * np.pi if circular else np.inf)
+    weights = rng.uniform(0, 2 * np.pi, (n_neurons, len(dims)))
+    win = rng.integers(0, n_neurons - 40, n_frames) ** 2 // (n_neurons - 40)  # uneven counts
+    ptr = np.zeros(win.max() + 2, dtype=np.int64)
+    np.add.at(ptr, win + 1, 1)
+    rt.cmap = SimpleNamespace(weights_=weights, period_=period)
+    rt.lib = SimpleNamespace(index_ptr=np.cumsum(ptr), index_frames=np.argsort(win, kind="stable").astype(np.int64))
+    sizes = []
+    for _ in range(10):
+        x = rng.uniform(0, 2 * np.pi, dims.max() + 1)
+        for part in (0, 1, None):
+            got = rt.gather(x, part)
+            with monkeypatch.context() as m:
+                m.setattr(retrieval, "_compiled", lambda: None)  # the numpy steps
+                ref = rt.gather(x, part)
+            np.testing.assert_array_equal(got, ref)  # the same frames in the same order
+            sizes.append(len(ref))
+    assert min(sizes) >= retrieval.BUDGET

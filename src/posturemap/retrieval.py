@@ -48,6 +48,7 @@ WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap dura
 TOP_K = 8  # segments averaged per part
 BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
+GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
 PREFILTER = 192  # of those, the best matches at natural speed that become segment ends
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
@@ -139,6 +140,10 @@ class Retriever:
         (the thighs for the legs, the clavicles and upper arms for the upper body).
         """
         lib, cmap = self.lib, self.cmap
+        if _compiled() is not None:
+            cols = self.index_cols[part] if part is not None else np.arange(cmap.weights_.shape[1])
+            return _compiled().gather(cmap.weights_, cols, x[self.space.class_dims[INDEX_CLASS][cols]],
+                                      cmap.period_[cols], lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
         cols = self.index_cols[part] if part is not None else slice(None)
         q = x[self.space.class_dims[INDEX_CLASS]][cols]
         w = cmap.weights_[:, cols]
@@ -148,7 +153,7 @@ class Retriever:
             d2 = np.einsum("ij,ij->i", diff, diff)
         else:
             d2 = np.einsum("ij,ij->i", w - q, w - q)
-        n_take = min(len(w), 256)
+        n_take = min(len(w), GATHER_NEURONS)
         near = np.argpartition(d2, n_take - 1)[:n_take] if n_take < len(w) else np.arange(len(w))
         near = near[np.argsort(d2[near])]
         near = near[near < len(lib.index_ptr) - 1]  # neurons past the last indexed one hold no frame
@@ -275,6 +280,12 @@ class Retriever:
         search the index is measured against).
         """
         k = TOP_K if k is None else k
+        if not exhaustive and _compiled() is not None:
+            return self._search_compiled(part, qa, qb, sa, sb, d, fps, alpha, disp, k)
+        return self._search_numpy(part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive)
+
+    def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive=False):
+        """:meth:`search` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
         else:
@@ -291,6 +302,22 @@ class Retriever:
         keep[1:] = (s[best][1:] != s[best][:-1]) | (e[best][1:] != e[best][:-1])
         best = best[keep][:k]
         return s[best], e[best], total[best], ca[best], cb[best]
+
+
+    def _search_compiled(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k):
+        """:meth:`search` in one compiled call (:func:`posturemap.retrieval_numba.search`)."""
+        lib = self.lib
+        pm, vm = self.matrices[part]
+        ns = np.unique(np.maximum(1, np.round(np.array(WARPS) * d * (lib.fps / fps))).astype(np.int64))
+        rho = (ns / lib.fps) / (d / fps)  # as in costs, per duration
+        use_disp = disp is not None and part == 0
+        found = _compiled().search(pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64),
+                                   np.asarray(sb, dtype=np.int64), *self.query_vectors(part, qa),
+                                   *self.query_vectors(part, qb), ns, W_WARP * np.log(rho) ** 2, 1.0 / rho,
+                                   PREFILTER, float(alpha), use_disp, lib.gpos, lib.heading, lib.up,
+                                   np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64),
+                                   DISP_SCALE * lib.leg, W_DISP, k)
+        return found if len(found[0]) else None
 
 
 def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:

@@ -104,3 +104,209 @@ def seam_costs(pm, vm, frames, vframes, p, v, rate, out):
             x = r * vm[g, d] - v[d]
             c += x * x
         out[i] = c
+
+
+@nb.njit(**_OPTS)
+def _seam_cost(pm, vm, f, g, p, v, r):
+    """One row of :func:`seam_costs` (the same operations in the same order)."""
+    c = 0.0
+    for d in range(pm.shape[1]):
+        x = pm[f, d] - p[d]
+        c += x * x
+    for d in range(vm.shape[1]):
+        x = r * vm[g, d] - v[d]
+        c += x * x
+    return c
+
+
+@nb.njit(**_OPTS)
+def _seam_costs4(pm, vm, rows, g_rows, p, v, rates, out):
+    """``out[i] = _seam_cost(pm, vm, rows[i], g_rows[i], p, v, rates[i])`` for every i.
+
+    Four rows at a time, each summed in the same order as :func:`_seam_cost` (the same bits):
+    four independent sums keep the floating-point adder busy where one would wait on itself.
+    """
+    n = rows.shape[0]
+    n_p, n_v = pm.shape[1], vm.shape[1]
+    i = 0
+    while i + 4 <= n:
+        f0, f1, f2, f3 = rows[i], rows[i + 1], rows[i + 2], rows[i + 3]
+        c0 = c1 = c2 = c3 = 0.0
+        for d in range(n_p):
+            x0, x1, x2, x3 = pm[f0, d] - p[d], pm[f1, d] - p[d], pm[f2, d] - p[d], pm[f3, d] - p[d]
+            c0 += x0 * x0
+            c1 += x1 * x1
+            c2 += x2 * x2
+            c3 += x3 * x3
+        g0, g1, g2, g3 = g_rows[i], g_rows[i + 1], g_rows[i + 2], g_rows[i + 3]
+        r0, r1, r2, r3 = rates[i], rates[i + 1], rates[i + 2], rates[i + 3]
+        for d in range(n_v):
+            x0, x1 = r0 * vm[g0, d] - v[d], r1 * vm[g1, d] - v[d]
+            x2, x3 = r2 * vm[g2, d] - v[d], r3 * vm[g3, d] - v[d]
+            c0 += x0 * x0
+            c1 += x1 * x1
+            c2 += x2 * x2
+            c3 += x3 * x3
+        out[i], out[i + 1], out[i + 2], out[i + 3] = c0, c1, c2, c3
+        i += 4
+    for j in range(i, n):
+        out[j] = _seam_cost(pm, vm, rows[j], g_rows[j], p, v, rates[j])
+
+
+@nb.njit(**_OPTS)
+def _smallest(c, keep):
+    """Indices (keep,) of the ``keep`` smallest values of ``c`` (all of them if fewer), in no
+    particular order: ``np.argpartition``'s set where the values are distinct; of values equal
+    to the largest kept one, the first ones."""
+    n = c.shape[0]
+    if n <= keep:
+        return np.arange(n)
+    thr = np.partition(c, keep - 1)[keep - 1]
+    out = np.empty(keep, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if c[i] < thr:
+            out[m] = i
+            m += 1
+    for i in range(n):
+        if m == keep:
+            break
+        if c[i] == thr:
+            out[m] = i
+            m += 1
+    return out
+
+
+@nb.njit(**_OPTS)
+def _prefilter(pm, vm, clip_end, frames, end, p, v, keep):
+    """:meth:`posturemap.retrieval.Retriever.prefilter`: the ``keep`` frames that match best at natural speed."""
+    if frames.shape[0] <= keep:
+        return frames
+    n = frames.shape[0]
+    g = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        f = frames[i]
+        g[i] = min(f + 1, clip_end[f] - 1) if end else f
+    c = np.empty(n)
+    _seam_costs4(pm, vm, frames, g, p, v, np.ones(n), c)
+    return frames[_smallest(c, keep)]
+
+
+@nb.njit(**_OPTS)
+def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alpha,
+           use_disp, gpos, heading, up, disp, disp_scale, w_disp, k):
+    """:meth:`posturemap.retrieval.Retriever.search` after the gather, in one call.
+
+    Prefilters the gathered starts ``sa`` and ends ``sb`` to ``keep`` frames each, makes the
+    candidate segments (every prefiltered start and end with every duration ``ns`` (W,), inside
+    one clip), costs them (``penalty`` (W,) the warp term and ``rates`` (W,) the speed factor of
+    each duration; with ``use_disp`` the root displacement term against ``disp`` (3,)) and
+    returns the ``k`` best distinct segments, best first: ``(s, e, total, cost_a, cost_b)``,
+    ties ordered by start, then end. Arrays of length 0 when no segment fits.
+    """
+    n_lib = clip_of.shape[0]
+    fa = _prefilter(pm, vm, clip_end, sa, False, pa, va, keep)
+    fb = _prefilter(pm, vm, clip_end, sb, True, pb, vb, keep)
+    n_w = ns.shape[0]
+    cap = (fa.shape[0] + fb.shape[0]) * n_w
+    cs = np.empty(cap, dtype=np.int64)
+    ce = np.empty(cap, dtype=np.int64)
+    cw = np.empty(cap, dtype=np.int64)
+    m = 0
+    for i in range(fa.shape[0]):
+        for w in range(n_w):
+            s, e = fa[i], fa[i] + ns[w]
+            if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
+                cs[m], ce[m], cw[m] = s, e, w
+                m += 1
+    for i in range(fb.shape[0]):
+        for w in range(n_w):
+            s, e = fb[i] - ns[w], fb[i]
+            if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
+                cs[m], ce[m], cw[m] = s, e, w
+                m += 1
+    total = np.empty(m)
+    ca = np.empty(m)
+    cb = np.empty(m)
+    rate = np.empty(m)
+    nxt = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        rate[i] = rates[cw[i]]
+        nxt[i] = min(ce[i] + 1, clip_end[ce[i]] - 1)
+    _seam_costs4(pm, vm, cs[:m], cs[:m], pa, va, rate, ca)
+    _seam_costs4(pm, vm, ce[:m], nxt, pb, vb, rate, cb)
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    for i in range(m):
+        s, e, w = cs[i], ce[i], cw[i]
+        t = 2 * (1 - alpha) * ca[i] + 2 * alpha * cb[i] + penalty[w]
+        if use_disp:
+            da, db = gpos[e, a_] - gpos[s, a_], gpos[e, b_] - gpos[s, b_]
+            c, sn = math.cos(heading[s]), math.sin(heading[s])
+            dx = c * da + sn * db
+            dz = -sn * da + c * db
+            turn = heading[e] - heading[s]
+            t = t + w_disp * (((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / disp_scale ** 2
+                              + (turn - disp[2]) ** 2 / 0.25 ** 2)
+        total[i] = t
+    # The 2k best, ordered by (total, start, end); a segment found from both seams counts once.
+    best = _smallest(total, 2 * k)
+    n_b = best.shape[0]
+    for i in range(1, n_b):  # insertion sort: a few elements
+        j = i
+        while j > 0:
+            x, y = best[j - 1], best[j]
+            if (total[y], cs[y], ce[y]) < (total[x], cs[x], ce[x]):
+                best[j - 1], best[j] = y, x
+                j -= 1
+            else:
+                break
+    keep_i = np.empty(n_b, dtype=np.int64)
+    n_k = 0
+    for i in range(n_b):
+        b = best[i]
+        if i > 0 and cs[b] == cs[best[i - 1]] and ce[b] == ce[best[i - 1]]:
+            continue
+        if n_k < k:
+            keep_i[n_k] = b
+            n_k += 1
+    sel = keep_i[:n_k]
+    return cs[sel], ce[sel], total[sel], ca[sel], cb[sel]
+
+
+@nb.njit(**_OPTS)
+def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
+    """:meth:`posturemap.retrieval.Retriever.gather` in one call: the library frames of the
+    neurons nearest ``q`` (over the columns ``cols`` of ``weights``; circular where ``period``
+    (len(cols),) is finite), nearest first, until ``budget`` frames are gathered."""
+    n = weights.shape[0]
+    d2 = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(cols.shape[0]):
+            diff = abs(weights[i, cols[j]] - q[j])
+            diff = min(diff, period[j] - diff)
+            acc += diff * diff
+        d2[i] = acc
+    near = _smallest(d2, n_take) if n_take < n else np.arange(n)
+    near = near[np.argsort(d2[near])]
+    n_indexed = index_ptr.shape[0] - 1  # neurons past the last indexed one hold no frame
+    chosen = np.empty(near.shape[0], dtype=np.int64)
+    n_c = 0
+    total = 0
+    for i in range(near.shape[0]):
+        k = near[i]
+        if k >= n_indexed:
+            continue
+        chosen[n_c] = k
+        n_c += 1
+        total += index_ptr[k + 1] - index_ptr[k]
+        if total >= budget:
+            break
+    out = np.empty(total, dtype=np.int64)
+    m = 0
+    for i in range(n_c):
+        k = chosen[i]
+        for f in range(index_ptr[k], index_ptr[k + 1]):
+            out[m] = index_frames[f]
+            m += 1
+    return out
