@@ -518,3 +518,22 @@ def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular):
             np.testing.assert_array_equal(got, ref)  # the same frames in the same order
             sizes.append(len(ref))
     assert min(sizes) >= retrieval.BUDGET
+
+
+def test_batched_seams_and_distances_equal_the_single_ones(engine):
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib = rt.lib
+    rng = np.random.default_rng(11)
+    for i in range(20):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        a_end, b_start = int(rng.integers(len(ta.gpos))), int(rng.integers(len(tb.gpos)))
+        ia, ib = [max(a_end - 1, 0), a_end], [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+        pair = rt.seam_pair(ta, ia, tb, ib)
+        for got, ref in zip(pair, (rt.seams(ta, ia, 1), rt.seams(tb, ib, 0))):
+            for name in ("pose", "vel", "root"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+        segments = [(p, int(rng.integers(len(lib))), int(rng.integers(len(lib)))) for p in (0, 1, 1)]
+        xa, xb = ta.features[a_end], tb.features[b_start]
+        both = rt.seam_distances(segments, xa, xb)
+        assert both == [rt.seam_distance(p, s, e, xa, xb) for p, s, e in segments]
+        assert min(both) > 0

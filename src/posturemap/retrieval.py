@@ -36,13 +36,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 from . import kernels, quat
 from .features import wrap_diff
 from .feet import lock_feet
-from .library import INDEX_CLASS, MotionLibrary, clip_features, key_joints, part_masks
+from .library import (INDEX_CLASS, MotionLibrary, clip_features, heading_frame, key_joints, motion_features,
+                      part_masks)
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
 TOP_K = 8  # segments averaged per part
@@ -119,17 +121,42 @@ class Retriever:
                                 track.motion.fps)
         return Seams(p[which], v[which], r[which])
 
+    def seam_pair(self, ta, ia: list[int], tb, ib: list[int]) -> tuple[Seams, Seams]:
+        """A's end seam (``seams(ta, ia, 1)``) and B's start seam (``seams(tb, ib, 0)``) in one go:
+        one forward kinematics and one feature pass over the four frames (the same values)."""
+        if ta.motion.fps != tb.motion.fps:
+            return self.seams(ta, ia, 1), self.seams(tb, ib, 0)
+        eng = self.engine
+        rots = np.concatenate([ta.motion.rotations[ia], tb.motion.rotations[ib]])
+        pos = np.concatenate([ta.motion.positions[ia], tb.motion.positions[ib]])
+        grot, gp = np.empty(rots.shape), np.empty(pos.shape)
+        kernels.fk(eng.skeleton.parents, rots, pos, grot, gp)
+        root_pos = np.concatenate([ta.gpos[ia], tb.gpos[ib]])
+        heading = np.concatenate([ta.heading[ia], tb.heading[ib]])
+        pose = heading_frame(gp[:, self.keys] - root_pos[:, None], heading, eng._up)
+        vel, root = motion_features(pose, root_pos, heading, eng._up, ta.motion.fps, np.array([0, 2, 4]))
+        return Seams(pose[1], vel[1], root[1]), Seams(pose[2], vel[2], root[2])
+
     def seam_distance(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
         """Match distance in degrees: the larger, over the two seams, of the RMS joint-rotation
         difference between the segment's end posture and A's end / B's start over the part's
         joints (posture features; the root height counts in leg lengths as one radian)."""
+        return self.seam_distances([(part, s, e)], xa, xb)[0]
+
+    def seam_distances(self, segments, xa: np.ndarray, xb: np.ndarray) -> list[float]:
+        """:meth:`seam_distance` of several segments ``[(part, s, e), ...]``, encoded in one go."""
         lib, space = self.lib, self.space
-        rots = lib.rots[[s, e]][:, space.joints].astype(np.float64)
-        x = space.encode_parts(rots, lib.gpos[[s, e], space.up])
-        dims = self.part_dims[part]
+        frames = [f for _, s, e in segments for f in (s, e)]
+        rots = lib.rots[frames][:, space.joints].astype(np.float64)
+        x = space.encode_parts(rots, lib.gpos[frames, space.up])
         circ = space.circular
-        d = max(np.linalg.norm(wrap_diff(x[0], xa, circ)[dims]), np.linalg.norm(wrap_diff(x[1], xb, circ)[dims]))
-        return float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0)))
+        out = []
+        for i, (part, _, _) in enumerate(segments):
+            dims = self.part_dims[part]
+            d = max(np.linalg.norm(wrap_diff(x[2 * i], xa, circ)[dims]),
+                    np.linalg.norm(wrap_diff(x[2 * i + 1], xb, circ)[dims]))
+            out.append(float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0))))
+        return out
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
@@ -330,8 +357,9 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     is as accurate (0.168) and locomotion is unchanged.
     """
     lo, hi = STILL_SPEED
-    speed = max(float(np.linalg.norm(np.delete(q.root[:3], up))) for q in (qa, qb)) / leg
-    return float(np.clip((speed - lo) / (hi - lo), 0.0, 1.0)) if hi > lo else 1.0
+    flat = [i for i in range(3) if i != up]
+    speed = max(float(np.linalg.norm(q.root[flat])) for q in (qa, qb)) / leg
+    return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
 def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
@@ -357,6 +385,14 @@ def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
 def hermite_offsets(length: int, blend: float) -> np.ndarray:
     """:func:`offset_curves` at the new frames ``t = 1 .. length`` of a gap ``d = length + 1``."""
     return offset_curves(np.arange(1, length + 1), length + 1.0, blend)
+
+
+@lru_cache(maxsize=64)
+def _hermite_offsets_cached(length: int, blend: float) -> np.ndarray:
+    """:func:`hermite_offsets`, kept per (length, blend) and read-only."""
+    out = hermite_offsets(length, blend)
+    out.setflags(write=False)
+    return out
 
 
 def smoothstep(length: int) -> np.ndarray:
@@ -509,7 +545,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     d = length + 1.0
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-    qa, qb = rt.seams(ta, ia, 1), rt.seams(tb, ib, 0)
+    qa, qb = rt.seam_pair(ta, ia, tb, ib)
     xa, xb = ta.features[a_end], tb.features[b_start]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     disp = None
@@ -527,9 +563,9 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         return None
     # Confidence first: a part the caller replaces by the fallback need not be replayed.
     still = still_weight(qa, qb, lib.leg, up)
-    dist = [rt.seam_distance(p, found[p][0][0], found[p][1][0], xa, xb) for p in (0, 1)]
+    dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
     conf = [float(np.clip((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0)) * still for c in dist]
-    curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
+    curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     j_count = eng.skeleton.num_joints
     out = np.empty((length, j_count, 4))
     gpos = heading = dtheta = shift = contacts = None
