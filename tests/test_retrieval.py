@@ -537,3 +537,24 @@ def test_batched_seams_and_distances_equal_the_single_ones(engine):
         both = rt.seam_distances(segments, xa, xb)
         assert both == [rt.seam_distance(p, s, e, xa, xb) for p, s, e in segments]
         assert min(both) > 0
+
+
+@pytest.mark.parametrize("circular", [False, True])
+def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
+    from types import SimpleNamespace
+
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(12)
+    if circular:  # a stand-in map: the legs' columns on the circle, the others not
+        period = np.full(rt.cmap.weights_.shape[1], np.inf)
+        period[rt.index_cols[0]] = 2 * np.pi
+        period[rt.index_cols[1]] = np.inf
+        rt.cmap = SimpleNamespace(weights_=np.mod(rt.cmap.weights_, 2 * np.pi), period_=period)
+    for i in range(10):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 2) % 3]]
+        xa, xb = ta.features[rng.integers(len(ta.gpos))], tb.features[rng.integers(len(tb.gpos))]
+        both = rt.gather_seams(xa, xb)
+        for part in (0, 1):
+            np.testing.assert_array_equal(both[part][0], rt.gather(xa, part))
+            np.testing.assert_array_equal(both[part][1], rt.gather(xb, part))
+            assert len(both[part][0]) >= retrieval.BUDGET

@@ -195,6 +195,19 @@ class Retriever:
         offset = np.repeat(start - (cum[:stop] - count), count)
         return lib.index_frames[offset + np.arange(total)]
 
+    def gather_seams(self, xa: np.ndarray, xb: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``[(gather(xa, 0), gather(xb, 0)), (gather(xa, 1), gather(xb, 1))]``: where numba is in
+        use, in one pass over the index map's neurons."""
+        if _compiled() is None:
+            return [(self.gather(xa, p), self.gather(xb, p)) for p in (0, 1)]
+        cmap, lib = self.cmap, self.lib
+        dims = self.space.class_dims[INDEX_CLASS]
+        c0, c1 = self.index_cols
+        a0, b0, a1, b1 = _compiled().gather_seams(cmap.weights_, c0, c1, xa[dims[c0]], xa[dims[c1]], xb[dims[c0]],
+                                                  xb[dims[c1]], cmap.period_[c0], cmap.period_[c1], lib.index_ptr,
+                                                  lib.index_frames, GATHER_NEURONS, BUDGET)
+        return [(a0, b0), (a1, b1)]
+
     def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):
         """Candidate segments ``(s, e)`` (M,) from gathered starts ``sa`` and ends ``sb``."""
         lib = self.lib
@@ -557,8 +570,9 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         turn -= 2 * math.pi * round(turn / (2 * math.pi))
         disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
     none = np.zeros(0, np.int64)
-    found = [rt.search(p, qa, qb, none if exhaustive else rt.gather(xa, p), none if exhaustive else rt.gather(xb, p),
-                       d, fps, alpha, disp if p == 0 else None, top_k, exhaustive) for p in (0, 1)]
+    gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+    found = [rt.search(p, qa, qb, *gathered[p], d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
+             for p in (0, 1)]
     if found[0] is None or found[1] is None:
         return None
     # Confidence first: a part the caller replaces by the fallback need not be replayed.

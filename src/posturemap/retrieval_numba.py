@@ -274,19 +274,22 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
 
 
 @nb.njit(**_OPTS)
-def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
-    """:meth:`posturemap.retrieval.Retriever.gather` in one call: the library frames of the
-    neurons nearest ``q`` (over the columns ``cols`` of ``weights``; circular where ``period``
-    (len(cols),) is finite), nearest first, until ``budget`` frames are gathered."""
-    n = weights.shape[0]
-    d2 = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(cols.shape[0]):
-            diff = abs(weights[i, cols[j]] - q[j])
-            diff = min(diff, period[j] - diff)
-            acc += diff * diff
-        d2[i] = acc
+def _sqdist(weights, i, cols, q, period):
+    """Squared distance of neuron ``i`` to ``q`` over the columns ``cols`` (circular where
+    ``period`` is finite; ``min(d, inf - d)`` leaves the others as they are)."""
+    acc = 0.0
+    for j in range(cols.shape[0]):
+        diff = abs(weights[i, cols[j]] - q[j])
+        diff = min(diff, period[j] - diff)
+        acc += diff * diff
+    return acc
+
+
+@nb.njit(**_OPTS)
+def _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget):
+    """The library frames of the neurons nearest first (squared distances ``d2``) until
+    ``budget`` frames are gathered (see :func:`gather`)."""
+    n = d2.shape[0]
     near = _smallest(d2, n_take) if n_take < n else np.arange(n)
     near = near[np.argsort(d2[near])]
     n_indexed = index_ptr.shape[0] - 1  # neurons past the last indexed one hold no frame
@@ -310,3 +313,32 @@ def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
             out[m] = index_frames[f]
             m += 1
     return out
+
+
+@nb.njit(**_OPTS)
+def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
+    """:meth:`posturemap.retrieval.Retriever.gather` in one call: the library frames of the
+    neurons nearest ``q`` (over the columns ``cols`` of ``weights``; circular where ``period``
+    (len(cols),) is finite), nearest first, until ``budget`` frames are gathered."""
+    d2 = np.empty(weights.shape[0])
+    for i in range(weights.shape[0]):
+        d2[i] = _sqdist(weights, i, cols, q, period)
+    return _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget)
+
+
+@nb.njit(**_OPTS)
+def gather_seams(weights, cols0, cols1, qa0, qa1, qb0, qb1, period0, period1, index_ptr, index_frames, n_take,
+                 budget):
+    """:func:`gather` of both seams (``qa*``, ``qb*``) for both body parts (columns ``cols0``,
+    ``cols1``) in one pass over the neurons: ``(a0, b0, a1, b1)``, the same frames."""
+    n = weights.shape[0]
+    d2 = np.empty((4, n))
+    for i in range(n):
+        d2[0, i] = _sqdist(weights, i, cols0, qa0, period0)
+        d2[1, i] = _sqdist(weights, i, cols0, qb0, period0)
+        d2[2, i] = _sqdist(weights, i, cols1, qa1, period1)
+        d2[3, i] = _sqdist(weights, i, cols1, qb1, period1)
+    return (_frames_of_nearest(d2[0], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[1], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[2], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[3], index_ptr, index_frames, n_take, budget))
