@@ -154,6 +154,44 @@ def _seam_costs4(pm, vm, rows, g_rows, p, v, rates, out):
 
 
 @nb.njit(**_OPTS)
+def _pos_costs(pm, rows, p, out):
+    """The position part of :func:`_seam_cost` of each row (its first partial sum)."""
+    for i in range(rows.shape[0]):
+        c = 0.0
+        for d in range(pm.shape[1]):
+            x = pm[rows[i], d] - p[d]
+            c += x * x
+        out[i] = c
+
+
+@nb.njit(**_OPTS)
+def _vel_costs4(vm, g_rows, v, rates, init, out):
+    """:func:`_seam_costs4` of rows whose position part is known (``init``, from :func:`_pos_costs`):
+    only the velocity terms are added, in the same order (the same bits)."""
+    n = g_rows.shape[0]
+    i = 0
+    while i + 4 <= n:
+        c0, c1, c2, c3 = init[i], init[i + 1], init[i + 2], init[i + 3]
+        g0, g1, g2, g3 = g_rows[i], g_rows[i + 1], g_rows[i + 2], g_rows[i + 3]
+        r0, r1, r2, r3 = rates[i], rates[i + 1], rates[i + 2], rates[i + 3]
+        for d in range(vm.shape[1]):
+            x0, x1 = r0 * vm[g0, d] - v[d], r1 * vm[g1, d] - v[d]
+            x2, x3 = r2 * vm[g2, d] - v[d], r3 * vm[g3, d] - v[d]
+            c0 += x0 * x0
+            c1 += x1 * x1
+            c2 += x2 * x2
+            c3 += x3 * x3
+        out[i], out[i + 1], out[i + 2], out[i + 3] = c0, c1, c2, c3
+        i += 4
+    for j in range(i, n):
+        c = init[j]
+        for d in range(vm.shape[1]):
+            x = rates[j] * vm[g_rows[j], d] - v[d]
+            c += x * x
+        out[j] = c
+
+
+@nb.njit(**_OPTS)
 def _smallest(c, keep):
     """Indices (keep,) of the ``keep`` smallest values of ``c`` (all of them if fewer), in no
     particular order: ``np.argpartition``'s set where the values are distinct; of values equal
@@ -212,18 +250,24 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     cs = np.empty(cap, dtype=np.int64)
     ce = np.empty(cap, dtype=np.int64)
     cw = np.empty(cap, dtype=np.int64)
+    # The position part of a prefiltered frame's seam cost is the same at every warp: once each.
+    pos_a, pos_b = np.empty(fa.shape[0]), np.empty(fb.shape[0])
+    _pos_costs(pm, fa, pa, pos_a)
+    _pos_costs(pm, fb, pb, pos_b)
+    known = np.empty(cap)
     m = 0
     for i in range(fa.shape[0]):
         for w in range(n_w):
             s, e = fa[i], fa[i] + ns[w]
             if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
-                cs[m], ce[m], cw[m] = s, e, w
+                cs[m], ce[m], cw[m], known[m] = s, e, w, pos_a[i]
                 m += 1
+    m_a = m  # candidates from A's frames, then from B's
     for i in range(fb.shape[0]):
         for w in range(n_w):
             s, e = fb[i] - ns[w], fb[i]
             if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
-                cs[m], ce[m], cw[m] = s, e, w
+                cs[m], ce[m], cw[m], known[m] = s, e, w, pos_b[i]
                 m += 1
     total = np.empty(m)
     ca = np.empty(m)
@@ -233,8 +277,10 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     for i in range(m):
         rate[i] = rates[cw[i]]
         nxt[i] = min(ce[i] + 1, clip_end[ce[i]] - 1)
-    _seam_costs4(pm, vm, cs[:m], cs[:m], pa, va, rate, ca)
-    _seam_costs4(pm, vm, ce[:m], nxt, pb, vb, rate, cb)
+    _vel_costs4(vm, cs[:m_a], va, rate[:m_a], known[:m_a], ca[:m_a])
+    _seam_costs4(pm, vm, cs[m_a:m], cs[m_a:m], pa, va, rate[m_a:], ca[m_a:])
+    _seam_costs4(pm, vm, ce[:m_a], nxt[:m_a], pb, vb, rate[:m_a], cb[:m_a])
+    _vel_costs4(vm, nxt[m_a:], vb, rate[m_a:], known[m_a:m], cb[m_a:])
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     for i in range(m):
         s, e, w = cs[i], ce[i], cw[i]
