@@ -537,3 +537,24 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 rots[t, thigh, c] = th[c]
                 rots[t, shin, c] = sh[c]
                 rots[t, ankle, c] = ft[c]
+
+
+@nb.njit(**_OPTS)
+def slerp(a, b, t, out):
+    """``out[i]`` = spherical linear interpolation from ``a[i]`` to ``b[i]`` (M, 4) at the
+    fraction ``t`` on the short arc (:func:`posturemap.quat.slerp`, the reference)."""
+    for i in range(a.shape[0]):
+        d = a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2] + a[i, 3] * b[i, 3]
+        sign = -1.0 if d < 0 else 1.0
+        d = abs(d)
+        theta = math.acos(min(max(d, -1.0), 1.0))
+        sin_theta = math.sin(theta)
+        if sin_theta < 1e-6:
+            wa, wb = 1.0 - t, t
+        else:
+            wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
+        wb *= sign
+        q0, q1 = wa * a[i, 0] + wb * b[i, 0], wa * a[i, 1] + wb * b[i, 1]
+        q2, q3 = wa * a[i, 2] + wb * b[i, 2], wa * a[i, 3] + wb * b[i, 3]
+        n = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0 / n, q1 / n, q2 / n, q3 / n

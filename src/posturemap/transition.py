@@ -598,7 +598,9 @@ class TransitionEngine:
                 if c <= 0.0:
                     out_r[:, mask] = rots_fb[:, mask]
                 elif c < 1.0:
-                    out_r[:, mask] = quat.slerp(rots_fb[:, mask], out_r[:, mask], c)
+                    fb_part, part = rots_fb[:, mask].reshape(-1, 4), out_r[:, mask].reshape(-1, 4)
+                    kernels.slerp(fb_part, part, c, part)
+                    out_r[:, mask] = part.reshape(length, -1, 4)
             if 0.0 < res.confidence[0] < 1.0:
                 r = self._root
                 out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
