@@ -537,6 +537,11 @@ def test_batched_seams_and_distances_equal_the_single_ones(engine):
         both = rt.seam_distances(segments, xa, xb)
         assert both == [rt.seam_distance(p, s, e, xa, xb) for p, s, e in segments]
         assert min(both) > 0
+        for (p, s, e), got in zip(segments, both):  # the posture features of the map's encoding
+            x = rt.space.encode_parts(lib.rots[[s, e]][:, rt.space.joints].astype(float), lib.gpos[[s, e], UP])
+            dims = rt.part_dims[p]
+            d = max(np.linalg.norm((x[0] - xa)[dims]), np.linalg.norm((x[1] - xb)[dims]))
+            assert got == pytest.approx(np.degrees(d / np.sqrt(len(dims) / 3.0)), abs=1e-9)
 
 
 @pytest.mark.parametrize("circular", [False, True])

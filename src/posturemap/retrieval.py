@@ -148,7 +148,12 @@ class Retriever:
         lib, space = self.lib, self.space
         frames = [f for _, s, e in segments for f in (s, e)]
         rots = lib.rots[frames][:, space.joints].astype(np.float64)
-        x = space.encode_parts(rots, lib.gpos[frames, space.up])
+        if space.mode == "logmap":  # space.encode_parts, with the hot kernel for the rotations
+            x = np.empty((len(frames), 3 * len(space.joints) + 1))
+            kernels.log_relative(rots, space.reference, x[:, :-1].reshape(len(frames), -1, 3))
+            x[:, -1] = lib.gpos[frames, space.up] / space.height_scale
+        else:
+            x = space.encode_parts(rots, lib.gpos[frames, space.up])
         circ = space.circular
         out = []
         for i, (part, _, _) in enumerate(segments):
