@@ -462,8 +462,8 @@ def test_compiled_search_matches_the_numpy_steps(engine, clips):
                 continue
             np.testing.assert_array_equal(got[0], ref[0])  # the same segments in the same order
             np.testing.assert_array_equal(got[1], ref[1])
-            for g, r in zip(got[2:], ref[2:]):  # the costs, summed in the same order: the same bits
-                np.testing.assert_array_equal(g, r)
+            for g, r in zip(got[2:], ref[2:]):  # the costs (sums vectorised: to rounding)
+                np.testing.assert_allclose(g, r, rtol=1e-13)
             checked += len(ref[0])
     assert checked > 100
     # The numpy backend's search (numpy costs, float64 squares) finds the same best segments.
