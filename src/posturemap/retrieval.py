@@ -133,6 +133,12 @@ class Retriever:
         kernels.fk(eng.skeleton.parents, rots, pos, grot, gp)
         root_pos = np.concatenate([ta.gpos[ia], tb.gpos[ib]])
         heading = np.concatenate([ta.heading[ia], tb.heading[ib]])
+        if _compiled() is not None:
+            k = len(self.keys)
+            pose, vel, root = np.empty((2, k, 3)), np.empty((2, k, 3)), np.empty((2, 5))
+            _compiled().seam_features(gp, root_pos, heading, self.keys, eng._up, float(ta.motion.fps), pose, vel,
+                                      root)
+            return Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
         pose = heading_frame(gp[:, self.keys] - root_pos[:, None], heading, eng._up)
         vel, root = motion_features(pose, root_pos, heading, eng._up, ta.motion.fps, np.array([0, 2, 4]))
         return Seams(pose[1], vel[1], root[1]), Seams(pose[2], vel[2], root[2])

@@ -347,3 +347,38 @@ def gather_seams(weights, cols0, cols1, qa0, qa1, qb0, qb1, period0, period1, in
             _frames_of_nearest(d2[1], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[2], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[3], index_ptr, index_frames, n_take, budget))
+
+
+@nb.njit(**_OPTS)
+def seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root):
+    """The matching features of :func:`posturemap.library.clip_features` at A's end and B's start.
+
+    gp (4, J, 3) global joint positions, root_pos (4, 3), heading (4,) of the frames A[a_end-1],
+    A[a_end], B[b_start], B[b_start+1]; keys (K,) key joints. Writes ``pose``/``vel`` (2, K, 3)
+    and ``root`` (2, 5) of A's end (row 0; velocity backward) and B's start (row 1; forward).
+    """
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    rel = np.empty((4, keys.shape[0], 3))
+    for f in range(4):
+        c, s = math.cos(heading[f]), math.sin(heading[f])
+        for k in range(keys.shape[0]):
+            va = gp[f, keys[k], a_] - root_pos[f, a_]
+            vb = gp[f, keys[k], b_] - root_pos[f, b_]
+            rel[f, k, a_] = c * va + s * vb
+            rel[f, k, b_] = -s * va + c * vb
+            rel[f, k, up] = gp[f, keys[k], up] - root_pos[f, up]
+    for row in range(2):
+        f, prev = (1, 0) if row == 0 else (2, 3)
+        rate = fps if row == 0 else -1.0 * fps  # B's first frame: the forward difference, negated
+        for k in range(keys.shape[0]):
+            for x in range(3):
+                pose[row, k, x] = rel[f, k, x]
+                vel[row, k, x] = (rel[f, k, x] - rel[prev, k, x]) * rate
+        da = (root_pos[f, a_] - root_pos[prev, a_]) * rate
+        db = (root_pos[f, b_] - root_pos[prev, b_]) * rate
+        c, s = math.cos(heading[f]), math.sin(heading[f])
+        root[row, a_] = c * da + s * db
+        root[row, b_] = -s * da + c * db
+        root[row, up] = (root_pos[f, up] - root_pos[prev, up]) * rate
+        root[row, 3] = (heading[f] - heading[prev]) * (1.0 if row == 0 else -1.0) * fps
+        root[row, 4] = root_pos[f, up]
