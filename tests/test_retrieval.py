@@ -488,8 +488,9 @@ def test_compiled_selection_of_the_smallest():
     np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, 4)), [1, 2, 3, 6])
 
 
+@pytest.mark.parametrize("budget", [retrieval.BUDGET, 6000, 30000])  # 30000: more than 256 neurons hold
 @pytest.mark.parametrize("circular", [False, True])
-def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular):
+def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular, budget):
     from types import SimpleNamespace
 
     from posturemap.library import INDEX_CLASS
@@ -507,6 +508,7 @@ def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular):
     np.add.at(ptr, win + 1, 1)
     rt.cmap = SimpleNamespace(weights_=weights, period_=period)
     rt.lib = SimpleNamespace(index_ptr=np.cumsum(ptr), index_frames=np.argsort(win, kind="stable").astype(np.int64))
+    monkeypatch.setattr(retrieval, "BUDGET", budget)
     sizes = []
     for _ in range(10):
         x = rng.uniform(0, 2 * np.pi, dims.max() + 1)
@@ -517,7 +519,10 @@ def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular):
                 ref = rt.gather(x, part)
             np.testing.assert_array_equal(got, ref)  # the same frames in the same order
             sizes.append(len(ref))
-    assert min(sizes) >= retrieval.BUDGET
+    if budget < 20000:
+        assert min(sizes) >= budget
+    else:  # the budget is out of reach: every one of the nearest GATHER_NEURONS neurons is visited
+        assert max(sizes) < budget
 
 
 def test_batched_seams_and_distances_equal_the_single_ones(engine):

@@ -291,24 +291,38 @@ def _sqdist(weights, i, cols, q, period):
 
 
 @nb.njit(**_OPTS)
+def _sqdist_linear(weights, i, cols, q):
+    """:func:`_sqdist` where no period is finite (the same values: ``|d|^2 = d^2``)."""
+    acc = 0.0
+    for j in range(cols.shape[0]):
+        diff = weights[i, cols[j]] - q[j]
+        acc += diff * diff
+    return acc
+
+
+@nb.njit(**_OPTS)
 def _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget):
     """The library frames of the neurons nearest first (squared distances ``d2``) until
     ``budget`` frames are gathered (see :func:`gather`)."""
     n = d2.shape[0]
-    near = _smallest(d2, n_take) if n_take < n else np.arange(n)
-    near = near[np.argsort(d2[near])]
     n_indexed = index_ptr.shape[0] - 1  # neurons past the last indexed one hold no frame
-    chosen = np.empty(near.shape[0], dtype=np.int64)
-    n_c = 0
-    total = 0
-    for i in range(near.shape[0]):
-        k = near[i]
-        if k >= n_indexed:
-            continue
-        chosen[n_c] = k
-        n_c += 1
-        total += index_ptr[k + 1] - index_ptr[k]
-        if total >= budget:
+    # Usually a few dozen neurons hold the budget: sort the nearest 64 first, all n_take if short.
+    for take in (min(64, n_take), n_take):
+        near = _smallest(d2, take) if take < n else np.arange(n)
+        near = near[np.argsort(d2[near])]
+        chosen = np.empty(near.shape[0], dtype=np.int64)
+        n_c = 0
+        total = 0
+        for i in range(near.shape[0]):
+            k = near[i]
+            if k >= n_indexed:
+                continue
+            chosen[n_c] = k
+            n_c += 1
+            total += index_ptr[k + 1] - index_ptr[k]
+            if total >= budget:
+                break
+        if total >= budget or take >= min(n, n_take):
             break
     out = np.empty(total, dtype=np.int64)
     m = 0
@@ -338,11 +352,22 @@ def gather_seams(weights, cols0, cols1, qa0, qa1, qb0, qb1, period0, period1, in
     ``cols1``) in one pass over the neurons: ``(a0, b0, a1, b1)``, the same frames."""
     n = weights.shape[0]
     d2 = np.empty((4, n))
+    circular = False
+    for j in range(period0.shape[0]):
+        circular |= period0[j] < np.inf
+    for j in range(period1.shape[0]):
+        circular |= period1[j] < np.inf
     for i in range(n):
-        d2[0, i] = _sqdist(weights, i, cols0, qa0, period0)
-        d2[1, i] = _sqdist(weights, i, cols0, qb0, period0)
-        d2[2, i] = _sqdist(weights, i, cols1, qa1, period1)
-        d2[3, i] = _sqdist(weights, i, cols1, qb1, period1)
+        if circular:
+            d2[0, i] = _sqdist(weights, i, cols0, qa0, period0)
+            d2[1, i] = _sqdist(weights, i, cols0, qb0, period0)
+            d2[2, i] = _sqdist(weights, i, cols1, qa1, period1)
+            d2[3, i] = _sqdist(weights, i, cols1, qb1, period1)
+        else:
+            d2[0, i] = _sqdist_linear(weights, i, cols0, qa0)
+            d2[1, i] = _sqdist_linear(weights, i, cols0, qb0)
+            d2[2, i] = _sqdist_linear(weights, i, cols1, qa1)
+            d2[3, i] = _sqdist_linear(weights, i, cols1, qb1)
     return (_frames_of_nearest(d2[0], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[1], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[2], index_ptr, index_frames, n_take, budget),
