@@ -9,6 +9,8 @@ match at B monotonically, and the library survives the map file.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -569,3 +571,28 @@ def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
             np.testing.assert_array_equal(both[part][0], rt.gather(xa, part))
             np.testing.assert_array_equal(both[part][1], rt.gather(xb, part))
             assert len(both[part][0]) >= retrieval.BUDGET
+
+
+def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
+    assert retrieval._compiled() is not None
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(13)
+    for i in range(12):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        # B's headings a few turns off A's (a clip that turned on the spot): B's seam is taken
+        # to the nearest equivalent heading.
+        tb = dataclasses.replace(tb, heading=tb.heading + 2 * np.pi * (i % 3 - 1) * 2)
+        a_end, b_start = int(rng.integers(1, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 1))
+        ia, ib = [a_end - 1, a_end], [b_start, b_start + 1]
+        length = int(rng.integers(5, 46))
+        qa, qb = rt.seam_pair(ta, ia, tb, ib)
+        sa, sb = rt.gather_seams(ta.features[a_end], tb.features[b_start])[0]
+        s, e = rt.search(0, qa, qb, sa, sb, length + 1.0, 30.0, 0.5, None, 1 + i % 8)[:2]
+        i0, i1, f = retrieval.segment_times(rt.lib, s, e, length + 1.0)
+        curves = retrieval.hermite_offsets(length, float(rng.uniform(5, 25)))
+        align = bool(i % 2)
+        got = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
+        ref = retrieval.root_trajectory_numpy(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
+        for g, r in zip(got, ref):  # positions, headings, B's turn and shift
+            np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
+        assert np.ptp(ref[0][:, 0]) > 1.0  # the root moves (not a trivial comparison)

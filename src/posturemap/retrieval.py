@@ -419,6 +419,14 @@ def _hermite_offsets_cached(length: int, blend: float) -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=64)
+def _smoothstep_cached(length: int) -> np.ndarray:
+    """:func:`smoothstep`, kept per length and read-only."""
+    out = smoothstep(length)
+    out.setflags(write=False)
+    return out
+
+
 def smoothstep(length: int) -> np.ndarray:
     """``3 u^2 - 2 u^3`` at frames 1..length of a gap of ``d = length + 1`` frames (u = t / d)."""
     u = np.arange(1, length + 1) / (length + 1.0)
@@ -541,6 +549,61 @@ def _rotate_h(v: np.ndarray, angle, up: int) -> np.ndarray:
     return out
 
 
+def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool, up: int,
+                    curves: np.ndarray):
+    """The root path of the lower body's segments sampled at (i0, i1, f) (K, T): each turned and
+    moved to continue A (frames ``ia`` of track ``ta``), its seams corrected towards A and B
+    (frames ``ib`` of ``tb``; with ``align`` B moves to where the segments end, with ``curves``
+    (4, L) the offsets and the horizontal path spread over the gap into B), averaged.
+
+    Returns positions (L, 3), headings (L,), B's turn and shift (3,). Compiled where numba is in use
+    (:func:`posturemap.retrieval_numba.trajectory`; :func:`root_trajectory_numpy` is the reference).
+    """
+    if _compiled() is None:
+        return root_trajectory_numpy(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
+    length = curves.shape[1]
+    gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
+    dtheta = _compiled().trajectory(lib.gpos, lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia], tb.gpos[ib],
+                                    tb.heading[ib], align, up, curves, _smoothstep_cached(length), gpos, heading,
+                                    shift)
+    return gpos, heading, float(dtheta), shift
+
+
+def root_trajectory_numpy(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool,
+                          up: int, curves: np.ndarray):
+    """:func:`root_trajectory` in numpy steps."""
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    length = curves.shape[1]
+    a_end, b_start = ia[1], ib[0]
+    gp, hd = sample_trajectory(lib, i0, i1, f)
+    theta0 = ta.heading[a_end] - hd[:, 1]
+    traj = np.empty(hd.shape + (3,))
+    rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
+    traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
+    traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
+    traj[..., 2] = hd + theta0[:, None]
+    a2 = np.stack([[ta.gpos[i, a_], ta.gpos[i, b_], ta.heading[i]] for i in ia])
+    if align:
+        end = traj[:, -2].mean(axis=0)
+        dtheta = float(end[2] - tb.heading[b_start])
+        turned = _rotate_h(tb.gpos[ib], dtheta, up)
+        shift = np.zeros(3)
+        shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
+    else:
+        dtheta, shift = 0.0, np.zeros(3)
+    b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
+    b_head = tb.heading[ib] + dtheta
+    b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
+    b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
+    tcurves = curves.copy()
+    tcurves[2] = smoothstep(length)
+    tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
+    height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
+    gpos = np.empty((length, 3))
+    gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
+    return gpos, tr[:, 2], dtheta, shift
+
+
 class Result:
     """What one retrieval transition made: frames, B's alignment, contacts and the report."""
 
@@ -612,35 +675,8 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
                                           curves)
         if p == 0:
-            best_u = i0[0] + f[0]
-            gp, hd = sample_trajectory(lib, i0, i1, f)
-            theta0 = ta.heading[a_end] - hd[:, 1]
-            traj = np.empty(hd.shape + (3,))
-            rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
-            traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
-            traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
-            traj[..., 2] = hd + theta0[:, None]
-            a2 = np.stack([[ta.gpos[i, a_], ta.gpos[i, b_], ta.heading[i]] for i in ia])
-            if align:
-                end = traj[:, -2].mean(axis=0)
-                dtheta = float(end[2] - tb.heading[b_start])
-                turned = _rotate_h(tb.gpos[ib], dtheta, up)
-                shift = np.zeros(3)
-                shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
-            else:
-                dtheta, shift = 0.0, np.zeros(3)
-            b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
-            b_head = tb.heading[ib] + dtheta
-            b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
-            b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
-            tcurves = curves.copy()
-            tcurves[2] = smoothstep(length)
-            tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
-            height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
-            gpos = np.empty((length, 3))
-            gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
-            heading = tr[:, 2]
-            frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
+            gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
+            frames = np.clip(np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64), 0, len(lib) - 1)
             contacts = lib.contacts[frames]
     info = {"parts": parts, "confidence": round(min(conf), 3)}
     return Result(out, gpos, heading, dtheta, shift, contacts, info, conf)

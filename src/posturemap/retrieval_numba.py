@@ -407,3 +407,89 @@ def seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root):
         root[row, up] = (root_pos[f, up] - root_pos[prev, up]) * rate
         root[row, 3] = (heading[f] - heading[prev]) * (1.0 if row == 0 else -1.0) * fps
         root[row, 4] = root_pos[f, up]
+
+
+@nb.njit(**_OPTS)
+def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
+    """Channel ``ch`` of :func:`posturemap.retrieval.offset_values` averaged over the segments:
+    src (K, T, C) sampled at t = -1 .. d + 1, seam values a0, a1 (A) and b0, b1 (B) (K-independent),
+    curves (4, L); writes out[:, ch] (L, ...)."""
+    n_k = src.shape[0]
+    n_l = curves.shape[1]
+    for t in range(n_l):
+        out[t] = 0.0
+    for k in range(n_k):
+        r_a = a1 - src[k, 1, ch]
+        v_a = (a1 - a0) - (src[k, 1, ch] - src[k, 0, ch])
+        r_b = b0 - src[k, n_l + 2, ch]
+        v_b = (b1 - b0) - (src[k, n_l + 3, ch] - src[k, n_l + 2, ch])
+        for t in range(n_l):
+            out[t] += (src[k, t + 2, ch] + curves[0, t] * r_a + curves[1, t] * v_a + curves[2, t] * r_b
+                       + curves[3, t] * v_b)
+    for t in range(n_l):
+        out[t] /= n_k
+
+
+@nb.njit(**_OPTS)
+def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head_in, align, up, curves, smooth,
+               gpos, heading, shift):
+    """The root trajectory of the lower body's segments (see :func:`posturemap.retrieval.retrieve`):
+    each segment's root path sampled at (i0, i1, f) (K, T), turned and moved to continue A
+    (``a_pos`` (2, 3), ``a_head`` (2,): A at a_end-1, a_end), its seams corrected towards A and B
+    (B at b_start, b_start+1 moved by the returned turn and ``shift``, when ``align`` to where
+    the segments end), averaged. Writes ``gpos`` (L, 3), ``heading`` (L,) and ``shift`` (3,);
+    returns B's turn ``dtheta``. ``curves`` (4, L) are the seam offsets, ``smooth`` (L,) the
+    horizontal path's rise into B."""
+    n_k, n_t = i0.shape
+    n_l = curves.shape[1]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    traj = np.empty((n_k, n_t, 4))  # horizontal a_, b_, heading, height
+    for k in range(n_k):
+        g1a = lib_gpos[i0[k, 1], a_] + f[k, 1] * (lib_gpos[i1[k, 1], a_] - lib_gpos[i0[k, 1], a_])
+        g1b = lib_gpos[i0[k, 1], b_] + f[k, 1] * (lib_gpos[i1[k, 1], b_] - lib_gpos[i0[k, 1], b_])
+        h1 = lib_heading[i0[k, 1]] + f[k, 1] * (lib_heading[i1[k, 1]] - lib_heading[i0[k, 1]])
+        theta0 = a_head[1] - h1
+        c, s = math.cos(theta0), math.sin(theta0)
+        for t in range(n_t):
+            j0, j1, u = i0[k, t], i1[k, t], f[k, t]
+            va = lib_gpos[j0, a_] + u * (lib_gpos[j1, a_] - lib_gpos[j0, a_]) - g1a
+            vb = lib_gpos[j0, b_] + u * (lib_gpos[j1, b_] - lib_gpos[j0, b_]) - g1b
+            traj[k, t, 0] = (c * va - s * vb) + a_pos[1, a_]
+            traj[k, t, 1] = (s * va + c * vb) + a_pos[1, b_]
+            traj[k, t, 2] = lib_heading[j0] + u * (lib_heading[j1] - lib_heading[j0]) + theta0
+            traj[k, t, 3] = lib_gpos[j0, up] + u * (lib_gpos[j1, up] - lib_gpos[j0, up])
+    end = np.zeros(3)
+    for k in range(n_k):
+        for x in range(3):
+            end[x] += traj[k, n_t - 2, x]
+    for x in range(3):
+        end[x] /= n_k
+    shift[:] = 0.0
+    dtheta = 0.0
+    if align:
+        dtheta = end[2] - b_head_in[0]
+        c, s = math.cos(dtheta), math.sin(dtheta)
+        shift[a_] = end[0] - (c * b_pos_in[0, a_] - s * b_pos_in[0, b_])
+        shift[b_] = end[1] - (s * b_pos_in[0, a_] + c * b_pos_in[0, b_])
+    c, s = math.cos(dtheta), math.sin(dtheta)
+    b_pos = np.empty((2, 3))
+    b_head = np.empty(2)
+    for i in range(2):
+        b_pos[i, a_] = (c * b_pos_in[i, a_] - s * b_pos_in[i, b_]) + shift[a_]
+        b_pos[i, b_] = (s * b_pos_in[i, a_] + c * b_pos_in[i, b_]) + shift[b_]
+        b_head[i] = b_head_in[i] + dtheta
+    turns = np.rint((end[2] - b_head[0]) / (2 * math.pi))
+    for i in range(2):
+        b_head[i] += 2 * math.pi * turns
+    tcurves = curves.copy()
+    tcurves[2] = smooth
+    out = np.empty(n_l)
+    _offset_mean(traj, a_pos[0, a_], a_pos[1, a_], b_pos[0, a_], b_pos[1, a_], tcurves, out, 0)
+    gpos[:, a_] = out
+    _offset_mean(traj, a_pos[0, b_], a_pos[1, b_], b_pos[0, b_], b_pos[1, b_], tcurves, out, 1)
+    gpos[:, b_] = out
+    _offset_mean(traj, a_head[0], a_head[1], b_head[0], b_head[1], tcurves, out, 2)
+    heading[:] = out
+    _offset_mean(traj, a_pos[0, up], a_pos[1, up], b_pos_in[0, up], b_pos_in[1, up], curves, out, 3)
+    gpos[:, up] = out
+    return dtheta
