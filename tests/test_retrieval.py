@@ -528,7 +528,8 @@ def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular, 
 
 
 def test_batched_seams_and_distances_equal_the_single_ones(engine):
-    # seam_pair runs the compiled seam_features here (numba is loaded); seams is the numpy reference.
+    # seam_pair and seam_distances run compiled kernels here (numba is loaded); seams and
+    # encode_parts are the numpy references.
     rt = retrieval.Retriever(engine, engine.model.library_)
     lib = rt.lib
     rng = np.random.default_rng(11)

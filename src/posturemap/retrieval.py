@@ -153,6 +153,14 @@ class Retriever:
         """:meth:`seam_distance` of several segments ``[(part, s, e), ...]``, encoded in one go."""
         lib, space = self.lib, self.space
         frames = [f for _, s, e in segments for f in (s, e)]
+        if space.mode == "logmap" and _compiled() is not None and not space.circular.any():
+            dims = [self.part_dims[p] for p, _, _ in segments]
+            out = np.empty(len(segments))
+            _compiled().seam_distances(lib.rots, lib.gpos, np.array(frames, dtype=np.int64), space.joints,
+                                       space.reference, space.up, float(space.height_scale), xa, xb,
+                                       np.concatenate(dims).astype(np.int64),
+                                       np.cumsum([0] + [len(d) for d in dims]).astype(np.int64), out)
+            return out.tolist()
         rots = lib.rots[frames][:, space.joints].astype(np.float64)
         if space.mode == "logmap":  # space.encode_parts, with the hot kernel for the rotations
             x = np.empty((len(frames), 3 * len(space.joints) + 1))
@@ -381,8 +389,8 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     is as accurate (0.168) and locomotion is unchanged.
     """
     lo, hi = STILL_SPEED
-    flat = [i for i in range(3) if i != up]
-    speed = max(float(np.linalg.norm(q.root[flat])) for q in (qa, qb)) / leg
+    a, b = [i for i in range(3) if i != up]
+    speed = max(math.sqrt(q.root[a] ** 2 + q.root[b] ** 2) for q in (qa, qb)) / leg
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
@@ -652,7 +660,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     # Confidence first: a part the caller replaces by the fallback need not be replayed.
     still = still_weight(qa, qb, lib.leg, up)
     dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = [float(np.clip((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0)) * still for c in dist]
+    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
     curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     j_count = eng.skeleton.num_joints
     out = np.empty((length, j_count, 4))

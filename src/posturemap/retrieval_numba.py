@@ -493,3 +493,33 @@ def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head
     _offset_mean(traj, a_pos[0, up], a_pos[1, up], b_pos_in[0, up], b_pos_in[1, up], curves, out, 3)
     gpos[:, up] = out
     return dtheta
+
+
+@nb.njit(**_OPTS)
+def seam_distances(rots, gpos, frames, joints, reference, up, height_scale, xa, xb, dims, dim_ptr, out):
+    """:meth:`posturemap.retrieval.Retriever.seam_distances` for a map in logmap mode (no circular
+    dimension): segment ``i`` starts at library frame ``frames[2 i]`` and ends at ``frames[2 i + 1]``
+    and counts the feature dimensions ``dims[dim_ptr[i]:dim_ptr[i + 1]]``; ``out[i]`` in degrees."""
+    n_j = joints.shape[0]
+    x = np.empty((frames.shape[0], 3 * n_j + 1))
+    for r in range(frames.shape[0]):
+        f = frames[r]
+        for m in range(n_j):
+            j = joints[m]
+            w, a, b, c = _mul(reference[m, 0], -reference[m, 1], -reference[m, 2], -reference[m, 3],
+                              float(rots[f, j, 0]), float(rots[f, j, 1]), float(rots[f, j, 2]), float(rots[f, j, 3]))
+            if w < 0.0:
+                w, a, b, c = -w, -a, -b, -c
+            s = math.sqrt(a * a + b * b + c * c)
+            k = 2.0 * math.atan2(s, w) / s if s > 1e-8 else 2.0 + s * s / 3.0
+            x[r, 3 * m], x[r, 3 * m + 1], x[r, 3 * m + 2] = a * k, b * k, c * k
+        x[r, 3 * n_j] = gpos[f, up] / height_scale
+    for i in range(out.shape[0]):
+        da = 0.0
+        db = 0.0
+        for q in range(dim_ptr[i], dim_ptr[i + 1]):
+            d = dims[q]
+            da += (x[2 * i, d] - xa[d]) ** 2
+            db += (x[2 * i + 1, d] - xb[d]) ** 2
+        n = max(dim_ptr[i + 1] - dim_ptr[i], 1)
+        out[i] = max(math.sqrt(da), math.sqrt(db)) / math.sqrt(n / 3.0) * (180.0 / math.pi)
