@@ -541,6 +541,10 @@ def test_batched_seams_and_distances_equal_the_single_ones(engine):
         for got, ref in zip(pair, (rt.seams(ta, ia, 1), rt.seams(tb, ib, 0))):
             for name in ("pose", "vel", "root"):
                 np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+            for part in (0, 1):  # a seam's rows as the library's rows are made
+                rows = rt.rows(part, got.pose[None], got.vel[None], got.root[None])
+                for a, b in zip(rt.query_vectors(part, got), rows):
+                    np.testing.assert_array_equal(a, b[0])
         segments = [(p, int(rng.integers(len(lib))), int(rng.integers(len(lib)))) for p in (0, 1, 1)]
         xa, xb = ta.features[a_end], tb.features[b_start]
         both = rt.seam_distances(segments, xa, xb)

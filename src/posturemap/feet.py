@@ -141,21 +141,22 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
-              contacts=None) -> np.ndarray:
+              contacts=None, body: float | None = None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
     translations; ``gpos_fn(rots)`` gives their global rotations and positions (L, J, 4/3).
     ``a_feet``/``b_feet`` (2, n_legs, 3) are the ankle positions in A's last two frames and
     B's first two (B as aligned), for the planted test. ``contacts`` (L, n_legs) bool, when
-    given, are the planted frames (otherwise they are detected from height and speed).
+    given, are the planted frames (otherwise they are detected from height and speed). ``body``:
+    :func:`leg_length` of the skeleton, when the caller keeps it.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, fading to 0.
     """
     weights = np.zeros((len(rots), len(chains)))
     if not chains or len(rots) == 0:
         return weights
-    body = leg_length(sk, chains)
+    body = leg_length(sk, chains) if body is None else body
     grot, gpos = gpos_fn(rots)
     flat = np.ones(3)
     flat[up] = 0.0
@@ -165,7 +166,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
         planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
-        jit.lock_legs(np.asarray(sk.parents, dtype=np.int64), legs, rots, grot, gpos, up,
+        jit.lock_legs(sk.parents.astype(np.int64, copy=False), legs, rots, grot, gpos, up,
                       np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
                       speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, weights)
         return weights

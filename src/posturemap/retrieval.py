@@ -105,6 +105,7 @@ class Retriever:
             cols = np.flatnonzero(np.isin(index_dims, dims))
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
+        self._root_w = None
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -275,8 +276,17 @@ class Retriever:
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
         """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
         if part not in q.vectors:
-            p, v = self.rows(part, q.pose[None], q.vel[None], q.root[None])
-            q.vectors[part] = (p[0], v[0])
+            if self._root_w is None:
+                self._root_w = np.sqrt(np.array(W_ROOT)) / self.lib.scale[4:7]
+            lib, kl = self.lib, self.kl
+            cols = slice(0, kl) if part == 0 else slice(kl, None)
+            p = q.pose[cols].ravel() / lib.scale[2 * part]  # :meth:`rows` of one frame, the same values
+            v = q.vel[cols].ravel() * (math.sqrt(W_VEL) / lib.scale[2 * part + 1])
+            if part == 0:
+                w = self._root_w
+                p = np.concatenate([p, q.root[4:5] * w[2]])
+                v = np.concatenate([v, q.root[:3] * w[0], q.root[3:4] * w[1]])
+            q.vectors[part] = (p.astype(np.float32), v.astype(np.float32))
         return q.vectors[part]
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
@@ -367,16 +377,27 @@ class Retriever:
         """:meth:`search` in one compiled call (:func:`posturemap.retrieval_numba.search`)."""
         lib = self.lib
         pm, vm = self.matrices[part]
-        ns = np.unique(np.maximum(1, np.round(np.array(WARPS) * d * (lib.fps / fps))).astype(np.int64))
-        rho = (ns / lib.fps) / (d / fps)  # as in costs, per duration
+        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps))
         use_disp = disp is not None and part == 0
         found = _compiled().search(pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64),
                                    np.asarray(sb, dtype=np.int64), *self.query_vectors(part, qa),
-                                   *self.query_vectors(part, qb), ns, W_WARP * np.log(rho) ** 2, 1.0 / rho,
+                                   *self.query_vectors(part, qb), ns, penalty, rates,
                                    PREFILTER, float(alpha), use_disp, lib.gpos, lib.heading, lib.up,
                                    np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64),
                                    DISP_SCALE * lib.leg, W_DISP, k)
         return found if len(found[0]) else None
+
+
+@lru_cache(maxsize=256)
+def _warp_terms(d: float, lib_fps: float, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The segment durations (W,) of a gap of ``d`` frames (as :meth:`Retriever.candidates` makes
+    them), their warp penalties and speed factors (as :meth:`Retriever.costs` computes them)."""
+    ns = np.unique(np.maximum(1, np.round(np.array(WARPS) * d * (lib_fps / fps))).astype(np.int64))
+    rho = (ns / lib_fps) / (d / fps)
+    out = (ns, W_WARP * np.log(rho) ** 2, 1.0 / rho)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:

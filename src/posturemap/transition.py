@@ -54,7 +54,7 @@ import numpy as np
 
 from . import kernels, quat
 from .errors import UserError
-from .feet import leg_chains, lock_feet
+from .feet import leg_chains, leg_length, lock_feet
 from .features import TWO_PI, root_global, upright_rest
 from .motion import Motion, concatenate, root_index, up_axis, up_vector
 
@@ -309,6 +309,7 @@ class TransitionEngine:
             self._rest = upright_rest(root_global(motion, self._root)[0], self._up)
         if not self._legs:
             self._legs = leg_chains(self.skeleton)
+            self._leg_length = leg_length(self.skeleton, self._legs)
         tr = make_track(motion, self._root, self._up, self._rest, space)
         self.tracks[name] = tr
         return tr
@@ -558,7 +559,7 @@ class TransitionEngine:
         if foot_lock and self._legs:
             b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
             lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, up, ta.feet[ia[1:]], b_feet,
-                      ta.motion.fps)
+                      ta.motion.fps, body=self._leg_length)
         self.last = {"key": key, "neurons": chosen, "dtheta": dtheta, "shift": shift}
         return out_r, out_p
 
@@ -622,7 +623,7 @@ class TransitionEngine:
             ia = [max(a_end - 1, 0), a_end]
             b_feet = rotate_about_up(tb.feet[ib], dtheta, self._up) + shift
             self.last["planted"] = lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up,
-                                             ta.feet[ia], b_feet, ta.motion.fps, contacts)
+                                             ta.feet[ia], b_feet, ta.motion.fps, contacts, self._leg_length)
         return out_r, out_p
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
