@@ -525,9 +525,14 @@ def _compiled():
     training, the studio, benchmarks), else None (a single CLI transition stays in numpy)."""
     if kernels.backend() != "numba":
         return None
-    from . import retrieval_numba
+    if not _loaded:  # an import statement per call would cost a microsecond each, dozens a transition
+        from . import retrieval_numba
 
-    return retrieval_numba
+        _loaded.append(retrieval_numba)
+    return _loaded[0]
+
+
+_loaded: list = []  # [retrieval_numba] once _compiled() has loaded it
 
 
 def offset_rotations(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndarray) -> np.ndarray:
