@@ -106,6 +106,7 @@ class Retriever:
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
         self._root_w = None
+        self._index_w = None
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -223,9 +224,12 @@ class Retriever:
         cmap, lib = self.cmap, self.lib
         dims = self.space.class_dims[INDEX_CLASS]
         c0, c1 = self.index_cols
-        a0, b0, a1, b1 = _compiled().gather_seams(cmap.weights_, c0, c1, xa[dims[c0]], xa[dims[c1]], xb[dims[c0]],
-                                                  xb[dims[c1]], cmap.period_[c0], cmap.period_[c1], lib.index_ptr,
-                                                  lib.index_frames, GATHER_NEURONS, BUDGET)
+        if self._index_w is None or self._index_w[0] is not cmap.weights_:  # the map's columns of each part
+            self._index_w = (cmap.weights_, np.ascontiguousarray(cmap.weights_[:, c0]),
+                             np.ascontiguousarray(cmap.weights_[:, c1]))
+        a0, b0, a1, b1 = _compiled().gather_seams(self._index_w[1], self._index_w[2], xa[dims[c0]], xa[dims[c1]],
+                                                  xb[dims[c0]], xb[dims[c1]], cmap.period_[c0], cmap.period_[c1],
+                                                  lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
         return [(a0, b0), (a1, b1)]
 
     def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):

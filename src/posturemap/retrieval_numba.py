@@ -291,16 +291,6 @@ def _sqdist(weights, i, cols, q, period):
 
 
 @nb.njit(**_OPTS)
-def _sqdist_linear(weights, i, cols, q):
-    """:func:`_sqdist` where no period is finite (the same values: ``|d|^2 = d^2``)."""
-    acc = 0.0
-    for j in range(cols.shape[0]):
-        diff = weights[i, cols[j]] - q[j]
-        acc += diff * diff
-    return acc
-
-
-@nb.njit(**_OPTS)
 def _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget):
     """The library frames of the neurons nearest first (squared distances ``d2``) until
     ``budget`` frames are gathered (see :func:`gather`)."""
@@ -345,29 +335,39 @@ def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
     return _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget)
 
 
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def _sqdists(w, q, period, circular, out):
+    """``out[i]`` = squared distance of row ``w[i]`` to ``q`` (circular where ``period`` is finite,
+    when ``circular``); vectorised over the columns."""
+    for i in range(w.shape[0]):
+        acc = 0.0
+        if circular:
+            for j in range(w.shape[1]):
+                diff = abs(w[i, j] - q[j])
+                diff = min(diff, period[j] - diff)
+                acc += diff * diff
+        else:
+            for j in range(w.shape[1]):
+                diff = w[i, j] - q[j]
+                acc += diff * diff
+        out[i] = acc
+
+
 @nb.njit(**_OPTS)
-def gather_seams(weights, cols0, cols1, qa0, qa1, qb0, qb1, period0, period1, index_ptr, index_frames, n_take,
-                 budget):
-    """:func:`gather` of both seams (``qa*``, ``qb*``) for both body parts (columns ``cols0``,
-    ``cols1``) in one pass over the neurons: ``(a0, b0, a1, b1)``, the same frames."""
-    n = weights.shape[0]
+def gather_seams(w0, w1, qa0, qa1, qb0, qb1, period0, period1, index_ptr, index_frames, n_take, budget):
+    """:func:`gather` of both seams (``qa*``, ``qb*``) for both body parts, whose columns of the
+    index map are ``w0`` and ``w1`` (N, D0/D1, contiguous): ``(a0, b0, a1, b1)``."""
+    n = w0.shape[0]
     d2 = np.empty((4, n))
     circular = False
     for j in range(period0.shape[0]):
         circular |= period0[j] < np.inf
     for j in range(period1.shape[0]):
         circular |= period1[j] < np.inf
-    for i in range(n):
-        if circular:
-            d2[0, i] = _sqdist(weights, i, cols0, qa0, period0)
-            d2[1, i] = _sqdist(weights, i, cols0, qb0, period0)
-            d2[2, i] = _sqdist(weights, i, cols1, qa1, period1)
-            d2[3, i] = _sqdist(weights, i, cols1, qb1, period1)
-        else:
-            d2[0, i] = _sqdist_linear(weights, i, cols0, qa0)
-            d2[1, i] = _sqdist_linear(weights, i, cols0, qb0)
-            d2[2, i] = _sqdist_linear(weights, i, cols1, qa1)
-            d2[3, i] = _sqdist_linear(weights, i, cols1, qb1)
+    _sqdists(w0, qa0, period0, circular, d2[0])
+    _sqdists(w0, qb0, period0, circular, d2[1])
+    _sqdists(w1, qa1, period1, circular, d2[2])
+    _sqdists(w1, qb1, period1, circular, d2[3])
     return (_frames_of_nearest(d2[0], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[1], index_ptr, index_frames, n_take, budget),
             _frames_of_nearest(d2[2], index_ptr, index_frames, n_take, budget),
