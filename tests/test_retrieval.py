@@ -601,3 +601,21 @@ def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
         for g, r in zip(got, ref):  # positions, headings, B's turn and shift
             np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
         assert np.ptp(ref[0][:, 0]) > 1.0  # the root moves (not a trivial comparison)
+
+
+def test_compiled_segment_times_match_the_numpy_steps(model, monkeypatch):
+    lib = model.library_
+    rng = np.random.default_rng(14)
+    # Segments anywhere, also at a clip's first and last frames (the samples before and after clip).
+    s = np.concatenate([rng.integers(0, len(lib) - 50, 40), lib.clip_start[:-1][:5]])
+    e = np.minimum(s + rng.integers(0, 45, len(s)), lib.clip_end[s] - 1)
+    for d in (6.0, 21.0, 31.0, 46.0):
+        got = retrieval.segment_times(lib, s, e, d)
+        with monkeypatch.context() as m:
+            m.setattr(retrieval, "_compiled", lambda: None)
+            ref = retrieval.segment_times(lib, s, e, d)
+        for g, r in zip(got, ref):
+            assert g.dtype == r.dtype
+            np.testing.assert_array_equal(g, r)
+        assert np.any(ref[0] == (lib.clip_end[s] - 1)[:, None])  # clamped at a clip's end
+        assert np.any(ref[2] == 0.0) and np.any((ref[2] > 0) & (ref[2] < 1))

@@ -158,8 +158,6 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         return weights
     body = leg_length(sk, chains) if body is None else body
     grot, gpos = gpos_fn(rots)
-    flat = np.ones(3)
-    flat[up] = 0.0
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
     jit = _compiled()
@@ -170,6 +168,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
                       speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, weights)
         return weights
+    flat = np.ones(3)
+    flat[up] = 0.0
     for leg, (thigh, shin, ankle) in enumerate(chains):
         h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])

@@ -474,6 +474,11 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     end hold its first/last frame.
     """
     t = np.arange(-1, d + 2, dtype=float)
+    if _compiled() is not None:
+        i0, i1, f = np.empty((len(s), len(t)), dtype=np.int64), np.empty((len(s), len(t)), dtype=np.int64), \
+            np.empty((len(s), len(t)))
+        _compiled().segment_times(lib.clip_start, lib.clip_of, lib.clip_end, s, e, float(d), t, i0, i1, f)
+        return i0, i1, f
     u = s[:, None] + t[None] * ((e - s) / d)[:, None]
     lo = lib.clip_start[lib.clip_of[s]][:, None]
     hi = (lib.clip_end[s] - 1)[:, None]

@@ -523,3 +523,18 @@ def seam_distances(rots, gpos, frames, joints, reference, up, height_scale, xa, 
             db += (x[2 * i + 1, d] - xb[d]) ** 2
         n = max(dim_ptr[i + 1] - dim_ptr[i], 1)
         out[i] = max(math.sqrt(da), math.sqrt(db)) / math.sqrt(n / 3.0) * (180.0 / math.pi)
+
+
+@nb.njit(**_OPTS)
+def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
+    """:func:`posturemap.retrieval.segment_times` into ``i0``, ``i1``, ``f`` (K, T) at times ``t`` (T,)."""
+    for k in range(s.shape[0]):
+        lo = clip_start[clip_of[s[k]]]
+        hi = clip_end[s[k]] - 1
+        step = (e[k] - s[k]) / d
+        for j in range(t.shape[0]):
+            u = min(max(s[k] + t[j] * step, lo), hi)
+            a = np.int64(math.floor(u))
+            i0[k, j] = a
+            i1[k, j] = min(a + 1, hi)
+            f[k, j] = u - a
