@@ -619,3 +619,17 @@ def test_compiled_segment_times_match_the_numpy_steps(model, monkeypatch):
             np.testing.assert_array_equal(g, r)
         assert np.any(ref[0] == (lib.clip_end[s] - 1)[:, None])  # clamped at a clip's end
         assert np.any(ref[2] == 0.0) and np.any((ref[2] > 0) & (ref[2] < 1))
+
+
+def test_the_warps_are_read_per_call(engine, clips, monkeypatch):
+    # The compiled search keeps the warp terms per gap: they must follow retrieval.WARPS.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    name, a_end, b_start = windows(clips, 45, 1, seed=3)[0]
+    tr = engine.tracks[name]
+    qa, qb = rt.seam_pair(tr, [a_end - 1, a_end], tr, [b_start, b_start + 1])
+    sa, sb = rt.gather_seams(tr.features[a_end], tr.features[b_start])[0]
+    s, e = rt.search(0, qa, qb, sa, sb, 46.0, 30.0, 0.5, None, 8)[:2]
+    assert len(set(e - s)) > 1  # segments of several durations
+    monkeypatch.setattr(retrieval, "WARPS", (1.0,))
+    s, e = rt.search(0, qa, qb, sa, sb, 46.0, 30.0, 0.5, None, 8)[:2]
+    assert set(e - s) == {46}

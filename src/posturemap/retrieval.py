@@ -381,7 +381,7 @@ class Retriever:
         """:meth:`search` in one compiled call (:func:`posturemap.retrieval_numba.search`)."""
         lib = self.lib
         pm, vm = self.matrices[part]
-        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps))
+        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
         use_disp = disp is not None and part == 0
         found = _compiled().search(pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64),
                                    np.asarray(sb, dtype=np.int64), *self.query_vectors(part, qa),
@@ -393,12 +393,12 @@ class Retriever:
 
 
 @lru_cache(maxsize=256)
-def _warp_terms(d: float, lib_fps: float, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _warp_terms(d: float, lib_fps: float, fps: float, warps: tuple, w_warp: float):
     """The segment durations (W,) of a gap of ``d`` frames (as :meth:`Retriever.candidates` makes
-    them), their warp penalties and speed factors (as :meth:`Retriever.costs` computes them)."""
-    ns = np.unique(np.maximum(1, np.round(np.array(WARPS) * d * (lib_fps / fps))).astype(np.int64))
+    them from ``warps``), their warp penalties and speed factors (as :meth:`Retriever.costs`)."""
+    ns = np.unique(np.maximum(1, np.round(np.array(warps) * d * (lib_fps / fps))).astype(np.int64))
     rho = (ns / lib_fps) / (d / fps)
-    out = (ns, W_WARP * np.log(rho) ** 2, 1.0 / rho)
+    out = (ns, w_warp * np.log(rho) ** 2, 1.0 / rho)
     for a in out:
         a.setflags(write=False)
     return out
