@@ -177,3 +177,63 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
     free, locked = np.concatenate(free_steps), np.concatenate(locked_steps)
     assert len(free) > 10
     assert locked.mean() < 0.5 * free.mean(), (free.mean(), locked.mean())
+
+
+@pytest.mark.parametrize("given_contacts", [False, True])
+def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_contacts):
+    from posturemap.synth import feet
+    from posturemap.core import kernels
+    from posturemap.core.motion import up_axis
+
+    jit = kernels.compiled()
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)
+    ankles = [c[2] for c in chains]
+    g_all = fk(sk.parents, m.rotations, m.positions)[1]
+    rng = np.random.default_rng(7)
+    length = 30
+    weights_seen = []
+    for trial in range(20):
+        start = int(rng.integers(2, len(m) - length - 2))
+        axis = rng.normal(size=(length, sk.num_joints, 3))
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        if trial % 4:
+            # The clip's frames turned a little at every joint; A's and B's feet from around them.
+            frames = np.arange(start, start + length)
+            angle = rng.normal(scale=0.05, size=(length, sk.num_joints))
+            a_feet = g_all[start - 2: start, ankles] + rng.normal(scale=0.3, size=(2, len(ankles), 3))
+            b_feet = g_all[start + length: start + length + 2, ankles] + rng.normal(scale=0.3, size=(2, len(ankles), 3))
+            contacts = rng.random((length, len(chains))) < 0.7 if given_contacts else None
+        else:
+            # Standing on both feet all through, A's spot and B's a little apart: held on A's
+            # spot, a step to B's in the middle (lifted), held on B's.
+            frames = np.full(length, start)
+            angle = rng.normal(scale=0.002, size=(length, sk.num_joints))
+            a_feet = np.repeat(g_all[start: start + 1, ankles], 2, axis=0)
+            b_feet = a_feet + rng.normal(scale=0.5, size=(1, len(ankles), 3)) * (np.arange(3) != up)
+            contacts = np.ones((length, len(chains)), dtype=bool) if given_contacts else None
+        rots = quat.mul(m.rotations[frames], quat.from_axis_angle(axis, angle))
+        pos = m.positions[frames].copy()
+
+        def gpos_fn(r):
+            return fk(sk.parents, r, pos)
+
+        out = []
+        for backend in ("numpy", "numba"):
+            r = rots.copy()
+            if backend == "numpy":
+                with kernels.numpy_backend():
+                    assert feet._compiled() is None
+                    w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts)
+            else:
+                assert feet._compiled() is jit
+                w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts)
+            out.append((r, w))
+        (r_np, w_np), (r_nb, w_nb) = out
+        np.testing.assert_allclose(w_nb, w_np, atol=1e-12)
+        np.testing.assert_allclose(r_nb, r_np, atol=1e-10)
+        weights_seen.append(w_np)
+    w = np.concatenate(weights_seen)
+    # Not a vacuous comparison: feet were locked, faded in and out, and left free.
+    assert np.sum(w == 1.0) > 20 and np.sum((w > 0) & (w < 1)) > 5 and np.sum(w == 0) > 20

@@ -149,6 +149,26 @@ def test_key_from_blend_agrees(jit):
     np.testing.assert_array_equal(keys[0], keys[1])
 
 
+@pytest.mark.parametrize("t", [0.0, 0.3, 0.75, 1.0])
+def test_slerp_agrees(jit, t):
+    rng = np.random.default_rng(9)
+    a = random_quats(rng, (200,))
+    b = quat.mul(a, quat.exp(rng.normal(scale=1.0, size=(200, 3))))
+    b *= np.where(rng.random((200, 1)) < 0.5, -1.0, 1.0)  # both hemispheres: the short arc
+    b[:20] = a[:20] * np.where(rng.random((20, 1)) < 0.5, -1.0, 1.0)  # the same rotation
+    b[20:40] = quat.mul(a[20:40], quat.exp(rng.normal(scale=1e-8, size=(20, 3))))  # nearly
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        out = np.empty_like(a)
+        impl.slerp(a, b, t, out)
+        outs.append(out)
+    np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
+    # The short arc from a to b, at the fraction t of the angle.
+    whole = quat.angle_between(a, b)
+    np.testing.assert_allclose(quat.angle_between(a, outs[1]), t * whole, atol=1e-6)
+    np.testing.assert_allclose(quat.angle_between(outs[1], b), (1 - t) * whole, atol=1e-6)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_transitions_agree_across_backends(sample_clips, method):
     a, b = sample_clips["walk"], sample_clips["run"]

@@ -9,6 +9,8 @@ match at B monotonically, and the library survives the map file.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -441,3 +443,197 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert eng.last["retrieval"]["confidence"] == 0.0
     fb = eng.generate("bow", "bow", length=30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
+
+
+def test_compiled_search_matches_the_numpy_steps(engine, clips):
+    from posturemap.core import kernels
+
+    assert retrieval._compiled() is not None  # the suite runs with numba loaded
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(8)
+    checked = 0
+    for i in range(12):
+        na, nb = HELD_OUT[i % 3], HELD_OUT[(i + 1 + i // 6) % 3]
+        ta, tb = engine.tracks[na], engine.tracks[nb]
+        a_end, b_start = int(rng.integers(1, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 1))
+        qa, qb = rt.seams(ta, [a_end - 1, a_end], 1), rt.seams(tb, [b_start, b_start + 1], 0)
+        d, alpha = float(rng.integers(6, 46)), (0.0, 0.5, 1.0, float(rng.random()))[i % 4]
+        disp = (float(rng.normal(scale=30)), float(rng.normal(scale=30)), float(rng.normal())) if i % 2 else None
+        for part in (0, 1):
+            sa, sb = rt.gather(ta.features[a_end], part), rt.gather(tb.features[b_start], part)
+            args = (part, qa, qb, sa, sb, d, 30.0, alpha, disp, 8)
+            got, ref = rt._search_compiled(*args), rt._search_numpy(*args)
+            assert (got is None) == (ref is None)
+            if ref is None:
+                continue
+            np.testing.assert_array_equal(got[0], ref[0])  # the same segments in the same order
+            np.testing.assert_array_equal(got[1], ref[1])
+            for g, r in zip(got[2:], ref[2:]):  # the costs (sums vectorised: to rounding)
+                np.testing.assert_allclose(g, r, rtol=1e-13)
+            checked += len(ref[0])
+    assert checked > 100
+    # The numpy backend's search (numpy costs, float64 squares) finds the same best segments.
+    with kernels.numpy_backend():
+        assert retrieval._compiled() is None
+        ref = rt.search(0, qa, qb, sa, sb, d, 30.0, alpha, None, 8)
+    got = rt.search(0, qa, qb, sa, sb, d, 30.0, alpha, None, 8)
+    np.testing.assert_array_equal(got[0][:3], ref[0][:3])
+    np.testing.assert_allclose(got[2], ref[2], rtol=1e-5)
+
+
+def test_compiled_selection_of_the_smallest():
+    from posturemap.synth import retrieval_numba
+
+    rng = np.random.default_rng(9)
+    for n, keep in ((50, 7), (300, 192), (10, 20), (1, 1)):
+        c = rng.normal(size=n)
+        got = np.sort(retrieval_numba._smallest(c, keep))
+        want = np.sort(np.argsort(c)[:keep])
+        np.testing.assert_array_equal(got, want)
+    c = np.array([3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.0])  # ties at the cut: the first ones
+    np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, 4)), [1, 2, 3, 6])
+
+
+@pytest.mark.parametrize("budget", [retrieval.BUDGET, 6000, 30000])  # 30000: more than 256 neurons hold
+@pytest.mark.parametrize("circular", [False, True])
+def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular, budget):
+    from types import SimpleNamespace
+
+    from posturemap.synth.library import INDEX_CLASS
+
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(10)
+    dims = rt.space.class_dims[INDEX_CLASS]
+    # A stand-in index map (angles on the circle, or not) over a stand-in inverted index with
+    # empty neurons and neurons past the last indexed one.
+    n_neurons, n_frames = 700, 20000
+    period = np.full(len(dims), 2 * np.pi if circular else np.inf)
+    weights = rng.uniform(0, 2 * np.pi, (n_neurons, len(dims)))
+    win = rng.integers(0, n_neurons - 40, n_frames) ** 2 // (n_neurons - 40)  # uneven counts
+    ptr = np.zeros(win.max() + 2, dtype=np.int64)
+    np.add.at(ptr, win + 1, 1)
+    rt.cmap = SimpleNamespace(weights_=weights, period_=period)
+    rt.lib = SimpleNamespace(index_ptr=np.cumsum(ptr), index_frames=np.argsort(win, kind="stable").astype(np.int64))
+    monkeypatch.setattr(retrieval, "BUDGET", budget)
+    sizes = []
+    for _ in range(10):
+        x = rng.uniform(0, 2 * np.pi, dims.max() + 1)
+        for part in (0, 1, None):
+            got = rt.gather(x, part)
+            with monkeypatch.context() as m:
+                m.setattr(retrieval, "_compiled", lambda: None)  # the numpy steps
+                ref = rt.gather(x, part)
+            np.testing.assert_array_equal(got, ref)  # the same frames in the same order
+            sizes.append(len(ref))
+    if budget < 20000:
+        assert min(sizes) >= budget
+    else:  # the budget is out of reach: every one of the nearest GATHER_NEURONS neurons is visited
+        assert max(sizes) < budget
+
+
+def test_batched_seams_and_distances_equal_the_single_ones(engine):
+    # seam_pair and seam_distances run compiled kernels here (numba is loaded); seams and
+    # encode_parts are the numpy references.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib = rt.lib
+    rng = np.random.default_rng(11)
+    for i in range(20):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        a_end, b_start = int(rng.integers(len(ta.gpos))), int(rng.integers(len(tb.gpos)))
+        ia, ib = [max(a_end - 1, 0), a_end], [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+        pair = rt.seam_pair(ta, ia, tb, ib)
+        for got, ref in zip(pair, (rt.seams(ta, ia, 1), rt.seams(tb, ib, 0))):
+            for name in ("pose", "vel", "root"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+            for part in (0, 1):  # a seam's rows as the library's rows are made
+                rows = rt.rows(part, got.pose[None], got.vel[None], got.root[None])
+                for a, b in zip(rt.query_vectors(part, got), rows):
+                    np.testing.assert_array_equal(a, b[0])
+        segments = [(p, int(rng.integers(len(lib))), int(rng.integers(len(lib)))) for p in (0, 1, 1)]
+        xa, xb = ta.features[a_end], tb.features[b_start]
+        both = rt.seam_distances(segments, xa, xb)
+        assert both == [rt.seam_distance(p, s, e, xa, xb) for p, s, e in segments]
+        assert min(both) > 0
+        for (p, s, e), got in zip(segments, both):  # the posture features of the map's encoding
+            x = rt.space.encode_parts(lib.rots[[s, e]][:, rt.space.joints].astype(float), lib.gpos[[s, e], UP])
+            dims = rt.part_dims[p]
+            d = max(np.linalg.norm((x[0] - xa)[dims]), np.linalg.norm((x[1] - xb)[dims]))
+            assert got == pytest.approx(np.degrees(d / np.sqrt(len(dims) / 3.0)), abs=1e-9)
+
+
+@pytest.mark.parametrize("circular", [False, True])
+def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
+    from types import SimpleNamespace
+
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(12)
+    if circular:  # a stand-in map: the legs' columns on the circle, the others not
+        period = np.full(rt.cmap.weights_.shape[1], np.inf)
+        period[rt.index_cols[0]] = 2 * np.pi
+        period[rt.index_cols[1]] = np.inf
+        rt.cmap = SimpleNamespace(weights_=np.mod(rt.cmap.weights_, 2 * np.pi), period_=period)
+    for i in range(10):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 2) % 3]]
+        xa, xb = ta.features[rng.integers(len(ta.gpos))], tb.features[rng.integers(len(tb.gpos))]
+        both = rt.gather_seams(xa, xb)
+        for part in (0, 1):
+            np.testing.assert_array_equal(both[part][0], rt.gather(xa, part))
+            np.testing.assert_array_equal(both[part][1], rt.gather(xb, part))
+            assert len(both[part][0]) >= retrieval.BUDGET
+
+
+def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
+    assert retrieval._compiled() is not None
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(13)
+    for i in range(12):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        # B's headings a few turns off A's (a clip that turned on the spot): B's seam is taken
+        # to the nearest equivalent heading.
+        tb = dataclasses.replace(tb, heading=tb.heading + 2 * np.pi * (i % 3 - 1) * 2)
+        a_end, b_start = int(rng.integers(1, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 1))
+        ia, ib = [a_end - 1, a_end], [b_start, b_start + 1]
+        length = int(rng.integers(5, 46))
+        qa, qb = rt.seam_pair(ta, ia, tb, ib)
+        sa, sb = rt.gather_seams(ta.features[a_end], tb.features[b_start])[0]
+        s, e = rt.search(0, qa, qb, sa, sb, length + 1.0, 30.0, 0.5, None, 1 + i % 8)[:2]
+        i0, i1, f = retrieval.segment_times(rt.lib, s, e, length + 1.0)
+        curves = retrieval.hermite_offsets(length, float(rng.uniform(5, 25)))
+        align = bool(i % 2)
+        got = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
+        ref = retrieval.root_trajectory_numpy(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
+        for g, r in zip(got, ref):  # positions, headings, B's turn and shift
+            np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
+        assert np.ptp(ref[0][:, 0]) > 1.0  # the root moves (not a trivial comparison)
+
+
+def test_compiled_segment_times_match_the_numpy_steps(model, monkeypatch):
+    lib = model.library_
+    rng = np.random.default_rng(14)
+    # Segments anywhere, also at a clip's first and last frames (the samples before and after clip).
+    s = np.concatenate([rng.integers(0, len(lib) - 50, 40), lib.clip_start[:-1][:5]])
+    e = np.minimum(s + rng.integers(0, 45, len(s)), lib.clip_end[s] - 1)
+    for d in (6.0, 21.0, 31.0, 46.0):
+        got = retrieval.segment_times(lib, s, e, d)
+        with monkeypatch.context() as m:
+            m.setattr(retrieval, "_compiled", lambda: None)
+            ref = retrieval.segment_times(lib, s, e, d)
+        for g, r in zip(got, ref):
+            assert g.dtype == r.dtype
+            np.testing.assert_array_equal(g, r)
+        assert np.any(ref[0] == (lib.clip_end[s] - 1)[:, None])  # clamped at a clip's end
+        assert np.any(ref[2] == 0.0) and np.any((ref[2] > 0) & (ref[2] < 1))
+
+
+def test_the_warps_are_read_per_call(engine, clips, monkeypatch):
+    # The compiled search keeps the warp terms per gap: they must follow retrieval.WARPS.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    name, a_end, b_start = windows(clips, 45, 1, seed=3)[0]
+    tr = engine.tracks[name]
+    qa, qb = rt.seam_pair(tr, [a_end - 1, a_end], tr, [b_start, b_start + 1])
+    sa, sb = rt.gather_seams(tr.features[a_end], tr.features[b_start])[0]
+    s, e = rt.search(0, qa, qb, sa, sb, 46.0, 30.0, 0.5, None, 8)[:2]
+    assert len(set(e - s)) > 1  # segments of several durations
+    monkeypatch.setattr(retrieval, "WARPS", (1.0,))
+    s, e = rt.search(0, qa, qb, sa, sb, 46.0, 30.0, 0.5, None, 8)[:2]
+    assert set(e - s) == {46}

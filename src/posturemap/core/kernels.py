@@ -28,7 +28,7 @@ from .skeleton import fk as _fk_reference
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest", "nearest_many",
-       "project_to_map", "key_from_blend")
+       "project_to_map", "key_from_blend", "slerp")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
 
@@ -114,6 +114,11 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
         p = quat.mul_vec(quat.inv(prot), p - ppos)
     rots[:, root] = g
     positions[:, root] = p
+
+
+def slerp(a, b, t, out):
+    """``out[i]`` = :func:`posturemap.core.quat.slerp` from ``a[i]`` to ``b[i]`` (M, 4) at the fraction ``t``."""
+    out[...] = quat.slerp(a, b, t)
 
 
 def fk(parents, rots, positions, grot, gpos):

@@ -370,3 +370,202 @@ def fk(parents, rots, positions, grot, gpos):
                 gpos[n, j, 0] = gpos[n, p, 0] + dx
                 gpos[n, j, 1] = gpos[n, p, 1] + dy
                 gpos[n, j, 2] = gpos[n, p, 2] + dz
+
+
+# -- foot lock (see posturemap.synth.feet.lock_feet, the numpy reference) ----------------------------
+@nb.njit(**_OPTS)
+def _unit(x, y, z):
+    n = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+    return x / n, y / n, z / n
+
+
+@nb.njit(**_OPTS)
+def _angle(ux, uy, uz, vx, vy, vz):
+    """Angle between two vectors (radians), as :func:`posturemap.synth.feet.two_bone_ik` takes it."""
+    ux, uy, uz = _unit(ux, uy, uz)
+    vx, vy, vz = _unit(vx, vy, vz)
+    return math.acos(min(max(ux * vx + uy * vy + uz * vz, -1.0), 1.0))
+
+
+@nb.njit(**_OPTS)
+def _axis_angle_in(q, ax, ay, az, angle):
+    """The rotation by ``angle`` about the unit axis (ax, ay, az) given in world space,
+    expressed in the local frame of the global rotation ``q`` (a 4-vector)."""
+    x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], ax, ay, az)
+    h = 0.5 * angle
+    s = math.sin(h)
+    return math.cos(h), s * x, s * y, s * z
+
+
+@nb.njit(**_OPTS)
+def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps):
+    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f``: writes the thigh's and shin's new
+    local rotations into ``rots[f]``, and the ankle's so that the foot keeps its global rotation."""
+    ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
+    bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
+    cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
+    lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
+    lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
+    lat = min(max(math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2), eps), lab + lcb - eps)
+    ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
+    ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)
+    ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
+    ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
+    ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
+    ux, uy, uz = cx - ax, cy - ay, cz - az
+    vx, vy, vz = bx - ax, by - ay, bz - az
+    x0, y0, z0 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    vx, vy, vz = tx - ax, ty - ay, tz - az
+    x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    a_gr, b_gr = grot[f, thigh], grot[f, shin]
+    r0 = _axis_angle_in(a_gr, x0, y0, z0, ac_ab_1 - ac_ab_0)
+    r1 = _axis_angle_in(b_gr, x0, y0, z0, ba_bc_1 - ba_bc_0)
+    r2 = _axis_angle_in(a_gr, x1, y1, z1, ac_at_0)
+    r20 = _mul(r2[0], r2[1], r2[2], r2[3], r0[0], r0[1], r0[2], r0[3])
+    th = _mul(rots[f, thigh, 0], rots[f, thigh, 1], rots[f, thigh, 2], rots[f, thigh, 3],
+              r20[0], r20[1], r20[2], r20[3])
+    sh = _mul(rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3], r1[0], r1[1], r1[2], r1[3])
+    return th, sh
+
+
+@nb.njit(**_OPTS)
+def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
+              fade, drift_lo, drift_hi, eps, step, lift, weights):
+    """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
+
+    legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
+    grot/gpos (L, J, 4/3) their global rotations and positions; a_feet/b_feet (2, n, 3) ankle
+    positions in A's last two and B's first two frames; contacts (L, n) planted frames, or an
+    array with no rows to detect them from height and speed; step (frames) and lift (length
+    unit): the step of a foot planted all through from A's spot to B's; weights (L, n) out.
+    """
+    n_l = rots.shape[0]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    on = np.empty(n_l, dtype=np.bool_)
+    weight = np.empty(n_l)
+    target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
+    raised = np.empty(n_l)  # the step's lift
+    goal = np.empty(3)
+    for leg in range(legs.shape[0]):
+        thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
+        floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
+        for t in range(n_l):
+            floor = min(floor, gpos[t, ankle, up])
+        da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
+        a_on = a_feet[1, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
+        b_on = b_feet[0, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        if contacts.shape[0] > 0:
+            for t in range(n_l):
+                on[t] = contacts[t, leg]
+            # A run at a seam where that clip's foot is not planted would jump.
+            first_stop = 0
+            while first_stop < n_l and on[first_stop]:
+                first_stop += 1
+            last_start = n_l
+            while last_start > 0 and on[last_start - 1]:
+                last_start -= 1
+            if first_stop > 0 and not a_on:
+                on[:first_stop] = False
+            if last_start < n_l and not b_on:
+                on[last_start:] = False
+        else:
+            pa, pb = a_feet[1, leg, a_], a_feet[1, leg, b_]
+            for t in range(n_l):
+                ha, hb = gpos[t, ankle, a_], gpos[t, ankle, b_]
+                speed = math.sqrt((ha - pa) ** 2 + (hb - pb) ** 2)
+                on[t] = gpos[t, ankle, up] < floor + height_tol and speed < speed_tol
+                pa, pb = ha, hb
+        # Lock weights and targets (posturemap.synth.feet.lock_weights_and_targets).
+        for t in range(n_l):
+            weight[t] = 0.0
+            raised[t] = 0.0
+            target[t, 0], target[t, 1] = gpos[t, ankle, a_], gpos[t, ankle, b_]
+        t = 0
+        while t < n_l:
+            if not on[t]:
+                t += 1
+                continue
+            start = t
+            while t < n_l and on[t]:
+                t += 1
+            stop = t
+            from_a = start == 0 and a_on
+            to_b = stop == n_l and b_on
+            n = stop - start
+            k = min(step, n - 2)  # A's spot, the step over k frames in the middle, B's spot
+            k0 = (n - k) // 2
+            xa, xb = a_feet[1, leg, a_], a_feet[1, leg, b_]
+            ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]
+            high = min(lift, 0.5 * math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2))
+            ma, mb = gpos[(start + stop - 1) // 2, ankle, a_], gpos[(start + stop - 1) // 2, ankle, b_]
+            for u in range(start, stop):
+                i = u - start
+                if from_a and to_b:
+                    if i >= k0 + k:
+                        sa, sb = ya, yb
+                    elif i < k0:
+                        sa, sb = xa, xb
+                    else:
+                        uu = (i - k0 + 1) / (k + 1.0)
+                        ss = uu * uu * (3.0 - 2.0 * uu)
+                        sa, sb = xa + ss * (ya - xa), xb + ss * (yb - xb)
+                        raised[u] = high * math.sin(math.pi * uu)
+                elif from_a:
+                    sa, sb = xa, xb
+                elif to_b:
+                    sa, sb = ya, yb
+                else:
+                    sa, sb = ma, mb
+                weight[u] = 1.0
+                target[u, 0], target[u, 1] = sa, sb
+            for k in range(1, fade + 1):
+                w = 1.0 - k / (fade + 1.0)
+                for side in range(2):
+                    tt = start - k if side == 0 else stop - 1 + k
+                    src = start if side == 0 else stop - 1
+                    if 0 <= tt < n_l and not on[tt] and w > weight[tt]:
+                        weight[tt] = w
+                        target[tt, 0], target[tt, 1] = target[src, 0], target[src, 1]
+        for t in range(n_l):
+            ha, hb = gpos[t, ankle, a_], gpos[t, ankle, b_]
+            drift = math.sqrt((target[t, 0] - ha) ** 2 + (target[t, 1] - hb) ** 2) / body
+            w = weight[t] * min(max((drift_hi - drift) / (drift_hi - drift_lo), 0.0), 1.0)
+            weights[t, leg] = w
+            if not w > 0.0:
+                continue
+            goal[a_] = ha + w * (target[t, 0] - ha)
+            goal[b_] = hb + w * (target[t, 1] - hb)
+            goal[up] = gpos[t, ankle, up] + w * raised[t]
+            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps)
+            # Keep the foot's global orientation: its parent chain turned.
+            p = parents[thigh]
+            sg = _mul(grot[t, p, 0], grot[t, p, 1], grot[t, p, 2], grot[t, p, 3], th[0], th[1], th[2], th[3])
+            sg = _mul(sg[0], sg[1], sg[2], sg[3], sh[0], sh[1], sh[2], sh[3])
+            ft = _mul(sg[0], -sg[1], -sg[2], -sg[3], grot[t, ankle, 0], grot[t, ankle, 1], grot[t, ankle, 2],
+                      grot[t, ankle, 3])
+            for c in range(4):
+                rots[t, thigh, c] = th[c]
+                rots[t, shin, c] = sh[c]
+                rots[t, ankle, c] = ft[c]
+
+
+@nb.njit(**_OPTS)
+def slerp(a, b, t, out):
+    """``out[i]`` = spherical linear interpolation from ``a[i]`` to ``b[i]`` (M, 4) at the
+    fraction ``t`` on the short arc (:func:`posturemap.core.quat.slerp`, the reference)."""
+    for i in range(a.shape[0]):
+        d = a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2] + a[i, 3] * b[i, 3]
+        sign = -1.0 if d < 0 else 1.0
+        d = abs(d)
+        theta = math.acos(min(max(d, -1.0), 1.0))
+        sin_theta = math.sin(theta)
+        if sin_theta < 1e-6:
+            wa, wb = 1.0 - t, t
+        else:
+            wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
+        wb *= sign
+        q0, q1 = wa * a[i, 0] + wb * b[i, 0], wa * a[i, 1] + wb * b[i, 1]
+        q2, q3 = wa * a[i, 2] + wb * b[i, 2], wa * a[i, 3] + wb * b[i, 3]
+        n = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0 / n, q1 / n, q2 / n, q3 / n

@@ -49,8 +49,8 @@ import copy
 
 import numpy as np
 
-from ..core import kernels, quat
-from ..core.joints import leg_chains
+from ..core import kernels
+from ..core.joints import leg_chains, leg_length
 from ..core.motion import Motion, concatenate, root_index, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
@@ -113,6 +113,7 @@ class TransitionEngine:
             self._rest = upright_rest(root_global(motion, self._root)[0], self._up)
         if not self._legs:
             self._legs = leg_chains(self.skeleton)
+            self._leg_length = leg_length(self.skeleton, self._legs)
         tr = make_track(motion, self._root, self._up, self._rest, space)
         self.tracks[name] = tr
         return tr
@@ -252,7 +253,7 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     if req.foot_lock and eng._legs:
         b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
         eng.last["planted"] = lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, up, ta.feet[ia[1:]], b_feet,
-                                        ta.motion.fps)
+                                        ta.motion.fps, body=eng._leg_length)
     return out_r, out_p
 
 
@@ -328,7 +329,8 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     if lib is not None and len(lib):
         if eng._retriever is None or eng._retriever.lib is not lib:
             eng._retriever = retrieval.Retriever(eng, lib)
-        res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align)
+        res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align,
+                                 skip_unconfident=True)
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
     # retrieved parts leave open (joints above the root, local translations).
     fallback = retrieval.fallback_method(length, ta.motion.fps)
@@ -346,15 +348,22 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         out_r[:] = res.rots
         out_r[:, eng._chain] = rots_fb[:, eng._chain]
         out_p[:] = pos_fb
-        kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
+        if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
+            kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
-            if c < 1.0:
-                out_r[:, mask] = quat.slerp(rots_fb[:, mask], out_r[:, mask], c)
-        if res.confidence[0] < 1.0:
+            if c <= 0.0:
+                out_r[:, mask] = rots_fb[:, mask]
+            elif c < 1.0:
+                fb_part, part = rots_fb[:, mask].reshape(-1, 4), out_r[:, mask].reshape(-1, 4)
+                kernels.slerp(fb_part, part, c, part)
+                out_r[:, mask] = part.reshape(length, -1, 4)
+        if 0.0 < res.confidence[0] < 1.0:
             r = eng._root
             out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
         dtheta, shift = res.dtheta, res.shift
-        if res.confidence[0] < 1.0 and align:  # B's place blended like the trajectory
+        if res.confidence[0] <= 0.0:
+            dtheta, shift = fb_last["dtheta"], fb_last["shift"]
+        elif res.confidence[0] < 1.0 and align:  # B's place blended like the trajectory
             c = res.confidence[0]
             g0 = tb.gpos[b_start]
             end_fb = rotate_about_up(g0, fb_last["dtheta"], eng._up) + fb_last["shift"]
@@ -369,7 +378,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         ia = [max(a_end - 1, 0), a_end]
         b_feet = rotate_about_up(tb.feet[ib], dtheta, eng._up) + shift
         eng.last["planted"] = lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, eng._up,
-                                        ta.feet[ia], b_feet, ta.motion.fps, contacts)
+                                        ta.feet[ia], b_feet, ta.motion.fps, contacts, eng._leg_length)
     return out_r, out_p
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import quat
+from ..core import kernels, quat
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length
 from ..core.skeleton import Skeleton
 
@@ -31,6 +31,13 @@ MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther t
 #                           first fades out, and is gone at the second (the leg would stretch)
 STEP_S = 0.3  # seconds of the step from A's spot to B's of a foot planted all through a gap
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
+IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
+
+
+def _compiled():
+    """The compiled kernels once this process uses numba (:func:`posturemap.core.kernels.compiled`),
+    else None: then the numpy code below runs (it is also the reference the kernel is tested against)."""
+    return kernels.compiled() if kernels.backend() == "numba" else None
 
 
 def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
@@ -126,26 +133,36 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
-              contacts=None) -> np.ndarray:
+              contacts=None, body: float | None = None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
     translations; ``gpos_fn(rots)`` gives their global rotations and positions (L, J, 4/3).
     ``a_feet``/``b_feet`` (2, n_legs, 3) are the ankle positions in A's last two frames and
     B's first two (B as aligned), for the planted test. ``contacts`` (L, n_legs) bool, when
-    given, are the planted frames (otherwise they are detected from height and speed).
+    given, are the planted frames (otherwise they are detected from height and speed). ``body``:
+    :func:`leg_length` of the skeleton, when the caller keeps it.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, fading to 0.
     """
     weights = np.zeros((len(rots), len(chains)))
     if not chains or len(rots) == 0:
         return weights
-    body = leg_length(sk, chains)
+    body = leg_length(sk, chains) if body is None else body
     grot, gpos = gpos_fn(rots)
-    flat = np.ones(3)
-    flat[up] = 0.0
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
+    jit = _compiled()
+    if jit is not None:  # the same steps, compiled: one call for every leg and frame
+        legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
+        planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
+        jit.lock_legs(sk.parents.astype(np.int64, copy=False), legs, rots, grot, gpos, up,
+                      np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
+                      speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, round(STEP_S * fps),
+                      STEP_LIFT * body, weights)
+        return weights
+    flat = np.ones(3)
+    flat[up] = 0.0
     for leg, (thigh, shin, ankle) in enumerate(chains):
         h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
@@ -180,7 +197,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         foot_global = grot[frames, ankle]
         new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
                                           grot[frames, thigh], grot[frames, shin],
-                                          rots[frames, thigh], rots[frames, shin])
+                                          rots[frames, thigh], rots[frames, shin], IK_EPS)
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
         # Keep the foot's global orientation: its parent chain turned.

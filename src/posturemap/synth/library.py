@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length
-from ..core.joints import part_masks  # noqa: F401 - retrieval's body parts, with its key joints
 from ..core.skeleton import Skeleton, fk
 
 INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)

@@ -36,18 +36,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
-from .feet import lock_feet
-from .library import INDEX_CLASS, MotionLibrary, clip_features, key_joints, part_masks
+from ..core.joints import key_joints, part_masks
+from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
 TOP_K = 8  # segments averaged per part
 BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
+GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
 PREFILTER = 192  # of those, the best matches at natural speed that become segment ends
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
@@ -102,6 +104,8 @@ class Retriever:
             cols = np.flatnonzero(np.isin(index_dims, dims))
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
+        self._root_w = None
+        self._index_w = None
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -118,17 +122,61 @@ class Retriever:
                                 track.motion.fps)
         return Seams(p[which], v[which], r[which])
 
+    def seam_pair(self, ta, ia: list[int], tb, ib: list[int]) -> tuple[Seams, Seams]:
+        """A's end seam (``seams(ta, ia, 1)``) and B's start seam (``seams(tb, ib, 0)``) in one go:
+        one forward kinematics and one feature pass over the four frames (the same values)."""
+        if ta.motion.fps != tb.motion.fps:
+            return self.seams(ta, ia, 1), self.seams(tb, ib, 0)
+        eng = self.engine
+        rots = np.concatenate([ta.motion.rotations[ia], tb.motion.rotations[ib]])
+        pos = np.concatenate([ta.motion.positions[ia], tb.motion.positions[ib]])
+        grot, gp = np.empty(rots.shape), np.empty(pos.shape)
+        kernels.fk(eng.skeleton.parents, rots, pos, grot, gp)
+        root_pos = np.concatenate([ta.gpos[ia], tb.gpos[ib]])
+        heading = np.concatenate([ta.heading[ia], tb.heading[ib]])
+        if _compiled() is not None:
+            k = len(self.keys)
+            pose, vel, root = np.empty((2, k, 3)), np.empty((2, k, 3)), np.empty((2, 5))
+            _compiled().seam_features(gp, root_pos, heading, self.keys, eng._up, float(ta.motion.fps), pose, vel,
+                                      root)
+            return Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
+        pose = heading_frame(gp[:, self.keys] - root_pos[:, None], heading, eng._up)
+        vel, root = motion_features(pose, root_pos, heading, eng._up, ta.motion.fps, np.array([0, 2, 4]))
+        return Seams(pose[1], vel[1], root[1]), Seams(pose[2], vel[2], root[2])
+
     def seam_distance(self, part: int, s: int, e: int, xa: np.ndarray, xb: np.ndarray) -> float:
         """Match distance in degrees: the larger, over the two seams, of the RMS joint-rotation
         difference between the segment's end posture and A's end / B's start over the part's
         joints (posture features; the root height counts in leg lengths as one radian)."""
+        return self.seam_distances([(part, s, e)], xa, xb)[0]
+
+    def seam_distances(self, segments, xa: np.ndarray, xb: np.ndarray) -> list[float]:
+        """:meth:`seam_distance` of several segments ``[(part, s, e), ...]``, encoded in one go."""
         lib, space = self.lib, self.space
-        rots = lib.rots[[s, e]][:, space.joints].astype(np.float64)
-        x = space.encode_parts(rots, lib.gpos[[s, e], space.up])
-        dims = self.part_dims[part]
+        frames = [f for _, s, e in segments for f in (s, e)]
+        if space.mode == "logmap" and _compiled() is not None and not space.circular.any():
+            dims = [self.part_dims[p] for p, _, _ in segments]
+            out = np.empty(len(segments))
+            _compiled().seam_distances(lib.rots, lib.gpos, np.array(frames, dtype=np.int64), space.joints,
+                                       space.reference, space.up, float(space.height_scale), xa, xb,
+                                       np.concatenate(dims).astype(np.int64),
+                                       np.cumsum([0] + [len(d) for d in dims]).astype(np.int64), out)
+            return out.tolist()
+        rots = lib.rots[frames][:, space.joints].astype(np.float64)
+        if space.mode == "logmap":  # space.encode_parts, with the hot kernel for the rotations
+            x = np.empty((len(frames), 3 * len(space.joints) + 1))
+            kernels.log_relative(rots, space.reference, x[:, :-1].reshape(len(frames), -1, 3))
+            x[:, -1] = lib.gpos[frames, space.up] / space.height_scale
+        else:
+            x = space.encode_parts(rots, lib.gpos[frames, space.up])
         circ = space.circular
-        d = max(np.linalg.norm(wrap_diff(x[0], xa, circ)[dims]), np.linalg.norm(wrap_diff(x[1], xb, circ)[dims]))
-        return float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0)))
+        out = []
+        for i, (part, _, _) in enumerate(segments):
+            dims = self.part_dims[part]
+            d = max(np.linalg.norm(wrap_diff(x[2 * i], xa, circ)[dims]),
+                    np.linalg.norm(wrap_diff(x[2 * i + 1], xb, circ)[dims]))
+            out.append(float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0))))
+        return out
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
@@ -139,6 +187,10 @@ class Retriever:
         (the thighs for the legs, the clavicles and upper arms for the upper body).
         """
         lib, cmap = self.lib, self.cmap
+        if _compiled() is not None:
+            cols = self.index_cols[part] if part is not None else np.arange(cmap.weights_.shape[1])
+            return _compiled().gather(cmap.weights_, cols, x[self.space.class_dims[INDEX_CLASS][cols]],
+                                      cmap.period_[cols], lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
         cols = self.index_cols[part] if part is not None else slice(None)
         q = x[self.space.class_dims[INDEX_CLASS]][cols]
         w = cmap.weights_[:, cols]
@@ -148,7 +200,7 @@ class Retriever:
             d2 = np.einsum("ij,ij->i", diff, diff)
         else:
             d2 = np.einsum("ij,ij->i", w - q, w - q)
-        n_take = min(len(w), 256)
+        n_take = min(len(w), GATHER_NEURONS)
         near = np.argpartition(d2, n_take - 1)[:n_take] if n_take < len(w) else np.arange(len(w))
         near = near[np.argsort(d2[near])]
         near = near[near < len(lib.index_ptr) - 1]  # neurons past the last indexed one hold no frame
@@ -162,6 +214,22 @@ class Retriever:
         # The CSR rows of the chosen neurons, one after another, without a Python loop.
         offset = np.repeat(start - (cum[:stop] - count), count)
         return lib.index_frames[offset + np.arange(total)]
+
+    def gather_seams(self, xa: np.ndarray, xb: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``[(gather(xa, 0), gather(xb, 0)), (gather(xa, 1), gather(xb, 1))]``: where numba is in
+        use, in one pass over the index map's neurons."""
+        if _compiled() is None:
+            return [(self.gather(xa, p), self.gather(xb, p)) for p in (0, 1)]
+        cmap, lib = self.cmap, self.lib
+        dims = self.space.class_dims[INDEX_CLASS]
+        c0, c1 = self.index_cols
+        if self._index_w is None or self._index_w[0] is not cmap.weights_:  # the map's columns of each part
+            self._index_w = (cmap.weights_, np.ascontiguousarray(cmap.weights_[:, c0]),
+                             np.ascontiguousarray(cmap.weights_[:, c1]))
+        a0, b0, a1, b1 = _compiled().gather_seams(self._index_w[1], self._index_w[2], xa[dims[c0]], xa[dims[c1]],
+                                                  xb[dims[c0]], xb[dims[c1]], cmap.period_[c0], cmap.period_[c1],
+                                                  lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
+        return [(a0, b0), (a1, b1)]
 
     def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):
         """Candidate segments ``(s, e)`` (M,) from gathered starts ``sa`` and ends ``sb``."""
@@ -211,8 +279,17 @@ class Retriever:
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
         """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
         if part not in q.vectors:
-            p, v = self.rows(part, q.pose[None], q.vel[None], q.root[None])
-            q.vectors[part] = (p[0], v[0])
+            if self._root_w is None:
+                self._root_w = np.sqrt(np.array(W_ROOT)) / self.lib.scale[4:7]
+            lib, kl = self.lib, self.kl
+            cols = slice(0, kl) if part == 0 else slice(kl, None)
+            p = q.pose[cols].ravel() / lib.scale[2 * part]  # :meth:`rows` of one frame, the same values
+            v = q.vel[cols].ravel() * (math.sqrt(W_VEL) / lib.scale[2 * part + 1])
+            if part == 0:
+                w = self._root_w
+                p = np.concatenate([p, q.root[4:5] * w[2]])
+                v = np.concatenate([v, q.root[:3] * w[0], q.root[3:4] * w[1]])
+            q.vectors[part] = (p.astype(np.float32), v.astype(np.float32))
         return q.vectors[part]
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
@@ -275,6 +352,12 @@ class Retriever:
         search the index is measured against).
         """
         k = TOP_K if k is None else k
+        if not exhaustive and _compiled() is not None:
+            return self._search_compiled(part, qa, qb, sa, sb, d, fps, alpha, disp, k)
+        return self._search_numpy(part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive)
+
+    def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive=False):
+        """:meth:`search` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
         else:
@@ -293,6 +376,33 @@ class Retriever:
         return s[best], e[best], total[best], ca[best], cb[best]
 
 
+    def _search_compiled(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k):
+        """:meth:`search` in one compiled call (:func:`posturemap.synth.retrieval_numba.search`)."""
+        lib = self.lib
+        pm, vm = self.matrices[part]
+        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
+        use_disp = disp is not None and part == 0
+        found = _compiled().search(pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64),
+                                   np.asarray(sb, dtype=np.int64), *self.query_vectors(part, qa),
+                                   *self.query_vectors(part, qb), ns, penalty, rates,
+                                   PREFILTER, float(alpha), use_disp, lib.gpos, lib.heading, lib.up,
+                                   np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64),
+                                   DISP_SCALE * lib.leg, W_DISP, k)
+        return found if len(found[0]) else None
+
+
+@lru_cache(maxsize=256)
+def _warp_terms(d: float, lib_fps: float, fps: float, warps: tuple, w_warp: float):
+    """The segment durations (W,) of a gap of ``d`` frames (as :meth:`Retriever.candidates` makes
+    them from ``warps``), their warp penalties and speed factors (as :meth:`Retriever.costs`)."""
+    ns = np.unique(np.maximum(1, np.round(np.array(warps) * d * (lib_fps / fps))).astype(np.int64))
+    rho = (ns / lib_fps) / (d / fps)
+    out = (ns, w_warp * np.log(rho) ** 2, 1.0 / rho)
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
 def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     """How much the seams move: 0 when the root stands still at both (its horizontal speed at
     the faster seam below ``STILL_SPEED[0]`` leg lengths per second), 1 from ``STILL_SPEED[1]``.
@@ -303,8 +413,9 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     is as accurate (0.168) and locomotion is unchanged.
     """
     lo, hi = STILL_SPEED
-    speed = max(float(np.linalg.norm(np.delete(q.root[:3], up))) for q in (qa, qb)) / leg
-    return float(np.clip((speed - lo) / (hi - lo), 0.0, 1.0)) if hi > lo else 1.0
+    a, b = [i for i in range(3) if i != up]
+    speed = max(math.sqrt(q.root[a] ** 2 + q.root[b] ** 2) for q in (qa, qb)) / leg
+    return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
 def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
@@ -332,6 +443,22 @@ def hermite_offsets(length: int, blend: float) -> np.ndarray:
     return offset_curves(np.arange(1, length + 1), length + 1.0, blend)
 
 
+@lru_cache(maxsize=64)
+def _hermite_offsets_cached(length: int, blend: float) -> np.ndarray:
+    """:func:`hermite_offsets`, kept per (length, blend) and read-only."""
+    out = hermite_offsets(length, blend)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _smoothstep_cached(length: int) -> np.ndarray:
+    """:func:`smoothstep`, kept per length and read-only."""
+    out = smoothstep(length)
+    out.setflags(write=False)
+    return out
+
+
 def smoothstep(length: int) -> np.ndarray:
     """``3 u^2 - 2 u^3`` at frames 1..length of a gap of ``d = length + 1`` frames (u = t / d)."""
     u = np.arange(1, length + 1) / (length + 1.0)
@@ -346,6 +473,11 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     end hold its first/last frame.
     """
     t = np.arange(-1, d + 2, dtype=float)
+    if _compiled() is not None:
+        i0, i1, f = np.empty((len(s), len(t)), dtype=np.int64), np.empty((len(s), len(t)), dtype=np.int64), \
+            np.empty((len(s), len(t)))
+        _compiled().segment_times(lib.clip_start, lib.clip_of, lib.clip_end, s, e, float(d), t, i0, i1, f)
+        return i0, i1, f
     u = s[:, None] + t[None] * ((e - s) / d)[:, None]
     lo = lib.clip_start[lib.clip_of[s]][:, None]
     hi = (lib.clip_end[s] - 1)[:, None]
@@ -401,9 +533,14 @@ def _compiled():
     training, the studio, benchmarks), else None (a single CLI transition stays in numpy)."""
     if kernels.backend() != "numba":
         return None
-    from . import retrieval_numba
+    if not _loaded:  # an import statement per call would cost a microsecond each, dozens a transition
+        from . import retrieval_numba
 
-    return retrieval_numba
+        _loaded.append(retrieval_numba)
+    return _loaded[0]
+
+
+_loaded: list = []  # [retrieval_numba] once _compiled() has loaded it
 
 
 def offset_rotations(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndarray) -> np.ndarray:
@@ -454,6 +591,61 @@ def _rotate_h(v: np.ndarray, angle, up: int) -> np.ndarray:
     return out
 
 
+def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool, up: int,
+                    curves: np.ndarray):
+    """The root path of the lower body's segments sampled at (i0, i1, f) (K, T): each turned and
+    moved to continue A (frames ``ia`` of track ``ta``), its seams corrected towards A and B
+    (frames ``ib`` of ``tb``; with ``align`` B moves to where the segments end, with ``curves``
+    (4, L) the offsets and the horizontal path spread over the gap into B), averaged.
+
+    Returns positions (L, 3), headings (L,), B's turn and shift (3,). Compiled where numba is in use
+    (:func:`posturemap.synth.retrieval_numba.trajectory`; :func:`root_trajectory_numpy` is the reference).
+    """
+    if _compiled() is None:
+        return root_trajectory_numpy(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
+    length = curves.shape[1]
+    gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
+    dtheta = _compiled().trajectory(lib.gpos, lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia], tb.gpos[ib],
+                                    tb.heading[ib], align, up, curves, _smoothstep_cached(length), gpos, heading,
+                                    shift)
+    return gpos, heading, float(dtheta), shift
+
+
+def root_trajectory_numpy(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool,
+                          up: int, curves: np.ndarray):
+    """:func:`root_trajectory` in numpy steps."""
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    length = curves.shape[1]
+    a_end, b_start = ia[1], ib[0]
+    gp, hd = sample_trajectory(lib, i0, i1, f)
+    theta0 = ta.heading[a_end] - hd[:, 1]
+    traj = np.empty(hd.shape + (3,))
+    rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
+    traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
+    traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
+    traj[..., 2] = hd + theta0[:, None]
+    a2 = np.stack([[ta.gpos[i, a_], ta.gpos[i, b_], ta.heading[i]] for i in ia])
+    if align:
+        end = traj[:, -2].mean(axis=0)
+        dtheta = float(end[2] - tb.heading[b_start])
+        turned = _rotate_h(tb.gpos[ib], dtheta, up)
+        shift = np.zeros(3)
+        shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
+    else:
+        dtheta, shift = 0.0, np.zeros(3)
+    b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
+    b_head = tb.heading[ib] + dtheta
+    b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
+    b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
+    tcurves = curves.copy()
+    tcurves[2] = smoothstep(length)
+    tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
+    height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
+    gpos = np.empty((length, 3))
+    gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
+    return gpos, tr[:, 2], dtheta, shift
+
+
 class Result:
     """What one retrieval transition made: frames, B's alignment, contacts and the report."""
 
@@ -464,12 +656,17 @@ class Result:
 
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
-             exhaustive: bool = False, top_k: int | None = None, blend: float | None = None) -> Result | None:
+             exhaustive: bool = False, top_k: int | None = None, blend: float | None = None,
+             skip_unconfident: bool = False) -> Result | None:
     """One retrieval transition (see the module docstring); None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
     trajectory (positions (L, 3), headings (L,)), B's turn and shift, the planted feet of the
     retrieved lower body (L, legs) and the report (source clips, frames, costs, confidence).
+
+    ``skip_unconfident``: a part whose confidence is 0 (the caller replaces it by the fallback)
+    is not replayed: its joints' rotations are left as the identity, and for the lower body the
+    trajectory, B's turn and shift and the contacts are None. The report is the same.
     """
     lib, eng = rt.lib, rt.engine
     up = eng._up
@@ -477,7 +674,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     d = length + 1.0
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-    qa, qb = rt.seams(ta, ia, 1), rt.seams(tb, ib, 0)
+    qa, qb = rt.seam_pair(ta, ia, tb, ib)
     xa, xb = ta.features[a_end], tb.features[b_start]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     disp = None
@@ -489,60 +686,39 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         turn -= 2 * math.pi * round(turn / (2 * math.pi))
         disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
     none = np.zeros(0, np.int64)
-    found = [rt.search(p, qa, qb, none if exhaustive else rt.gather(xa, p), none if exhaustive else rt.gather(xb, p),
-                       d, fps, alpha, disp if p == 0 else None, top_k, exhaustive) for p in (0, 1)]
+    gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+    found = [rt.search(p, qa, qb, *gathered[p], d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
+             for p in (0, 1)]
     if found[0] is None or found[1] is None:
         return None
-    curves = hermite_offsets(length, BLEND_S * fps if blend is None else blend)
+    # Confidence first: a part the caller replaces by the fallback need not be replayed.
+    still = still_weight(qa, qb, lib.leg, up)
+    dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
+    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
+    curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     j_count = eng.skeleton.num_joints
     out = np.empty((length, j_count, 4))
-    parts, conf = {}, []
+    gpos = heading = dtheta = shift = contacts = None
+    parts = {}
     for p, (s, e, total, ca, cb) in enumerate(found):
-        i0, i1, f = segment_times(lib, s, e, d)
-        mask = rt.lower_mask if p == 0 else rt.upper_mask
-        joints = np.flatnonzero(mask)
-        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
-                                          curves)
-        if p == 0:
-            best_u = i0[0] + f[0]
-            gp, hd = sample_trajectory(lib, i0, i1, f)
-            theta0 = ta.heading[a_end] - hd[:, 1]
-            traj = np.empty(hd.shape + (3,))
-            rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
-            traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
-            traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
-            traj[..., 2] = hd + theta0[:, None]
-            a2 = np.stack([[ta.gpos[i, a_], ta.gpos[i, b_], ta.heading[i]] for i in ia])
-            if align:
-                end = traj[:, -2].mean(axis=0)
-                dtheta = float(end[2] - tb.heading[b_start])
-                turned = _rotate_h(tb.gpos[ib], dtheta, up)
-                shift = np.zeros(3)
-                shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
-            else:
-                dtheta, shift = 0.0, np.zeros(3)
-            b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
-            b_head = tb.heading[ib] + dtheta
-            b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
-            b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
-            tcurves = curves.copy()
-            tcurves[2] = smoothstep(length)
-            tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
-            height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
-            gpos = np.empty((length, 3))
-            gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
-            heading = tr[:, 2]
-        cost = rt.seam_distance(p, s[0], e[0], xa, xb)
-        c = float(np.clip((CONF_RANGE[1] - cost) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0, 1.0))
-        c *= still_weight(qa, qb, lib.leg, up)
-        conf.append(c)
+        cost, c = dist[p], conf[p]
         clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
         parts["lower" if p == 0 else "upper"] = {
             "clip": clip, "frames": [first, last], "reversed": bool(first > last),
             "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
             "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
             "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
-    frames = np.clip(np.round(best_u[2:-2]).astype(np.int64), 0, len(lib) - 1)
-    contacts = lib.contacts[frames]
+        mask = rt.lower_mask if p == 0 else rt.upper_mask
+        if skip_unconfident and c <= 0.0:
+            out[:, mask] = (1.0, 0.0, 0.0, 0.0)
+            continue
+        i0, i1, f = segment_times(lib, s, e, d)
+        joints = np.flatnonzero(mask)
+        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
+                                          curves)
+        if p == 0:
+            gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
+            frames = np.clip(np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64), 0, len(lib) - 1)
+            contacts = lib.contacts[frames]
     info = {"parts": parts, "confidence": round(min(conf), 3)}
     return Result(out, gpos, heading, dtheta, shift, contacts, info, conf)

@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..core.numba_kernels import _mul
+from ..core.numba_kernels import _FAST, _mul
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -104,3 +104,437 @@ def seam_costs(pm, vm, frames, vframes, p, v, rate, out):
             x = r * vm[g, d] - v[d]
             c += x * x
         out[i] = c
+
+
+# The search's seam costs: the sums of seam_costs, vectorised over the features (fast-math lets
+# the compiler reorder a sum: within about 1e-15 of seam_costs' sequential sums, relative).
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def _pos_cost(pm, f, p):
+    """The position part of a seam cost: ``|pm[f] - p|^2`` (float32 differences, float64 sum)."""
+    c = 0.0
+    for d in range(pm.shape[1]):
+        x = pm[f, d] - p[d]
+        c += x * x
+    return c
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def _vel_cost(vm, g, v, r):
+    """The velocity part of a seam cost: ``|r vm[g] - v|^2``."""
+    c = 0.0
+    for d in range(vm.shape[1]):
+        x = r * vm[g, d] - v[d]
+        c += x * x
+    return c
+
+
+@nb.njit(**_OPTS)
+def _seam_costs(pm, vm, rows, g_rows, p, v, rates, out):
+    """``out[i]`` = the seam cost of :func:`seam_costs` of ``rows[i]`` (velocity row ``g_rows[i]``)."""
+    for i in range(rows.shape[0]):
+        out[i] = _pos_cost(pm, rows[i], p) + _vel_cost(vm, g_rows[i], v, rates[i])
+
+
+@nb.njit(**_OPTS)
+def _pos_costs(pm, rows, p, out):
+    """The position part of :func:`_seam_costs` of each row."""
+    for i in range(rows.shape[0]):
+        out[i] = _pos_cost(pm, rows[i], p)
+
+
+@nb.njit(**_OPTS)
+def _vel_costs(vm, g_rows, v, rates, init, out):
+    """:func:`_seam_costs` of rows whose position part is known (``init``, from :func:`_pos_costs`;
+    the same bits as computing it again)."""
+    for i in range(g_rows.shape[0]):
+        out[i] = init[i] + _vel_cost(vm, g_rows[i], v, rates[i])
+
+
+@nb.njit(**_OPTS)
+def _smallest(c, keep):
+    """Indices (keep,) of the ``keep`` smallest values of ``c`` (all of them if fewer), in no
+    particular order: ``np.argpartition``'s set where the values are distinct; of values equal
+    to the largest kept one, the first ones."""
+    n = c.shape[0]
+    if n <= keep:
+        return np.arange(n)
+    thr = np.partition(c, keep - 1)[keep - 1]
+    out = np.empty(keep, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if c[i] < thr:
+            out[m] = i
+            m += 1
+    for i in range(n):
+        if m == keep:
+            break
+        if c[i] == thr:
+            out[m] = i
+            m += 1
+    return out
+
+
+@nb.njit(**_OPTS)
+def _prefilter(pm, vm, clip_end, frames, end, p, v, keep):
+    """:meth:`posturemap.synth.retrieval.Retriever.prefilter`: the ``keep`` frames that match best at natural speed."""
+    if frames.shape[0] <= keep:
+        return frames
+    n = frames.shape[0]
+    g = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        f = frames[i]
+        g[i] = min(f + 1, clip_end[f] - 1) if end else f
+    c = np.empty(n)
+    _seam_costs(pm, vm, frames, g, p, v, np.ones(n), c)
+    return frames[_smallest(c, keep)]
+
+
+@nb.njit(**_OPTS)
+def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alpha,
+           use_disp, gpos, heading, up, disp, disp_scale, w_disp, k):
+    """:meth:`posturemap.synth.retrieval.Retriever.search` after the gather, in one call.
+
+    Prefilters the gathered starts ``sa`` and ends ``sb`` to ``keep`` frames each, makes the
+    candidate segments (every prefiltered start and end with every duration ``ns`` (W,), inside
+    one clip), costs them (``penalty`` (W,) the warp term and ``rates`` (W,) the speed factor of
+    each duration; with ``use_disp`` the root displacement term against ``disp`` (3,)) and
+    returns the ``k`` best distinct segments, best first: ``(s, e, total, cost_a, cost_b)``,
+    ties ordered by start, then end. Arrays of length 0 when no segment fits.
+    """
+    n_lib = clip_of.shape[0]
+    fa = _prefilter(pm, vm, clip_end, sa, False, pa, va, keep)
+    fb = _prefilter(pm, vm, clip_end, sb, True, pb, vb, keep)
+    n_w = ns.shape[0]
+    cap = (fa.shape[0] + fb.shape[0]) * n_w
+    cs = np.empty(cap, dtype=np.int64)
+    ce = np.empty(cap, dtype=np.int64)
+    cw = np.empty(cap, dtype=np.int64)
+    # The position part of a prefiltered frame's seam cost is the same at every warp: once each.
+    pos_a, pos_b = np.empty(fa.shape[0]), np.empty(fb.shape[0])
+    _pos_costs(pm, fa, pa, pos_a)
+    _pos_costs(pm, fb, pb, pos_b)
+    known = np.empty(cap)
+    m = 0
+    for i in range(fa.shape[0]):
+        for w in range(n_w):
+            s, e = fa[i], fa[i] + ns[w]
+            if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
+                cs[m], ce[m], cw[m], known[m] = s, e, w, pos_a[i]
+                m += 1
+    m_a = m  # candidates from A's frames, then from B's
+    for i in range(fb.shape[0]):
+        for w in range(n_w):
+            s, e = fb[i] - ns[w], fb[i]
+            if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
+                cs[m], ce[m], cw[m], known[m] = s, e, w, pos_b[i]
+                m += 1
+    total = np.empty(m)
+    ca = np.empty(m)
+    cb = np.empty(m)
+    rate = np.empty(m)
+    nxt = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        rate[i] = rates[cw[i]]
+        nxt[i] = min(ce[i] + 1, clip_end[ce[i]] - 1)
+    _vel_costs(vm, cs[:m_a], va, rate[:m_a], known[:m_a], ca[:m_a])
+    _seam_costs(pm, vm, cs[m_a:m], cs[m_a:m], pa, va, rate[m_a:], ca[m_a:])
+    _seam_costs(pm, vm, ce[:m_a], nxt[:m_a], pb, vb, rate[:m_a], cb[:m_a])
+    _vel_costs(vm, nxt[m_a:], vb, rate[m_a:], known[m_a:m], cb[m_a:])
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    for i in range(m):
+        s, e, w = cs[i], ce[i], cw[i]
+        t = 2 * (1 - alpha) * ca[i] + 2 * alpha * cb[i] + penalty[w]
+        if use_disp:
+            da, db = gpos[e, a_] - gpos[s, a_], gpos[e, b_] - gpos[s, b_]
+            c, sn = math.cos(heading[s]), math.sin(heading[s])
+            dx = c * da + sn * db
+            dz = -sn * da + c * db
+            turn = heading[e] - heading[s]
+            t = t + w_disp * (((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / disp_scale ** 2
+                              + (turn - disp[2]) ** 2 / 0.25 ** 2)
+        total[i] = t
+    # The 2k best, ordered by (total, start, end); a segment found from both seams counts once.
+    best = _smallest(total, 2 * k)
+    n_b = best.shape[0]
+    for i in range(1, n_b):  # insertion sort: a few elements
+        j = i
+        while j > 0:
+            x, y = best[j - 1], best[j]
+            if (total[y], cs[y], ce[y]) < (total[x], cs[x], ce[x]):
+                best[j - 1], best[j] = y, x
+                j -= 1
+            else:
+                break
+    keep_i = np.empty(n_b, dtype=np.int64)
+    n_k = 0
+    for i in range(n_b):
+        b = best[i]
+        if i > 0 and cs[b] == cs[best[i - 1]] and ce[b] == ce[best[i - 1]]:
+            continue
+        if n_k < k:
+            keep_i[n_k] = b
+            n_k += 1
+    sel = keep_i[:n_k]
+    return cs[sel], ce[sel], total[sel], ca[sel], cb[sel]
+
+
+@nb.njit(**_OPTS)
+def _sqdist(weights, i, cols, q, period):
+    """Squared distance of neuron ``i`` to ``q`` over the columns ``cols`` (circular where
+    ``period`` is finite; ``min(d, inf - d)`` leaves the others as they are)."""
+    acc = 0.0
+    for j in range(cols.shape[0]):
+        diff = abs(weights[i, cols[j]] - q[j])
+        diff = min(diff, period[j] - diff)
+        acc += diff * diff
+    return acc
+
+
+@nb.njit(**_OPTS)
+def _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget):
+    """The library frames of the neurons nearest first (squared distances ``d2``) until
+    ``budget`` frames are gathered (see :func:`gather`)."""
+    n = d2.shape[0]
+    n_indexed = index_ptr.shape[0] - 1  # neurons past the last indexed one hold no frame
+    # Usually a few dozen neurons hold the budget: sort the nearest 64 first, all n_take if short.
+    for take in (min(64, n_take), n_take):
+        near = _smallest(d2, take) if take < n else np.arange(n)
+        near = near[np.argsort(d2[near])]
+        chosen = np.empty(near.shape[0], dtype=np.int64)
+        n_c = 0
+        total = 0
+        for i in range(near.shape[0]):
+            k = near[i]
+            if k >= n_indexed:
+                continue
+            chosen[n_c] = k
+            n_c += 1
+            total += index_ptr[k + 1] - index_ptr[k]
+            if total >= budget:
+                break
+        if total >= budget or take >= min(n, n_take):
+            break
+    out = np.empty(total, dtype=np.int64)
+    m = 0
+    for i in range(n_c):
+        k = chosen[i]
+        for f in range(index_ptr[k], index_ptr[k + 1]):
+            out[m] = index_frames[f]
+            m += 1
+    return out
+
+
+@nb.njit(**_OPTS)
+def gather(weights, cols, q, period, index_ptr, index_frames, n_take, budget):
+    """:meth:`posturemap.synth.retrieval.Retriever.gather` in one call: the library frames of the
+    neurons nearest ``q`` (over the columns ``cols`` of ``weights``; circular where ``period``
+    (len(cols),) is finite), nearest first, until ``budget`` frames are gathered."""
+    d2 = np.empty(weights.shape[0])
+    for i in range(weights.shape[0]):
+        d2[i] = _sqdist(weights, i, cols, q, period)
+    return _frames_of_nearest(d2, index_ptr, index_frames, n_take, budget)
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FAST)
+def _sqdists(w, q, period, circular, out):
+    """``out[i]`` = squared distance of row ``w[i]`` to ``q`` (circular where ``period`` is finite,
+    when ``circular``); vectorised over the columns."""
+    for i in range(w.shape[0]):
+        acc = 0.0
+        if circular:
+            for j in range(w.shape[1]):
+                diff = abs(w[i, j] - q[j])
+                diff = min(diff, period[j] - diff)
+                acc += diff * diff
+        else:
+            for j in range(w.shape[1]):
+                diff = w[i, j] - q[j]
+                acc += diff * diff
+        out[i] = acc
+
+
+@nb.njit(**_OPTS)
+def gather_seams(w0, w1, qa0, qa1, qb0, qb1, period0, period1, index_ptr, index_frames, n_take, budget):
+    """:func:`gather` of both seams (``qa*``, ``qb*``) for both body parts, whose columns of the
+    index map are ``w0`` and ``w1`` (N, D0/D1, contiguous): ``(a0, b0, a1, b1)``."""
+    n = w0.shape[0]
+    d2 = np.empty((4, n))
+    circular = False
+    for j in range(period0.shape[0]):
+        circular |= period0[j] < np.inf
+    for j in range(period1.shape[0]):
+        circular |= period1[j] < np.inf
+    _sqdists(w0, qa0, period0, circular, d2[0])
+    _sqdists(w0, qb0, period0, circular, d2[1])
+    _sqdists(w1, qa1, period1, circular, d2[2])
+    _sqdists(w1, qb1, period1, circular, d2[3])
+    return (_frames_of_nearest(d2[0], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[1], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[2], index_ptr, index_frames, n_take, budget),
+            _frames_of_nearest(d2[3], index_ptr, index_frames, n_take, budget))
+
+
+@nb.njit(**_OPTS)
+def seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root):
+    """The matching features of :func:`posturemap.synth.library.clip_features` at A's end and B's start.
+
+    gp (4, J, 3) global joint positions, root_pos (4, 3), heading (4,) of the frames A[a_end-1],
+    A[a_end], B[b_start], B[b_start+1]; keys (K,) key joints. Writes ``pose``/``vel`` (2, K, 3)
+    and ``root`` (2, 5) of A's end (row 0; velocity backward) and B's start (row 1; forward).
+    """
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    rel = np.empty((4, keys.shape[0], 3))
+    for f in range(4):
+        c, s = math.cos(heading[f]), math.sin(heading[f])
+        for k in range(keys.shape[0]):
+            va = gp[f, keys[k], a_] - root_pos[f, a_]
+            vb = gp[f, keys[k], b_] - root_pos[f, b_]
+            rel[f, k, a_] = c * va + s * vb
+            rel[f, k, b_] = -s * va + c * vb
+            rel[f, k, up] = gp[f, keys[k], up] - root_pos[f, up]
+    for row in range(2):
+        f, prev = (1, 0) if row == 0 else (2, 3)
+        rate = fps if row == 0 else -1.0 * fps  # B's first frame: the forward difference, negated
+        for k in range(keys.shape[0]):
+            for x in range(3):
+                pose[row, k, x] = rel[f, k, x]
+                vel[row, k, x] = (rel[f, k, x] - rel[prev, k, x]) * rate
+        da = (root_pos[f, a_] - root_pos[prev, a_]) * rate
+        db = (root_pos[f, b_] - root_pos[prev, b_]) * rate
+        c, s = math.cos(heading[f]), math.sin(heading[f])
+        root[row, a_] = c * da + s * db
+        root[row, b_] = -s * da + c * db
+        root[row, up] = (root_pos[f, up] - root_pos[prev, up]) * rate
+        root[row, 3] = (heading[f] - heading[prev]) * (1.0 if row == 0 else -1.0) * fps
+        root[row, 4] = root_pos[f, up]
+
+
+@nb.njit(**_OPTS)
+def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
+    """Channel ``ch`` of :func:`posturemap.synth.retrieval.offset_values` averaged over the segments:
+    src (K, T, C) sampled at t = -1 .. d + 1, seam values a0, a1 (A) and b0, b1 (B) (K-independent),
+    curves (4, L); writes out[:, ch] (L, ...)."""
+    n_k = src.shape[0]
+    n_l = curves.shape[1]
+    for t in range(n_l):
+        out[t] = 0.0
+    for k in range(n_k):
+        r_a = a1 - src[k, 1, ch]
+        v_a = (a1 - a0) - (src[k, 1, ch] - src[k, 0, ch])
+        r_b = b0 - src[k, n_l + 2, ch]
+        v_b = (b1 - b0) - (src[k, n_l + 3, ch] - src[k, n_l + 2, ch])
+        for t in range(n_l):
+            out[t] += (src[k, t + 2, ch] + curves[0, t] * r_a + curves[1, t] * v_a + curves[2, t] * r_b
+                       + curves[3, t] * v_b)
+    for t in range(n_l):
+        out[t] /= n_k
+
+
+@nb.njit(**_OPTS)
+def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head_in, align, up, curves, smooth,
+               gpos, heading, shift):
+    """The root trajectory of the lower body's segments (see :func:`posturemap.synth.retrieval.retrieve`):
+    each segment's root path sampled at (i0, i1, f) (K, T), turned and moved to continue A
+    (``a_pos`` (2, 3), ``a_head`` (2,): A at a_end-1, a_end), its seams corrected towards A and B
+    (B at b_start, b_start+1 moved by the returned turn and ``shift``, when ``align`` to where
+    the segments end), averaged. Writes ``gpos`` (L, 3), ``heading`` (L,) and ``shift`` (3,);
+    returns B's turn ``dtheta``. ``curves`` (4, L) are the seam offsets, ``smooth`` (L,) the
+    horizontal path's rise into B."""
+    n_k, n_t = i0.shape
+    n_l = curves.shape[1]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    traj = np.empty((n_k, n_t, 4))  # horizontal a_, b_, heading, height
+    for k in range(n_k):
+        g1a = lib_gpos[i0[k, 1], a_] + f[k, 1] * (lib_gpos[i1[k, 1], a_] - lib_gpos[i0[k, 1], a_])
+        g1b = lib_gpos[i0[k, 1], b_] + f[k, 1] * (lib_gpos[i1[k, 1], b_] - lib_gpos[i0[k, 1], b_])
+        h1 = lib_heading[i0[k, 1]] + f[k, 1] * (lib_heading[i1[k, 1]] - lib_heading[i0[k, 1]])
+        theta0 = a_head[1] - h1
+        c, s = math.cos(theta0), math.sin(theta0)
+        for t in range(n_t):
+            j0, j1, u = i0[k, t], i1[k, t], f[k, t]
+            va = lib_gpos[j0, a_] + u * (lib_gpos[j1, a_] - lib_gpos[j0, a_]) - g1a
+            vb = lib_gpos[j0, b_] + u * (lib_gpos[j1, b_] - lib_gpos[j0, b_]) - g1b
+            traj[k, t, 0] = (c * va - s * vb) + a_pos[1, a_]
+            traj[k, t, 1] = (s * va + c * vb) + a_pos[1, b_]
+            traj[k, t, 2] = lib_heading[j0] + u * (lib_heading[j1] - lib_heading[j0]) + theta0
+            traj[k, t, 3] = lib_gpos[j0, up] + u * (lib_gpos[j1, up] - lib_gpos[j0, up])
+    end = np.zeros(3)
+    for k in range(n_k):
+        for x in range(3):
+            end[x] += traj[k, n_t - 2, x]
+    for x in range(3):
+        end[x] /= n_k
+    shift[:] = 0.0
+    dtheta = 0.0
+    if align:
+        dtheta = end[2] - b_head_in[0]
+        c, s = math.cos(dtheta), math.sin(dtheta)
+        shift[a_] = end[0] - (c * b_pos_in[0, a_] - s * b_pos_in[0, b_])
+        shift[b_] = end[1] - (s * b_pos_in[0, a_] + c * b_pos_in[0, b_])
+    c, s = math.cos(dtheta), math.sin(dtheta)
+    b_pos = np.empty((2, 3))
+    b_head = np.empty(2)
+    for i in range(2):
+        b_pos[i, a_] = (c * b_pos_in[i, a_] - s * b_pos_in[i, b_]) + shift[a_]
+        b_pos[i, b_] = (s * b_pos_in[i, a_] + c * b_pos_in[i, b_]) + shift[b_]
+        b_head[i] = b_head_in[i] + dtheta
+    turns = np.rint((end[2] - b_head[0]) / (2 * math.pi))
+    for i in range(2):
+        b_head[i] += 2 * math.pi * turns
+    tcurves = curves.copy()
+    tcurves[2] = smooth
+    out = np.empty(n_l)
+    _offset_mean(traj, a_pos[0, a_], a_pos[1, a_], b_pos[0, a_], b_pos[1, a_], tcurves, out, 0)
+    gpos[:, a_] = out
+    _offset_mean(traj, a_pos[0, b_], a_pos[1, b_], b_pos[0, b_], b_pos[1, b_], tcurves, out, 1)
+    gpos[:, b_] = out
+    _offset_mean(traj, a_head[0], a_head[1], b_head[0], b_head[1], tcurves, out, 2)
+    heading[:] = out
+    _offset_mean(traj, a_pos[0, up], a_pos[1, up], b_pos_in[0, up], b_pos_in[1, up], curves, out, 3)
+    gpos[:, up] = out
+    return dtheta
+
+
+@nb.njit(**_OPTS)
+def seam_distances(rots, gpos, frames, joints, reference, up, height_scale, xa, xb, dims, dim_ptr, out):
+    """:meth:`posturemap.synth.retrieval.Retriever.seam_distances` for a map in logmap mode (no circular
+    dimension): segment ``i`` starts at library frame ``frames[2 i]`` and ends at ``frames[2 i + 1]``
+    and counts the feature dimensions ``dims[dim_ptr[i]:dim_ptr[i + 1]]``; ``out[i]`` in degrees."""
+    n_j = joints.shape[0]
+    x = np.empty((frames.shape[0], 3 * n_j + 1))
+    for r in range(frames.shape[0]):
+        f = frames[r]
+        for m in range(n_j):
+            j = joints[m]
+            w, a, b, c = _mul(reference[m, 0], -reference[m, 1], -reference[m, 2], -reference[m, 3],
+                              float(rots[f, j, 0]), float(rots[f, j, 1]), float(rots[f, j, 2]), float(rots[f, j, 3]))
+            if w < 0.0:
+                w, a, b, c = -w, -a, -b, -c
+            s = math.sqrt(a * a + b * b + c * c)
+            k = 2.0 * math.atan2(s, w) / s if s > 1e-8 else 2.0 + s * s / 3.0
+            x[r, 3 * m], x[r, 3 * m + 1], x[r, 3 * m + 2] = a * k, b * k, c * k
+        x[r, 3 * n_j] = gpos[f, up] / height_scale
+    for i in range(out.shape[0]):
+        da = 0.0
+        db = 0.0
+        for q in range(dim_ptr[i], dim_ptr[i + 1]):
+            d = dims[q]
+            da += (x[2 * i, d] - xa[d]) ** 2
+            db += (x[2 * i + 1, d] - xb[d]) ** 2
+        n = max(dim_ptr[i + 1] - dim_ptr[i], 1)
+        out[i] = max(math.sqrt(da), math.sqrt(db)) / math.sqrt(n / 3.0) * (180.0 / math.pi)
+
+
+@nb.njit(**_OPTS)
+def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
+    """:func:`posturemap.synth.retrieval.segment_times` into ``i0``, ``i1``, ``f`` (K, T) at times ``t`` (T,)."""
+    for k in range(s.shape[0]):
+        lo = clip_start[clip_of[s[k]]]
+        hi = clip_end[s[k]] - 1
+        step = (e[k] - s[k]) / d
+        for j in range(t.shape[0]):
+            u = min(max(s[k] + t[j] * step, lo), hi)
+            a = np.int64(math.floor(u))
+            i0[k, j] = a
+            i1[k, j] = min(a + 1, hi)
+            f[k, j] = u - a
