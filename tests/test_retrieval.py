@@ -243,9 +243,11 @@ def test_results_are_deterministic(model, clips, engine):
 
 
 def test_alpha_trades_the_match_at_a_against_the_match_at_b(engine, clips):
-    # alpha weighs the two seams: 2 (1 - alpha) cost_A + 2 alpha cost_B. For the chosen segment,
-    # the cost at A can only grow and the cost at B only fall as alpha rises.
+    # alpha weighs the two seams of the one-segment search: 2 (1 - alpha) cost_A + 2 alpha
+    # cost_B. For the chosen segment, the cost at A can only grow and the cost at B only fall as
+    # alpha rises. (A splice moves its blend earlier as alpha rises: test_splice.py.)
     rng = np.random.default_rng(4)
+    rt = retrieval.Retriever(engine, engine.model.library_)
     moved = 0
     for _ in range(6):
         a, b = rng.choice(HELD_OUT, 2, replace=False)
@@ -253,8 +255,8 @@ def test_alpha_trades_the_match_at_a_against_the_match_at_b(engine, clips):
         b_start = int(rng.integers(0, len(clips[b]) - 20))
         costs = []
         for alpha in (0.0, 0.25, 0.5, 0.75, 1.0):
-            engine.generate(a, b, length=24, alpha=alpha, a_end=a_end, b_start=b_start, method="retrieval")
-            p = engine.last["retrieval"]["parts"]["lower"]
+            res = retrieval.retrieve(rt, engine.tracks[a], engine.tracks[b], a_end, b_start, 24, alpha, True)
+            p = res.info["parts"]["lower"]
             costs.append((p["cost_a"], p["cost_b"]))
         ca, cb = np.array(costs).T
         assert np.all(np.diff(ca) >= -1e-3) and np.all(np.diff(cb) <= 1e-3), costs

@@ -198,12 +198,16 @@ def describe_retrieval(info) -> str:
     """One line per body part: which library clip and frames were replayed, and how confidently."""
     if not info:
         return "  retrieval: no library segment fits; interpolated instead (fallback)"
+    def source(r):
+        return (f"{r['clip']} frames {r['frames'][0]}..{r['frames'][1]}{' (played backwards)' if r['reversed'] else ''} "
+                f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees")
+
     lines = []
     for part, r in info["parts"].items():
-        lines.append(f"  {part}: {r['clip']} frames {r['frames'][0]}..{r['frames'][1]}"
-                     f"{' (played backwards)' if r['reversed'] else ''} "
-                     f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees, "
-                     f"confidence {r['confidence']:.2f}")
+        if "then" in r:  # a splice: the segment continuing A, blended into the one arriving in B
+            lines.append(f"  {part}: {source(r)}, then {source(r['then'])}; confidence {r['confidence']:.2f}")
+        else:
+            lines.append(f"  {part}: {source(r)}, confidence {r['confidence']:.2f}")
     return "\n".join(lines)
 
 

@@ -331,6 +331,12 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             eng._retriever = retrieval.Retriever(eng, lib)
         res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align,
                                  skip_unconfident=True)
+        if res is not None and res.confidence[0] < 1.0:  # A's continuation into B's arrival?
+            from .splice import spliced
+
+            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align)
+            if alt is not None and alt.confidence[0] > res.confidence[0]:
+                res = alt
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
     # retrieved parts leave open (joints above the root, local translations).
     fallback = retrieval.fallback_method(length, ta.motion.fps)

@@ -657,7 +657,7 @@ class Result:
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
              exhaustive: bool = False, top_k: int | None = None, blend: float | None = None,
-             skip_unconfident: bool = False) -> Result | None:
+             skip_unconfident: bool = False, match: str = "both") -> Result | None:
     """One retrieval transition (see the module docstring); None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
@@ -667,6 +667,10 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     ``skip_unconfident``: a part whose confidence is 0 (the caller replaces it by the fallback)
     is not replayed: its joints' rotations are left as the identity, and for the lower body the
     trajectory, B's turn and shift and the contacts are None. The report is the same.
+
+    ``match``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
+    the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
+    splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
     """
     lib, eng = rt.lib, rt.engine
     up = eng._up
@@ -693,7 +697,12 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         return None
     # Confidence first: a part the caller replaces by the fallback need not be replayed.
     still = still_weight(qa, qb, lib.leg, up)
-    dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
+    if match == "a":  # the segment's start against A's end on both sides of the measure
+        dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
+    elif match == "b":
+        dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
+    else:
+        dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
     conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
     curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     j_count = eng.skeleton.num_joints

@@ -108,16 +108,20 @@ export function showLabels(res, cres, params) {
   showRetrieval(res);
 }
 
-// Which real motion a retrieval transition replayed, and how well it matched (one line per part).
+// Which real motion a retrieval transition replayed, and how well it matched (one line per part;
+// a splice names the segment continuing A, then the one arriving in B).
+const source = (p) => `${p.clip} ${p.frames[0]}–${p.frames[1]}` + (p.reversed ? ' (played backwards)' : '')
+  + ` · match ${p.distance.toFixed(1)}°`;
+
 function showRetrieval(res) {
   const el = $('retrieval-info');
   const r = res.retrieval;
   el.hidden = r === undefined;
   if (r === undefined) return;
   el.textContent = !r ? 'No library motion fits: interpolated (fallback).'
-    : Object.entries(r.parts).map(([part, p]) => `${part}: ${p.clip} ${p.frames[0]}–${p.frames[1]}`
-      + (p.reversed ? ' (played backwards)' : '')
-      + ` · match ${p.distance.toFixed(1)}° · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
+    : Object.entries(r.parts).map(([part, p]) => `${part}: ${source(p)}`
+      + (p.then ? ` → then ${source(p.then)}` : '')
+      + ` · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
 }
 
 // ---- map status --------------------------------------------------------------------------

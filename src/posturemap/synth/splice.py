@@ -1,0 +1,99 @@
+"""Splicing two real motions in a gap: A's continuation, blended into B's arrival.
+
+Retrieval looks for library segments that both continue A and arrive in B. Between different
+clips (a bow and a walk, a run and a wave) there is rarely one: the best segments match
+neither seam well, the confidence drops and interpolation takes over, and interpolated feet
+slide. But every motion has real continuations, and every motion real approaches. The splice
+plays a segment that continues A (matched at A's end only), blends into a segment that arrives
+in B (matched at B's start only) over the middle of the gap, and plays that one into B: a
+motion-graph transition (Kovar, Gleicher and Pighin 2002) inside the gap, both ends real.
+
+- Poses are blended by SLERP with a smoothstep weight over ``SPLICE_WIDTH`` of the gap, centred
+  by ``alpha`` (0: the blend comes late, A's motion carries on longer; 1: it comes early, B's
+  motion starts sooner), so alpha keeps its meaning.
+- In transition mode (B placed to continue A) the root's horizontal velocity and turning rate
+  are blended and integrated from A's end, so the path has no kink, and B is placed where the
+  path arrives, as the second segment placed it relative to its own end. In in-betweening (B
+  fixed) both segments already land on B and their positions are blended.
+- Planted feet come from the segment that dominates each frame.
+- Confidence per body part: the smaller of the two halves' confidences, each measured at its
+  own seam. The engine uses the splice when its legs are more confident than the single
+  segment's (:func:`posturemap.synth.engine.TransitionEngine.generate`, ``retrieval``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import quat
+from .retrieval import Result, retrieve
+from .trajectory import rotate_about_up
+
+SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
+
+
+def splice_weights(length: int, alpha: float, width: float = SPLICE_WIDTH) -> np.ndarray:
+    """Weight (length,) of B's arrival at the new frames: 0 before the blend, a smoothstep over
+    ``width`` of the gap centred at ``0.75 - 0.5 * alpha`` of it, 1 after."""
+    t = np.arange(1, length + 1) / (length + 1.0)
+    centre = 0.75 - 0.5 * float(alpha)
+    u = np.clip((t - centre) / width + 0.5, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_pos: np.ndarray, up: int,
+           align: bool):
+    """Blend ``first`` (continues A) into ``second`` (arrives in B), two retrieval results.
+
+    ``w`` (L,) the weight of ``second`` per new frame (:func:`splice_weights`); ``a_pos`` (3,)
+    and ``a_heading`` A's root at its last frame; ``b_pos`` (3,) B's root at its first frame
+    as it lies in its clip. Returns ``(rots, gpos, heading, dtheta, shift, contacts)`` in the
+    form of a :class:`~posturemap.synth.retrieval.Result`'s fields.
+    """
+    rots = quat.slerp(first.rots, second.rots, w[:, None])
+    heading2 = second.heading + 2 * np.pi * np.round((first.heading - second.heading) / (2 * np.pi))
+    if align:
+        g1 = np.concatenate([a_pos[None], first.gpos])
+        g2 = np.concatenate([a_pos[None], second.gpos])
+        h1 = np.concatenate([[a_heading], first.heading])
+        h2 = np.concatenate([[a_heading], heading2])
+        vel = (1 - w)[:, None] * np.diff(g1, axis=0) + w[:, None] * np.diff(g2, axis=0)
+        gpos = a_pos + np.cumsum(vel, axis=0)
+        gpos[:, up] = (1 - w) * first.gpos[:, up] + w * second.gpos[:, up]
+        heading = a_heading + np.cumsum((1 - w) * np.diff(h1) + w * np.diff(h2))
+        # B where `second` put it relative to its own last frame, carried to the path's end.
+        turn = float(heading[-1] - heading2[-1])
+        b_placed = rotate_about_up(b_pos, second.dtheta, up) + second.shift
+        end = gpos[-1] + rotate_about_up(b_placed - second.gpos[-1], turn, up)
+        dtheta = float(second.dtheta + turn)
+        shift = end - rotate_about_up(b_pos, dtheta, up)
+    else:
+        gpos = (1 - w)[:, None] * first.gpos + w[:, None] * second.gpos
+        heading = (1 - w) * first.heading + w * heading2
+        dtheta, shift = second.dtheta, second.shift
+    contacts = np.where((w < 0.5)[:, None], first.contacts, second.contacts)
+    return rots, gpos, heading, dtheta, np.asarray(shift, dtype=float), contacts
+
+
+def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool) -> Result | None:
+    """The splice of the best segment continuing A into the best segment arriving in B, as a
+    :class:`~posturemap.synth.retrieval.Result`; None when the library has no segment, or when
+    either half's legs have no confidence (the trajectory needs both)."""
+    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, align, skip_unconfident=True, match="a")
+    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, align, skip_unconfident=True, match="b")
+    if first is None or second is None:
+        return None
+    conf = [min(c1, c2) for c1, c2 in zip(first.confidence, second.confidence)]
+    if conf[0] <= 0.0:
+        return None
+    up = rt.engine.up
+    w = splice_weights(length, alpha)
+    rots, gpos, heading, dtheta, shift, contacts = splice(first, second, w, ta.gpos[a_end], float(ta.heading[a_end]),
+                                                          tb.gpos[b_start], up, align)
+    # Per body part: the segment continuing A, with the one arriving in B under "then"; the
+    # part's confidence is the splice's.
+    parts = {part: {**entry, "confidence": round(c, 3), "then": second.info["parts"][part]}
+             for (part, entry), c in zip(first.info["parts"].items(), conf)}
+    info = {"parts": parts, "confidence": round(min(conf), 3),
+            "splice": {"centre": round(0.75 - 0.5 * float(alpha), 3), "width": SPLICE_WIDTH}}
+    return Result(rots, gpos, heading, dtheta, shift, contacts, info, conf)

@@ -1,0 +1,85 @@
+"""The splice of A's continuation into B's arrival (posturemap.synth.splice)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from posturemap.core import quat
+from posturemap.synth.splice import SPLICE_WIDTH, splice, splice_weights
+from posturemap.synth.trajectory import rotate_about_up
+
+UP = 1
+
+
+@pytest.mark.parametrize("length", [5, 20, 45])
+def test_splice_weights_run_from_a_to_b_and_alpha_moves_the_blend(length):
+    w = {alpha: splice_weights(length, alpha) for alpha in (0.0, 0.25, 0.5, 0.75, 1.0)}
+    for alpha, x in w.items():
+        assert np.all(np.diff(x) >= 0) and np.all((0 <= x) & (x <= 1))
+    # alpha 0.5: the blend sits in the middle, symmetric about it.
+    np.testing.assert_allclose(w[0.5], 1 - w[0.5][::-1], atol=1e-12)
+    # A larger alpha blends earlier: B's weight never smaller, somewhere larger.
+    alphas = sorted(w)
+    for lo, hi in zip(alphas, alphas[1:]):
+        assert np.all(w[hi] >= w[lo] - 1e-12) and np.any(w[hi] > w[lo])
+    # The blend covers SPLICE_WIDTH of the gap: frames outside it hold 0 or 1.
+    t = np.arange(1, length + 1) / (length + 1.0)
+    inside = np.abs(t - 0.5) < SPLICE_WIDTH / 2
+    assert np.all(np.isin(w[0.5][~inside], (0.0, 1.0)))
+
+
+def _result(rng, length, joints, start, velocity, turn_rate, dtheta, shift, contacts):
+    t = np.arange(1, length + 1)[:, None]
+    return SimpleNamespace(rots=quat.normalize(rng.normal(size=(length, joints, 4))),
+                           gpos=start + t * velocity, heading=0.3 + turn_rate * t[:, 0],
+                           dtheta=dtheta, shift=np.asarray(shift, dtype=float), contacts=contacts)
+
+
+def test_splice_in_transition_mode_integrates_a_smooth_path_and_places_b_at_its_end():
+    rng = np.random.default_rng(0)
+    length, joints = 20, 5
+    a_pos, a_heading = np.array([1.0, 90.0, 2.0]), 0.3
+    v1, v2 = np.array([3.0, 0.0, 0.0]), np.array([0.0, 0.0, -2.0])
+    on1 = np.zeros((length, 2), bool)
+    on2 = np.ones((length, 2), bool)
+    first = _result(rng, length, joints, a_pos, v1, 0.01, 0.0, [0, 0, 0], on1)
+    second = _result(rng, length, joints, a_pos, v2, -0.02, 0.7, [5.0, 0.0, -3.0], on2)
+    b_pos = np.array([40.0, 90.0, 7.0])
+    w = splice_weights(length, 0.5)
+    rots, gpos, heading, dtheta, shift, contacts = splice(first, second, w, a_pos, a_heading, b_pos, UP, True)
+    # Poses: SLERP by the weight, frame by frame.
+    np.testing.assert_allclose(rots, quat.slerp(first.rots, second.rots, w[:, None]), atol=1e-12)
+    # Path: the velocity is the blend of the two, so it starts as A's continuation and ends as
+    # B's arrival, with no jump anywhere.
+    vel = np.diff(np.concatenate([a_pos[None], gpos]), axis=0)
+    expect = (1 - w)[:, None] * v1 + w[:, None] * v2
+    np.testing.assert_allclose(np.delete(vel, UP, axis=1), np.delete(expect, UP, axis=1), atol=1e-12)
+    np.testing.assert_allclose(np.diff(np.concatenate([[a_heading], heading])), (1 - w) * 0.01 + w * -0.02,
+                               atol=1e-12)
+    # B lies relative to the path's end as `second` put it relative to its own end, turned by
+    # the difference of the end headings.
+    turn = heading[-1] - second.heading[-1]
+    mine = rotate_about_up(b_pos, dtheta, UP) + shift - gpos[-1]
+    theirs = rotate_about_up(b_pos, second.dtheta, UP) + second.shift - second.gpos[-1]
+    np.testing.assert_allclose(mine, rotate_about_up(theirs, turn, UP), atol=1e-9)
+    assert dtheta == pytest.approx(second.dtheta + turn)
+    # Planted feet from the segment that dominates each frame.
+    np.testing.assert_array_equal(contacts, np.where((w < 0.5)[:, None], on1, on2))
+
+
+def test_splice_in_betweening_keeps_b_where_both_put_it():
+    rng = np.random.default_rng(1)
+    length = 12
+    a_pos = np.zeros(3)
+    land = np.array([30.0, 0.0, 0.0])
+    on = np.zeros((length, 2), bool)
+    first = _result(rng, length, 3, a_pos, land / (length + 1), 0.0, 0.0, [0, 0, 0], on)
+    second = _result(rng, length, 3, a_pos, land / (length + 1), 0.0, 0.0, [0, 0, 0], on)
+    second.gpos = second.gpos + np.array([0.0, 0.0, 1.0]) * np.sin(np.linspace(0, np.pi, length))[:, None]
+    w = splice_weights(length, 0.3)
+    _, gpos, _, dtheta, shift, _ = splice(first, second, w, a_pos, 0.0, land, UP, False)
+    np.testing.assert_allclose(gpos, (1 - w)[:, None] * first.gpos + w[:, None] * second.gpos, atol=1e-12)
+    assert dtheta == 0.0 and not shift.any()
