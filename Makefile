@@ -4,6 +4,8 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
+# The real mocap (bandai1/, cmu/) for the tests and `make bench`: next to the repository unless set.
+export POSTUREMAP_DATA ?= $(abspath ../shared/data)
 
 .PHONY: demo test test-slow test-all bench bench-quick serve clean web studio-docs wheel-smoke
 

@@ -329,12 +329,13 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     if lib is not None and len(lib):
         if eng._retriever is None or eng._retriever.lib is not lib:
             eng._retriever = retrieval.Retriever(eng, lib)
+        shared = {}  # the seams' features and gathered frames, for the splice too
         res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align,
-                                 skip_unconfident=True)
+                                 skip_unconfident=True, shared=shared)
         if res is not None and res.confidence[0] < 1.0:  # A's continuation into B's arrival?
             from .splice import spliced
 
-            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align)
+            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align, shared)
             if alt is not None and alt.confidence[0] > res.confidence[0]:
                 res = alt
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the

@@ -657,7 +657,7 @@ class Result:
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
              exhaustive: bool = False, top_k: int | None = None, blend: float | None = None,
-             skip_unconfident: bool = False, match: str = "both") -> Result | None:
+             skip_unconfident: bool = False, match: str = "both", shared: dict | None = None) -> Result | None:
     """One retrieval transition (see the module docstring); None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
@@ -671,6 +671,8 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     ``match``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
     the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
     splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
+    ``shared``: a dict kept by the caller between calls on the same seams (the seams' features
+    and the frames gathered for them are computed once).
     """
     lib, eng = rt.lib, rt.engine
     up = eng._up
@@ -678,8 +680,15 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     d = length + 1.0
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-    qa, qb = rt.seam_pair(ta, ia, tb, ib)
     xa, xb = ta.features[a_end], tb.features[b_start]
+    if shared is not None and "seams" in shared:
+        qa, qb, gathered = shared["seams"]
+    else:
+        qa, qb = rt.seam_pair(ta, ia, tb, ib)
+        none = np.zeros(0, np.int64)
+        gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+        if shared is not None:
+            shared["seams"] = (qa, qb, gathered)
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     disp = None
     if not align:
@@ -689,8 +698,6 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
         turn = tb.heading[b_start] - ta.heading[a_end]
         turn -= 2 * math.pi * round(turn / (2 * math.pi))
         disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
-    none = np.zeros(0, np.int64)
-    gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
     found = [rt.search(p, qa, qb, *gathered[p], d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
              for p in (0, 1)]
     if found[0] is None or found[1] is None:

@@ -75,12 +75,17 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     return rots, gpos, heading, dtheta, np.asarray(shift, dtype=float), contacts
 
 
-def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool) -> Result | None:
+def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
+            shared: dict | None = None) -> Result | None:
     """The splice of the best segment continuing A into the best segment arriving in B, as a
     :class:`~posturemap.synth.retrieval.Result`; None when the library has no segment, or when
-    either half's legs have no confidence (the trajectory needs both)."""
-    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, align, skip_unconfident=True, match="a")
-    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, align, skip_unconfident=True, match="b")
+    either half's legs have no confidence (the trajectory needs both). ``shared``: as for
+    :func:`~posturemap.synth.retrieval.retrieve` (the seams searched once for both halves)."""
+    shared = {} if shared is None else shared
+    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, align, skip_unconfident=True, match="a",
+                     shared=shared)
+    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, align, skip_unconfident=True, match="b",
+                      shared=shared)
     if first is None or second is None:
         return None
     conf = [min(c1, c2) for c1, c2 in zip(first.confidence, second.confidence)]
