@@ -639,3 +639,40 @@ def test_the_warps_are_read_per_call(engine, clips, monkeypatch):
     monkeypatch.setattr(retrieval, "WARPS", (1.0,))
     s, e = rt.search(0, qa, qb, sa, sb, 46.0, 30.0, 0.5, None, 8)[:2]
     assert set(e - s) == {46}
+
+
+def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monkeypatch):
+    # Transitions between held-out walks and runs, B placed to continue A: where no single
+    # library segment fits both seams, the engine splices A's continuation into B's arrival.
+    # Against the same engine without the splice, the feet slide less (the standard
+    # height-weighted skate of the new frames), and the report names both halves.
+    from posturemap.core.joints import foot_joints, leg_length
+    from posturemap.evaluate import metrics
+    from posturemap.synth import splice
+
+    sk = engine.skeleton
+    feet = foot_joints(sk.names)
+    height = metrics.SKATE_HEIGHT_LEGS * leg_length(sk)
+    rng = np.random.default_rng(9)
+    pairs = []
+    while len(pairs) < 12:
+        a, b = rng.choice(HELD_OUT, 2, replace=False)
+        pairs.append((a, b, int(rng.integers(20, len(clips[a]) - 1)), int(rng.integers(0, len(clips[b]) - 40))))
+
+    def skates():
+        out, used = [], 0
+        for a, b, a_end, b_start in pairs:
+            r, p = engine.generate(a, b, length=30, a_end=a_end, b_start=b_start, method="retrieval")
+            info = engine.last["retrieval"]
+            if info and "splice" in info:
+                used += 1
+                assert all("then" in part for part in info["parts"].values())
+            g = fk(sk.parents, r, p)[1][:, feet]
+            out.append(metrics.weighted_skate(g[None], 30.0, UP, height)[0])
+        return np.mean(out), used
+
+    with_splice, used = skates()
+    monkeypatch.setattr(splice, "spliced", lambda *args, **kw: None)
+    without, none_used = skates()
+    assert used >= 4 and none_used == 0
+    assert with_splice < 0.8 * without, (with_splice, without)
