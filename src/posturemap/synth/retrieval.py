@@ -714,6 +714,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     j_count = eng.skeleton.num_joints
     out = np.empty((length, j_count, 4))
+    out[:, ~(rt.lower_mask | rt.upper_mask)] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
     gpos = heading = dtheta = shift = contacts = None
     parts = {}
     for p, (s, e, total, ca, cb) in enumerate(found):
