@@ -332,7 +332,11 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         shared = {}  # the seams' features and gathered frames, for the splice too
         res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align,
                                  skip_unconfident=True, shared=shared)
-        if res is not None and res.confidence[0] < 1.0:  # A's continuation into B's arrival?
+        # Between clips (B placed to continue A): A's continuation into B's arrival, when no
+        # single segment fits both seams. In in-betweening (B fixed) the single segment, matched
+        # to the gap's displacement at both ends, stays: on the benchmark the splice there moved
+        # L2Q by +0.3% to +1.6% (held-out contents at 15 and 30 frames) for no less skate.
+        if align and res is not None and res.confidence[0] < 1.0:
             from .splice import spliced
 
             alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align, shared)

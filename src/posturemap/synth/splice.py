@@ -17,8 +17,10 @@ motion-graph transition (Kovar, Gleicher and Pighin 2002) inside the gap, both e
   fixed) both segments already land on B and their positions are blended.
 - Planted feet come from the segment that dominates each frame.
 - Confidence per body part: the smaller of the two halves' confidences, each measured at its
-  own seam. The engine uses the splice when its legs are more confident than the single
-  segment's (:func:`posturemap.synth.engine.TransitionEngine.generate`, ``retrieval``).
+  own seam. The engine uses the splice in transitions (B placed to continue A) when its legs
+  are more confident than the single segment's (:meth:`TransitionEngine.generate
+  <posturemap.synth.engine.TransitionEngine.generate>`, ``retrieval``); in in-betweening the
+  single segment, matched to the gap at both ends, stays.
 """
 
 from __future__ import annotations
