@@ -38,7 +38,7 @@ from pathlib import Path
 GOAL_RATIO = 2.0  # the issue: posturemap at least 2x faster than the fastest other reader
 
 _READER_CODE = {
-    "posturemap": ("from posturemap import bvh, kernels; kernels.compiled()", "bvh.read"),
+    "posturemap": ("from posturemap.io import bvh; from posturemap.core import kernels; kernels.compiled()", "bvh.read"),
     "bvhio": ("import bvhio", "bvhio.readAsBvh"),
     "pybvh": ("import pybvh, functools; "
               "_read = functools.partial(pybvh.read_bvh_file, world_up='+y')", "_read"),

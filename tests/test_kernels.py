@@ -120,7 +120,7 @@ def test_nearest_and_projection_agree(jit, circular):
     projected = []
     for impl in (kernels.NUMPY, jit):
         out, idx = x.copy(), np.empty(m, dtype=np.int64)
-        impl.project_to_map(w, out, period, limit, out, idx)  # in place, as transition.py calls it
+        impl.project_to_map(w, out, period, limit, out, idx)  # in place, as synth/keys.py calls it
         assert idx.tolist() == truth.tolist()
         projected.append(out)
     np.testing.assert_allclose(projected[0], projected[1], atol=1e-12)

@@ -19,6 +19,7 @@ from posturemap.errors import UserError
 from posturemap.learn.features import CLASSES
 from posturemap.learn.model import FORMAT, VERSION, MapFileError, PostureMap
 from posturemap.core.motion import Motion
+from posturemap.synth.engine import TransitionEngine
 from posturemap.core.skeleton import Skeleton
 
 
@@ -568,3 +569,29 @@ def test_partial_fit_grows_the_maps_and_the_library(sample_clips):
     # Another fps or skeleton is refused, naming the clip.
     with pytest.raises(UserError, match="fps"):
         model.partial_fit([Motion(run.skeleton, run.rotations, run.positions, run.fps * 2)], ["fast"])
+
+
+def test_a_grown_map_saves_loads_and_keys_on_its_new_graph(sample_clips, tmp_path):
+    # partial_fit leaves witness -1 on neurons no new sample moved: the file keeps it and loads;
+    # an engine built before the growth finds path keys on the grown graph (not the old one).
+    walk, run, wave = sample_clips["walk"], sample_clips["run"], sample_clips["wave"]
+    model = PostureMap(seed=0).fit([walk], ["walk"])
+    engine = TransitionEngine(model)
+    engine.add("w", walk)
+    engine.add("r", run)
+    engine.generate("w", "r", length=10, method="upm-path")  # the graph of the first map is cached
+    model.partial_fit([run, wave], ["run", "wave"])
+    assert any((m.witness_ < 0).any() for m in model.maps_)
+    path = tmp_path / "grown.npz"
+    model.save(str(path))
+    back = PostureMap.load(str(path))
+    assert back.neuron_counts() == model.neuron_counts()
+    np.testing.assert_array_equal(back.predict(run), model.predict(run))
+    assert back.library_.clip_names[:3] == ("walk", "run", "wave")
+    r, _ = engine.generate("w", "r", length=10, method="upm-path")
+    fresh = TransitionEngine(model)
+    fresh.add("w", walk)
+    fresh.add("r", run)
+    np.testing.assert_array_equal(r, fresh.generate("w", "r", length=10, method="upm-path")[0])
+    with pytest.raises(ValueError, match="names"):
+        model.partial_fit([run, wave], ["one name"])

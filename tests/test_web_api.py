@@ -230,6 +230,15 @@ def test_export_post_and_get_give_bvh(client, sample_clips):
     assert client.get("/api/export?a=wave&b=walk&length=ten").status_code == 422
     assert client.get("/api/export?a=wave&b=walk&alpha=2").status_code == 422
     assert client.get("/api/export?a=wave&b=walk&a=run").status_code == 422
+    # Both switches work from a query string: without the foot lock, as POST without it.
+    body_free = {**body, "foot_lock": False}
+    free = post(client, body_free, "/api/export")
+    for flag in ("false", "0"):
+        g = client.get("/api/export", params={"a": "wave", "b": "walk", "a_end": "40", "b_start": "10",
+                                              "length": "8", "method": "spline", "foot_lock": flag})
+        assert g.status_code == 200 and g.content == free.content
+    bad = client.get("/api/export?a=wave&b=walk&foot_lock=maybe")
+    assert bad.status_code == 422 and bad.json()["field"] == "foot_lock"
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import sys
 
 from . import __version__
 from .errors import UserError, require_extra
-from .synth.request import DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHODS
+from .synth.request import AUTO_SHORT_S, DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHODS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -154,6 +154,8 @@ def _cmd_transition(args) -> int:
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
+    if abs(a.fps - b.fps) > 1e-6 * a.fps:
+        raise UserError(args.b, f"{b.fps:g} fps, {args.a} {a.fps:g} fps: resample one clip to the other's rate first")
     _check_output(args.output)
     model = None
     if args.map:
@@ -198,6 +200,8 @@ def describe_retrieval(info) -> str:
     """One line per body part: which library clip and frames were replayed, and how confidently."""
     if not info:
         return "  retrieval: no library segment fits; interpolated instead (fallback)"
+    if max(r["confidence"] for r in info["parts"].values()) <= 0.0:
+        return "  retrieval: the best library segments match too loosely (confidence 0); interpolated instead"
     def source(r):
         return (f"{r['clip']} frames {r['frames'][0]}..{r['frames'][1]}{' (played backwards)' if r['reversed'] else ''} "
                 f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees")
@@ -297,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--length", type=_positive_int, default=DEFAULT_LENGTH, help=f"in-between frames ({DEFAULT_LENGTH})")
     r.add_argument("--key-at", type=_positive_int, default=None,
                    help="position of the key among the in-between frames, 1..length (default length/2; "
-                        "key-posture methods only)")
+                        "used by the key-posture methods, checked for every method)")
     r.add_argument("--alpha", type=float, default=DEFAULT_ALPHA,
                    help=f"control parameter ({DEFAULT_ALPHA}): retrieval prefers motion that continues A at 0, that arrives "
                         "in B at 1; the key-posture methods put the key near A at 0, near B at 1")
@@ -311,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under 0.25 s, real motion "
+                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s, real motion "
                         "retrieved from the map's library for longer ones; see the README)")
     r.set_defaults(func=_cmd_transition)
 

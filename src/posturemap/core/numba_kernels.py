@@ -399,8 +399,9 @@ def _axis_angle_in(q, ax, ay, az, angle):
 
 @nb.njit(**_OPTS)
 def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps):
-    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f``: writes the thigh's and shin's new
-    local rotations into ``rots[f]``, and the ankle's so that the foot keeps its global rotation."""
+    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f``: returns the thigh's and shin's
+    new local rotations (``lock_legs`` writes them, and the ankle's that keeps the foot's global
+    rotation)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
     bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
     cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
@@ -493,7 +494,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             from_a = start == 0 and a_on
             to_b = stop == n_l and b_on
             n = stop - start
-            k = min(step, n - 2)  # A's spot, the step over k frames in the middle, B's spot
+            k = max(0, min(step, n - 2))  # A's spot, the step over k frames in the middle, B's spot
             k0 = (n - k) // 2
             xa, xb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]

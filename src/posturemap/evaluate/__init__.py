@@ -5,7 +5,7 @@ Modules: :mod:`.protocol` (hold-outs, splits, windows, methods, settings), :mod:
 :mod:`.runner` (the run), :mod:`.speed` (latency, training, ``bench/`` scripts) and
 :mod:`.report` (results.md and the plots, from the results dict alone).
 
-Protocol (DESIGN.md, "Evaluation protocol"; LaFAN1 benchmark of Harvey et al. 2020)
+Protocol (the project's design contract, "Evaluation protocol"; LaFAN1 benchmark of Harvey et al. 2020)
 ---------------------------------------------------------------------------------------
 Three hold-outs (:data:`HOLDOUTS`), each evaluated separately; for each, the posture map (and
 whatever a method keeps from the training clips, e.g. a motion library), the classic SOM, the

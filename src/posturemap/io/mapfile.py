@@ -443,11 +443,11 @@ def check_arrays(meta: dict, arrays: dict[str, np.ndarray]) -> None:
         edges = arrays[f"c{c}_edges"]
         if edges.size and (edges.min() < 0 or edges.max() >= n):
             raise _Bad(f"class {cls} edges (c{c}_edges) do not fit its {n} neurons")
-        for part in ("hits", "witness"):
+        for part, lowest in (("hits", 0), ("witness", -1)):  # witness -1: none among the latest data
             a = arrays[f"c{c}_{part}"]
-            if a.shape != (n,) or (a.size and a.min() < 0):
-                raise _Bad(f"class {cls} {part} (c{c}_{part}) have shape {a.shape} or negative values; "
-                           f"expected ({n},), not negative")
+            if a.shape != (n,) or (a.size and a.min() < lowest):
+                raise _Bad(f"class {cls} {part} (c{c}_{part}) have shape {a.shape} or values below {lowest}; "
+                           f"expected ({n},), at least {lowest}")
         period = arrays[f"c{c}_period"]
         if period.shape != (dims,):
             raise _Bad(f"class {cls} periods (c{c}_period) have shape {period.shape}, expected ({dims},)")

@@ -129,14 +129,21 @@ class PostureMap:
         the earlier clips keep the index entries they had (their winners when they were added:
         retrieval re-ranks every candidate exactly, so a neuron that moved since costs recall,
         not correctness; ``fit`` on all clips gives the exact index). Unfitted, this is ``fit``.
+        The quality figures in ``info_`` are then those of the latest call's clips (as
+        :meth:`UniformPostureMap.partial_fit` measures them).
         """
         if not hasattr(self, "maps_"):
             return self.fit(motions, names, progress)
         if not motions:
             raise ValueError("no training motions")
-        names = names or [f"clip {self.info_['clips'] + i}" for i in range(len(motions))]
-        fps = float(self.info_["fps"])
-        for name, m in zip(names, motions):
+        info = self.info_ if isinstance(getattr(self, "info_", None), dict) else {}
+        done = int(info.get("clips", 0))
+        names = list(names) if names is not None else [f"clip {done + i}" for i in range(len(motions))]
+        if len(names) != len(motions):
+            raise ValueError(f"{len(names)} names for {len(motions)} motions")
+        lib = getattr(self, "library_", None)
+        fps = float(info.get("fps") or (lib.fps if lib is not None else motions[0].fps))
+        for name, m in zip(names, motions, strict=True):
             self.check_skeleton(m.skeleton, name)
             if abs(m.fps - fps) > 1e-6 * fps:
                 raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps")
@@ -147,14 +154,17 @@ class PostureMap:
             if progress is not None:
                 cb = lambda e, n, err, c=c: progress(CLASSES[c], e, int(self.epochs), n)  # noqa: E731
             m.partial_fit(parts[c], seq, cb)
-        if self.library_ is not None:
-            self.library_ = self.library_.joined(self._build_library(motions, names))
-        self.info_["clips"] += len(motions)
-        self.info_["frames"] += int(len(seq))
+        if lib is not None:
+            self.library_ = lib.joined(self._build_library(motions, names))
+        info["clips"] = done + len(motions)
+        info["frames"] = int(info.get("frames", 0)) + int(len(seq))
+        info["fps"] = fps
+        quality = info.setdefault("quality", {})
         for c, m in enumerate(self.maps_):
-            self.info_["quality"][CLASSES[c]].update(
+            quality.setdefault(CLASSES[c], {}).update(
                 neurons=m.n_neurons, quantization_error=m.quantization_error_,
                 topographic_error=m.topographic_error_, invalid_neurons=m.invalid_fraction_, edges=int(len(m.edges_)))
+        self.info_ = info
         return self
 
     def predict(self, motion: Motion) -> np.ndarray:

@@ -2,5 +2,5 @@
 
 :class:`~posturemap.synth.engine.TransitionEngine` holds prepared clips and makes one transition
 per call from a :class:`~posturemap.synth.request.TransitionRequest`;
-:func:`posturemap.synth.engine` is the one-call form.
+:func:`posturemap.synth.engine.transition` (``posturemap.transition``) is the one-call form.
 """

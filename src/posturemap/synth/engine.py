@@ -50,7 +50,7 @@ import copy
 import numpy as np
 
 from ..core import kernels
-from ..core.joints import leg_chains, leg_length
+from ..core.joints import ancestors, leg_chains, leg_length
 from ..core.motion import Motion, concatenate, root_index, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
@@ -58,10 +58,9 @@ from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_b
                     linear_basis)
 from .feet import lock_feet
 from .keys import VELOCITY_HORIZON_S, MapKeys
-from .request import METHODS, RequestError, TransitionRequest
-from .trajectory import Track, aligned, alignment, ancestors, make_track, rotate_about_up
+from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest
+from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
 
-AUTO_SHORT_S = 0.25  # auto: gaps shorter than this (seconds) use `spline`, longer ones `retrieval`
 
 
 class TransitionEngine:
@@ -136,6 +135,11 @@ class TransitionEngine:
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
+        if self._retriever is not None:  # and its matrices of the library's rows (read only)
+            for name in ("_mats", "_root_w", "_index_w"):
+                value = getattr(self._retriever, name, None)
+                if value is not None:
+                    shared[id(value)] = value
         return copy.deepcopy(self, shared)
 
     def continuation(self, b: str, b_start: int, align: bool = True, *, turn: float | None = None,
@@ -178,6 +182,16 @@ class TransitionEngine:
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
         return _RUN[req.method](self, ta, tb, a, b, req)
+
+    def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
+        """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with
+        A's last two frames and B's first two (B placed by ``dtheta``, ``shift``) as context;
+        returns the lock weights."""
+        ia = [max(req.a_end - 1, 0), req.a_end]
+        ib = [req.b_start, min(req.b_start + 1, len(tb.gpos) - 1)]
+        b_feet = rotate_about_up(tb.feet[ib], dtheta, self._up) + shift
+        return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, ta.feet[ia], b_feet,
+                         ta.motion.fps, contacts, self._leg_length)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""
@@ -251,9 +265,7 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     eng.last = {"key": None if keys is None else keys["key"], "neurons": None if keys is None else keys["neurons"],
                 "dtheta": dtheta, "shift": shift}
     if req.foot_lock and eng._legs:
-        b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
-        eng.last["planted"] = lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, up, ta.feet[ia[1:]], b_feet,
-                                        ta.motion.fps, body=eng._leg_length)
+        eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift)
     return out_r, out_p
 
 
@@ -339,7 +351,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         if align and res is not None and res.confidence[0] < 1.0:
             from .splice import spliced
 
-            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align, shared)
+            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, shared)
             if alt is not None and alt.confidence[0] > res.confidence[0]:
                 res = alt
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
@@ -385,11 +397,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         contacts = res.contacts if res.confidence[0] >= 0.5 else None
         eng.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
     if req.foot_lock and eng._legs:
-        ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-        ia = [max(a_end - 1, 0), a_end]
-        b_feet = rotate_about_up(tb.feet[ib], dtheta, eng._up) + shift
-        eng.last["planted"] = lock_feet(eng.skeleton, eng._legs, out_r, out_p, eng._fk, eng._up,
-                                        ta.feet[ia], b_feet, ta.motion.fps, contacts, eng._leg_length)
+        eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p
 
 
@@ -414,13 +422,16 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
         ``key_at``, ``a_end`` (A's last frame), ``b_start`` (0), ``align`` (True),
         ``foot_lock`` (True); see :class:`TransitionRequest` for their meaning
     report : a dict to fill with what was done: ``method`` (the one used, for ``auto``) and,
-        for retrieval, ``retrieval`` (source clip and frames per body part, match cost in map
-        radii, confidence; None when nothing fitted and the fallback was used)
+        for retrieval, ``retrieval`` (per body part: source clip and frames, warp, costs, match
+        distance in degrees, confidence, and for a splice the second segment under ``then``;
+        None when nothing fitted and the fallback was used)
 
     Returns
     -------
     Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
     """
+    if abs(a.fps - b.fps) > 1e-6 * a.fps:
+        raise UserError("B", f"{b.fps:g} fps, A {a.fps:g} fps: resample one clip to the other's rate first")
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)
     engine.add("b", b)

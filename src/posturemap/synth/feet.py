@@ -107,7 +107,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         if from_a and to_b:
             # Planted all through: A's spot, a step in the middle of the run, B's spot.
             n = stop - start
-            k = min(step, n - 2)
+            k = max(0, min(step, n - 2))  # a run of 1 or 2 frames: A's spot (if 2), then B's
             k0 = (n - k) // 2
             spot[:k0], spot[k0 + k:] = a_spot, b_spot
             if k > 0:

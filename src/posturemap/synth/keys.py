@@ -163,14 +163,16 @@ class MapKeys:
         wa, wb = self._nearest(c, xa), self._nearest(c, xb)
         if wa == wb or len(m.edges_) == 0:
             return wa if alpha < 0.5 else wb
-        if self._paths[c] is None:
+        if self._paths[c] is None or self._paths[c][0] is not m.weights_ or self._paths[c][1] is not m.edges_:
             e = m.edges_
             diff = np.abs(m.weights_[e[:, 0]] - m.weights_[e[:, 1]])
             diff = np.minimum(diff, m.period_ - diff)
             d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
             n = m.n_neurons
-            self._paths[c] = csr_matrix((np.maximum(d, 1e-12), (e[:, 0], e[:, 1])), shape=(n, n))
-        dist, pred = dijkstra(self._paths[c], directed=False, indices=wa, return_predecessors=True)
+            # Kept with the arrays it was built from: a map that grows (partial_fit) rebuilds it.
+            self._paths[c] = (m.weights_, m.edges_, csr_matrix((np.maximum(d, 1e-12), (e[:, 0], e[:, 1])),
+                                                               shape=(n, n)))
+        dist, pred = dijkstra(self._paths[c][2], directed=False, indices=wa, return_predecessors=True)
         if not np.isfinite(dist[wb]):  # B's winner not reachable: fall back to the blend key
             blend = xa + alpha * (xb - xa)
             return self._nearest(c, np.where(np.isinf(m.period_), blend, np.mod(blend, TWO_PI)))

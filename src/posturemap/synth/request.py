@@ -13,9 +13,16 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import sys
 from dataclasses import dataclass
 
 from ..errors import UserError
+
+
+def _is_bool(v) -> bool:
+    """A Python or numpy bool (numpy is not imported here: ``posturemap --help`` loads none)."""
+    np = sys.modules.get("numpy")
+    return isinstance(v, bool) or (np is not None and isinstance(v, np.bool_))
 
 
 @dataclass(frozen=True)
@@ -27,9 +34,10 @@ class Method:
     key_at: bool = False
 
 
+AUTO_SHORT_S = 0.25  # auto: gaps shorter than this (seconds) use `spline`, longer ones `retrieval`
 # Every method, in the order they are offered. The engine has one implementation per name.
 METHOD_INFO = {
-    "auto": Method("spline for gaps under AUTO_SHORT_S seconds, retrieval otherwise", keyed=True),
+    "auto": Method(f"spline for gaps under {AUTO_SHORT_S:g} s, retrieval otherwise", keyed=True),
     "retrieval": Method("real motion from the map's motion library, seams blended, feet planted", keyed=True),
     "upm": Method("the paper's key posture from the four class maps, through a B-spline", keyed=True, key_at=True),
     "upm-path": Method("as upm, the key along the map graph's shortest path", keyed=True, key_at=True),
@@ -62,7 +70,8 @@ def describe(v) -> str:
         return "null"
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, (int, float)):
+    if isinstance(v, numbers.Real):
+        v = int(v) if isinstance(v, numbers.Integral) else float(v)  # numpy scalars as plain numbers
         text = repr(v) if not isinstance(v, int) or abs(v) < 10 ** 40 else f"a {len(str(abs(v)))}-digit number"
         return text if len(text) <= 40 else text[:37] + "..."
     if isinstance(v, str):
@@ -75,12 +84,12 @@ def describe(v) -> str:
 
 
 def _whole(field: str, v, lo: int, hi: int, where: str | None = None) -> int:
-    if isinstance(v, float) and math.isfinite(v) and v == int(v):
-        v = int(v)
-    if isinstance(v, bool) or not isinstance(v, int):
-        if not (hasattr(v, "__index__") and not isinstance(v, bool)):  # numpy integers
+    if _is_bool(v) or not isinstance(v, numbers.Real):
+        raise RequestError(field, f"must be a whole number, got {describe(v)}")
+    if not isinstance(v, numbers.Integral):  # a float (numpy's too) that is a whole number
+        if not (math.isfinite(v) and v == int(v)):
             raise RequestError(field, f"must be a whole number, got {describe(v)}")
-        v = int(v)
+    v = int(v)
     if not lo <= v <= hi:
         raise RequestError(field, f"frame {describe(v)} is outside {where} (frames {lo}..{hi})" if where
                            else f"must be between {lo} and {hi}, got {describe(v)}")
@@ -88,9 +97,9 @@ def _whole(field: str, v, lo: int, hi: int, where: str | None = None) -> int:
 
 
 def _flag(field: str, v) -> bool:
-    if not isinstance(v, bool):
+    if not _is_bool(v):
         raise RequestError(field, f"must be true or false, got {describe(v)}")
-    return v
+    return bool(v)
 
 
 @dataclass(frozen=True)
@@ -149,7 +158,7 @@ class TransitionRequest:
         a_end = _whole("a_end", len_a - 1 if self.a_end is None else self.a_end, 0, len_a - 1, f"clip A{a_name}")
         b_start = _whole("b_start", self.b_start, 0, len_b - 1, f"clip B{b_name}")
         alpha = self.alpha
-        if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real):
+        if _is_bool(alpha) or not isinstance(alpha, numbers.Real):
             raise RequestError("alpha", f"must be a number between 0 and 1, got {describe(alpha)}")
         if not (0 <= alpha <= 1 and math.isfinite(alpha)):  # range first: a 309-digit int has no float
             raise RequestError("alpha", f"must be between 0 and 1, got {describe(alpha)}")

@@ -11,10 +11,9 @@ motion-graph transition (Kovar, Gleicher and Pighin 2002) inside the gap, both e
 - Poses are blended by SLERP with a smoothstep weight over ``SPLICE_WIDTH`` of the gap, centred
   by ``alpha`` (0: the blend comes late, A's motion carries on longer; 1: it comes early, B's
   motion starts sooner), so alpha keeps its meaning.
-- In transition mode (B placed to continue A) the root's horizontal velocity and turning rate
-  are blended and integrated from A's end, so the path has no kink, and B is placed where the
-  path arrives, as the second segment placed it relative to its own end. In in-betweening (B
-  fixed) both segments already land on B and their positions are blended.
+- The root's horizontal velocity and turning rate are blended and integrated from A's end, so
+  the path has no kink, and B is placed where the path arrives, as the second segment placed it
+  relative to its own end. (In in-betweening, B fixed, the engine keeps the single segment.)
 - Planted feet come from the segment that dominates each frame.
 - Confidence per body part: the smaller of the two halves' confidences, each measured at its
   own seam. The engine uses the splice in transitions (B placed to continue A) when its legs
@@ -43,9 +42,9 @@ def splice_weights(length: int, alpha: float, width: float = SPLICE_WIDTH) -> np
     return u * u * (3.0 - 2.0 * u)
 
 
-def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_pos: np.ndarray, up: int,
-           align: bool):
-    """Blend ``first`` (continues A) into ``second`` (arrives in B), two retrieval results.
+def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_pos: np.ndarray, up: int):
+    """Blend ``first`` (continues A) into ``second`` (arrives in B), two retrieval results of a
+    transition (B placed to continue A).
 
     ``w`` (L,) the weight of ``second`` per new frame (:func:`splice_weights`); ``a_pos`` (3,)
     and ``a_heading`` A's root at its last frame; ``b_pos`` (3,) B's root at its first frame
@@ -53,40 +52,38 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     form of a :class:`~posturemap.synth.retrieval.Result`'s fields.
     """
     rots = quat.slerp(first.rots, second.rots, w[:, None])
-    heading2 = second.heading + 2 * np.pi * np.round((first.heading - second.heading) / (2 * np.pi))
-    if align:
-        g1 = np.concatenate([a_pos[None], first.gpos])
-        g2 = np.concatenate([a_pos[None], second.gpos])
-        h1 = np.concatenate([[a_heading], first.heading])
-        h2 = np.concatenate([[a_heading], heading2])
-        vel = (1 - w)[:, None] * np.diff(g1, axis=0) + w[:, None] * np.diff(g2, axis=0)
-        gpos = a_pos + np.cumsum(vel, axis=0)
-        gpos[:, up] = (1 - w) * first.gpos[:, up] + w * second.gpos[:, up]
-        heading = a_heading + np.cumsum((1 - w) * np.diff(h1) + w * np.diff(h2))
-        # B where `second` put it relative to its own last frame, carried to the path's end.
-        turn = float(heading[-1] - heading2[-1])
-        b_placed = rotate_about_up(b_pos, second.dtheta, up) + second.shift
-        end = gpos[-1] + rotate_about_up(b_placed - second.gpos[-1], turn, up)
-        dtheta = float(second.dtheta + turn)
-        shift = end - rotate_about_up(b_pos, dtheta, up)
-    else:
-        gpos = (1 - w)[:, None] * first.gpos + w[:, None] * second.gpos
-        heading = (1 - w) * first.heading + w * heading2
-        dtheta, shift = second.dtheta, second.shift
+    # One turn of 2 pi for the whole second segment (its headings are continuous): frame by
+    # frame the two may drift more than pi apart.
+    heading2 = second.heading + 2 * np.pi * np.round((first.heading[0] - second.heading[0]) / (2 * np.pi))
+    g1 = np.concatenate([a_pos[None], first.gpos])
+    g2 = np.concatenate([a_pos[None], second.gpos])
+    h1 = np.concatenate([[a_heading], first.heading])
+    h2 = np.concatenate([[a_heading], heading2])
+    vel = (1 - w)[:, None] * np.diff(g1, axis=0) + w[:, None] * np.diff(g2, axis=0)
+    gpos = a_pos + np.cumsum(vel, axis=0)
+    gpos[:, up] = (1 - w) * first.gpos[:, up] + w * second.gpos[:, up]
+    heading = a_heading + np.cumsum((1 - w) * np.diff(h1) + w * np.diff(h2))
+    # B where `second` put it relative to its own last frame, carried to the path's end.
+    turn = float(heading[-1] - heading2[-1])
+    b_placed = rotate_about_up(b_pos, second.dtheta, up) + second.shift
+    end = gpos[-1] + rotate_about_up(b_placed - second.gpos[-1], turn, up)
+    dtheta = float(second.dtheta + turn)
+    shift = end - rotate_about_up(b_pos, dtheta, up)
     contacts = np.where((w < 0.5)[:, None], first.contacts, second.contacts)
-    return rots, gpos, heading, dtheta, np.asarray(shift, dtype=float), contacts
+    return rots, gpos, heading, dtheta, shift, contacts
 
 
-def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
+def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
             shared: dict | None = None) -> Result | None:
-    """The splice of the best segment continuing A into the best segment arriving in B, as a
-    :class:`~posturemap.synth.retrieval.Result`; None when the library has no segment, or when
-    either half's legs have no confidence (the trajectory needs both). ``shared``: as for
-    :func:`~posturemap.synth.retrieval.retrieve` (the seams searched once for both halves)."""
+    """The splice of the best segment continuing A into the best segment arriving in B, in a
+    transition (B placed to continue A), as a :class:`~posturemap.synth.retrieval.Result`;
+    None when the library has no segment, or when either half's legs have no confidence (the
+    trajectory needs both). ``shared``: as for :func:`~posturemap.synth.retrieval.retrieve`
+    (the seams searched once for both halves)."""
     shared = {} if shared is None else shared
-    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, align, skip_unconfident=True, match="a",
+    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, True, skip_unconfident=True, match="a",
                      shared=shared)
-    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, align, skip_unconfident=True, match="b",
+    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, True, skip_unconfident=True, match="b",
                       shared=shared)
     if first is None or second is None:
         return None
@@ -96,7 +93,7 @@ def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float, ali
     up = rt.engine.up
     w = splice_weights(length, alpha)
     rots, gpos, heading, dtheta, shift, contacts = splice(first, second, w, ta.gpos[a_end], float(ta.heading[a_end]),
-                                                          tb.gpos[b_start], up, align)
+                                                          tb.gpos[b_start], up)
     # Per body part: the segment continuing A, with the one arriving in B under "then"; the
     # part's confidence is the splice's.
     parts = {part: {**entry, "confidence": round(c, 3), "then": second.info["parts"][part]}

@@ -74,16 +74,6 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
     return Track(motion, gpos, heading, rots, feats, feet)
 
 
-def ancestors(parents: np.ndarray, root: int) -> list[int]:
-    """The joints above ``root``, top first (they carry the heading with the root)."""
-    chain = []
-    j = parents[root]
-    while j >= 0:
-        chain.append(int(j))
-        j = parents[j]
-    return chain[::-1]
-
-
 def alignment(a: Track, b: Track, a_end: int, b_start: int, length: int, up: int) -> tuple[float, np.ndarray]:
     """Turn (radians about up) and translation (3,) that make B continue A."""
     h1, h2 = (up + 1) % 3, (up + 2) % 3

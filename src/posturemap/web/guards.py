@@ -47,9 +47,9 @@ def query_params(query) -> dict:
                 raw[k] = float(v)
             except ValueError:
                 raise ApiError(422, f"alpha: must be a number between 0 and 1, got {v[:40]!r}", k) from None
-        elif k == "align":
+        elif k in ("align", "foot_lock"):
             if v.lower() not in ("true", "false", "1", "0"):
-                raise ApiError(422, f"align: must be true or false, got {v[:40]!r}", k)
+                raise ApiError(422, f"{k}: must be true or false, got {v[:40]!r}", k)
             raw[k] = v.lower() in ("true", "1")
         else:
             raw[k] = v

@@ -1,6 +1,7 @@
 """Local web server of the transition studio (``posturemap serve``).
 
-One :class:`~posturemap.synth.engine.TransitionEngine` holds every clip and the posture map in
+A small pool of :class:`~posturemap.synth.engine.TransitionEngine` (:meth:`TransitionEngine.fork
+<posturemap.synth.engine.TransitionEngine.fork>`) holds every clip and the posture map in
 memory; the page asks for transitions as its sliders move and gets three.js-ready tracks back.
 
 Endpoints (JSON unless noted; every error is ``{"error": message, "field": name or null}``):

@@ -66,7 +66,8 @@ def bone_names(names: tuple[str, ...]) -> list[str]:
 
 # -- the studio state ---------------------------------------------------------------------
 class Studio:
-    """Clips, the posture map and one transition engine shared by all requests.
+    """Clips, the posture map and a pool of transition engines (forks sharing the clips and map)
+    that serve the requests.
 
     Parameters
     ----------
@@ -120,8 +121,11 @@ class Studio:
         for name, m in self.clips.items():
             engine.add(name, m)
         name = next(iter(self.clips))
-        # Compile the kernels now rather than on the first request.
-        engine.generate(name, name, length=2, method=KEYED[0] if model is not None else "spline")
+        # Compile (or load) the kernels now rather than on the first request; with a motion
+        # library, also the retrieval's, and its matrices, which the pool's engines share.
+        engine.generate(name, name, length=2, method="upm-valid" if model is not None else "spline")
+        if getattr(model, "library_", None) is not None and len(model.library_):
+            engine.generate(name, name, length=min(30, len(self.clips[name])), method="retrieval")
         return engine
 
     @staticmethod
