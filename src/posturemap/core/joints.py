@@ -1,8 +1,9 @@
 """What joints are, from their names: legs, feet, hands, head; body parts; contact thresholds.
 
-The one place that knows joint names (BVH files name joints freely: ``LeftFoot``, ``l_ankle``,
-``mixamorig:LeftToeBase``); everything that needs a leg, a foot or a hand asks here. Names are
-matched case-insensitively after any ``namespace:`` prefix.
+Where the motion side reads joint names (BVH files name joints freely: ``LeftFoot``,
+``l_ankle``, ``mixamorig:LeftToeBase``): everything that needs a leg, a foot or a hand asks
+here (the maps' bone classes have their own rules, :mod:`posturemap.learn.features`). Names
+are matched case-insensitively after any ``namespace:`` prefix.
 """
 
 from __future__ import annotations
