@@ -193,7 +193,7 @@ def test_compose_root_puts_the_root_at_its_global_pose(chain_len):
 
 
 @pytest.mark.parametrize("circular", [False, True])
-@crosschecks("numba_kernels:nearest", "numba_kernels:_nearest_row", "numba_kernels:nearest_many")
+@crosschecks("numba_kernels:nearest", "numba_kernels:_nearest_row")
 def test_nearest_kernels_match_a_brute_force_scan(circular):
     rng = np.random.default_rng(107 + circular)
     W, period = mixed_data(rng, 200, 9, 0.5 if circular else 0.0)
@@ -205,9 +205,6 @@ def test_nearest_kernels_match_a_brute_force_scan(circular):
     assert truth[0] == 5
     got = [NK.nearest(W, x, period) for x in X]
     assert got == truth.tolist()
-    many = np.empty(len(X), dtype=np.int64)
-    NK.nearest_many(W, X, period, many)
-    assert many.tolist() == truth.tolist()
     linear = [NK._nearest_row(W, x, period, False) for x in X]
     if not circular:
         assert linear == truth.tolist()

@@ -113,9 +113,6 @@ def test_nearest_and_projection_agree(jit, circular):
     truth = np.argmin((diff ** 2).sum(-1), axis=1)
     for impl in (kernels.NUMPY, jit):
         assert [impl.nearest(w, xi, period) for xi in x] == truth.tolist()
-        many = np.empty(m, dtype=np.int64)
-        impl.nearest_many(w, x, period, many)
-        assert many.tolist() == truth.tolist()
     limit = float(np.median(np.sqrt((diff ** 2).sum(-1).min(1))))  # half the rows kept
     projected = []
     for impl in (kernels.NUMPY, jit):

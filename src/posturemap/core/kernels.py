@@ -27,7 +27,7 @@ from . import quat
 from .skeleton import fk as _fk_reference
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
-HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest", "nearest_many",
+HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
        "project_to_map", "key_from_blend", "slerp")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
@@ -146,11 +146,6 @@ def _nearest_rows(W, X, period) -> np.ndarray:
 def nearest(W, x, period) -> int:
     """Index of the row of ``W (n, d)`` nearest ``x (d,)``; ``period`` (d,) per dimension (inf: linear)."""
     return int(_nearest_rows(W, x[None], period)[0])
-
-
-def nearest_many(W, X, period, out):
-    """``out[i]`` = index of the row of ``W (n, d)`` nearest ``X[i]`` (see :func:`nearest`)."""
-    out[...] = _nearest_rows(W, X, period)
 
 
 def _wrap_difference(d, period):

@@ -275,13 +275,6 @@ def nearest_sample_dist(W, X, period, hint):
 
 
 
-@nb.njit(cache=True, nogil=True, fastmath=_FAST)
-def nearest_many(W, X, period, out):
-    """``out[i]`` = index of the row of ``W (n, d)`` nearest ``X[i]`` (see :func:`nearest`)."""
-    for i in range(X.shape[0]):
-        out[i] = nearest(W, X[i], period)
-
-
 @nb.njit(cache=True, nogil=True)
 def project_to_map(W, X, period, limit, out, idx):
     """Project each row of ``X (m, d)`` into the union of balls of radius ``limit`` around the
