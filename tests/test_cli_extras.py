@@ -199,3 +199,17 @@ def test_filmstrip_rows_stack_one_side_view_per_motion(sample_clips, tmp_path):
     assert red.max() < blue.min()  # the truth's row above the method's
     with pytest.raises(ValueError):
         preview.filmstrip_rows([], out, sk.parents)
+
+
+def test_transition_help_lists_every_method_with_its_summary(capsys):
+    from posturemap import cli
+    from posturemap.synth.request import METHOD_INFO
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["transition", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    lines = out[out.index("methods:"):].splitlines()[1:]
+    assert [line.split()[0] for line in lines if line.strip()] == list(METHOD_INFO)
+    for name, info in METHOD_INFO.items():
+        assert info.summary.split()[0] in next(line for line in lines if line.split()[:1] == [name])

@@ -8,7 +8,7 @@ import sys
 
 from . import __version__
 from .errors import UserError, require_extra
-from .synth.request import AUTO_SHORT_S, DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHODS
+from .synth.request import AUTO_SHORT_S, DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHOD_INFO, METHODS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -290,7 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--classes", metavar="FILE.json", help='bone class overrides {"Joint": "body|global|medium|detail"}')
     t.set_defaults(func=_cmd_train)
 
-    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH or glTF")
+    r = sub.add_parser("transition", help="make the transition from clip A to clip B and write a BVH or glTF",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="methods:\n" + "\n".join(f"  {name:12s}{info.summary}" for name, info in METHOD_INFO.items()))
     r.add_argument("a", metavar="A.bvh")
     r.add_argument("b", metavar="B.bvh")
     r.add_argument("-o", "--output", required=True, metavar="OUT",

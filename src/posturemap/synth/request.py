@@ -38,7 +38,8 @@ AUTO_SHORT_S = 0.25  # auto: gaps shorter than this (seconds) use `spline`, long
 # Every method, in the order they are offered. The engine has one implementation per name.
 METHOD_INFO = {
     "auto": Method(f"spline for gaps under {AUTO_SHORT_S:g} s, retrieval otherwise", keyed=True),
-    "retrieval": Method("real motion from the map's motion library, seams blended, feet planted", keyed=True),
+    "retrieval": Method("real motion from the map's library (between clips, A's continuation spliced into B's "
+                        "arrival when no one segment fits), seams blended, feet planted", keyed=True),
     "upm": Method("the paper's key posture from the four class maps, through a B-spline", keyed=True, key_at=True),
     "upm-path": Method("as upm, the key along the map graph's shortest path", keyed=True, key_at=True),
     "upm-valid": Method("several keys, each projected into the map's valid region", keyed=True, key_at=True),
