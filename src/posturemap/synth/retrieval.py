@@ -43,6 +43,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
 from ..core.joints import key_joints, part_masks
+from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
@@ -581,16 +582,6 @@ def average_rotations(q: np.ndarray) -> np.ndarray:
     return quat.normalize(np.sum(q * sign, axis=0))
 
 
-def _rotate_h(v: np.ndarray, angle, up: int) -> np.ndarray:
-    """Vectors (..., 3) turned by ``angle`` (broadcasting over the leading axes) about up."""
-    a, b = (up + 1) % 3, (up + 2) % 3
-    c, s = np.cos(angle), np.sin(angle)
-    out = v.copy()
-    out[..., a] = c * v[..., a] - s * v[..., b]
-    out[..., b] = s * v[..., a] + c * v[..., b]
-    return out
-
-
 def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool, up: int,
                     curves: np.ndarray):
     """The root path of the lower body's segments sampled at (i0, i1, f) (K, T): each turned and
@@ -620,7 +611,7 @@ def root_trajectory_numpy(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], 
     gp, hd = sample_trajectory(lib, i0, i1, f)
     theta0 = ta.heading[a_end] - hd[:, 1]
     traj = np.empty(hd.shape + (3,))
-    rel = _rotate_h(gp - gp[:, 1:2], theta0[:, None], up)
+    rel = rotate_about_up(gp - gp[:, 1:2], theta0[:, None], up)
     traj[..., 0] = rel[..., a_] + ta.gpos[a_end, a_]
     traj[..., 1] = rel[..., b_] + ta.gpos[a_end, b_]
     traj[..., 2] = hd + theta0[:, None]
@@ -628,12 +619,12 @@ def root_trajectory_numpy(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], 
     if align:
         end = traj[:, -2].mean(axis=0)
         dtheta = float(end[2] - tb.heading[b_start])
-        turned = _rotate_h(tb.gpos[ib], dtheta, up)
+        turned = rotate_about_up(tb.gpos[ib], dtheta, up)
         shift = np.zeros(3)
         shift[a_], shift[b_] = end[0] - turned[0, a_], end[1] - turned[0, b_]
     else:
         dtheta, shift = 0.0, np.zeros(3)
-    b_pos = _rotate_h(tb.gpos[ib], dtheta, up) + shift
+    b_pos = rotate_about_up(tb.gpos[ib], dtheta, up) + shift
     b_head = tb.heading[ib] + dtheta
     b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
     b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)

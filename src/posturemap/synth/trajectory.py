@@ -47,14 +47,15 @@ def heading_of(q: np.ndarray, up: int) -> np.ndarray:
     return 2.0 * np.arctan2(q[..., 1 + up], q[..., 0])
 
 
-def rotate_about_up(v: np.ndarray, angle: float, up: int) -> np.ndarray:
-    """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis."""
+def rotate_about_up(v: np.ndarray, angle, up: int) -> np.ndarray:
+    """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis; an
+    array of angles broadcasts over the leading axes."""
     a, b = (up + 1) % 3, (up + 2) % 3
-    c, s = math.cos(angle), math.sin(angle)
-    m = np.zeros((3, 3))
-    m[up, up] = 1.0
-    m[a, a], m[a, b], m[b, a], m[b, b] = c, -s, s, c
-    return v @ m.T
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.array(v, dtype=float)
+    out[..., a] = c * v[..., a] - s * v[..., b]
+    out[..., b] = s * v[..., a] + c * v[..., b]
+    return out
 
 
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:

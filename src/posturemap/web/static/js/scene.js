@@ -20,13 +20,13 @@ function softwareWebGL() {
   return /swiftshader|llvmpipe|softpipe|software|basic render/i.test(name);
 }
 const asked = new URLSearchParams(location.search).get('render');
-export const PROFILE = asked === 'full' || asked === 'lite' ? asked : softwareWebGL() ? 'lite' : 'full';
+const PROFILE = asked === 'full' || asked === 'lite' ? asked : softwareWebGL() ? 'lite' : 'full';
 export const FULL = PROFILE === 'full';
 studio.profile = PROFILE;
 state.quality.slow = !FULL;
 
 const canvas = $('view');
-export const renderer = new THREE.WebGLRenderer({ canvas, antialias: FULL });
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: FULL });
 renderer.shadowMap.enabled = FULL;
 renderer.shadowMap.type = THREE.PCFShadowMap;
 renderer.toneMapping = THREE.ACESFilmicToneMapping;
@@ -155,7 +155,7 @@ export function renderScene() {
 // resolution once things have been still for SETTLE_MS.
 const SLOW_FRAME_MS = 40, SETTLE_MS = 800;
 
-export function sizeView() {
+function sizeView() {
   const vp = $('viewport');
   const w = vp.clientWidth, h = vp.clientHeight;
   renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2) * state.quality.scale);
