@@ -136,7 +136,7 @@ class TransitionEngine:
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
         if self._retriever is not None:  # and its matrices of the library's rows (read only)
-            for name in ("_mats", "_root_w", "_index_w"):
+            for name in ("_mats", "_index_w"):
                 value = getattr(self._retriever, name, None)
                 if value is not None:
                     shared[id(value)] = value

@@ -105,7 +105,6 @@ class Retriever:
             cols = np.flatnonzero(np.isin(index_dims, dims))
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
-        self._root_w = None
         self._index_w = None
 
     # -- seams ----------------------------------------------------------------------------
@@ -278,19 +277,10 @@ class Retriever:
                 np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32))
 
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
-        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32."""
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32 (kept on the seam)."""
         if part not in q.vectors:
-            if self._root_w is None:
-                self._root_w = np.sqrt(np.array(W_ROOT)) / self.lib.scale[4:7]
-            lib, kl = self.lib, self.kl
-            cols = slice(0, kl) if part == 0 else slice(kl, None)
-            p = q.pose[cols].ravel() / lib.scale[2 * part]  # :meth:`rows` of one frame, the same values
-            v = q.vel[cols].ravel() * (math.sqrt(W_VEL) / lib.scale[2 * part + 1])
-            if part == 0:
-                w = self._root_w
-                p = np.concatenate([p, q.root[4:5] * w[2]])
-                v = np.concatenate([v, q.root[:3] * w[0], q.root[3:4] * w[1]])
-            q.vectors[part] = (p.astype(np.float32), v.astype(np.float32))
+            p, v = self.rows(part, q.pose[None], q.vel[None], q.root[None])
+            q.vectors[part] = (p[0], v[0])
         return q.vectors[part]
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
