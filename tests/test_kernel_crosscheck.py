@@ -424,9 +424,17 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     expected = retrieval.average_rotations(retrieval.offset_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
     out = np.empty((length, len(joints), 4))
-    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
     same_rotation(out, expected, atol=1e-12)
     assert quat.angle_between(out, expected).max() < 1e-6  # float32 rounding (see _sample's test)
+    # A range of frames: the numpy path (whole replay, the rest set to the identity) agrees.
+    lo, hi = 2, length - 3
+    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out)
+    same_rotation(out[lo:hi], expected[lo:hi], atol=1e-12)
+    with kernels.numpy_backend():
+        ref = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(lo, hi))
+    np.testing.assert_array_equal(ref[:lo], np.tile([1.0, 0.0, 0.0, 0.0], (lo, len(joints), 1)))
+    np.testing.assert_array_equal(out[hi:], ref[hi:])
 
 
 @crosschecks("retrieval_numba:seam_costs")
@@ -540,7 +548,7 @@ ELSEWHERE = {
         "numba_kernels:_axis_angle_in", "numba_kernels:_unit"),
     "test_kernels.py::test_slerp_agrees": ("numba_kernels:slerp",),
     "test_retrieval.py::test_compiled_search_matches_the_numpy_steps": (
-        "retrieval_numba:search", "retrieval_numba:_prefilter", "retrieval_numba:_pos_cost",
+        "retrieval_numba:search", "retrieval_numba:_best", "retrieval_numba:_prefilter", "retrieval_numba:_pos_cost",
         "retrieval_numba:_pos_costs", "retrieval_numba:_vel_cost", "retrieval_numba:_vel_costs",
         "retrieval_numba:_seam_costs", "retrieval_numba:_sqdist", "retrieval_numba:_sqdists"),
     "test_retrieval.py::test_compiled_selection_of_the_smallest": ("retrieval_numba:_smallest",),

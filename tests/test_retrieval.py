@@ -368,9 +368,13 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     ref = retrieval.average_rotations(retrieval.offset_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
     out = np.empty_like(ref)
-    retrieval_numba.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
     assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)
     assert quat.angle_between(out, ref).max() < 1e-6
+    # Only some frames (as the splice asks of each half): those rows the same, the rest identity.
+    part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))
+    np.testing.assert_array_equal(part[4:11], out[4:11])
+    assert np.all(part[:4] == (1.0, 0.0, 0.0, 0.0)) and np.all(part[11:] == (1.0, 0.0, 0.0, 0.0))
 
 
 def test_compiled_seam_costs_match_numpy(model, monkeypatch):
@@ -463,17 +467,23 @@ def test_compiled_search_matches_the_numpy_steps(engine, clips):
         disp = (float(rng.normal(scale=30)), float(rng.normal(scale=30)), float(rng.normal())) if i % 2 else None
         for part in (0, 1):
             sa, sb = rt.gather(ta.features[a_end], part), rt.gather(tb.features[b_start], part)
-            args = (part, qa, qb, sa, sb, d, 30.0, alpha, disp, 8)
-            got, ref = rt._search_compiled(*args), rt._search_numpy(*args)
-            assert (got is None) == (ref is None)
-            if ref is None:
-                continue
-            np.testing.assert_array_equal(got[0], ref[0])  # the same segments in the same order
-            np.testing.assert_array_equal(got[1], ref[1])
-            for g, r in zip(got[2:], ref[2:]):  # the costs (sums vectorised: to rounding)
-                np.testing.assert_allclose(g, r, rtol=1e-13)
-            checked += len(ref[0])
-    assert checked > 100
+            # One search ranked for several alphas (as a transition and its splice's halves ask).
+            args = (part, qa, qb, sa, sb, d, 30.0, (alpha, 0.0, 1.0), disp, 8)
+            for got, ref in zip(rt._search_compiled(*args), rt._search_numpy(*args)):
+                assert (got is None) == (ref is None)
+                if ref is None:
+                    continue
+                np.testing.assert_array_equal(got[0], ref[0])  # the same segments in the same order
+                np.testing.assert_array_equal(got[1], ref[1])
+                for g, r in zip(got[2:], ref[2:]):  # the costs (sums vectorised: to rounding)
+                    np.testing.assert_allclose(g, r, rtol=1e-13)
+                checked += len(ref[0])
+            # Ranking for several alphas at once is ranking for each alone.
+            for a, many in zip((alpha, 0.0, 1.0), rt.search_alphas(*args)):
+                alone = rt.search(part, qa, qb, sa, sb, d, 30.0, a, disp, 8)
+                for x, y in zip(many, alone):
+                    np.testing.assert_array_equal(x, y)
+    assert checked > 300
     # The numpy backend's search (numpy costs, float64 squares) finds the same best segments.
     with kernels.numpy_backend():
         assert retrieval._compiled() is None
@@ -494,6 +504,24 @@ def test_compiled_selection_of_the_smallest():
         np.testing.assert_array_equal(got, want)
     c = np.array([3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.0])  # ties at the cut: the first ones
     np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, 4)), [1, 2, 3, 6])
+
+
+def test_compiled_ranking_keeps_the_best_distinct_segments():
+    from posturemap.synth import retrieval_numba
+
+    rng = np.random.default_rng(10)
+    for n, k in ((400, 8), (30, 8), (5, 8), (1, 1)):
+        cs = rng.integers(0, 20, n)
+        ce = cs + rng.integers(1, 4, n)
+        total = np.round(rng.random(n), 1)  # many ties: ordered by start, then end
+        first = {}
+        for t, s, e in zip(total, cs, ce):  # a repeated segment has one total (found from both seams)
+            first.setdefault((s, e), t)
+        total = np.array([first[(s, e)] for s, e in zip(cs, ce)])
+        want = sorted((t, s, e) for (s, e), t in first.items())[:k]
+        out = np.empty(k, dtype=np.int64)
+        got = retrieval_numba._best(total, cs, ce, k, out)
+        assert [(total[i], cs[i], ce[i]) for i in out[:got]] == want
 
 
 @pytest.mark.parametrize("budget", [retrieval.BUDGET, 6000, 30000])  # 30000: more than 256 neurons hold

@@ -341,19 +341,20 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     if lib is not None and len(lib):
         if eng._retriever is None or eng._retriever.lib is not lib:
             eng._retriever = retrieval.Retriever(eng, lib)
-        shared = {}  # the seams' features and gathered frames, for the splice too
-        res = retrieval.retrieve(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, align,
-                                 skip_unconfident=True, shared=shared)
+        rt = eng._retriever
         # Between clips (B placed to continue A): A's continuation into B's arrival, when no
         # single segment fits both seams. In in-betweening (B fixed) the single segment, matched
         # to the gap's displacement at both ends, stays: on the benchmark the splice there moved
         # L2Q by +0.3% to +1.6% (held-out contents at 15 and 30 frames) for no less skate.
-        if align and res is not None and res.confidence[0] < 1.0:
+        # One search ranks the candidates for the single segment and both halves of the splice.
+        shared = {"alphas": (0.0, 1.0)} if align else {}
+        found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
+        if align and found is not None and found.confidence[0] < 1.0:
             from .splice import spliced
 
-            alt = spliced(eng._retriever, ta, tb, a_end, b_start, length, req.alpha, shared)
-            if alt is not None and alt.confidence[0] > res.confidence[0]:
-                res = alt
+            res = spliced(rt, ta, tb, a_end, b_start, length, req.alpha, shared, beat=found.confidence[0])
+        if res is None and found is not None:
+            res = retrieval.replay(rt, found, skip_unconfident=True)
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
     # retrieved parts leave open (joints above the root, local translations).
     fallback = retrieval.fallback_method(length, ta.motion.fps)

@@ -292,19 +292,23 @@ class Retriever:
         """
         lib = self.lib
         pm, vm = self.matrices[part]
-        rho = ((e - s) / lib.fps) / (d / fps)  # warp: source duration / gap duration
-        rate = 1.0 / rho
+        rate = 1.0 / self.warp(s, e, d, fps)
         nxt = np.minimum(e + 1, lib.clip_end[e] - 1)
+        ca = seam_costs(pm, vm, s, s, *self.query_vectors(part, qa), rate)
+        cb = seam_costs(pm, vm, e, nxt, *self.query_vectors(part, qb), rate)
+        return self.total(part, s, e, ca, cb, d, fps, alpha, disp), ca, cb
 
-        def seam_cost(f, fv, q):
-            return seam_costs(pm, vm, f, fv, *self.query_vectors(part, q), rate)
+    def warp(self, s, e, d: float, fps: float) -> np.ndarray:
+        """Segments' warps: source duration over gap duration."""
+        return ((e - s) / self.lib.fps) / (d / fps)
 
-        ca = seam_cost(s, s, qa)
-        cb = seam_cost(e, nxt, qb)
-        total = 2 * (1 - alpha) * ca + 2 * alpha * cb + W_WARP * np.log(rho) ** 2
+    def total(self, part: int, s, e, ca, cb, d: float, fps: float, alpha: float, disp=None) -> np.ndarray:
+        """The cost ranked at ``alpha``: seam costs ``ca``, ``cb`` weighted by alpha, the warp's
+        penalty and (in-betweening, legs) the root displacement's error."""
+        total = 2 * (1 - alpha) * ca + 2 * alpha * cb + W_WARP * np.log(self.warp(s, e, d, fps)) ** 2
         if disp is not None and part == 0:
             total = total + W_DISP * self.displacement_cost(s, e, disp)
-        return total, ca, cb
+        return total
 
     def displacement_cost(self, s, e, disp) -> np.ndarray:
         """Squared error of the root's displacement and turn over ``[s, e]`` against ``disp``.
@@ -342,44 +346,54 @@ class Retriever:
         fits. ``exhaustive``: every start frame of the library with every warp (the exact
         search the index is measured against).
         """
-        k = TOP_K if k is None else k
-        if not exhaustive and _compiled() is not None:
-            return self._search_compiled(part, qa, qb, sa, sb, d, fps, alpha, disp, k)
-        return self._search_numpy(part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive)
+        return self.search_alphas(part, qa, qb, sa, sb, d, fps, (alpha,), disp, k, exhaustive)[0]
 
-    def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k, exhaustive=False):
-        """:meth:`search` in numpy steps (the reference of :meth:`_search_compiled`)."""
+    def search_alphas(self, part, qa, qb, sa, sb, d, fps, alphas, disp=None, k=None, exhaustive=False):
+        """:meth:`search` for several ``alphas`` at once: one list entry per alpha, the same as
+        searching for each alone (the candidates and their seam costs do not depend on alpha;
+        only the ranking does), at the cost of one search."""
+        k = TOP_K if k is None else k
+        alphas = tuple(float(a) for a in alphas)
+        if not exhaustive and _compiled() is not None:
+            return self._search_compiled(part, qa, qb, sa, sb, d, fps, alphas, disp, k)
+        return self._search_numpy(part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive)
+
+    def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive=False):
+        """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
         else:
             s, e = self.candidates(self.prefilter(part, sa, qa, False, PREFILTER),
                                    self.prefilter(part, sb, qb, True, PREFILTER), d, fps)
         if len(s) == 0:
-            return None
-        total, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alpha, disp)
-        # The k best distinct segments (a segment can come from both seams' frames, twice).
-        m = min(2 * k, len(s))
-        best = np.argpartition(total, m - 1)[:m] if m < len(s) else np.arange(len(s))
-        best = best[np.lexsort((e[best], s[best], total[best]))]
-        keep = np.ones(len(best), dtype=bool)
-        keep[1:] = (s[best][1:] != s[best][:-1]) | (e[best][1:] != e[best][:-1])
-        best = best[keep][:k]
-        return s[best], e[best], total[best], ca[best], cb[best]
+            return [None] * len(alphas)
+        out = []
+        _, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alphas[0], disp)
+        for alpha in alphas:
+            total = self.total(part, s, e, ca, cb, d, fps, alpha, disp)
+            # The k best distinct segments (a segment can come from both seams' frames, twice).
+            m = min(2 * k, len(s))
+            best = np.argpartition(total, m - 1)[:m] if m < len(s) else np.arange(len(s))
+            best = best[np.lexsort((e[best], s[best], total[best]))]
+            keep = np.ones(len(best), dtype=bool)
+            keep[1:] = (s[best][1:] != s[best][:-1]) | (e[best][1:] != e[best][:-1])
+            best = best[keep][:k]
+            out.append((s[best], e[best], total[best], ca[best], cb[best]))
+        return out
 
-
-    def _search_compiled(self, part, qa, qb, sa, sb, d, fps, alpha, disp, k):
-        """:meth:`search` in one compiled call (:func:`posturemap.synth.retrieval_numba.search`)."""
+    def _search_compiled(self, part, qa, qb, sa, sb, d, fps, alphas, disp, k):
+        """:meth:`search_alphas` in one compiled call (:func:`posturemap.synth.retrieval_numba.search`)."""
         lib = self.lib
         pm, vm = self.matrices[part]
         ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
         use_disp = disp is not None and part == 0
-        found = _compiled().search(pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64),
-                                   np.asarray(sb, dtype=np.int64), *self.query_vectors(part, qa),
-                                   *self.query_vectors(part, qb), ns, penalty, rates,
-                                   PREFILTER, float(alpha), use_disp, lib.gpos, lib.heading, lib.up,
-                                   np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64),
-                                   DISP_SCALE * lib.leg, W_DISP, k)
-        return found if len(found[0]) else None
+        s, e, total, ca, cb, count = _compiled().search(
+            pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64), np.asarray(sb, dtype=np.int64),
+            *self.query_vectors(part, qa), *self.query_vectors(part, qb), ns, penalty, rates, PREFILTER,
+            np.array(alphas, dtype=np.float64), use_disp, lib.gpos, lib.heading, lib.up,
+            np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg, W_DISP, k)
+        return [(s[r, :n], e[r, :n], total[r, :n], ca[r, :n], cb[r, :n]) if n else None
+                for r, n in enumerate(count.tolist())]
 
 
 @lru_cache(maxsize=256)
@@ -491,17 +505,23 @@ def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.nd
     return quat.normalize(q0 + f[..., None, None] * (q1 - q0))
 
 
-def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves) -> np.ndarray:
+def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
+                     frames: tuple[int, int] | None = None) -> np.ndarray:
     """The new frames' rotations (L, M, 4) of ``joints``: each segment sampled, its seams
     corrected (:func:`offset_rotations`), the segments averaged (:func:`average_rotations`).
+    ``frames``: ``(lo, hi)``, only the new frames ``lo <= t < hi``; the others are the identity.
 
     Where numba is in use, one compiled kernel (:func:`posturemap.synth.retrieval_numba.replay`) does the same.
     """
+    length = curves.shape[1]
+    lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
     if _compiled() is not None:
-        out = np.empty((curves.shape[1], len(joints), 4))
-        _compiled().replay(lib.rots, i0, i1, f, joints, a2, b2, curves, out)
+        out = np.empty((length, len(joints), 4))
+        _compiled().replay(lib.rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out)
         return out
-    return average_rotations(offset_rotations(sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    out = average_rotations(offset_rotations(sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    out[:lo] = out[max(hi, lo):] = (1.0, 0.0, 0.0, 0.0)
+    return out
 
 
 def seam_costs(pm, vm, frames, vframes, p, v, rate) -> np.ndarray:
@@ -636,10 +656,131 @@ class Result:
         self.contacts, self.info, self.confidence = contacts, info, confidence
 
 
+@dataclass
+class Match:
+    """What the search found for one transition, before anything is replayed: per body part
+    the best segments ``found[p] = (s, e, total, cost_a, cost_b)``, the match distance (degrees)
+    and ``confidence``, the report ``info``, and the transition it was made for."""
+
+    ta: object
+    tb: object
+    ia: list
+    ib: list
+    length: int
+    align: bool
+    found: list
+    distance: list
+    confidence: list
+    info: dict
+
+
+def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
+          exhaustive: bool = False, top_k: int | None = None, seam: str = "both",
+          shared: dict | None = None) -> Match | None:
+    """The search of :func:`retrieve` and the confidences, without replaying; None when no
+    segment fits at all.
+
+    ``seam``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
+    the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
+    splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
+    ``shared``: a dict kept by the caller between calls on the same seams with the same
+    ``length``, ``align``, ``exhaustive`` and ``top_k``: the seams' features, the frames
+    gathered for them and the searches are made once. With ``shared["alphas"]`` set, the first
+    call ranks the candidates for all of those alphas in its one search (as
+    :meth:`Retriever.search_alphas`), and later calls for those alphas search no more.
+    """
+    lib = rt.lib
+    fps = float(ta.motion.fps)
+    d = length + 1.0
+    ia = [max(a_end - 1, 0), a_end]
+    ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
+    xa, xb = ta.features[a_end], tb.features[b_start]
+    shared = {} if shared is None else shared
+    if "seams" in shared:
+        qa, qb, gathered = shared["seams"]
+    else:
+        qa, qb = rt.seam_pair(ta, ia, tb, ib)
+        none = np.zeros(0, np.int64)
+        gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+        shared["seams"] = (qa, qb, gathered)
+    searched = shared.setdefault("found", {})
+    if float(alpha) not in searched:
+        alphas = tuple(dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ()))))
+        disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
+        per_part = [rt.search_alphas(p, qa, qb, *gathered[p], d, fps, alphas, disp if p == 0 else None, top_k,
+                                     exhaustive) for p in (0, 1)]
+        for i, a in enumerate(alphas):
+            searched[a] = [per_part[0][i], per_part[1][i]]
+    found = searched[float(alpha)]
+    if found[0] is None or found[1] is None:
+        return None
+    still = still_weight(qa, qb, lib.leg, rt.engine._up)
+    if seam == "a":  # the segment's start against A's end on both sides of the measure
+        dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
+    elif seam == "b":
+        dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
+    else:
+        dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
+    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
+    parts = {}
+    for p, (s, e, total, ca, cb) in enumerate(found):
+        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
+        parts["lower" if p == 0 else "upper"] = {
+            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
+            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
+            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
+            "distance": round(float(dist[p]), 3), "confidence": round(conf[p], 3), "blended": int(len(s))}
+    info = {"parts": parts, "confidence": round(min(conf), 3)}
+    return Match(ta, tb, ia, ib, length, align, found, dist, conf, info)
+
+
+def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:
+    """The gap's root displacement in A's heading frame and its turn (in-betweening: B fixed)."""
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    delta = tb.gpos[b_start] - ta.gpos[a_end]
+    h = ta.heading[a_end]
+    c, s = math.cos(h), math.sin(h)
+    turn = tb.heading[b_start] - ta.heading[a_end]
+    turn -= 2 * math.pi * round(turn / (2 * math.pi))
+    return c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn
+
+
+def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident: bool = False,
+           frames: tuple[int, int] | None = None) -> Result:
+    """The frames of a :class:`Match`: each part's best segments replayed, seam-corrected and
+    averaged, the lower body's root trajectory and planted feet (see :func:`retrieve`).
+    ``frames``: ``(lo, hi)``, the rotations of the new frames ``lo <= t < hi`` only (the others
+    are the identity; the trajectory and contacts are whole)."""
+    lib, eng = rt.lib, rt.engine
+    up = eng._up
+    ta, tb, ia, ib, length = m.ta, m.tb, m.ia, m.ib, m.length
+    fps = float(ta.motion.fps)
+    d = length + 1.0
+    curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
+    out = np.empty((length, eng.skeleton.num_joints, 4))
+    out[:, ~(rt.lower_mask | rt.upper_mask)] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
+    gpos = heading = dtheta = shift = contacts = None
+    for p, (s, e, _, _, _) in enumerate(m.found):
+        mask = rt.lower_mask if p == 0 else rt.upper_mask
+        if skip_unconfident and m.confidence[p] <= 0.0:
+            out[:, mask] = (1.0, 0.0, 0.0, 0.0)
+            continue
+        i0, i1, f = segment_times(lib, s, e, d)
+        joints = np.flatnonzero(mask)
+        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
+                                          curves, frames)
+        if p == 0:
+            gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
+            nearest = np.clip(np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64), 0, len(lib) - 1)
+            contacts = lib.contacts[nearest]
+    return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence)
+
+
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
              exhaustive: bool = False, top_k: int | None = None, blend: float | None = None,
-             skip_unconfident: bool = False, match: str = "both", shared: dict | None = None) -> Result | None:
-    """One retrieval transition (see the module docstring); None when no segment fits at all.
+             skip_unconfident: bool = False, seam: str = "both", shared: dict | None = None) -> Result | None:
+    """One retrieval transition (see the module docstring): :func:`match`, then :func:`replay`;
+    None when no segment fits at all.
 
     Returns the new frames' local rotations with the root's *tilt* (L, J, 4), the root
     trajectory (positions (L, 3), headings (L,)), B's turn and shift, the planted feet of the
@@ -648,75 +789,7 @@ def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha
     ``skip_unconfident``: a part whose confidence is 0 (the caller replaces it by the fallback)
     is not replayed: its joints' rotations are left as the identity, and for the lower body the
     trajectory, B's turn and shift and the contacts are None. The report is the same.
-
-    ``match``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
-    the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
-    splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
-    ``shared``: a dict kept by the caller between calls on the same seams (the seams' features
-    and the frames gathered for them are computed once).
+    ``seam`` and ``shared``: as for :func:`match`.
     """
-    lib, eng = rt.lib, rt.engine
-    up = eng._up
-    fps = float(ta.motion.fps)
-    d = length + 1.0
-    ia = [max(a_end - 1, 0), a_end]
-    ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
-    xa, xb = ta.features[a_end], tb.features[b_start]
-    if shared is not None and "seams" in shared:
-        qa, qb, gathered = shared["seams"]
-    else:
-        qa, qb = rt.seam_pair(ta, ia, tb, ib)
-        none = np.zeros(0, np.int64)
-        gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
-        if shared is not None:
-            shared["seams"] = (qa, qb, gathered)
-    a_, b_ = (up + 1) % 3, (up + 2) % 3
-    disp = None
-    if not align:
-        delta = tb.gpos[b_start] - ta.gpos[a_end]
-        h = ta.heading[a_end]
-        c, s = math.cos(h), math.sin(h)
-        turn = tb.heading[b_start] - ta.heading[a_end]
-        turn -= 2 * math.pi * round(turn / (2 * math.pi))
-        disp = (c * delta[a_] + s * delta[b_], -s * delta[a_] + c * delta[b_], turn)
-    found = [rt.search(p, qa, qb, *gathered[p], d, fps, alpha, disp if p == 0 else None, top_k, exhaustive)
-             for p in (0, 1)]
-    if found[0] is None or found[1] is None:
-        return None
-    # Confidence first: a part the caller replaces by the fallback need not be replayed.
-    still = still_weight(qa, qb, lib.leg, up)
-    if match == "a":  # the segment's start against A's end on both sides of the measure
-        dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
-    elif match == "b":
-        dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
-    else:
-        dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
-    curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
-    j_count = eng.skeleton.num_joints
-    out = np.empty((length, j_count, 4))
-    out[:, ~(rt.lower_mask | rt.upper_mask)] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
-    gpos = heading = dtheta = shift = contacts = None
-    parts = {}
-    for p, (s, e, total, ca, cb) in enumerate(found):
-        cost, c = dist[p], conf[p]
-        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
-        parts["lower" if p == 0 else "upper"] = {
-            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
-            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
-            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
-            "distance": round(float(cost), 3), "confidence": round(c, 3), "blended": int(len(s))}
-        mask = rt.lower_mask if p == 0 else rt.upper_mask
-        if skip_unconfident and c <= 0.0:
-            out[:, mask] = (1.0, 0.0, 0.0, 0.0)
-            continue
-        i0, i1, f = segment_times(lib, s, e, d)
-        joints = np.flatnonzero(mask)
-        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
-                                          curves)
-        if p == 0:
-            gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
-            frames = np.clip(np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64), 0, len(lib) - 1)
-            contacts = lib.contacts[frames]
-    info = {"parts": parts, "confidence": round(min(conf), 3)}
-    return Result(out, gpos, heading, dtheta, shift, contacts, info, conf)
+    m = match(rt, ta, tb, a_end, b_start, length, alpha, align, exhaustive, top_k, seam, shared)
+    return None if m is None else replay(rt, m, blend, skip_unconfident)

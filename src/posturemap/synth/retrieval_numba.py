@@ -44,8 +44,9 @@ def _row(a):
 
 
 @nb.njit(**_OPTS)
-def replay(rots, i0, i1, f, joints, a2, b2, curves, out):
-    """Segments sampled at (i0, i1, f) (K, T), seam-corrected and averaged into out (L, M, 4).
+def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
+    """Segments sampled at (i0, i1, f) (K, T), seam-corrected and averaged into out (L, M, 4),
+    for the new frames ``lo <= t < hi`` (the others are left as the identity).
 
     rots (N, J, 4) library rotations; joints (M,); a2/b2 (2, M, 4) A at a_end-1, a_end and B
     at b_start, b_start+1; curves (4, L) offset curves, L = T - 4.
@@ -53,6 +54,10 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, out):
     n_k, n_t = i0.shape
     n_l = curves.shape[1]
     n_m = joints.shape[0]
+    for t in range(n_l):
+        if t < lo or t >= hi:
+            for m in range(n_m):
+                out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = 1.0, 0.0, 0.0, 0.0
     ref = np.empty((n_l, n_m, 4))
     acc = np.zeros((n_l, n_m, 4))
     for k in range(n_k):
@@ -67,7 +72,7 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, out):
             va1, va2 = _log_rel(a_1, a_0), _log_rel(s_0, s_m1)
             rb = _log_rel(b_0, s_d)
             vb1, vb2 = _log_rel(b_1, b_0), _log_rel(s_d1, s_d)
-            for t in range(n_l):
+            for t in range(lo, hi):
                 c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
                 ox = c0 * ra[0] + c1 * (va1[0] - va2[0]) + c2 * rb[0] + c3 * (vb1[0] - vb2[0])
                 oy = c0 * ra[1] + c1 * (va1[1] - va2[1]) + c2 * rb[1] + c3 * (vb1[1] - vb2[1])
@@ -84,7 +89,7 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, out):
                     sign = -1.0
                 for c in range(4):
                     acc[t, m, c] += sign * q[c]
-    for t in range(n_l):
+    for t in range(lo, hi):
         for m in range(n_m):
             n = max(math.sqrt(acc[t, m, 0] ** 2 + acc[t, m, 1] ** 2 + acc[t, m, 2] ** 2 + acc[t, m, 3] ** 2), 1e-12)
             for c in range(4):
@@ -190,16 +195,53 @@ def _prefilter(pm, vm, clip_end, frames, end, p, v, keep):
 
 
 @nb.njit(**_OPTS)
-def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alpha,
+def _best(total, cs, ce, k, out):
+    """The ``k`` best distinct segments (indices into ``total``, ``cs``, ``ce``) written to ``out``,
+    best first, ordered by (total, start, end); returns how many (fewer when less fit).
+
+    One pass with a sorted buffer of ``k``: most candidates cost one comparison with the
+    buffer's worst. A segment found from both seams has the same total twice and counts once.
+    """
+    n = 0
+    for i in range(total.shape[0]):
+        key = (total[i], cs[i], ce[i])
+        if n == k:
+            j = out[k - 1]
+            if key >= (total[j], cs[j], ce[j]):
+                continue
+        dup = False
+        for q in range(n):
+            if cs[out[q]] == cs[i] and ce[out[q]] == ce[i]:
+                dup = True
+                break
+        if dup:
+            continue
+        pos = n if n < k else k - 1
+        while pos > 0:
+            j = out[pos - 1]
+            if key < (total[j], cs[j], ce[j]):
+                out[pos] = j
+                pos -= 1
+            else:
+                break
+        out[pos] = i
+        if n < k:
+            n += 1
+    return n
+
+
+@nb.njit(**_OPTS)
+def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alphas,
            use_disp, gpos, heading, up, disp, disp_scale, w_disp, k):
-    """:meth:`posturemap.synth.retrieval.Retriever.search` after the gather, in one call.
+    """:meth:`posturemap.synth.retrieval.Retriever.search_alphas` after the gather, in one call.
 
     Prefilters the gathered starts ``sa`` and ends ``sb`` to ``keep`` frames each, makes the
     candidate segments (every prefiltered start and end with every duration ``ns`` (W,), inside
-    one clip), costs them (``penalty`` (W,) the warp term and ``rates`` (W,) the speed factor of
-    each duration; with ``use_disp`` the root displacement term against ``disp`` (3,)) and
-    returns the ``k`` best distinct segments, best first: ``(s, e, total, cost_a, cost_b)``,
-    ties ordered by start, then end. Arrays of length 0 when no segment fits.
+    one clip), costs them once (``penalty`` (W,) the warp term and ``rates`` (W,) the speed
+    factor of each duration; with ``use_disp`` the root displacement term against ``disp``
+    (3,)) and ranks them for every alpha of ``alphas`` (A,): ``(s, e, total, cost_a, cost_b)``
+    (A, k) and the count (A,) of each row's ``k`` best distinct segments, best first, ties
+    ordered by start, then end (count 0 when no segment fits).
     """
     n_lib = clip_of.shape[0]
     fa = _prefilter(pm, vm, clip_end, sa, False, pa, va, keep)
@@ -228,9 +270,10 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
             if s >= 0 and e < n_lib and clip_of[s] == clip_of[e]:
                 cs[m], ce[m], cw[m], known[m] = s, e, w, pos_b[i]
                 m += 1
-    total = np.empty(m)
     ca = np.empty(m)
     cb = np.empty(m)
+    base = np.empty(m)
+    moved = np.zeros(m)
     rate = np.empty(m)
     nxt = np.empty(m, dtype=np.int64)
     for i in range(m):
@@ -241,41 +284,35 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     _seam_costs(pm, vm, ce[:m_a], nxt[:m_a], pb, vb, rate[:m_a], cb[:m_a])
     _vel_costs(vm, nxt[m_a:], vb, rate[m_a:], known[m_a:m], cb[m_a:])
     a_, b_ = (up + 1) % 3, (up + 2) % 3
-    for i in range(m):
-        s, e, w = cs[i], ce[i], cw[i]
-        t = 2 * (1 - alpha) * ca[i] + 2 * alpha * cb[i] + penalty[w]
+    for i in range(m):  # what does not depend on alpha: the warp and displacement terms
+        s, e = cs[i], ce[i]
+        base[i] = penalty[cw[i]]
         if use_disp:
             da, db = gpos[e, a_] - gpos[s, a_], gpos[e, b_] - gpos[s, b_]
             c, sn = math.cos(heading[s]), math.sin(heading[s])
             dx = c * da + sn * db
             dz = -sn * da + c * db
             turn = heading[e] - heading[s]
-            t = t + w_disp * (((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / disp_scale ** 2
-                              + (turn - disp[2]) ** 2 / 0.25 ** 2)
-        total[i] = t
-    # The 2k best, ordered by (total, start, end); a segment found from both seams counts once.
-    best = _smallest(total, 2 * k)
-    n_b = best.shape[0]
-    for i in range(1, n_b):  # insertion sort: a few elements
-        j = i
-        while j > 0:
-            x, y = best[j - 1], best[j]
-            if (total[y], cs[y], ce[y]) < (total[x], cs[x], ce[x]):
-                best[j - 1], best[j] = y, x
-                j -= 1
-            else:
-                break
-    keep_i = np.empty(n_b, dtype=np.int64)
-    n_k = 0
-    for i in range(n_b):
-        b = best[i]
-        if i > 0 and cs[b] == cs[best[i - 1]] and ce[b] == ce[best[i - 1]]:
-            continue
-        if n_k < k:
-            keep_i[n_k] = b
-            n_k += 1
-    sel = keep_i[:n_k]
-    return cs[sel], ce[sel], total[sel], ca[sel], cb[sel]
+            moved[i] = w_disp * (((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / disp_scale ** 2
+                                 + (turn - disp[2]) ** 2 / 0.25 ** 2)
+    n_a = alphas.shape[0]
+    out_s, out_e = np.zeros((n_a, k), dtype=np.int64), np.zeros((n_a, k), dtype=np.int64)
+    out_t, out_ca, out_cb = np.zeros((n_a, k)), np.zeros((n_a, k)), np.zeros((n_a, k))
+    count = np.zeros(n_a, dtype=np.int64)
+    total = np.empty(m)
+    sel = np.empty(k, dtype=np.int64)
+    for r in range(n_a):
+        alpha = alphas[r]
+        for i in range(m):
+            total[i] = 2 * (1 - alpha) * ca[i] + 2 * alpha * cb[i] + base[i]
+            if use_disp:
+                total[i] += moved[i]
+        n_k = _best(total, cs, ce, k, sel)
+        count[r] = n_k
+        for i in range(n_k):
+            b = sel[i]
+            out_s[r, i], out_e[r, i], out_t[r, i], out_ca[r, i], out_cb[r, i] = cs[b], ce[b], total[b], ca[b], cb[b]
+    return out_s, out_e, out_t, out_ca, out_cb, count
 
 
 @nb.njit(**_OPTS)

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import quat
-from .retrieval import Result, retrieve
+from ..core import kernels, quat
+from .retrieval import Result, match, replay
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
@@ -51,7 +51,15 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     as it lies in its clip. Returns ``(rots, gpos, heading, dtheta, shift, contacts)`` in the
     form of a :class:`~posturemap.synth.retrieval.Result`'s fields.
     """
-    rots = quat.slerp(first.rots, second.rots, w[:, None])
+    # A's continuation where w is 0, B's arrival where it is 1 (each may hold only those frames:
+    # spliced() replays no more), the blend in between.
+    rots = np.where((w <= 0.0)[:, None, None], first.rots, second.rots)
+    for t in np.flatnonzero((w > 0.0) & (w < 1.0)).tolist():
+        kernels.slerp(first.rots[t], second.rots[t], float(w[t]), rots[t])
+    # The blend stays in A's continuation's hemisphere: B's arrival's signs follow on from it.
+    after = np.flatnonzero(w >= 1.0)
+    if len(after) and after[0] > 0:
+        rots[after[0] - 1:] = quat.unroll(rots[after[0] - 1:])
     # One turn of 2 pi for the whole second segment (its headings are continuous): frame by
     # frame the two may drift more than pi apart.
     heading2 = second.heading + 2 * np.pi * np.round((first.heading[0] - second.heading[0]) / (2 * np.pi))
@@ -74,25 +82,33 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
 
 
 def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
-            shared: dict | None = None) -> Result | None:
+            shared: dict | None = None, beat: float | None = None) -> Result | None:
     """The splice of the best segment continuing A into the best segment arriving in B, in a
     transition (B placed to continue A), as a :class:`~posturemap.synth.retrieval.Result`;
     None when the library has no segment, or when either half's legs have no confidence (the
-    trajectory needs both). ``shared``: as for :func:`~posturemap.synth.retrieval.retrieve`
-    (the seams searched once for both halves)."""
+    trajectory needs both). ``shared``: as for :func:`~posturemap.synth.retrieval.match` (the
+    seams searched once for both halves; with ``shared["alphas"]`` holding 0 and 1, no search
+    at all after the single segment's). ``beat``: a leg confidence to beat; None, without
+    replaying anything, when the splice's is not higher."""
     shared = {} if shared is None else shared
-    first = retrieve(rt, ta, tb, a_end, b_start, length, 0.0, True, skip_unconfident=True, match="a",
-                     shared=shared)
-    second = retrieve(rt, ta, tb, a_end, b_start, length, 1.0, True, skip_unconfident=True, match="b",
-                      shared=shared)
+    first = match(rt, ta, tb, a_end, b_start, length, 0.0, True, seam="a", shared=shared)
+    second = match(rt, ta, tb, a_end, b_start, length, 1.0, True, seam="b", shared=shared)
     if first is None or second is None:
         return None
     conf = [min(c1, c2) for c1, c2 in zip(first.confidence, second.confidence)]
-    if conf[0] <= 0.0:
+    if conf[0] <= 0.0 or (beat is not None and conf[0] <= beat):
         return None
     up = rt.engine.up
     w = splice_weights(length, alpha)
-    rots, gpos, heading, dtheta, shift, contacts = splice(first, second, w, ta.gpos[a_end], float(ta.heading[a_end]),
+    # Each half's rotations only where the splice uses them.
+    blended = np.flatnonzero(w > 0.0)
+    ends = np.flatnonzero(w < 1.0)
+    first_frames = (0, int(ends[-1]) + 1 if len(ends) else 0)
+    second_frames = (int(blended[0]) if len(blended) else length, length)
+    rots, gpos, heading, dtheta, shift, contacts = splice(replay(rt, first, skip_unconfident=True, frames=first_frames),
+                                                          replay(rt, second, skip_unconfident=True,
+                                                                 frames=second_frames), w,
+                                                          ta.gpos[a_end], float(ta.heading[a_end]),
                                                           tb.gpos[b_start], up)
     # Per body part: the segment continuing A, with the one arriving in B under "then"; the
     # part's confidence is the splice's.
