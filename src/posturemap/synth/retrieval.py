@@ -89,6 +89,7 @@ class Retriever:
         self.lib = library
         sk = engine.skeleton
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
+        self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         lower, upper = key_joints(sk)
         self.keys = np.concatenate([lower, upper])
         self.kl = len(lower)
@@ -660,7 +661,7 @@ class Result:
 class Match:
     """What the search found for one transition, before anything is replayed: per body part
     the best segments ``found[p] = (s, e, total, cost_a, cost_b)``, the match distance (degrees)
-    and ``confidence``, the report ``info``, and the transition it was made for."""
+    and ``confidence``, and the transition it was made for; :attr:`info` is the report."""
 
     ta: object
     tb: object
@@ -671,7 +672,28 @@ class Match:
     found: list
     distance: list
     confidence: list
-    info: dict
+    lib: MotionLibrary
+    _info: dict | None = None
+
+    @property
+    def info(self) -> dict:
+        """Per body part the best segment's source clip and frames, warp, costs, match distance
+        and confidence, and how many segments are blended; the overall confidence. Made on
+        first use (a transition reports one of the matches it weighs)."""
+        if self._info is None:
+            lib, fps = self.lib, float(self.ta.motion.fps)
+            d = self.length + 1.0
+            parts = {}
+            for p, (s, e, total, ca, cb) in enumerate(self.found):
+                clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
+                parts["lower" if p == 0 else "upper"] = {
+                    "clip": clip, "frames": [first, last], "reversed": bool(first > last),
+                    "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
+                    "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4),
+                    "cost_b": round(float(cb[0]), 4), "distance": round(float(self.distance[p]), 3),
+                    "confidence": round(self.confidence[p], 3), "blended": int(len(s))}
+            self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
+        return self._info
 
 
 def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
@@ -722,16 +744,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
     conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
-    parts = {}
-    for p, (s, e, total, ca, cb) in enumerate(found):
-        clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
-        parts["lower" if p == 0 else "upper"] = {
-            "clip": clip, "frames": [first, last], "reversed": bool(first > last),
-            "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
-            "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4), "cost_b": round(float(cb[0]), 4),
-            "distance": round(float(dist[p]), 3), "confidence": round(conf[p], 3), "blended": int(len(s))}
-    info = {"parts": parts, "confidence": round(min(conf), 3)}
-    return Match(ta, tb, ia, ib, length, align, found, dist, conf, info)
+    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib)
 
 
 def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:
@@ -766,7 +779,7 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
             out[:, mask] = (1.0, 0.0, 0.0, 0.0)
             continue
         i0, i1, f = segment_times(lib, s, e, d)
-        joints = np.flatnonzero(mask)
+        joints = rt.part_joints[p]
         out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
                                           curves, frames)
         if p == 0:
