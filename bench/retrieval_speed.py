@@ -250,6 +250,10 @@ def main(argv=None) -> int:
     p.add_argument("--doc", default=None)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
+    try:  # the index comparison needs faiss: say so before minutes of measuring, not after
+        import faiss  # noqa: F401
+    except ImportError:
+        p.error("faiss is not installed: pip install -e '.[bench]' (faiss-cpu, for the index comparison)")
     result = run(Path(args.data) if args.data else default_data_dir(), args.quick, args.seed)
     md = markdown(result, "python bench/retrieval_speed.py" + (" --quick" if args.quick else ""))
     print(md)
