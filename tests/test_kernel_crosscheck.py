@@ -552,6 +552,8 @@ ELSEWHERE = {
         "retrieval_numba:_pos_costs", "retrieval_numba:_vel_cost", "retrieval_numba:_vel_costs",
         "retrieval_numba:_seam_costs", "retrieval_numba:_sqdist", "retrieval_numba:_sqdists"),
     "test_retrieval.py::test_compiled_selection_of_the_smallest": ("retrieval_numba:_smallest",),
+    "test_splice.py::test_compiled_splice_rotations_match_the_numpy_reference": (
+        "retrieval_numba:splice_rotations",),
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (
         "retrieval_numba:gather", "retrieval_numba:_frames_of_nearest"),
     "test_retrieval.py::test_gathering_both_seams_at_once_equals_one_by_one": ("retrieval_numba:gather_seams",),

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import kernels, quat
-from .retrieval import Result, match, replay
+from ..core import kernels
+from .retrieval import Result, _compiled, match, replay
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
@@ -51,15 +51,7 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     as it lies in its clip. Returns ``(rots, gpos, heading, dtheta, shift, contacts)`` in the
     form of a :class:`~posturemap.synth.retrieval.Result`'s fields.
     """
-    # A's continuation where w is 0, B's arrival where it is 1 (each may hold only those frames:
-    # spliced() replays no more), the blend in between.
-    rots = np.where((w <= 0.0)[:, None, None], first.rots, second.rots)
-    for t in np.flatnonzero((w > 0.0) & (w < 1.0)).tolist():
-        kernels.slerp(first.rots[t], second.rots[t], float(w[t]), rots[t])
-    # The blend stays in A's continuation's hemisphere: B's arrival's signs follow on from it.
-    after = np.flatnonzero(w >= 1.0)
-    if len(after) and after[0] > 0:
-        rots[after[0] - 1:] = quat.unroll(rots[after[0] - 1:])
+    rots = splice_rotations(first.rots, second.rots, w)
     # One turn of 2 pi for the whole second segment (its headings are continuous): frame by
     # frame the two may drift more than pi apart.
     heading2 = second.heading + 2 * np.pi * np.round((first.heading[0] - second.heading[0]) / (2 * np.pi))
@@ -79,6 +71,31 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     shift = end - rotate_about_up(b_pos, dtheta, up)
     contacts = np.where((w < 0.5)[:, None], first.contacts, second.contacts)
     return rots, gpos, heading, dtheta, shift, contacts
+
+
+def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Frames (L, J, 4) of A's continuation ``a`` blended into B's arrival ``b`` by the weights
+    ``w`` (L,): ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` (on the short arc, in
+    ``a``'s hemisphere) in between, ``b[t]`` where ``w[t] >= 1``, its signs following on from
+    the frame before, joint by joint (so each may hold only the frames it shows: :func:`spliced`
+    replays no more). Compiled where numba is in use
+    (:func:`posturemap.synth.retrieval_numba.splice_rotations`)."""
+    out = np.empty(a.shape)
+    if _compiled() is not None:
+        _compiled().splice_rotations(a, b, np.asarray(w, dtype=np.float64), out)
+        return out
+    for t, wt in enumerate(np.asarray(w, dtype=np.float64).tolist()):
+        if wt <= 0.0:
+            out[t] = a[t]
+        elif wt < 1.0:
+            kernels.slerp(a[t], b[t], wt, out[t])
+        elif t == 0 or w[t - 1] < 1.0:  # B alone from here: as it is, or following on from the blend
+            out[t] = b[t] if t == 0 else np.where((np.sum(b[t] * out[t - 1], axis=-1) < 0.0)[:, None], -b[t], b[t])
+        else:  # the sign b's previous frame took, flipped where b itself turns hemisphere
+            prev = np.where(np.sum(b[t - 1] * out[t - 1], axis=-1) >= 0.0, 1.0, -1.0)
+            sign = np.where(np.sum(b[t] * b[t - 1], axis=-1) < 0.0, -prev, prev)
+            out[t] = sign[:, None] * b[t]
+    return out
 
 
 def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
