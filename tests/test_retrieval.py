@@ -704,3 +704,33 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
     without, _ = skates()
     assert used >= 4
     assert with_splice < 0.8 * without, (with_splice, without)
+
+
+def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, clips):
+    # With every part retrieved at full confidence, the engine does not run a whole fallback:
+    # it SLERPs the joints above the root and LERPs the local translations alone. They must be
+    # the slerp method's. A library clip (its own frames match exactly), whose joint above the
+    # root turns slowly and whose joints' translations drift, so that both columns move.
+    walk = clips["walk_normal_001"]
+    eng = TransitionEngine(model)
+    top = int(eng._chain[0])
+    assert len(eng._chain) == 1 and top != eng._root  # Bandai: a reference joint above the hips
+    rots, pos = walk.rotations.copy(), walk.positions.copy()
+    n = len(walk)
+    rots[:, top] = quat.mul(quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.002 * np.arange(n)), rots[:, top])
+    others = np.flatnonzero(np.arange(walk.skeleton.num_joints) != eng._root)
+    pos[:, others] += 0.01 * np.arange(n)[:, None, None]
+    eng.add("walk", Motion(walk.skeleton, rots, pos, walk.fps))
+    checked = 0
+    for a_end, b_start, length in ((40, 71, 30), (90, 136, 45), (150, 166, 15)):
+        kw = dict(length=length, a_end=a_end, b_start=b_start, align=False, foot_lock=False)
+        r, p = (x.copy() for x in eng.generate("walk", "walk", method="retrieval", **kw))
+        if eng.last["retrieval"]["confidence"] < 1.0:
+            continue
+        r_ref, p_ref = eng.generate("walk", "walk", method="slerp", **kw)
+        np.testing.assert_allclose(p[:, others], p_ref[:, others], rtol=0, atol=1e-9)
+        gap = np.minimum(np.abs(r[:, top] - r_ref[:, top]), np.abs(r[:, top] + r_ref[:, top])).max()
+        assert gap < 1e-12, gap  # the same quaternions (up to sign)
+        assert quat.angle_between(r[0, top], r[-1, top]) > 0.01  # the column moves: a real check
+        checked += 1
+    assert checked >= 2

@@ -331,6 +331,24 @@ def _valid_frames(eng, seam, inputs, ref, req, fps, keys):
     return keys_spline_basis(length, tuple(times)) @ np.concatenate([inputs[:4], keyrows])
 
 
+def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, length: int):
+    """What a fully retrieved transition leaves open, as ``slerp`` makes it: the rotations of
+    the joints above the root (L, J, 4; only those set) and the local translations (L, J, 3)."""
+    basis = linear_basis(length)
+    chain = eng._chain
+    rots = None
+    if len(chain):
+        ref = tb.rots[b_start, chain]
+        seam = np.empty((2, len(chain), 3))
+        kernels.log_relative(np.stack([ta.rots[a_end, chain], ref]), ref, seam)
+        rots = np.empty((length, eng.skeleton.num_joints, 4))
+        part = np.empty((length, len(chain), 4))
+        kernels.exp_relative((basis @ seam.reshape(2, -1)).reshape(length, len(chain), 3), ref, part)
+        rots[:, chain] = part
+    seam = np.stack([ta.motion.positions[a_end].ravel(), tb.motion.positions[b_start].ravel()])
+    return rots, (basis @ seam).reshape(length, -1, 3)
+
+
 def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):
     """``method="retrieval"`` (:mod:`posturemap.synth.retrieval`), with its fallback blended by confidence."""
     from . import retrieval
@@ -358,9 +376,15 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
     # retrieved parts leave open (joints above the root, local translations).
     fallback = retrieval.fallback_method(length, ta.motion.fps)
-    base = fallback if res is None or min(res.confidence) < 1.0 else "slerp"
-    rots_fb, pos_fb = _RUN[base](eng, ta, tb, a, b, req.replace(method=base, foot_lock=False))
-    rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
+    if res is not None and min(res.confidence) >= 1.0:
+        # Every part retrieved: only the joints above the root and the local translations are
+        # left open, SLERPed and LERPed as the slerp method does (its other columns would be
+        # overwritten), without running the whole method.
+        rots_fb, pos_fb = _open_columns(eng, ta, tb, a_end, b_start, length)
+    else:
+        base = fallback if res is None or min(res.confidence) < 1.0 else "slerp"
+        rots_fb, pos_fb = _RUN[base](eng, ta, tb, a, b, req.replace(method=base, foot_lock=False))
+        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
     fb_last = eng.last
     out_r, out_p = eng._out(length)
     if res is None or max(res.confidence) <= 0.0:
@@ -370,7 +394,8 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     else:
         rt = eng._retriever
         out_r[:] = res.rots
-        out_r[:, eng._chain] = rots_fb[:, eng._chain]
+        if len(eng._chain):
+            out_r[:, eng._chain] = rots_fb[:, eng._chain]
         out_p[:] = pos_fb
         if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
             kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
