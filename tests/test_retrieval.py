@@ -19,7 +19,6 @@ from posturemap import cli
 from posturemap.core import quat
 from posturemap.synth import retrieval
 from posturemap.core.joints import key_joints
-from posturemap.synth.library import MotionLibrary
 from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion
 from posturemap.core.skeleton import fk
