@@ -120,7 +120,7 @@ def inbetween(split, settings, seed: int, lengths, log=print) -> dict:
                                          truth_g=tg)
             row[m] = {k: sc[k] for k in ("l2q", "l2p", "skate")}
         out["lengths"][str(length)] = row
-    log(f"  {split.name} at {out['fps']:g} fps ({split.unit}): {len(windows)} windows in "
+    log(f"  {split.name} at {out['fps']:.4g} fps ({split.unit}): {len(windows)} windows in "
         f"{time.perf_counter() - t0:.0f} s")
     return out
 
@@ -144,9 +144,9 @@ def markdown(result: dict, command: str) -> str:
     lines = []
     for name, both in result["holdouts"].items():
         b, r = both["bandai"], both["rewritten"]
-        lines += [f"**{name.capitalize()} hold-out**: Bandai's format ({b['joints']} joints, {b['fps']:g} fps, "
+        lines += [f"**{name.capitalize()} hold-out**: Bandai's format ({b['joints']} joints, {b['fps']:.4g} fps, "
                   f"{b['unit']}, {b['up']} up, {b['windows']} windows) against the rewritten clips "
-                  f"({r['fps']:g} fps, {r['unit']}, {r['up']} up, {r['windows']} windows). Ratios to SLERP; "
+                  f"({r['fps']:.4g} fps, {r['unit']}, {r['up']} up, {r['windows']} windows). Ratios to SLERP; "
                   "skate in cm/s with the truth's.", "",
                   "| duration | format | " + " | ".join(f"{m} L2Q / L2P" for m in METHODS[1:])
                   + " | SLERP L2Q / L2P | skate: default / truth |",

@@ -248,7 +248,7 @@ def _cmd_inspect(args) -> int:
         print(f"  trained on {t.get('clips')} clips, {t.get('frames')} frames in {t.get('train_seconds')} s")
     lib = d["library"]
     if lib:
-        print(f"  motion library: {lib['frames']} frames of {lib['clips']} clips at {lib['fps']:g} fps"
+        print(f"  motion library: {lib['frames']} frames of {lib['clips']} clips at {lib['fps']:.5g} fps"
               f"{', also played backwards' if lib['reverse'] else ''}; {lib['bytes_per_frame']:.0f} bytes per frame; "
               f"matched on {', '.join(lib['key_joints'])}")
     else:
