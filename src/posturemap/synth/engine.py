@@ -381,11 +381,11 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # left open, SLERPed and LERPed as the slerp method does (its other columns would be
         # overwritten), without running the whole method.
         rots_fb, pos_fb = _open_columns(eng, ta, tb, a_end, b_start, length)
+        fb_last = None  # B's place and the report come from the retrieval alone
     else:
-        base = fallback if res is None or min(res.confidence) < 1.0 else "slerp"
-        rots_fb, pos_fb = _RUN[base](eng, ta, tb, a, b, req.replace(method=base, foot_lock=False))
+        rots_fb, pos_fb = _RUN[fallback](eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False))
         rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
-    fb_last = eng.last
+        fb_last = eng.last
     out_r, out_p = eng._out(length)
     if res is None or max(res.confidence) <= 0.0:
         out_r[:], out_p[:] = rots_fb, pos_fb

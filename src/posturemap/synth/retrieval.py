@@ -673,7 +673,7 @@ class Match:
     distance: list
     confidence: list
     lib: MotionLibrary
-    _info: dict | None = None
+    _info: dict | None = field(default=None, repr=False)
 
     @property
     def info(self) -> dict:
