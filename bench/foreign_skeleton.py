@@ -58,9 +58,11 @@ def rewritten(m, factor: int = FPS_FACTOR):
     from posturemap.core import quat
     from posturemap.core.motion import Motion
 
+    from posturemap.core.joints import ancestors
+
     sk = m.skeleton
     hips = sk.index("Hips")
-    keep_pos = {j for j in range(sk.num_joints) if j <= hips}
+    keep_pos = set(ancestors(sk.parents, hips)) | {hips}
     channels = tuple(c if j in keep_pos else tuple(x for x in c if x.endswith("rotation"))
                      for j, c in enumerate(sk.channels))
     sk2 = dataclasses.replace(sk, names=tuple("mixamorig:" + MIXAMO[n] for n in sk.names), offsets=sk.offsets / 100.0,

@@ -434,6 +434,7 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     with kernels.numpy_backend():
         ref = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(lo, hi))
     np.testing.assert_array_equal(ref[:lo], np.tile([1.0, 0.0, 0.0, 0.0], (lo, len(joints), 1)))
+    np.testing.assert_array_equal(out[:lo], ref[:lo])
     np.testing.assert_array_equal(out[hi:], ref[hi:])
 
 

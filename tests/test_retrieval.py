@@ -16,7 +16,7 @@ import pytest
 
 from posturemap.io import bvh
 from posturemap import cli
-from posturemap.core import quat
+from posturemap.core import kernels, quat
 from posturemap.synth import retrieval
 from posturemap.core.joints import key_joints
 from posturemap.learn.model import MapFileError, PostureMap
@@ -374,6 +374,11 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))
     np.testing.assert_array_equal(part[4:11], out[4:11])
     assert np.all(part[:4] == (1.0, 0.0, 0.0, 0.0)) and np.all(part[11:] == (1.0, 0.0, 0.0, 0.0))
+    with kernels.numpy_backend():  # the numpy path of the same range
+        ref_part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))
+    assert quat.angle_between(ref_part[4:11], part[4:11]).max() < 1e-6
+    np.testing.assert_array_equal(ref_part[:4], part[:4])
+    np.testing.assert_array_equal(ref_part[11:], part[11:])
 
 
 def test_compiled_seam_costs_match_numpy(model, monkeypatch):
@@ -451,8 +456,6 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
 
 
 def test_compiled_search_matches_the_numpy_steps(engine, clips):
-    from posturemap.core import kernels
-
     assert retrieval._compiled() is not None  # the suite runs with numba loaded
     rt = retrieval.Retriever(engine, engine.model.library_)
     rng = np.random.default_rng(8)
@@ -733,3 +736,53 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, c
         assert quat.angle_between(r[0, top], r[-1, top]) > 0.01  # the column moves: a real check
         checked += 1
     assert checked >= 2
+
+
+def test_a_shared_dict_serves_one_transition_and_starts_afresh_for_another(engine):
+    # The engine passes one dict to the single segment's match and to both halves of a splice;
+    # a caller reusing it for another gap (length, B fixed or not, how many blended) must get
+    # what a fresh call gets, not the first transition's segments.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    tr = engine.tracks[HELD_OUT[0]]
+    shared = {"alphas": (0.0, 1.0)}
+    first = retrieval.match(rt, tr, tr, 40, 71, 30, 0.5, True, shared=shared)
+    searched = shared["found"]
+    again = retrieval.match(rt, tr, tr, 40, 71, 30, 1.0, True, seam="b", shared=shared)
+    assert shared["found"] is searched and set(searched) == {0.5, 0.0, 1.0}  # one search, three rankings
+    assert again.found[0][0][0] == retrieval.match(rt, tr, tr, 40, 71, 30, 1.0, True, seam="b").found[0][0][0]
+    for kw in ({"length": 15}, {"align": False}, {"top_k": 1}):
+        args = {"length": 30, "align": True, "top_k": None, **kw}
+        got = retrieval.match(rt, tr, tr, 40, 71, args["length"], 0.5, args["align"], top_k=args["top_k"],
+                              shared=shared)
+        fresh = retrieval.match(rt, tr, tr, 40, 71, args["length"], 0.5, args["align"], top_k=args["top_k"])
+        for p in (0, 1):
+            for x, y in zip(got.found[p], fresh.found[p]):
+                np.testing.assert_array_equal(x, y)
+        assert got.info == fresh.info
+    assert first.info != got.info
+    with pytest.raises(ValueError, match="top_k"):
+        retrieval.match(rt, tr, tr, 40, 71, 30, 0.5, True, top_k=0)
+
+
+def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engine, monkeypatch):
+    # Each half of a splice replays only the frames its blend weight shows; the result must be
+    # the splice of the two whole replays (the same rotations; the others are never read).
+    from posturemap.synth import splice
+
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    a, b = engine.tracks[HELD_OUT[0]], engine.tracks[HELD_OUT[1]]
+    done = 0
+    for length, alpha, a_end, b_start in ((30, 0.5, 60, 20), (20, 0.0, 90, 5), (45, 1.0, 120, 40), (1, 0.5, 70, 10)):
+        got = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
+        whole = retrieval.replay
+        with monkeypatch.context() as m:
+            m.setattr(splice, "replay", lambda rt_, found, **kw: whole(rt_, found, skip_unconfident=True))
+            ref = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
+        assert (got is None) == (ref is None)
+        if got is None:
+            continue
+        gap = np.minimum(np.abs(got.rots - ref.rots), np.abs(got.rots + ref.rots)).max()
+        assert gap < 1e-12, gap  # the same quaternions (up to sign)
+        np.testing.assert_array_equal(got.gpos, ref.gpos)
+        done += 1
+    assert done >= 3

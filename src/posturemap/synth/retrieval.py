@@ -353,7 +353,9 @@ class Retriever:
         """:meth:`search` for several ``alphas`` at once: one list entry per alpha, the same as
         searching for each alone (the candidates and their seam costs do not depend on alpha;
         only the ranking does), at the cost of one search."""
-        k = TOP_K if k is None else k
+        k = TOP_K if k is None else int(k)
+        if k < 1:
+            raise ValueError(f"top_k must be at least 1, got {k}")
         alphas = tuple(float(a) for a in alphas)
         if not exhaustive and _compiled() is not None:
             return self._search_compiled(part, qa, qb, sa, sb, d, fps, alphas, disp, k)
@@ -705,11 +707,12 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     ``seam``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
     the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
     splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
-    ``shared``: a dict kept by the caller between calls on the same seams with the same
-    ``length``, ``align``, ``exhaustive`` and ``top_k``: the seams' features, the frames
-    gathered for them and the searches are made once. With ``shared["alphas"]`` set, the first
-    call ranks the candidates for all of those alphas in its one search (as
-    :meth:`Retriever.search_alphas`), and later calls for those alphas search no more.
+    ``shared``: a dict kept by the caller between calls: for calls on the same transition
+    (tracks, seams, ``length``, ``align``, ``exhaustive``, ``top_k``) the seams' features, the
+    frames gathered for them and the searches are made once; a call on another transition
+    starts afresh. With ``shared["alphas"]`` set, the first call ranks the candidates for all of
+    those alphas in its one search (as :meth:`Retriever.search_alphas`), and later calls for
+    those alphas search no more.
     """
     lib = rt.lib
     fps = float(ta.motion.fps)
@@ -718,6 +721,11 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
     xa, xb = ta.features[a_end], tb.features[b_start]
     shared = {} if shared is None else shared
+    key = (id(ta), id(tb), a_end, b_start, length, bool(align), bool(exhaustive), top_k)
+    if shared.get("key") != key:  # another transition: nothing kept applies to it
+        for name in ("seams", "found"):
+            shared.pop(name, None)
+        shared["key"] = key
     if "seams" in shared:
         qa, qb, gathered = shared["seams"]
     else:
@@ -727,7 +735,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         shared["seams"] = (qa, qb, gathered)
     searched = shared.setdefault("found", {})
     if float(alpha) not in searched:
-        alphas = tuple(dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ()))))
+        alphas = tuple(a for a in dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ())))
+                       if a not in searched)
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
         per_part = [rt.search_alphas(p, qa, qb, *gathered[p], d, fps, alphas, disp if p == 0 else None, top_k,
                                      exhaustive) for p in (0, 1)]
