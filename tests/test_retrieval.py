@@ -10,6 +10,7 @@ match at B monotonically, and the library survives the map file.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -724,8 +725,9 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, c
     pos[:, others] += 0.01 * np.arange(n)[:, None, None]
     eng.add("walk", Motion(walk.skeleton, rots, pos, walk.fps))
     checked = 0
-    for a_end, b_start, length in ((40, 71, 30), (90, 136, 45), (150, 166, 15)):
-        kw = dict(length=length, a_end=a_end, b_start=b_start, align=False, foot_lock=False)
+    for (a_end, b_start, length), align in itertools.product(((40, 71, 30), (90, 136, 45), (150, 166, 15)),
+                                                             (False, True)):
+        kw = dict(length=length, a_end=a_end, b_start=b_start, align=align, foot_lock=False)
         r, p = (x.copy() for x in eng.generate("walk", "walk", method="retrieval", **kw))
         if eng.last["retrieval"]["confidence"] < 1.0:
             continue
@@ -734,8 +736,8 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, c
         gap = np.minimum(np.abs(r[:, top] - r_ref[:, top]), np.abs(r[:, top] + r_ref[:, top])).max()
         assert gap < 1e-12, gap  # the same quaternions (up to sign)
         assert quat.angle_between(r[0, top], r[-1, top]) > 0.01  # the column moves: a real check
-        checked += 1
-    assert checked >= 2
+        checked += 1 + 10 * align
+    assert checked >= 22  # at least two gaps with B fixed and two with B moved
 
 
 def test_a_shared_dict_serves_one_transition_and_starts_afresh_for_another(engine):
