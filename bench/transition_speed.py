@@ -152,11 +152,13 @@ def bench_functional(model, clips, lengths, methods, calls, rng, log) -> dict:
         n = calls
         draws = _draws(rng, lengths, n + 2)
         for a, b, a_end, b_start, alpha in draws[:2]:  # warm-up
-            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m, False)
+            transition(clips[a], clips[b], model, length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
+                       align=True, method=m, foot_lock=False)
         times = []
         for a, b, a_end, b_start, alpha in draws[2:]:
             t0 = time.perf_counter_ns()
-            transition(clips[a], clips[b], model, LENGTH, None, alpha, a_end, b_start, True, m, False)
+            transition(clips[a], clips[b], model, length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
+                       align=True, method=m, foot_lock=False)
             times.append(time.perf_counter_ns() - t0)
         out[m] = _stats(times)
         if log:
