@@ -291,13 +291,17 @@ class Retriever:
         Velocities of the library are compared at the speed they are replayed at: divided by
         the warp ``(e - s) / lib.fps`` over ``d / fps``.
         """
-        lib = self.lib
+        ca, cb = self.pair_costs(part, s, e, qa, qb, d, fps)
+        return self.total(part, s, e, ca, cb, d, fps, alpha, disp), ca, cb
+
+    def pair_costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float):
+        """The seam costs of :meth:`costs` alone: at A (``s`` against ``qa``) and at B (``e``
+        against ``qb``), velocities at the replayed speed."""
         pm, vm = self.matrices[part]
         rate = 1.0 / self.warp(s, e, d, fps)
-        nxt = np.minimum(e + 1, lib.clip_end[e] - 1)
-        ca = seam_costs(pm, vm, s, s, *self.query_vectors(part, qa), rate)
-        cb = seam_costs(pm, vm, e, nxt, *self.query_vectors(part, qb), rate)
-        return self.total(part, s, e, ca, cb, d, fps, alpha, disp), ca, cb
+        nxt = np.minimum(e + 1, self.lib.clip_end[e] - 1)
+        return (seam_costs(pm, vm, s, s, *self.query_vectors(part, qa), rate),
+                seam_costs(pm, vm, e, nxt, *self.query_vectors(part, qb), rate))
 
     def warp(self, s, e, d: float, fps: float) -> np.ndarray:
         """Segments' warps: source duration over gap duration."""
@@ -371,7 +375,7 @@ class Retriever:
         if len(s) == 0:
             return [None] * len(alphas)
         out = []
-        _, ca, cb = self.costs(part, s, e, qa, qb, d, fps, alphas[0], disp)
+        ca, cb = self.pair_costs(part, s, e, qa, qb, d, fps)
         for alpha in alphas:
             total = self.total(part, s, e, ca, cb, d, fps, alpha, disp)
             # The k best distinct segments (a segment can come from both seams' frames, twice).
