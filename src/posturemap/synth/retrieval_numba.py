@@ -581,28 +581,18 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 def splice_rotations(a, b, w, out):
     """:func:`posturemap.synth.splice.splice_rotations` in one call: per frame ``t`` of a (L, J, 4)
     and b, ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` between, ``b[t]`` where
-    ``w[t] >= 1`` with its signs following on from the frame before (per joint)."""
+    ``w[t] >= 1``, each joint's sign in the hemisphere of the frame before."""
     n_l, n_j = a.shape[0], a.shape[1]
     for t in range(n_l):
         if w[t] <= 0.0:
             out[t] = a[t]
         elif w[t] < 1.0:
             slerp(a[t], b[t], w[t], out[t])
-        elif t == 0 or w[t - 1] < 1.0:  # the first frame of b alone: its signs as they are
+        else:
             out[t] = b[t]
-            if t > 0:  # unless a frame before holds the blend: follow on from it
+            if t > 0:
                 for j in range(n_j):
                     if (b[t, j, 0] * out[t - 1, j, 0] + b[t, j, 1] * out[t - 1, j, 1]
                             + b[t, j, 2] * out[t - 1, j, 2] + b[t, j, 3] * out[t - 1, j, 3]) < 0.0:
                         for c in range(4):
                             out[t, j, c] = -b[t, j, c]
-        else:
-            for j in range(n_j):
-                # the sign b's own previous frame had in out, flipped where b turns hemisphere
-                prev = 1.0 if (b[t - 1, j, 0] * out[t - 1, j, 0] + b[t - 1, j, 1] * out[t - 1, j, 1]
-                               + b[t - 1, j, 2] * out[t - 1, j, 2] + b[t - 1, j, 3] * out[t - 1, j, 3]) >= 0.0 else -1.0
-                d = (b[t, j, 0] * b[t - 1, j, 0] + b[t, j, 1] * b[t - 1, j, 1] + b[t, j, 2] * b[t - 1, j, 2]
-                     + b[t, j, 3] * b[t - 1, j, 3])
-                sign = -prev if d < 0.0 else prev
-                for c in range(4):
-                    out[t, j, c] = sign * b[t, j, c]

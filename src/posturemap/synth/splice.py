@@ -76,8 +76,8 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
 def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Frames (L, J, 4) of A's continuation ``a`` blended into B's arrival ``b`` by the weights
     ``w`` (L,): ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` (on the short arc, in
-    ``a``'s hemisphere) in between, ``b[t]`` where ``w[t] >= 1``, its signs following on from
-    the frame before, joint by joint (so each may hold only the frames it shows: :func:`spliced`
+    ``a``'s hemisphere) in between, ``b[t]`` where ``w[t] >= 1``, each joint's sign in the
+    hemisphere of the frame before (so each may hold only the frames it shows: :func:`spliced`
     replays no more). Compiled where numba is in use
     (:func:`posturemap.synth.retrieval_numba.splice_rotations`)."""
     out = np.empty(a.shape)
@@ -89,12 +89,8 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
             out[t] = a[t]
         elif wt < 1.0:
             kernels.slerp(a[t], b[t], wt, out[t])
-        elif t == 0 or w[t - 1] < 1.0:  # B alone from here: as it is, or following on from the blend
+        else:  # B, each joint in the hemisphere of the frame before
             out[t] = b[t] if t == 0 else np.where((np.sum(b[t] * out[t - 1], axis=-1) < 0.0)[:, None], -b[t], b[t])
-        else:  # the sign b's previous frame took, flipped where b itself turns hemisphere
-            prev = np.where(np.sum(b[t - 1] * out[t - 1], axis=-1) >= 0.0, 1.0, -1.0)
-            sign = np.where(np.sum(b[t] * b[t - 1], axis=-1) < 0.0, -prev, prev)
-            out[t] = sign[:, None] * b[t]
     return out
 
 
