@@ -456,6 +456,41 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
 
 
+def test_the_upper_body_fades_into_the_spline_on_short_gaps():
+    from posturemap.synth.request import AUTO_SHORT_S
+
+    # The ramp runs from where auto takes the spline to where the fallback stops being it.
+    assert retrieval.UPPER_RAMP_S == (AUTO_SHORT_S, retrieval.FALLBACK_SHORT[1])
+    lo, hi = retrieval.UPPER_RAMP_S
+    assert retrieval.upper_weight(5, 30.0) == 0.0  # 0.2 s
+    assert retrieval.upper_weight(29, 120.0) == 0.0  # 0.25 s at 120 fps: seconds count, not frames
+    assert retrieval.upper_weight(16, 40.0) == pytest.approx((17 / 40 - lo) / (hi - lo))
+    assert retrieval.upper_weight(17, 30.0) == 1.0 and retrieval.upper_weight(71, 120.0) == 1.0
+    w = [retrieval.upper_weight(n, 60.0) for n in range(1, 60)]
+    assert np.all(np.diff(w) >= 0) and 0 < w[30] < 1
+
+
+def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs(engine, monkeypatch):
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    tr = engine.tracks[HELD_OUT[0]]
+    # 12 frames (0.43 s): the upper body's confidence is its match's times the ramp's weight.
+    ramped = retrieval.match(rt, tr, tr, 40, 53, 12, 0.5, False)
+    with monkeypatch.context() as m:
+        m.setattr(retrieval, "UPPER_RAMP_S", (0.0, 0.0))  # no ramp: weight 1 at any length
+        flat = retrieval.match(rt, tr, tr, 40, 53, 12, 0.5, False)
+    assert ramped.confidence[0] == flat.confidence[0] > 0
+    assert flat.confidence[1] > 0
+    assert ramped.confidence[1] == pytest.approx(flat.confidence[1] * retrieval.upper_weight(12, tr.motion.fps))
+    # 6 frames (0.23 s): the arms are the spline's, frame for frame; the legs are retrieved.
+    kw = dict(length=6, a_end=40, b_start=47, align=False, foot_lock=False)
+    r = engine.generate(HELD_OUT[0], HELD_OUT[0], method="retrieval", **kw)[0].copy()
+    assert engine.last["retrieval"]["parts"]["upper"]["confidence"] == 0.0
+    assert engine.last["retrieval"]["parts"]["lower"]["confidence"] > 0.0
+    spline = engine.generate(HELD_OUT[0], HELD_OUT[0], method="spline", **kw)[0]
+    np.testing.assert_array_equal(r[:, rt.upper_mask], spline[:, rt.upper_mask])
+    assert not np.allclose(r[:, rt.lower_mask], spline[:, rt.lower_mask], atol=1e-3)
+
+
 def test_compiled_search_matches_the_numpy_steps(engine, clips):
     assert retrieval._compiled() is not None  # the suite runs with numba loaded
     rt = retrieval.Retriever(engine, engine.model.library_)

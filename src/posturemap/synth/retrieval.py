@@ -17,8 +17,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
    continue A, and averages them;
 3. **removes the seam errors** with offsets that decay smoothly from each seam (value and
-   velocity, cubic Hermite over :data:`BLEND_S` seconds, at most the gap), so rotations, root height and trajectory meet A and
-   B with continuous position and velocity; in in-betweening the root's horizontal error at B
+   velocity, cubic Hermite over :data:`BLEND_S` seconds, at most the gap), so rotations, root
+   height and trajectory meet A and B with continuous position and velocity; in in-betweening the root's horizontal error at B
    is spread over the whole gap (smoothstep) so it lands exactly on B; in transitions B takes
    the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
@@ -27,7 +27,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
 5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
    rotations between the segment and A / B at the seams (degrees per joint, the larger seam),
    times how much the root moves at the seams (:func:`still_weight`: standing gestures are
-   interpolated);
+   interpolated) and, for the upper body, times :func:`upper_weight` (short gaps take the arms
+   from the fallback, which matches the seams' velocities there);
    below ``CONF_RANGE[0]`` the part is the retrieved motion, above ``CONF_RANGE[1]`` it is the
    interpolating fallback (:func:`fallback_method`), in between a per-joint SLERP of the two.
 """
@@ -43,6 +44,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
 from ..core.joints import key_joints, part_masks
+from .request import AUTO_SHORT_S
 from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
@@ -61,6 +63,7 @@ W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
 W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
 DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
 STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_weight
+UPPER_RAMP_S = (AUTO_SHORT_S, FALLBACK_SHORT[1])  # gap seconds: see upper_weight
 
 
 def fallback_method(length: int, fps: float) -> str:
@@ -430,6 +433,26 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
+def upper_weight(length: int, fps: float) -> float:
+    """How much of the upper body is retrieved on a gap of ``length`` frames: 0 up to
+    ``UPPER_RAMP_S[0]`` seconds (where ``auto`` takes the spline for the whole body), 1 from
+    ``UPPER_RAMP_S[1]`` (where the fallback turns from the spline to ``upm-valid``), linear in
+    between, where the arms are a per-joint SLERP of the spline and the retrieved motion.
+
+    On short gaps the arms' swing is predicted by the seams' velocities better than by another
+    performance's swing; the legs stay retrieved (their planted feet are the point). Held-out
+    (the bench's protocol; L2Q / L2P, before -> after): CMU 01_01 at 120 fps, 30 frames (0.26 s)
+    0.161 / 1.213 -> 0.147 / 1.007 (the spline: 0.154 / 0.953), 45 frames 0.278 / 2.217 ->
+    0.255 / 1.955 (0.279 / 2.017), 60 frames 0.371 / 3.070 -> 0.350 / 2.884; Bandai's held-out
+    styles at 8-15 frames at 30 fps 1-2% lower both ways, held-out contents within 1%; foot
+    skate unchanged. Ramping the legs too lowered L2Q and L2P further but let the feet slide
+    (held-out styles, 8 frames: skate 4.5 -> 6.5 cm/s, the truth's 3.8).
+    """
+    lo, hi = UPPER_RAMP_S
+    seconds = (length + 1) / float(fps)
+    return min(max((seconds - lo) / (hi - lo), 0.0), 1.0) if hi > lo else float(seconds >= lo)
+
+
 def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
     """Seam offset curves (4, len(t)) at times ``t`` of a gap from 0 (A's end) to ``d`` (B's start).
 
@@ -750,13 +773,14 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     if found[0] is None or found[1] is None:
         return None
     still = still_weight(qa, qb, lib.leg, rt.engine._up)
+    weight = (still, still * upper_weight(length, fps))
     if seam == "a":  # the segment's start against A's end on both sides of the measure
         dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
     elif seam == "b":
         dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * still for c in dist]
+    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * w for c, w in zip(dist, weight)]
     return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib)
 
 
