@@ -15,8 +15,9 @@ frames; retrieval replays real motion:
     matching the seam velocities is what counts), ``retrieval`` otherwise.
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
-    the seams with smooth seam corrections and its planted feet kept planted, falling back to
-    ``upm-valid`` by confidence (:mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
+    the seams with smooth seam corrections and its planted feet kept planted, falling back by
+    confidence to ``upm-valid`` (``spline`` on gaps under 0.6 s, where the upper body fades into
+    it; :mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
     end (0: continue A's motion) against the match at B's start (1: arrive in B's motion).
 ``upm`` (paper)
     Key posture from the four class maps: per class, the neuron nearest the ``alpha``-blend of
