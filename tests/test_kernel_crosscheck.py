@@ -409,7 +409,7 @@ def test_nearest_sample_dist_matches_numpy():
 
 # -- retrieval --------------------------------------------------------------------------------
 @pytest.mark.parametrize("k", [1, 4])
-@crosschecks("retrieval_numba:replay")
+@crosschecks("retrieval_numba:replay", "retrieval_numba:_mean_sample")
 def test_replay_matches_the_numpy_retrieval_path(k):
     rng = np.random.default_rng(117 + k)
     n_lib, j, length = 200, 6, 9
@@ -421,8 +421,9 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     joints = np.array([0, 2, 3, 5])
     a2, b2 = random_quats(rng, (2, len(joints))), random_quats(rng, (2, len(joints)))
     curves = retrieval.hermite_offsets(length, 4.0)
-    expected = retrieval.average_rotations(retrieval.offset_rotations(
-        retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    # The segments averaged, then the average's seams corrected.
+    expected = retrieval.offset_rotations(retrieval.average_rotations(
+        retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty((length, len(joints), 4))
     RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
     same_rotation(out, expected, atol=1e-12)

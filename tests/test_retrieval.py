@@ -365,8 +365,9 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     joints = np.array([0, 1, 3, 7, 12])
     a2, b2 = (quat.normalize(rng.normal(size=(2, len(joints), 4))) for _ in range(2))
     curves = retrieval.hermite_offsets(length, 6.0)
-    ref = retrieval.average_rotations(retrieval.offset_rotations(
-        retrieval.sample_rotations(lib, i0, i1, f, joints), a2, b2, curves))
+    # The segments averaged, then the average's seams corrected.
+    ref = retrieval.offset_rotations(retrieval.average_rotations(
+        retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty_like(ref)
     retrieval_numba.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
     assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)

@@ -44,56 +44,57 @@ def _row(a):
 
 
 @nb.njit(**_OPTS)
+def _mean_sample(rots, i0, i1, f, j, u):
+    """The segments' mean rotation of joint j at sample u: the normalised sum of the K samples
+    ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``, each sign-aligned to the first's."""
+    r0, r1, r2, r3 = _sample(rots, i0[0, u], i1[0, u], f[0, u], j)
+    a0, a1, a2, a3 = r0, r1, r2, r3
+    for k in range(1, i0.shape[0]):
+        q0, q1, q2, q3 = _sample(rots, i0[k, u], i1[k, u], f[k, u], j)
+        if q0 * r0 + q1 * r1 + q2 * r2 + q3 * r3 < 0.0:
+            q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+        a0, a1, a2, a3 = a0 + q0, a1 + q1, a2 + q2, a3 + q3
+    n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
+    return a0 / n, a1 / n, a2 / n, a3 / n
+
+
+@nb.njit(**_OPTS)
 def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
-    """Segments sampled at (i0, i1, f) (K, T), seam-corrected and averaged into out (L, M, 4),
-    for the new frames ``lo <= t < hi`` (the others are left as the identity).
+    """Segments sampled at (i0, i1, f) (K, T), averaged, and the average seam-corrected into
+    out (L, M, 4), for the new frames ``lo <= t < hi`` (the others are left as the identity).
 
     rots (N, J, 4) library rotations; joints (M,); a2/b2 (2, M, 4) A at a_end-1, a_end and B
-    at b_start, b_start+1; curves (4, L) offset curves, L = T - 4.
+    at b_start, b_start+1; curves (4, L) offset curves, L = T - 4. One exponential per frame and
+    joint, whatever K.
     """
-    n_k, n_t = i0.shape
+    n_t = i0.shape[1]
     n_l = curves.shape[1]
     n_m = joints.shape[0]
     for t in range(n_l):
         if t < lo or t >= hi:
             for m in range(n_m):
                 out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = 1.0, 0.0, 0.0, 0.0
-    ref = np.empty((n_l, n_m, 4))
-    acc = np.zeros((n_l, n_m, 4))
-    for k in range(n_k):
-        for m in range(n_m):
-            j = joints[m]
-            s_m1 = _sample(rots, i0[k, 0], i1[k, 0], f[k, 0], j)
-            s_0 = _sample(rots, i0[k, 1], i1[k, 1], f[k, 1], j)
-            s_d = _sample(rots, i0[k, n_t - 2], i1[k, n_t - 2], f[k, n_t - 2], j)
-            s_d1 = _sample(rots, i0[k, n_t - 1], i1[k, n_t - 1], f[k, n_t - 1], j)
-            a_0, a_1, b_0, b_1 = _row(a2[0, m]), _row(a2[1, m]), _row(b2[0, m]), _row(b2[1, m])
-            ra = _log_rel(a_1, s_0)
-            va1, va2 = _log_rel(a_1, a_0), _log_rel(s_0, s_m1)
-            rb = _log_rel(b_0, s_d)
-            vb1, vb2 = _log_rel(b_1, b_0), _log_rel(s_d1, s_d)
-            for t in range(lo, hi):
-                c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
-                ox = c0 * ra[0] + c1 * (va1[0] - va2[0]) + c2 * rb[0] + c3 * (vb1[0] - vb2[0])
-                oy = c0 * ra[1] + c1 * (va1[1] - va2[1]) + c2 * rb[1] + c3 * (vb1[1] - vb2[1])
-                oz = c0 * ra[2] + c1 * (va1[2] - va2[2]) + c2 * rb[2] + c3 * (vb1[2] - vb2[2])
-                ang = math.sqrt(ox * ox + oy * oy + oz * oz)
-                h = math.sin(0.5 * ang) / ang if ang > 1e-8 else 0.5 - ang * ang / 48.0
-                s = _sample(rots, i0[k, t + 2], i1[k, t + 2], f[k, t + 2], j)
-                q = _mul(math.cos(0.5 * ang), ox * h, oy * h, oz * h, s[0], s[1], s[2], s[3])
-                if k == 0:
-                    for c in range(4):
-                        ref[t, m, c] = q[c]
-                sign = 1.0
-                if q[0] * ref[t, m, 0] + q[1] * ref[t, m, 1] + q[2] * ref[t, m, 2] + q[3] * ref[t, m, 3] < 0.0:
-                    sign = -1.0
-                for c in range(4):
-                    acc[t, m, c] += sign * q[c]
-    for t in range(lo, hi):
-        for m in range(n_m):
-            n = max(math.sqrt(acc[t, m, 0] ** 2 + acc[t, m, 1] ** 2 + acc[t, m, 2] ** 2 + acc[t, m, 3] ** 2), 1e-12)
-            for c in range(4):
-                out[t, m, c] = acc[t, m, c] / n
+    for m in range(n_m):
+        j = joints[m]
+        s_m1 = _mean_sample(rots, i0, i1, f, j, 0)
+        s_0 = _mean_sample(rots, i0, i1, f, j, 1)
+        s_d = _mean_sample(rots, i0, i1, f, j, n_t - 2)
+        s_d1 = _mean_sample(rots, i0, i1, f, j, n_t - 1)
+        a_0, a_1, b_0, b_1 = _row(a2[0, m]), _row(a2[1, m]), _row(b2[0, m]), _row(b2[1, m])
+        ra = _log_rel(a_1, s_0)
+        va1, va2 = _log_rel(a_1, a_0), _log_rel(s_0, s_m1)
+        rb = _log_rel(b_0, s_d)
+        vb1, vb2 = _log_rel(b_1, b_0), _log_rel(s_d1, s_d)
+        for t in range(lo, hi):
+            c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
+            ox = c0 * ra[0] + c1 * (va1[0] - va2[0]) + c2 * rb[0] + c3 * (vb1[0] - vb2[0])
+            oy = c0 * ra[1] + c1 * (va1[1] - va2[1]) + c2 * rb[1] + c3 * (vb1[1] - vb2[1])
+            oz = c0 * ra[2] + c1 * (va1[2] - va2[2]) + c2 * rb[2] + c3 * (vb1[2] - vb2[2])
+            ang = math.sqrt(ox * ox + oy * oy + oz * oz)
+            h = math.sin(0.5 * ang) / ang if ang > 1e-8 else 0.5 - ang * ang / 48.0
+            s = _mean_sample(rots, i0, i1, f, j, t + 2)
+            out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = _mul(math.cos(0.5 * ang), ox * h, oy * h,
+                                                                          oz * h, s[0], s[1], s[2], s[3])
 
 
 @nb.njit(**_OPTS)
