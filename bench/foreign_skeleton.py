@@ -96,7 +96,6 @@ def rewritten_split(split):
 def inbetween(split, settings, seed: int, lengths, log=print) -> dict:
     """L2Q, L2P, skate per method and length, and the truth's skate (the bench's scoring)."""
     from posturemap.evaluate import protocol, runner, scoring
-    from posturemap.evaluate.protocol import N_FUTURE, N_PAST
 
     t0 = time.perf_counter()
     state = runner.prepare(split, settings, seed, log=lambda *a: None)
@@ -106,20 +105,11 @@ def inbetween(split, settings, seed: int, lengths, log=print) -> dict:
     out = {"windows": len(windows), "fps": float(test[0].fps), "unit": split.unit,
            "joints": len(ctx.skeleton.names), "up": "XYZ"[ctx.up], "lengths": {}}
     for length in lengths:
-        span = N_PAST + length + N_FUTURE
-        truth_r = np.stack([test[c].rotations[s: s + span] for c, s in windows])
-        truth_p = np.stack([test[c].positions[s: s + span] for c, s in windows])
-        preds = {m: ([], []) for m in METHODS}
-        for c, s in windows:
-            past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
-            for m, (r, p) in runner.generate_from_context(engines, METHODS, past, future, length).items():
-                preds[m][0].append(r)
-                preds[m][1].append(p)
+        truth_r, truth_p, preds = runner.predict_windows(engines, METHODS, test, windows, length)
         tg = scoring.truth_globals(ctx, truth_r, truth_p)
         row = {"truth_skate": scoring.score_truth(ctx, truth_r, truth_p, length)["skate"]}
         for m in METHODS:
-            sc = scoring.score_inbetween(ctx, truth_r, truth_p, np.stack(preds[m][0]), np.stack(preds[m][1]), length,
-                                         truth_g=tg)
+            sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
             row[m] = {k: sc[k] for k in ("l2q", "l2p", "skate")}
         out["lengths"][str(length)] = row
     log(f"  {split.name} at {out['fps']:.4g} fps ({split.unit}): {len(windows)} windows in "

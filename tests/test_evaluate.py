@@ -175,6 +175,31 @@ def test_the_engine_sees_the_context_frames_only(sample_clips):
         np.testing.assert_array_equal(out[name][1], p)
 
 
+def test_every_window_is_rebuilt_from_its_own_context(sample_clips):
+    from posturemap.learn.model import PostureMap
+
+    walk = sample_clips["walk"]
+    model = PostureMap(seed=0).fit([walk])
+    engines = {"upm": TransitionEngine(model)}
+    windows = [(0, 5), (0, 40)]
+    length = 12
+    truth_r, truth_p, preds = evaluate.predict_windows(engines, ["zero-velocity", "spline", "upm-valid"], [walk],
+                                                       windows, length)
+    span = N_PAST + length + N_FUTURE
+    assert set(preds) == {"zero-velocity", "spline", "upm-valid"}
+    for i, (_, s) in enumerate(windows):
+        np.testing.assert_array_equal(truth_r[i], walk.rotations[s: s + span])
+        np.testing.assert_array_equal(truth_p[i], walk.positions[s: s + span])
+        # zero-velocity holds the last context frame; the others are what the window's context makes.
+        assert np.all(preds["zero-velocity"][0][i] == walk.rotations[s + N_PAST - 1])
+        made = evaluate.generate_from_context(engines, ["spline", "upm-valid"], walk[s: s + N_PAST],
+                                              walk[s + N_PAST + length: s + span], length)
+        for m in ("spline", "upm-valid"):
+            np.testing.assert_array_equal(preds[m][0][i], made[m][0])
+            np.testing.assert_array_equal(preds[m][1][i], made[m][1])
+    assert not np.allclose(preds["spline"][0][0], preds["spline"][0][1])  # each window its own
+
+
 # -- on real data -------------------------------------------------------------------------------
 # The checks below run on a smaller run than `posturemap bench --quick` (a third of its training
 # clips, 3 windows, 2 pairs, no plots: a few seconds); the slow set runs them on the real quick

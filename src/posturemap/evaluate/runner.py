@@ -130,6 +130,29 @@ def generate_from_context(engines: dict, methods, past: Motion, future: Motion, 
     return out
 
 
+def predict_windows(engines: dict, methods, test: list, windows, length: int):
+    """The truth and each method's rebuilt gap of every window ``(clip, start)`` of ``test``.
+
+    Returns ``(truth_r, truth_p, preds)``: the windows' rotations (W, span, J, 4) and positions
+    (W, span, J, 3) over ``N_PAST + length + N_FUTURE`` frames, and ``{method: (rotations
+    (W, length, J, 4), positions (W, length, J, 3))}`` made from the context alone
+    (:func:`generate_from_context`; ``zero-velocity`` holds the last past frame).
+    """
+    span = N_PAST + length + N_FUTURE
+    truth_r = np.stack([test[c].rotations[s: s + span] for c, s in windows])
+    truth_p = np.stack([test[c].positions[s: s + span] for c, s in windows])
+    preds = {m: (np.empty((len(windows), length) + truth_r.shape[2:]),
+                 np.empty((len(windows), length) + truth_p.shape[2:])) for m in methods}
+    generated = [m for m in methods if m != "zero-velocity"]
+    for i, (c, s) in enumerate(windows):
+        past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
+        if "zero-velocity" in preds:
+            preds["zero-velocity"][0][i], preds["zero-velocity"][1][i] = past.rotations[-1], past.positions[-1]
+        for m, (r, p) in generate_from_context(engines, generated, past, future, length).items():
+            preds[m][0][i], preds[m][1][i] = r, p
+    return truth_r, truth_p, preds
+
+
 def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                   diagnostics: bool = False) -> tuple[dict, dict, dict]:
     """Scores per method and length, the truth's, per content, the diagnostics; plus curves
@@ -146,17 +169,7 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
     ref = natural_reference(ctx, test)
     for length in lengths:
         t0 = time.perf_counter()
-        span = N_PAST + length + N_FUTURE
-        truth_r = np.stack([test[c].rotations[s: s + span] for c, s in windows])
-        truth_p = np.stack([test[c].positions[s: s + span] for c, s in windows])
-        preds = {m: (np.empty((len(windows), length) + truth_r.shape[2:]),
-                     np.empty((len(windows), length) + truth_p.shape[2:])) for m in METHODS}
-        for i, (c, s) in enumerate(windows):
-            past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
-            preds["zero-velocity"][0][i], preds["zero-velocity"][1][i] = past.rotations[-1], past.positions[-1]
-            made = generate_from_context(engines, METHODS[1:], past, future, length)
-            for m, (r, p) in made.items():
-                preds[m][0][i], preds[m][1][i] = r, p
+        truth_r, truth_p, preds = predict_windows(engines, METHODS, test, windows, length)
         sl = slice(N_PAST, N_PAST + length)
         nat = naturalness_fn(ctx, ref, windows, length)(
             np.concatenate([rebuilt_frames(truth_r, preds[m][0]) for m in METHODS] + [truth_r[:, N_PAST - 1: sl.stop]]),
