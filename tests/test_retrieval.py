@@ -630,6 +630,21 @@ def test_batched_seams_and_distances_equal_the_single_ones(engine):
             assert got == pytest.approx(np.degrees(d / np.sqrt(len(dims) / 3.0)), abs=1e-9)
 
 
+def test_a_seams_query_rows_are_the_librarys_rows_of_its_features(engine):
+    # query_vectors reads a seam's features by a precomputed plan; they must be the very rows
+    # the library's frames get (rows), or the search would rank against shifted queries.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    for name in HELD_OUT:
+        tr = engine.tracks[name]
+        for a in (1, 30, len(tr.gpos) - 3):
+            for q in rt.seam_pair(tr, [a - 1, a], tr, [a, a + 1]):
+                for p in (0, 1):
+                    rows = rt.rows(p, q.pose[None], q.vel[None], q.root[None])
+                    for got, want in zip(rt.query_vectors(p, q), rows):
+                        assert got.dtype == np.float32
+                        np.testing.assert_array_equal(got, want[0])
+
+
 @pytest.mark.parametrize("circular", [False, True])
 def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
     from types import SimpleNamespace

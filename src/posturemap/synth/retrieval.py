@@ -110,6 +110,7 @@ class Retriever:
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
         self._index_w = None
+        self._plan = None  # see _query_plan
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -281,11 +282,38 @@ class Retriever:
                 np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32))
 
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
-        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32 (kept on the seam)."""
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32 (kept on the seam):
+        the same values as :meth:`rows`, both parts from one gather of the seam's features."""
         if part not in q.vectors:
-            p, v = self.rows(part, q.pose[None], q.vel[None], q.root[None])
-            q.vectors[part] = (p[0], v[0])
+            if self._plan is None:
+                self._plan = [self._query_plan(p) for p in (0, 1)]
+            flat = np.concatenate([q.pose.ravel(), q.vel.ravel(), q.root])
+            for p, (pidx, pdiv, pmul, vidx, vmul) in enumerate(self._plan):
+                q.vectors[p] = ((flat[pidx] / pdiv * pmul).astype(np.float32),
+                                (flat[vidx] * vmul).astype(np.float32))
         return q.vectors[part]
+
+    def _query_plan(self, part: int):
+        """Where :meth:`query_vectors` reads each of ``part``'s columns in a seam's flat features
+        ``[pose (K*3), vel (K*3), root (5)]`` and how it scales them, as :meth:`rows` does:
+        ``p = flat[pidx] / pdiv * pmul``, ``v = flat[vidx] * vmul`` (a divisor or factor of 1
+        leaves a value's bits as they are, so the rows are the same to the bit)."""
+        lib, kl, n_keys = self.lib, self.kl, len(self.keys)
+        keys = range(0, kl) if part == 0 else range(kl, n_keys)
+        pidx = [3 * k + c for k in keys for c in range(3)]
+        vidx = [3 * n_keys + i for i in pidx]
+        pdiv, pmul = [lib.scale[2 * part]] * len(pidx), [1.0] * len(pidx)
+        vmul = [math.sqrt(W_VEL) / lib.scale[2 * part + 1]] * len(vidx)
+        if part == 0:
+            w = np.sqrt(np.array(W_ROOT)) / lib.scale[4:7]
+            root = 6 * n_keys
+            pidx.append(root + 4)
+            pdiv.append(1.0)
+            pmul.append(w[2])
+            vidx += [root, root + 1, root + 2, root + 3]
+            vmul += [w[0]] * 3 + [w[1]]
+        return (np.array(pidx), np.array(pdiv, dtype=np.float64), np.array(pmul, dtype=np.float64), np.array(vidx),
+                np.array(vmul, dtype=np.float64))
 
     def costs(self, part: int, s, e, qa: Seams, qb: Seams, d: float, fps: float, alpha: float,
               disp=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
