@@ -93,6 +93,7 @@ class Retriever:
         sk = engine.skeleton
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
+        self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
         lower, upper = key_joints(sk)
         self.keys = np.concatenate([lower, upper])
         self.kl = len(lower)
@@ -747,13 +748,14 @@ class Match:
             d = self.length + 1.0
             parts = {}
             for p, (s, e, total, ca, cb) in enumerate(self.found):
-                clip, first, last = lib.source_frames(int(s[0]), int(e[0]))
-                parts["lower" if p == 0 else "upper"] = {
+                s0, e0 = int(s[0]), int(e[0])
+                clip, first, last = lib.source_frames(s0, e0)
+                parts["lower" if p == 0 else "upper"] = {  # Python floats: rounding numpy's is slow
                     "clip": clip, "frames": [first, last], "reversed": bool(first > last),
-                    "warp": round(float((e[0] - s[0]) / lib.fps / (d / fps)), 3),
+                    "warp": round((e0 - s0) / float(lib.fps) / (d / fps), 3),
                     "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4),
                     "cost_b": round(float(cb[0]), 4), "distance": round(float(self.distance[p]), 3),
-                    "confidence": round(self.confidence[p], 3), "blended": int(len(s))}
+                    "confidence": round(float(self.confidence[p]), 3), "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
         return self._info
 
@@ -841,21 +843,21 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     d = length + 1.0
     curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     out = np.empty((length, eng.skeleton.num_joints, 4))
-    out[:, ~(rt.lower_mask | rt.upper_mask)] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
+    out[:, rt.open_joints] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
+    a_rots, b_rots = ta.rots[ia], tb.rots[ib]
     gpos = heading = dtheta = shift = contacts = None
     for p, (s, e, _, _, _) in enumerate(m.found):
-        mask = rt.lower_mask if p == 0 else rt.upper_mask
+        joints = rt.part_joints[p]
         if skip_unconfident and m.confidence[p] <= 0.0:
-            out[:, mask] = (1.0, 0.0, 0.0, 0.0)
+            out[:, joints] = (1.0, 0.0, 0.0, 0.0)
             continue
         i0, i1, f = segment_times(lib, s, e, d)
-        joints = rt.part_joints[p]
-        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, ta.rots[ia][:, joints], tb.rots[ib][:, joints],
-                                          curves, frames)
+        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, a_rots[:, joints], b_rots[:, joints], curves,
+                                          frames)
         if p == 0:
             gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
-            nearest = np.clip(np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64), 0, len(lib) - 1)
-            contacts = lib.contacts[nearest]
+            # The nearest recorded frame of the first segment (its samples lie inside its clip).
+            contacts = lib.contacts[np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64)]
     return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence)
 
 
