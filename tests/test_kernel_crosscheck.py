@@ -553,7 +553,8 @@ ELSEWHERE = {
         "retrieval_numba:search", "retrieval_numba:_best", "retrieval_numba:_prefilter", "retrieval_numba:_pos_cost",
         "retrieval_numba:_pos_costs", "retrieval_numba:_vel_cost", "retrieval_numba:_vel_costs",
         "retrieval_numba:_seam_costs", "retrieval_numba:_sqdist", "retrieval_numba:_sqdists"),
-    "test_retrieval.py::test_compiled_selection_of_the_smallest": ("retrieval_numba:_smallest",),
+    "test_retrieval.py::test_compiled_selection_of_the_smallest": (
+        "retrieval_numba:_smallest", "retrieval_numba:_after", "retrieval_numba:_sift_down"),
     "test_splice.py::test_compiled_splice_rotations_match_the_numpy_reference": (
         "retrieval_numba:splice_rotations",),
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (

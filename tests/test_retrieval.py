@@ -543,6 +543,12 @@ def test_compiled_selection_of_the_smallest():
         np.testing.assert_array_equal(got, want)
     c = np.array([3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.0])  # ties at the cut: the first ones
     np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, 4)), [1, 2, 3, 6])
+    # Many ties, in every order of arrival: the kept set is the stable sort's first ones.
+    for seed in range(20):
+        c = np.random.default_rng(seed).integers(0, 6, size=200).astype(float)
+        for keep in (1, 17, 64, 199):
+            want = np.sort(np.argsort(c, kind="stable")[:keep])
+            np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, keep)), want)
 
 
 def test_compiled_ranking_keeps_the_best_distinct_segments():
