@@ -44,18 +44,27 @@ def _row(a):
 
 
 @nb.njit(**_OPTS)
-def _mean_sample(rots, i0, i1, f, j, u):
-    """The segments' mean rotation of joint j at sample u: the normalised sum of the K samples
-    ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``, each sign-aligned to the first's."""
-    r0, r1, r2, r3 = _sample(rots, i0[0, u], i1[0, u], f[0, u], j)
-    a0, a1, a2, a3 = r0, r1, r2, r3
-    for k in range(1, i0.shape[0]):
-        q0, q1, q2, q3 = _sample(rots, i0[k, u], i1[k, u], f[k, u], j)
-        if q0 * r0 + q1 * r1 + q2 * r2 + q3 * r3 < 0.0:
-            q0, q1, q2, q3 = -q0, -q1, -q2, -q3
-        a0, a1, a2, a3 = a0 + q0, a1 + q1, a2 + q2, a3 + q3
-    n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
-    return a0 / n, a1 / n, a2 / n, a3 / n
+def _mean_samples(rots, i0, i1, f, joints, u, ref, out):
+    """The segments' mean rotation of each joint of ``joints`` (M,) at sample ``u``, into out (M, 4):
+    the normalised sum of the K samples ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``, each
+    sign-aligned to the first segment's (kept in ``ref`` (M, 4)). Segment by segment, so that
+    each library frame is read once for all the joints."""
+    n_m = joints.shape[0]
+    for k in range(i0.shape[0]):
+        a, b, w = i0[k, u], i1[k, u], f[k, u]
+        for m in range(n_m):
+            q0, q1, q2, q3 = _sample(rots, a, b, w, joints[m])
+            if k == 0:
+                ref[m, 0], ref[m, 1], ref[m, 2], ref[m, 3] = q0, q1, q2, q3
+                out[m, 0], out[m, 1], out[m, 2], out[m, 3] = q0, q1, q2, q3
+                continue
+            if q0 * ref[m, 0] + q1 * ref[m, 1] + q2 * ref[m, 2] + q3 * ref[m, 3] < 0.0:
+                q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+            out[m, 0], out[m, 1], out[m, 2], out[m, 3] = out[m, 0] + q0, out[m, 1] + q1, out[m, 2] + q2, out[m, 3] + q3
+    for m in range(n_m):
+        a0, a1, a2, a3 = out[m, 0], out[m, 1], out[m, 2], out[m, 3]
+        n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
+        out[m, 0], out[m, 1], out[m, 2], out[m, 3] = a0 / n, a1 / n, a2 / n, a3 / n
 
 
 @nb.njit(**_OPTS)
@@ -74,27 +83,34 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
         if t < lo or t >= hi:
             for m in range(n_m):
                 out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = 1.0, 0.0, 0.0, 0.0
+    ref = np.empty((n_m, 4))
+    seam = np.empty((4, n_m, 4))  # the mean at t = -1, 0, d, d + 1
+    for r, u in enumerate((0, 1, n_t - 2, n_t - 1)):
+        _mean_samples(rots, i0, i1, f, joints, u, ref, seam[r])
+    # Per joint, the seam offsets: A's value and velocity, B's value and velocity.
+    off = np.empty((n_m, 4, 3))
     for m in range(n_m):
-        j = joints[m]
-        s_m1 = _mean_sample(rots, i0, i1, f, j, 0)
-        s_0 = _mean_sample(rots, i0, i1, f, j, 1)
-        s_d = _mean_sample(rots, i0, i1, f, j, n_t - 2)
-        s_d1 = _mean_sample(rots, i0, i1, f, j, n_t - 1)
+        s_m1, s_0, s_d, s_d1 = _row(seam[0, m]), _row(seam[1, m]), _row(seam[2, m]), _row(seam[3, m])
         a_0, a_1, b_0, b_1 = _row(a2[0, m]), _row(a2[1, m]), _row(b2[0, m]), _row(b2[1, m])
         ra = _log_rel(a_1, s_0)
         va1, va2 = _log_rel(a_1, a_0), _log_rel(s_0, s_m1)
         rb = _log_rel(b_0, s_d)
         vb1, vb2 = _log_rel(b_1, b_0), _log_rel(s_d1, s_d)
-        for t in range(lo, hi):
-            c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
-            ox = c0 * ra[0] + c1 * (va1[0] - va2[0]) + c2 * rb[0] + c3 * (vb1[0] - vb2[0])
-            oy = c0 * ra[1] + c1 * (va1[1] - va2[1]) + c2 * rb[1] + c3 * (vb1[1] - vb2[1])
-            oz = c0 * ra[2] + c1 * (va1[2] - va2[2]) + c2 * rb[2] + c3 * (vb1[2] - vb2[2])
+        for c in range(3):
+            off[m, 0, c], off[m, 1, c] = ra[c], va1[c] - va2[c]
+            off[m, 2, c], off[m, 3, c] = rb[c], vb1[c] - vb2[c]
+    mean = np.empty((n_m, 4))
+    for t in range(lo, hi):
+        _mean_samples(rots, i0, i1, f, joints, t + 2, ref, mean)
+        c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
+        for m in range(n_m):
+            ox = c0 * off[m, 0, 0] + c1 * off[m, 1, 0] + c2 * off[m, 2, 0] + c3 * off[m, 3, 0]
+            oy = c0 * off[m, 0, 1] + c1 * off[m, 1, 1] + c2 * off[m, 2, 1] + c3 * off[m, 3, 1]
+            oz = c0 * off[m, 0, 2] + c1 * off[m, 1, 2] + c2 * off[m, 2, 2] + c3 * off[m, 3, 2]
             ang = math.sqrt(ox * ox + oy * oy + oz * oz)
             h = math.sin(0.5 * ang) / ang if ang > 1e-8 else 0.5 - ang * ang / 48.0
-            s = _mean_sample(rots, i0, i1, f, j, t + 2)
-            out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = _mul(math.cos(0.5 * ang), ox * h, oy * h,
-                                                                          oz * h, s[0], s[1], s[2], s[3])
+            out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = _mul(
+                math.cos(0.5 * ang), ox * h, oy * h, oz * h, mean[m, 0], mean[m, 1], mean[m, 2], mean[m, 3])
 
 
 @nb.njit(**_OPTS)
