@@ -557,6 +557,7 @@ ELSEWHERE = {
         "retrieval_numba:_smallest", "retrieval_numba:_after", "retrieval_numba:_sift_down"),
     "test_splice.py::test_compiled_splice_rotations_match_the_numpy_reference": (
         "retrieval_numba:splice_rotations",),
+    "test_splice.py::test_compiled_splice_path_matches_the_numpy_reference": ("retrieval_numba:splice_path",),
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (
         "retrieval_numba:gather", "retrieval_numba:_frames_of_nearest"),
     "test_retrieval.py::test_gathering_both_seams_at_once_equals_one_by_one": ("retrieval_numba:gather_seams",),

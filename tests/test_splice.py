@@ -111,3 +111,31 @@ def test_compiled_splice_rotations_match_the_numpy_reference(alpha):
         tail = np.flatnonzero(w >= 1.0)
         tail = tail[tail > 0]
         assert np.all(np.sum(got[tail] * got[tail - 1], axis=-1) > 0.0)
+
+
+def test_compiled_splice_path_matches_the_numpy_reference():
+    from posturemap.core import kernels
+    from posturemap.synth import retrieval
+    from posturemap.synth.splice import splice_path
+
+    assert retrieval._compiled() is not None
+    rng = np.random.default_rng(22)
+    length = 19
+    g1, g2 = (np.cumsum(rng.normal(size=(length, 3)), axis=0) for _ in range(2))
+    h1, h2 = (np.cumsum(rng.normal(scale=0.1, size=length)) for _ in range(2))
+    a_pos, a_heading = rng.normal(size=3), 0.3
+    for w, up, turn2 in ((splice_weights(length, 0.2), 1, 0.0), (rng.random(length), 2, -2 * np.pi)):
+        got = splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up)
+        with kernels.numpy_backend():
+            ref = splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up)
+        for x, y in zip(got, ref):
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-12)
+        gpos, heading = got
+        # Where one segment alone plays, the path moves as that segment does; the height is blended.
+        only1 = np.flatnonzero(w == 0.0)
+        only1 = only1[only1 > 0]
+        np.testing.assert_allclose(np.diff(gpos, axis=0)[only1 - 1][:, [i for i in range(3) if i != up]],
+                                   np.diff(g1, axis=0)[only1 - 1][:, [i for i in range(3) if i != up]], atol=1e-12)
+        np.testing.assert_allclose(gpos[:, up], (1 - w) * g1[:, up] + w * g2[:, up], atol=1e-12)
+        np.testing.assert_allclose(heading[0], a_heading + (1 - w[0]) * (h1[0] - a_heading)
+                                   + w[0] * (h2[0] + turn2 - a_heading), atol=1e-12)

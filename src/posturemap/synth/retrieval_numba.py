@@ -632,3 +632,27 @@ def splice_rotations(a, b, w, out):
                             + b[t, j, 2] * out[t - 1, j, 2] + b[t, j, 3] * out[t - 1, j, 3]) < 0.0:
                         for c in range(4):
                             out[t, j, c] = -b[t, j, c]
+
+
+@nb.njit(**_OPTS)
+def splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up, gpos, heading):
+    """The spliced root path of :func:`posturemap.synth.splice.splice` into ``gpos`` (L, 3) and
+    ``heading`` (L,): the horizontal velocity and turning rate of ``first`` (``g1``, ``h1``) and
+    of ``second`` (``g2``, ``h2 + turn2``), blended by ``w`` (L,) and integrated from A's root
+    (``a_pos``, ``a_heading``); the height blended as it is."""
+    n_l = w.shape[0]
+    acc = np.zeros(3)
+    acc_h = 0.0
+    for t in range(n_l):
+        u = 1.0 - w[t]
+        for c in range(3):
+            p1 = a_pos[c] if t == 0 else g1[t - 1, c]
+            p2 = a_pos[c] if t == 0 else g2[t - 1, c]
+            acc[c] += u * (g1[t, c] - p1) + w[t] * (g2[t, c] - p2)
+            gpos[t, c] = a_pos[c] + acc[c]
+        gpos[t, up] = u * g1[t, up] + w[t] * g2[t, up]
+        q1 = a_heading if t == 0 else h1[t - 1]
+        q2 = a_heading if t == 0 else h2[t - 1] + turn2
+        acc_h += u * (h1[t] - q1) + w[t] * ((h2[t] + turn2) - q2)
+        heading[t] = a_heading + acc_h
+

@@ -54,23 +54,39 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     rots = splice_rotations(first.rots, second.rots, w)
     # One turn of 2 pi for the whole second segment (its headings are continuous): frame by
     # frame the two may drift more than pi apart.
-    heading2 = second.heading + 2 * np.pi * np.round((first.heading[0] - second.heading[0]) / (2 * np.pi))
-    g1 = np.concatenate([a_pos[None], first.gpos])
-    g2 = np.concatenate([a_pos[None], second.gpos])
-    h1 = np.concatenate([[a_heading], first.heading])
-    h2 = np.concatenate([[a_heading], heading2])
-    vel = (1 - w)[:, None] * np.diff(g1, axis=0) + w[:, None] * np.diff(g2, axis=0)
-    gpos = a_pos + np.cumsum(vel, axis=0)
-    gpos[:, up] = (1 - w) * first.gpos[:, up] + w * second.gpos[:, up]
-    heading = a_heading + np.cumsum((1 - w) * np.diff(h1) + w * np.diff(h2))
+    turn2 = 2 * np.pi * round(float(first.heading[0] - second.heading[0]) / (2 * np.pi))
+    gpos, heading = splice_path(first.gpos, first.heading, second.gpos, second.heading, turn2, w, a_pos,
+                                a_heading, up)
     # B where `second` put it relative to its own last frame, carried to the path's end.
-    turn = float(heading[-1] - heading2[-1])
+    turn = float(heading[-1] - (second.heading[-1] + turn2))
     b_placed = rotate_about_up(b_pos, second.dtheta, up) + second.shift
     end = gpos[-1] + rotate_about_up(b_placed - second.gpos[-1], turn, up)
     dtheta = float(second.dtheta + turn)
     shift = end - rotate_about_up(b_pos, dtheta, up)
     contacts = np.where((w < 0.5)[:, None], first.contacts, second.contacts)
     return rots, gpos, heading, dtheta, shift, contacts
+
+
+def splice_path(g1, h1, g2, h2, turn2: float, w: np.ndarray, a_pos: np.ndarray, a_heading: float, up: int):
+    """The spliced root path: positions (L, 3) and headings (L,). The horizontal velocity and
+    turning rate of the first segment (``g1`` (L, 3), ``h1`` (L,)) and of the second (``g2``,
+    ``h2 + turn2``) are blended by ``w`` (L,) and integrated from A's root (``a_pos``,
+    ``a_heading``), so the path has no kink; the height is blended as it is. Compiled where
+    numba is in use (:func:`posturemap.synth.retrieval_numba.splice_path`)."""
+    w = np.asarray(w, dtype=np.float64)
+    a_pos = np.asarray(a_pos, dtype=np.float64)
+    if _compiled() is not None:
+        gpos, heading = np.empty((len(w), 3)), np.empty(len(w))
+        _compiled().splice_path(g1, h1, g2, h2, float(turn2), w, a_pos, float(a_heading), up, gpos, heading)
+        return gpos, heading
+    h2 = h2 + turn2
+    vel = (1 - w)[:, None] * np.diff(np.concatenate([a_pos[None], g1]), axis=0) \
+        + w[:, None] * np.diff(np.concatenate([a_pos[None], g2]), axis=0)
+    gpos = a_pos + np.cumsum(vel, axis=0)
+    gpos[:, up] = (1 - w) * g1[:, up] + w * g2[:, up]
+    heading = a_heading + np.cumsum((1 - w) * np.diff(np.concatenate([[a_heading], h1]))
+                                    + w * np.diff(np.concatenate([[a_heading], h2])))
+    return gpos, heading
 
 
 def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
