@@ -425,12 +425,12 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     expected = retrieval.offset_rotations(retrieval.average_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty((length, len(joints), 4))
-    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out)
     same_rotation(out, expected, atol=1e-12)
     assert quat.angle_between(out, expected).max() < 1e-6  # float32 rounding (see _sample's test)
     # A range of frames: the numpy path (whole replay, the rest set to the identity) agrees.
     lo, hi = 2, length - 3
-    RN.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, lo, hi, out)
     same_rotation(out[lo:hi], expected[lo:hi], atol=1e-12)
     with kernels.numpy_backend():
         ref = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(lo, hi))

@@ -9,6 +9,7 @@ match at B monotonically, and the library survives the map file.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 
@@ -369,7 +370,7 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     ref = retrieval.offset_rotations(retrieval.average_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty_like(ref)
-    retrieval_numba.replay(lib.rots, i0, i1, f, joints, a2, b2, curves, 0, length, out)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out)
     assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)
     assert quat.angle_between(out, ref).max() < 1e-6
     # Only some frames (as the splice asks of each half): those rows the same, the rest identity.
@@ -381,6 +382,20 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     assert quat.angle_between(ref_part[4:11], part[4:11]).max() < 1e-6
     np.testing.assert_array_equal(ref_part[:4], part[:4])
     np.testing.assert_array_equal(ref_part[11:], part[11:])
+    # Into the whole skeleton's frames (A's and B's rows of every joint): the columns of
+    # `joints` as above, the others untouched; the numpy path the same.
+    n_j = lib.rots.shape[1]
+    a_all, b_all = (quat.normalize(rng.normal(size=(2, n_j, 4))) for _ in range(2))
+    a_all[:, joints], b_all[:, joints] = a2, b2
+    for backend in (None, "numpy"):
+        full = np.full((length, n_j, 4), 7.0)
+        with (kernels.numpy_backend() if backend else contextlib.nullcontext()):
+            got = retrieval.replay_rotations(lib, i0, i1, f, joints, a_all, b_all, curves, frames=(4, 11), out=full)
+        assert got is full
+        assert quat.angle_between(full[:, joints][4:11], part[4:11]).max() < 1e-6
+        assert np.all(full[:, joints][:4] == (1.0, 0.0, 0.0, 0.0))
+        others = np.setdiff1d(np.arange(n_j), joints)
+        assert np.all(full[:, others] == 7.0)
 
 
 def test_compiled_seam_costs_match_numpy(model, monkeypatch):

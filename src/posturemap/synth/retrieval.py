@@ -565,10 +565,12 @@ def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.nd
 
 
 def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
-                     frames: tuple[int, int] | None = None) -> np.ndarray:
+                     frames: tuple[int, int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
     """The new frames' rotations (L, M, 4) of ``joints``: the segments sampled and averaged
     (:func:`average_rotations`), the average's seams corrected (:func:`offset_rotations`).
     ``frames``: ``(lo, hi)``, only the new frames ``lo <= t < hi``; the others are the identity.
+    ``out``: the whole skeleton's frames (L, J, 4), whose columns ``joints`` are written (and
+    returned); ``a2`` and ``b2`` are then A's and B's rows of every joint (2, J, 4).
 
     Averaging first and correcting the average costs one exponential per frame and joint instead
     of one per segment. Correcting each segment, then averaging, differs from it in
@@ -579,12 +581,16 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
     """
     length = curves.shape[1]
     lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
-    if _compiled() is not None:
+    cols = np.arange(len(joints)) if out is None else joints
+    if out is None:
         out = np.empty((length, len(joints), 4))
-        _compiled().replay(lib.rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out)
+    if _compiled() is not None:
+        _compiled().replay(lib.rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out)
         return out
-    out = offset_rotations(average_rotations(sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
-    out[:lo] = out[max(hi, lo):] = (1.0, 0.0, 0.0, 0.0)
+    part = offset_rotations(average_rotations(sample_rotations(lib, i0, i1, f, joints))[None], a2[:, cols],
+                            b2[:, cols], curves)[0]
+    part[:lo] = part[max(hi, lo):] = (1.0, 0.0, 0.0, 0.0)
+    out[:, cols] = part
     return out
 
 
@@ -852,8 +858,7 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
             out[:, joints] = (1.0, 0.0, 0.0, 0.0)
             continue
         i0, i1, f = segment_times(lib, s, e, d)
-        out[:, joints] = replay_rotations(lib, i0, i1, f, joints, a_rots[:, joints], b_rots[:, joints], curves,
-                                          frames)
+        replay_rotations(lib, i0, i1, f, joints, a_rots, b_rots, curves, frames, out=out)
         if p == 0:
             gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
             # The nearest recorded frame of the first segment (its samples lie inside its clip).

@@ -68,13 +68,14 @@ def _mean_samples(rots, i0, i1, f, joints, u, ref, out):
 
 
 @nb.njit(**_OPTS)
-def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
+def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
     """Segments sampled at (i0, i1, f) (K, T), averaged, and the average seam-corrected into
-    out (L, M, 4), for the new frames ``lo <= t < hi`` (the others are left as the identity).
+    the columns ``cols`` (M,) of out (L, C, 4), for the new frames ``lo <= t < hi`` (the others
+    are set to the identity).
 
-    rots (N, J, 4) library rotations; joints (M,); a2/b2 (2, M, 4) A at a_end-1, a_end and B
-    at b_start, b_start+1; curves (4, L) offset curves, L = T - 4. One exponential per frame and
-    joint, whatever K.
+    rots (N, J, 4) library rotations, of which the joints ``joints`` (M,) are replayed; a2/b2
+    (2, C, 4) A at a_end-1, a_end and B at b_start, b_start+1, read at ``cols``; curves (4, L)
+    offset curves, L = T - 4. One exponential per frame and joint, whatever K.
     """
     n_t = i0.shape[1]
     n_l = curves.shape[1]
@@ -82,7 +83,8 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
     for t in range(n_l):
         if t < lo or t >= hi:
             for m in range(n_m):
-                out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = 1.0, 0.0, 0.0, 0.0
+                col = cols[m]
+                out[t, col, 0], out[t, col, 1], out[t, col, 2], out[t, col, 3] = 1.0, 0.0, 0.0, 0.0
     ref = np.empty((n_m, 4))
     seam = np.empty((4, n_m, 4))  # the mean at t = -1, 0, d, d + 1
     for r, u in enumerate((0, 1, n_t - 2, n_t - 1)):
@@ -91,7 +93,8 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
     off = np.empty((n_m, 4, 3))
     for m in range(n_m):
         s_m1, s_0, s_d, s_d1 = _row(seam[0, m]), _row(seam[1, m]), _row(seam[2, m]), _row(seam[3, m])
-        a_0, a_1, b_0, b_1 = _row(a2[0, m]), _row(a2[1, m]), _row(b2[0, m]), _row(b2[1, m])
+        j = cols[m]
+        a_0, a_1, b_0, b_1 = _row(a2[0, j]), _row(a2[1, j]), _row(b2[0, j]), _row(b2[1, j])
         ra = _log_rel(a_1, s_0)
         va1, va2 = _log_rel(a_1, a_0), _log_rel(s_0, s_m1)
         rb = _log_rel(b_0, s_d)
@@ -109,7 +112,8 @@ def replay(rots, i0, i1, f, joints, a2, b2, curves, lo, hi, out):
             oz = c0 * off[m, 0, 2] + c1 * off[m, 1, 2] + c2 * off[m, 2, 2] + c3 * off[m, 3, 2]
             ang = math.sqrt(ox * ox + oy * oy + oz * oz)
             h = math.sin(0.5 * ang) / ang if ang > 1e-8 else 0.5 - ang * ang / 48.0
-            out[t, m, 0], out[t, m, 1], out[t, m, 2], out[t, m, 3] = _mul(
+            col = cols[m]
+            out[t, col, 0], out[t, col, 1], out[t, col, 2], out[t, col, 3] = _mul(
                 math.cos(0.5 * ang), ox * h, oy * h, oz * h, mean[m, 0], mean[m, 1], mean[m, 2], mean[m, 3])
 
 
