@@ -112,6 +112,7 @@ class Retriever:
         self._mats = None
         self._index_w = None
         self._plan = None  # see _query_plan
+        self._dims_of = {}  # see seam_distances
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -161,12 +162,15 @@ class Retriever:
         lib, space = self.lib, self.space
         frames = [f for _, s, e in segments for f in (s, e)]
         if space.mode == "logmap" and _compiled() is not None and not space.circular.any():
-            dims = [self.part_dims[p] for p, _, _ in segments]
+            parts = tuple(p for p, _, _ in segments)
+            if parts not in self._dims_of:  # the parts' dimensions, one after another, and where each starts
+                dims = [self.part_dims[p] for p in parts]
+                self._dims_of[parts] = (np.concatenate(dims).astype(np.int64),
+                                        np.cumsum([0] + [len(d) for d in dims]).astype(np.int64))
             out = np.empty(len(segments))
             _compiled().seam_distances(lib.rots, lib.gpos, np.array(frames, dtype=np.int64), space.joints,
                                        space.reference, space.up, float(space.height_scale), xa, xb,
-                                       np.concatenate(dims).astype(np.int64),
-                                       np.cumsum([0] + [len(d) for d in dims]).astype(np.int64), out)
+                                       *self._dims_of[parts], out)
             return out.tolist()
         rots = lib.rots[frames][:, space.joints].astype(np.float64)
         if space.mode == "logmap":  # space.encode_parts, with the hot kernel for the rotations
