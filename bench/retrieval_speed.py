@@ -98,8 +98,6 @@ def compare_indexes(rt, queries, log=None) -> dict:
     """Recall@1, cost ratio and search time of each index against the exhaustive search."""
     import faiss
 
-    from posturemap.synth import retrieval
-
     faiss.omp_set_num_threads(1)
     lib = rt.lib
     mats = rt.matrices
@@ -125,7 +123,7 @@ def compare_indexes(rt, queries, log=None) -> dict:
         frames = []
         for index, seam in zip(knn[how][part], (qa, qb)):
             p, v = rt.query_vectors(part, seam)
-            _, idx = index.search(np.concatenate([p, v])[None], retrieval.PREFILTER)
+            _, idx = index.search(np.concatenate([p, v])[None], rt.keep)
             frames.append(idx[0][idx[0] >= 0].astype(np.int64))
         return rt.search(part, qa, qb, frames[0], frames[1], d, fps, alpha, None, 1)
 

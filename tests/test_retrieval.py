@@ -472,6 +472,15 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
 
 
+def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
+    from types import SimpleNamespace
+
+    keep = retrieval.Retriever.keep.fget
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=retrieval.PREFILTER_FPS))) == retrieval.PREFILTER
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=4 * retrieval.PREFILTER_FPS))) == 4 * retrieval.PREFILTER
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=0.001))) == 1
+
+
 def test_the_upper_body_fades_into_the_spline_on_short_gaps():
     from posturemap.synth.request import AUTO_SHORT_S
 

@@ -53,7 +53,8 @@ TOP_K = 8  # segments averaged per part
 BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
-PREFILTER = 96  # of those, the best matches at natural speed that become segment ends
+PREFILTER = 96  # of those, the best matches at natural speed that become segment ends, per ...
+PREFILTER_FPS = 30.0  # ... this library frame rate (see Retriever.keep)
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
 FALLBACK = "upm-valid"
 FALLBACK_SHORT = ("spline", 0.6)  # gaps shorter than this many seconds fall back to this method
@@ -368,6 +369,14 @@ class Retriever:
         scale = DISP_SCALE * lib.leg
         return ((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / scale**2 + (turn - disp[2]) ** 2 / 0.25**2
 
+    @property
+    def keep(self) -> int:
+        """How many gathered frames per seam the prefilter keeps: :data:`PREFILTER` at
+        :data:`PREFILTER_FPS`, in proportion to the library's frame rate (neighbouring frames
+        at a higher rate are near copies of each other: at 120 fps, 96 frames held a quarter
+        of the moments, and CMU's 1.5 s gaps lost 4% L2Q against 192 or 384)."""
+        return max(1, round(PREFILTER * self.lib.fps / PREFILTER_FPS))
+
     def prefilter(self, part: int, frames: np.ndarray, q: Seams, end: bool, keep: int) -> np.ndarray:
         """The ``keep`` frames of ``frames`` that best match the seam ``q`` at natural speed.
 
@@ -406,8 +415,8 @@ class Retriever:
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
         else:
-            s, e = self.candidates(self.prefilter(part, sa, qa, False, PREFILTER),
-                                   self.prefilter(part, sb, qb, True, PREFILTER), d, fps)
+            s, e = self.candidates(self.prefilter(part, sa, qa, False, self.keep),
+                                   self.prefilter(part, sb, qb, True, self.keep), d, fps)
         if len(s) == 0:
             return [None] * len(alphas)
         out = []
@@ -432,7 +441,7 @@ class Retriever:
         use_disp = disp is not None and part == 0
         s, e, total, ca, cb, count = _compiled().search(
             pm, vm, lib.clip_of, lib.clip_end, np.asarray(sa, dtype=np.int64), np.asarray(sb, dtype=np.int64),
-            *self.query_vectors(part, qa), *self.query_vectors(part, qb), ns, penalty, rates, PREFILTER,
+            *self.query_vectors(part, qa), *self.query_vectors(part, qb), ns, penalty, rates, self.keep,
             np.array(alphas, dtype=np.float64), use_disp, lib.gpos, lib.heading, lib.up,
             np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg, W_DISP, k)
         return [(s[r, :n], e[r, :n], total[r, :n], ca[r, :n], cb[r, :n]) if n else None
