@@ -80,8 +80,8 @@ from .protocol import (ASF_UNIT_CM, CMU_FILE, CMU_LENGTHS, CROSS_LENGTH, DEFAULT
                        VARIANTS, Settings, Split, load_split, make_windows, method_spec, parse_name,
                        random_pairs, split_files, unit_cm, window_starts)
 from .runner import (clips_in, code_version, default_data_dir, empty_engines, generate_from_context,
-                     make_engines, predict_windows, prepare, round_per_window, run, run_cli, run_cross, run_diagnostics,
-                     run_holdout, run_inbetween, sweep)
+                     make_engines, predict_windows, prepare, round_per_window, run, run_cli, run_cross,
+                     run_diagnostics, run_holdout, run_inbetween, sweep)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, PER_CONTENT_KEYS, Context, global_windows,
                       natural_frames, natural_reference, naturalness_fn, paired_difference, per_content,
                       rebuilt_frames, score_inbetween, score_truth, skate_scores, truth_globals, window_features)
@@ -95,8 +95,8 @@ __all__ = ["report", "KeyModel", "KeyTable", "centred", "engine_call", "fixed_ke
            "VARIANTS", "Settings", "Split", "load_split", "make_windows", "method_spec",
            "parse_name", "random_pairs", "split_files", "unit_cm", "window_starts", "code_version",
            "default_data_dir", "generate_from_context", "clips_in", "empty_engines", "round_per_window",
-           "make_engines", "predict_windows", "prepare", "run", "run_cli", "run_cross", "run_diagnostics", "run_holdout",
-           "run_inbetween", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S", "PER_CONTENT_KEYS", "Context",
+           "make_engines", "predict_windows", "prepare", "run", "run_cli", "run_cross", "run_diagnostics",
+           "run_holdout", "run_inbetween", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S", "PER_CONTENT_KEYS", "Context",
            "global_windows", "natural_frames", "natural_reference", "naturalness_fn", "paired_difference",
            "per_content", "rebuilt_frames", "score_inbetween", "score_truth", "skate_scores",
            "truth_globals", "window_features", "bench_dir", "latency", "run_bench_script", "training_speed"]

@@ -15,12 +15,13 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    ``2 (1 - alpha) cost_A + 2 alpha cost_B``: 0 picks motion that continues A, 1 motion that
    arrives in B;
 2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
-   continue A, and averages them;
+   continue A, and averages them (per joint; the trajectory after turning each);
 3. **removes the seam errors** with offsets that decay smoothly from each seam (value and
    velocity, cubic Hermite over :data:`BLEND_S` seconds, at most the gap), so rotations, root
-   height and trajectory meet A and B with continuous position and velocity; in in-betweening the root's horizontal error at B
-   is spread over the whole gap (smoothstep) so it lands exactly on B; in transitions B takes
-   the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
+   height and trajectory meet A and B with continuous position and velocity; in in-betweening
+   the root's horizontal error at B is spread over the whole gap (smoothstep) so it lands
+   exactly on B; in transitions B takes the segment's end as its place (``last["dtheta"]``,
+   ``last["shift"]``);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), fading in and out while the foot is in the air
    (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);

@@ -204,7 +204,7 @@ def _smallest(c, keep):
     to the largest kept one, the first ones.
 
     One pass with a max-heap of the ``keep`` best so far: most values cost one comparison with
-    the heap's worst (a third of a partition's time on the search's 1,500 costs).
+    the heap's worst (half a partition's time on the search's 1,500 costs).
     """
     n = c.shape[0]
     if n <= keep:
