@@ -113,7 +113,7 @@ class Retriever:
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
         self._index_w = None
-        self._plan = None  # see _query_plan
+        self._plan = None  # see _scale_plan
         self._dims_of = {}  # see seam_distances
 
     # -- seams ----------------------------------------------------------------------------
@@ -276,35 +276,33 @@ class Retriever:
     def rows(self, part: int, pose, vel, root) -> tuple[np.ndarray, np.ndarray]:
         """Frames' features (``pose``, ``vel`` (N, K, 3), ``root`` (N, 5)) as the weighted rows
         ``P`` (N, Dp) and ``V`` (N, Dv) of ``part``, float32 (see :meth:`_matrices`)."""
-        lib, kl = self.lib, self.kl
-        cols = slice(0, kl) if part == 0 else slice(kl, None)
-        sp, sv = lib.scale[2 * part], lib.scale[2 * part + 1]
-        pm = [pose[:, cols].reshape(len(pose), -1) / sp]
-        vm = [vel[:, cols].reshape(len(vel), -1) * (math.sqrt(W_VEL) / sv)]
-        if part == 0:
-            w = np.sqrt(np.array(W_ROOT)) / lib.scale[4:7]
-            pm.append(root[:, 4:5] * w[2])
-            vm += [root[:, :3] * w[0], root[:, 3:4] * w[1]]
-        return (np.ascontiguousarray(np.concatenate(pm, axis=1), dtype=np.float32),
-                np.ascontiguousarray(np.concatenate(vm, axis=1), dtype=np.float32))
+        n = len(pose)
+        return self._scaled(part, np.concatenate([pose.reshape(n, -1), vel.reshape(n, -1), root], axis=1))
 
     def query_vectors(self, part: int, q: Seams) -> tuple[np.ndarray, np.ndarray]:
-        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32 (kept on the seam):
-        the same values as :meth:`rows`, both parts from one gather of the seam's features."""
+        """The seam ``q`` as the rows of :meth:`_matrices` (p, v), float32 (kept on the seam;
+        both parts from one gather of the seam's features)."""
         if part not in q.vectors:
-            if self._plan is None:
-                self._plan = [self._query_plan(p) for p in (0, 1)]
-            flat = np.concatenate([q.pose.ravel(), q.vel.ravel(), q.root])
-            for p, (pidx, pdiv, pmul, vidx, vmul) in enumerate(self._plan):
-                q.vectors[p] = ((flat[pidx] / pdiv * pmul).astype(np.float32),
-                                (flat[vidx] * vmul).astype(np.float32))
+            flat = np.concatenate([q.pose.ravel(), q.vel.ravel(), q.root])[None]
+            for p in (0, 1):
+                pr, vr = self._scaled(p, flat)
+                q.vectors[p] = (pr[0], vr[0])
         return q.vectors[part]
 
-    def _query_plan(self, part: int):
-        """Where :meth:`query_vectors` reads each of ``part``'s columns in a seam's flat features
-        ``[pose (K*3), vel (K*3), root (5)]`` and how it scales them, as :meth:`rows` does:
-        ``p = flat[pidx] / pdiv * pmul``, ``v = flat[vidx] * vmul`` (a divisor or factor of 1
-        leaves a value's bits as they are, so the rows are the same to the bit)."""
+    def _scaled(self, part: int, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Frames' flat features ``[pose (K*3), vel (K*3), root (5)]`` (N, 6K+5) as ``part``'s
+        rows ``P``, ``V`` (float32): the part's key joints' positions divided by their spread
+        (and, for the legs, the root's height), their velocities likewise with weight ``W_VEL``
+        (and the root's velocity and turning rate), weighted by ``W_ROOT``."""
+        if self._plan is None:
+            self._plan = [self._scale_plan(p) for p in (0, 1)]
+        pidx, pdiv, pmul, vidx, vmul = self._plan[part]
+        return (np.ascontiguousarray(flat[:, pidx] / pdiv * pmul, dtype=np.float32),
+                np.ascontiguousarray(flat[:, vidx] * vmul, dtype=np.float32))
+
+    def _scale_plan(self, part: int):
+        """Where :meth:`_scaled` reads each of ``part``'s columns and how it scales them:
+        ``P = flat[:, pidx] / pdiv * pmul``, ``V = flat[:, vidx] * vmul``."""
         lib, kl, n_keys = self.lib, self.kl, len(self.keys)
         keys = range(0, kl) if part == 0 else range(kl, n_keys)
         pidx = [3 * k + c for k in keys for c in range(3)]
