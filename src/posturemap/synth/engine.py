@@ -176,9 +176,10 @@ class TransitionEngine:
         if request is not None and not isinstance(request, TransitionRequest):
             raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
                             "(give its fields as keywords: length=..., alpha=...)")
-        req = request if request is not None else TransitionRequest()
-        if fields:
-            req = req.replace(**fields)
+        if request is None:
+            req = TransitionRequest(**fields)  # what replacing the defaults' fields makes, in one step
+        else:
+            req = request.replace(**fields) if fields else request
         req = req.resolved(len(ta.gpos), len(tb.gpos))
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")

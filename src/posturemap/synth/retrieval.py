@@ -115,6 +115,7 @@ class Retriever:
         self._index_w = None
         self._plan = None  # see _scale_plan
         self._dims_of = {}  # see seam_distances
+        self._logmap = space.mode == "logmap" and not space.circular.any()  # seam_distances' compiled case
 
     # -- seams ----------------------------------------------------------------------------
     def seams(self, track, frames: list[int], which: int) -> Seams:
@@ -163,7 +164,7 @@ class Retriever:
         """:meth:`seam_distance` of several segments ``[(part, s, e), ...]``, encoded in one go."""
         lib, space = self.lib, self.space
         frames = [f for _, s, e in segments for f in (s, e)]
-        if space.mode == "logmap" and _compiled() is not None and not space.circular.any():
+        if self._logmap and _compiled() is not None:
             parts = tuple(p for p, _, _ in segments)
             if parts not in self._dims_of:  # the parts' dimensions, one after another, and where each starts
                 dims = [self.part_dims[p] for p in parts]
@@ -789,8 +790,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
     ``shared``: a dict kept by the caller between calls: for calls on the same transition
     (tracks, seams, ``length``, ``align``, ``exhaustive``, ``top_k``) the seams' features, the
-    frames gathered for them and the searches are made once; a call on another transition
-    starts afresh. With ``shared["alphas"]`` set, the first call ranks the candidates for all of
+    frames gathered for them, their :func:`still_weight` and the searches are made once; a call
+    on another transition starts afresh. With ``shared["alphas"]`` set, the first call ranks the candidates for all of
     those alphas in its one search (as :meth:`Retriever.search_alphas`), and later calls for
     those alphas search no more.
     """
@@ -807,12 +808,13 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
             shared.pop(name, None)
         shared["key"] = key
     if "seams" in shared:
-        qa, qb, gathered = shared["seams"]
+        qa, qb, gathered, still = shared["seams"]
     else:
         qa, qb = rt.seam_pair(ta, ia, tb, ib)
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
-        shared["seams"] = (qa, qb, gathered)
+        still = still_weight(qa, qb, lib.leg, rt.engine._up)
+        shared["seams"] = (qa, qb, gathered, still)
     searched = shared.setdefault("found", {})
     if float(alpha) not in searched:
         alphas = tuple(a for a in dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ())))
@@ -825,7 +827,6 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     found = searched[float(alpha)]
     if found[0] is None or found[1] is None:
         return None
-    still = still_weight(qa, qb, lib.leg, rt.engine._up)
     weight = (still, still * upper_weight(length, fps))
     if seam == "a":  # the segment's start against A's end on both sides of the measure
         dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)

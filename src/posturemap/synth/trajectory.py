@@ -51,10 +51,14 @@ def rotate_about_up(v: np.ndarray, angle, up: int) -> np.ndarray:
     """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis; an
     array of angles broadcasts over the leading axes."""
     a, b = (up + 1) % 3, (up + 2) % 3
-    c, s = np.cos(angle), np.sin(angle)
+    if isinstance(angle, float):  # a Python or numpy float64: math's cos is numpy's, without the ufunc call
+        c, s = math.cos(angle), math.sin(angle)
+    else:
+        c, s = np.cos(angle), np.sin(angle)
     out = np.array(v, dtype=float)
-    out[..., a] = c * v[..., a] - s * v[..., b]
-    out[..., b] = s * v[..., a] + c * v[..., b]
+    va, vb = v[..., a], v[..., b]
+    out[..., a] = c * va - s * vb
+    out[..., b] = s * va + c * vb
     return out
 
 
