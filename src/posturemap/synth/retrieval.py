@@ -149,7 +149,13 @@ class Retriever:
             pose, vel, root = np.empty((2, k, 3)), np.empty((2, k, 3)), np.empty((2, 5))
             _compiled().seam_features(gp, root_pos, heading, self.keys, eng._up, float(ta.motion.fps), pose, vel,
                                       root)
-            return Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
+            qa, qb = Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
+            # Both seams' rows of both parts (query_vectors) in one go: row by row the same values.
+            flat = np.concatenate([pose.reshape(2, -1), vel.reshape(2, -1), root], axis=1)
+            for p in (0, 1):
+                pr, vr = self._scaled(p, flat)
+                qa.vectors[p], qb.vectors[p] = (pr[0], vr[0]), (pr[1], vr[1])
+            return qa, qb
         pose = heading_frame(gp[:, self.keys] - root_pos[:, None], heading, eng._up)
         vel, root = motion_features(pose, root_pos, heading, eng._up, ta.motion.fps, np.array([0, 2, 4]))
         return Seams(pose[1], vel[1], root[1]), Seams(pose[2], vel[2], root[2])
