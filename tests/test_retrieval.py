@@ -721,6 +721,41 @@ def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
         assert np.ptp(ref[0][:, 0]) > 1.0  # the root moves (not a trivial comparison)
 
 
+def test_compiled_replay_of_a_match_equals_the_numpy_steps(engine, monkeypatch):
+    # replay() runs each body part in one compiled call (segment times, replay, root path and
+    # contacts); the numpy steps are the reference: the same rotations, path, turn, shift and
+    # planted feet, for whole replays, some frames only, and a part left out.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(15)
+    planted = moving = 0
+    for i in range(10):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        a_end, b_start = int(rng.integers(1, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 1))
+        length = int(rng.integers(5, 46))
+        m = retrieval.match(rt, ta, tb, a_end, b_start, length, float(rng.random()), bool(i % 2))
+        frames = None if i % 3 == 0 else (int(rng.integers(0, length)), int(rng.integers(length // 2, length + 3)))
+        if i % 4 == 3:  # the upper body unconfident: not replayed
+            m.confidence = [1.0, 0.0]
+        elif i == 5:  # the legs unconfident
+            m.confidence = [0.0, 1.0]
+        got = retrieval.replay(rt, m, skip_unconfident=True, frames=frames)
+        with monkeypatch.context() as mp:
+            mp.setattr(retrieval, "_compiled", lambda: None)
+            ref = retrieval.replay(rt, m, skip_unconfident=True, frames=frames)
+        assert quat.angle_between(got.rots, ref.rots).max() < 1e-6
+        if ref.gpos is None:  # the legs unconfident: no root either way
+            assert got.gpos is None and got.contacts is None
+            continue
+        np.testing.assert_allclose(got.gpos, ref.gpos, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.heading, ref.heading, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got.shift, ref.shift, rtol=0, atol=1e-9)
+        assert abs(got.dtheta - ref.dtheta) < 1e-12
+        np.testing.assert_array_equal(got.contacts, ref.contacts)
+        planted += int(ref.contacts.any())
+        moving += int(np.ptp(ref.gpos[:, 0]) > 5.0)
+    assert planted >= 5 and moving >= 5  # feet planted, roots moving: not a trivial comparison
+
+
 def test_compiled_segment_times_match_the_numpy_steps(model, monkeypatch):
     lib = model.library_
     rng = np.random.default_rng(14)

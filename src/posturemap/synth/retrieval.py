@@ -555,7 +555,7 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     of each sample and the fraction between them; times before the clip's start or after its
     end hold its first/last frame.
     """
-    t = np.arange(-1, d + 2, dtype=float)
+    t = _sample_times(d)
     if _compiled() is not None:
         i0, i1, f = np.empty((len(s), len(t)), dtype=np.int64), np.empty((len(s), len(t)), dtype=np.int64), \
             np.empty((len(s), len(t)))
@@ -567,6 +567,14 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     u = np.clip(u, lo, hi)
     i0 = np.floor(u).astype(np.int64)
     return i0, np.minimum(i0 + 1, hi), u - i0
+
+
+@lru_cache(maxsize=64)
+def _sample_times(d: float) -> np.ndarray:
+    """The output times ``-1 .. d + 1`` of :func:`segment_times`, kept per ``d`` and read-only."""
+    t = np.arange(-1, d + 2, dtype=float)
+    t.setflags(write=False)
+    return t
 
 
 def sample_trajectory(lib: MotionLibrary, i0, i1, f) -> tuple[np.ndarray, np.ndarray]:
@@ -860,7 +868,8 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     """The frames of a :class:`Match`: each part's best segments replayed, seam-corrected and
     averaged, the lower body's root trajectory and planted feet (see :func:`retrieve`).
     ``frames``: ``(lo, hi)``, the rotations of the new frames ``lo <= t < hi`` only (the others
-    are the identity; the trajectory and contacts are whole)."""
+    are the identity; the trajectory and contacts are whole). Where numba is in use, each body
+    part is one compiled call (:func:`_replay_part`)."""
     lib, eng = rt.lib, rt.engine
     up = eng._up
     ta, tb, ia, ib, length = m.ta, m.tb, m.ia, m.ib, m.length
@@ -869,12 +878,19 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
     out = np.empty((length, eng.skeleton.num_joints, 4))
     out[:, rt.open_joints] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
-    a_rots, b_rots = ta.rots[ia], tb.rots[ib]
+    jit = _compiled()
+    if jit is None:
+        a_rots, b_rots = ta.rots[ia], tb.rots[ib]
     gpos = heading = dtheta = shift = contacts = None
     for p, (s, e, _, _, _) in enumerate(m.found):
         joints = rt.part_joints[p]
         if skip_unconfident and m.confidence[p] <= 0.0:
             out[:, joints] = (1.0, 0.0, 0.0, 0.0)
+            continue
+        if jit is not None:  # the steps below in one call
+            root = _replay_part(jit, m, p, s, e, joints, curves, frames, out, up)
+            if root is not None:
+                gpos, heading, dtheta, shift, contacts = root
             continue
         i0, i1, f = segment_times(lib, s, e, d)
         replay_rotations(lib, i0, i1, f, joints, a_rots, b_rots, curves, frames, out=out)
@@ -883,6 +899,28 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
             # The nearest recorded frame of the first segment (its samples lie inside its clip).
             contacts = lib.contacts[np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64)]
     return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence)
+
+
+def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: int):
+    """Part ``p`` of :func:`replay` in one compiled call (:func:`posturemap.synth.retrieval_numba.replay_part`:
+    segment times, replay into ``out``, and for the lower body the root path and contacts); for
+    the lower body ``(gpos, heading, dtheta, shift, contacts)``, else None."""
+    lib, ta, tb, length = m.lib, m.ta, m.tb, m.length
+    d = length + 1.0
+    lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
+    n_legs, kind = lib.contacts.shape[1], lib.contacts.dtype
+    if p == 0:
+        root = (np.empty((length, 3)), np.empty(length), np.empty(3), np.empty((length, n_legs), dtype=kind))
+    else:  # no root: nothing is written into these
+        root = (np.empty((0, 3)), np.empty(0), np.empty(3), np.empty((0, n_legs), dtype=kind))
+    dtheta = jit.replay_part(lib.rots, lib.clip_start, lib.clip_of, lib.clip_end, s, e, d, _sample_times(d), joints,
+                             joints, ta.rots, tb.rots, np.array(m.ia), np.array(m.ib), curves, lo, hi, out, p == 0,
+                             lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading, tb.gpos, tb.heading, m.align,
+                             up, _smoothstep_cached(length), *root)
+    if p != 0:
+        return None
+    gpos, heading, shift, contacts = root
+    return gpos, heading, float(dtheta), shift, contacts
 
 
 def retrieve(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,

@@ -618,6 +618,42 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 
 
 @nb.njit(**_OPTS)
+def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a_rots, b_rots, ia, ib, curves, lo,
+                hi, out, root, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, align, up,
+                smooth, gpos, heading, shift, contacts):
+    """One body part of :func:`posturemap.synth.retrieval.replay` in one call: the segments
+    ``[s, e]`` (K,) sampled at the times ``t`` (:func:`segment_times`), averaged and
+    seam-corrected into the columns ``cols`` of ``out`` (:func:`replay`; A's rows ``ia`` (2,)
+    of ``a_rots``, B's rows ``ib`` of ``b_rots``); with ``root``, also the root trajectory
+    (:func:`trajectory`, from the tracks' ``a_gpos``/``a_heading`` and ``b_gpos``/``b_heading``
+    at the same rows, into ``gpos``, ``heading``, ``shift``; returns B's turn) and the planted
+    feet of the first segment's nearest recorded frames (into ``contacts`` (L, legs)).
+    Returns 0.0 without ``root``."""
+    n_k, n_t = s.shape[0], t.shape[0]
+    i0, i1, f = np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t))
+    segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f)
+    n_c = a_rots.shape[1]
+    a2, b2 = np.empty((2, n_c, 4)), np.empty((2, n_c, 4))
+    for r in range(2):
+        a2[r] = a_rots[ia[r]]
+        b2[r] = b_rots[ib[r]]
+    replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out)
+    if not root:
+        return 0.0
+    a_pos, a_head, b_pos, b_head = np.empty((2, 3)), np.empty(2), np.empty((2, 3)), np.empty(2)
+    for r in range(2):
+        a_pos[r] = a_gpos[ia[r]]
+        b_pos[r] = b_gpos[ib[r]]
+        a_head[r] = a_heading[ia[r]]
+        b_head[r] = b_heading[ib[r]]
+    dtheta = trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos, b_head, align, up, curves, smooth,
+                        gpos, heading, shift)
+    for u in range(contacts.shape[0]):
+        contacts[u] = lib_contacts[np.int64(np.rint(i0[0, u + 2] + f[0, u + 2]))]
+    return dtheta
+
+
+@nb.njit(**_OPTS)
 def splice_rotations(a, b, w, out):
     """:func:`posturemap.synth.splice.splice_rotations` in one call: per frame ``t`` of a (L, J, 4)
     and b, ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` between, ``b[t]`` where
