@@ -156,7 +156,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
         planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
-        jit.lock_legs(sk.parents.astype(np.int64, copy=False), legs, rots, grot, gpos, up,
+        jit.lock_legs(sk.parents, legs, rots, grot, gpos, up,
                       np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
                       speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, round(STEP_S * fps),
                       STEP_LIFT * body, weights)

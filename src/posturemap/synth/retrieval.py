@@ -240,13 +240,13 @@ class Retriever:
         if _compiled() is None:
             return [(self.gather(xa, p), self.gather(xb, p)) for p in (0, 1)]
         cmap, lib = self.cmap, self.lib
-        dims = self.space.class_dims[INDEX_CLASS]
-        c0, c1 = self.index_cols
-        if self._index_w is None or self._index_w[0] is not cmap.weights_:  # the map's columns of each part
-            self._index_w = (cmap.weights_, np.ascontiguousarray(cmap.weights_[:, c0]),
-                             np.ascontiguousarray(cmap.weights_[:, c1]))
-        a0, b0, a1, b1 = _compiled().gather_seams(self._index_w[1], self._index_w[2], xa[dims[c0]], xa[dims[c1]],
-                                                  xb[dims[c0]], xb[dims[c1]], cmap.period_[c0], cmap.period_[c1],
+        if self._index_w is None or self._index_w[0] is not cmap.weights_:
+            # Per part: the map's columns, their features' dimensions and periods.
+            dims = self.space.class_dims[INDEX_CLASS]
+            self._index_w = (cmap.weights_,) + tuple((np.ascontiguousarray(cmap.weights_[:, c]), dims[c],
+                                                      cmap.period_[c]) for c in self.index_cols)
+        (w0, d0, period0), (w1, d1, period1) = self._index_w[1:]
+        a0, b0, a1, b1 = _compiled().gather_seams(w0, w1, xa[d0], xa[d1], xb[d0], xb[d1], period0, period1,
                                                   lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
         return [(a0, b0), (a1, b1)]
 
