@@ -573,6 +573,16 @@ def test_compiled_selection_of_the_smallest():
         for keep in (1, 17, 64, 199):
             want = np.sort(np.argsort(c, kind="stable")[:keep])
             np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, keep)), want)
+    # The search's sizes, with heavy tails, all values equal, ranges too narrow for the buckets
+    # (a few ulps, denormal) and a single outlier: always the stable sort's first ones.
+    heavy = rng.exponential(size=1576) ** 6
+    narrow = 1.0 + rng.integers(0, 5, 1281) * np.finfo(float).eps
+    tiny = rng.integers(0, 9, 1576) * 5e-324
+    outlier = np.concatenate([rng.random(1300), [1e300]])
+    for c in (rng.random(1281), rng.chisquare(3, 1576), heavy, np.zeros(1576), narrow, tiny, outlier):
+        for keep in (1, 64, 96, 700):
+            want = np.sort(np.argsort(c, kind="stable")[:keep])
+            np.testing.assert_array_equal(np.sort(retrieval_numba._smallest(c, keep)), want)
 
 
 def test_compiled_ranking_keeps_the_best_distinct_segments():

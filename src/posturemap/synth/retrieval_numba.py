@@ -177,46 +177,71 @@ def _vel_costs(vm, g_rows, v, rates, init, out):
 
 
 @nb.njit(**_OPTS)
-def _after(c, a, b):
-    """Whether ``(c[a], a)`` comes after ``(c[b], b)``: by value, equal values by index."""
-    return c[a] > c[b] or (c[a] == c[b] and a > b)
-
-
-@nb.njit(**_OPTS)
-def _sift_down(heap, c, pos, size):
-    """Restore the max-heap (by :func:`_after`) of indices ``heap[:size]`` below ``pos``."""
-    while True:
-        child = 2 * pos + 1
-        if child >= size:
-            return
-        if child + 1 < size and _after(c, heap[child + 1], heap[child]):
-            child += 1
-        if not _after(c, heap[child], heap[pos]):
-            return
-        heap[pos], heap[child] = heap[child], heap[pos]
-        pos = child
+def _first_smallest(c, work, n_w, need, out, n_out):
+    """The ``need`` smallest of ``c[work[:n_w]]`` by (value, index), appended to ``out`` from
+    ``n_out`` (a selection: for the few values the buckets leave)."""
+    for r in range(need):
+        best = r
+        for i in range(r + 1, n_w):
+            if c[work[i]] < c[work[best]] or (c[work[i]] == c[work[best]] and work[i] < work[best]):
+                best = i
+        work[r], work[best] = work[best], work[r]
+        out[n_out + r] = work[r]
 
 
 @nb.njit(**_OPTS)
 def _smallest(c, keep):
     """Indices (keep,) of the ``keep`` smallest values of ``c`` (all of them if fewer), in no
     particular order: ``np.argpartition``'s set where the values are distinct; of values equal
-    to the largest kept one, the first ones.
+    to the largest kept one, the first ones (the smallest by value, then index).
 
-    One pass with a max-heap of the ``keep`` best so far: most values cost one comparison with
-    the heap's worst (half a partition's time on the search's 1,500 costs).
+    Bucket selection: the values spread over 64 buckets between their min and max; the buckets
+    below the one holding the ``keep``-th value are kept whole, that one is split again, and
+    the last few are picked one by one. Two passes over the search's 1,300-1,600 costs, about
+    half a heap's time and a third of ``np.partition``'s.
     """
     n = c.shape[0]
     if n <= keep:
         return np.arange(n)
-    heap = np.arange(keep)
-    for pos in range(keep // 2 - 1, -1, -1):
-        _sift_down(heap, c, pos, keep)
-    for i in range(keep, n):
-        if c[i] < c[heap[0]]:  # an equal value comes later: it loses the tie
-            heap[0] = i
-            _sift_down(heap, c, 0, keep)
-    return heap
+    n_b = 64
+    out = np.empty(keep, dtype=np.int64)
+    work = np.arange(n)
+    count = np.empty(n_b, dtype=np.int64)
+    n_out, n_w, need = 0, n, keep
+    while n_w > 16:
+        lo, hi = c[work[0]], c[work[0]]
+        for i in range(1, n_w):
+            lo, hi = min(lo, c[work[i]]), max(hi, c[work[i]])
+        if not hi > lo:  # all equal: the first ones (work stays in index order)
+            out[n_out:] = work[:need]
+            return out
+        scale = n_b / (hi - lo)
+        count[:] = 0
+        for i in range(n_w):
+            x = (c[work[i]] - lo) * scale  # monotone in the value: equal values share a bucket
+            count[np.int64(x) if x < n_b else n_b - 1] += 1
+        cut, below = 0, 0
+        while below + count[cut] < need:
+            below += count[cut]
+            cut += 1
+        m = 0
+        for i in range(n_w):
+            x = (c[work[i]] - lo) * scale
+            b = np.int64(x) if x < n_b else n_b - 1
+            if b < cut:
+                out[n_out] = work[i]
+                n_out += 1
+            elif b == cut:
+                work[m] = work[i]
+                m += 1
+        if m == n_w:  # no progress (a range too narrow to split): pick one by one
+            break
+        n_w, need = m, need - below
+        if need == n_w:
+            out[n_out:] = work[:n_w]
+            return out
+    _first_smallest(c, work, n_w, need, out, n_out)
+    return out
 
 
 @nb.njit(**_OPTS)
