@@ -134,28 +134,30 @@ class Retriever:
 
     def seam_pair(self, ta, ia: list[int], tb, ib: list[int]) -> tuple[Seams, Seams]:
         """A's end seam (``seams(ta, ia, 1)``) and B's start seam (``seams(tb, ib, 0)``) in one go:
-        one forward kinematics and one feature pass over the four frames (the same values)."""
+        one forward kinematics and one feature pass over the four frames (the same values); where
+        numba is in use, one compiled call that also makes both seams' :meth:`query_vectors`."""
         if ta.motion.fps != tb.motion.fps:
             return self.seams(ta, ia, 1), self.seams(tb, ib, 0)
         eng = self.engine
+        if _compiled() is not None:  # the steps below and both seams' rows of both parts, in one call
+            k = len(self.keys)
+            pose, vel, root = np.empty((2, k, 3)), np.empty((2, k, 3)), np.empty((2, 5))
+            rows = [(np.empty((2, len(plan[0])), np.float32), np.empty((2, len(plan[3])), np.float32))
+                    for plan in self._scale_plans()]
+            _compiled().seam_rows(eng.skeleton.parents, ta.motion.rotations, ta.motion.positions, tb.motion.rotations,
+                                  tb.motion.positions, np.array(ia), np.array(ib), ta.gpos, ta.heading, tb.gpos,
+                                  tb.heading, self.keys, eng._up, float(ta.motion.fps), *self._plan[0], *self._plan[1],
+                                  pose, vel, root, *rows[0], *rows[1])
+            qa, qb = Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
+            for p, (pr, vr) in enumerate(rows):
+                qa.vectors[p], qb.vectors[p] = (pr[0], vr[0]), (pr[1], vr[1])
+            return qa, qb
         rots = np.concatenate([ta.motion.rotations[ia], tb.motion.rotations[ib]])
         pos = np.concatenate([ta.motion.positions[ia], tb.motion.positions[ib]])
         grot, gp = np.empty(rots.shape), np.empty(pos.shape)
         kernels.fk(eng.skeleton.parents, rots, pos, grot, gp)
         root_pos = np.concatenate([ta.gpos[ia], tb.gpos[ib]])
         heading = np.concatenate([ta.heading[ia], tb.heading[ib]])
-        if _compiled() is not None:
-            k = len(self.keys)
-            pose, vel, root = np.empty((2, k, 3)), np.empty((2, k, 3)), np.empty((2, 5))
-            _compiled().seam_features(gp, root_pos, heading, self.keys, eng._up, float(ta.motion.fps), pose, vel,
-                                      root)
-            qa, qb = Seams(pose[0], vel[0], root[0]), Seams(pose[1], vel[1], root[1])
-            # Both seams' rows of both parts (query_vectors) in one go: row by row the same values.
-            flat = np.concatenate([pose.reshape(2, -1), vel.reshape(2, -1), root], axis=1)
-            for p in (0, 1):
-                pr, vr = self._scaled(p, flat)
-                qa.vectors[p], qb.vectors[p] = (pr[0], vr[0]), (pr[1], vr[1])
-            return qa, qb
         pose = heading_frame(gp[:, self.keys] - root_pos[:, None], heading, eng._up)
         vel, root = motion_features(pose, root_pos, heading, eng._up, ta.motion.fps, np.array([0, 2, 4]))
         return Seams(pose[1], vel[1], root[1]), Seams(pose[2], vel[2], root[2])
@@ -301,11 +303,15 @@ class Retriever:
         rows ``P``, ``V`` (float32): the part's key joints' positions divided by their spread
         (and, for the legs, the root's height), their velocities likewise with weight ``W_VEL``
         (and the root's velocity and turning rate), weighted by ``W_ROOT``."""
-        if self._plan is None:
-            self._plan = [self._scale_plan(p) for p in (0, 1)]
-        pidx, pdiv, pmul, vidx, vmul = self._plan[part]
+        pidx, pdiv, pmul, vidx, vmul = self._scale_plans()[part]
         return (np.ascontiguousarray(flat[:, pidx] / pdiv * pmul, dtype=np.float32),
                 np.ascontiguousarray(flat[:, vidx] * vmul, dtype=np.float32))
+
+    def _scale_plans(self) -> list:
+        """:meth:`_scale_plan` of both parts, made on first use."""
+        if self._plan is None:
+            self._plan = [self._scale_plan(p) for p in (0, 1)]
+        return self._plan
 
     def _scale_plan(self, part: int):
         """Where :meth:`_scaled` reads each of ``part``'s columns and how it scales them:

@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..core.numba_kernels import _FAST, _mul, slerp
+from ..core.numba_kernels import _FAST, _mul, fk, slerp
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -509,6 +509,46 @@ def seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root):
         root[row, up] = (root_pos[f, up] - root_pos[prev, up]) * rate
         root[row, 3] = (heading[f] - heading[prev]) * (1.0 if row == 0 else -1.0) * fps
         root[row, 4] = root_pos[f, up]
+
+
+@nb.njit(**_OPTS)
+def _scale_rows(flat, pidx, pdiv, pmul, vidx, vmul, p_out, v_out):
+    """:meth:`posturemap.synth.retrieval.Retriever._scaled` of the rows of ``flat`` into ``p_out``, ``v_out`` (float32)."""
+    for r in range(flat.shape[0]):
+        for j in range(pidx.shape[0]):
+            p_out[r, j] = np.float32(flat[r, pidx[j]] / pdiv[j] * pmul[j])
+        for j in range(vidx.shape[0]):
+            v_out[r, j] = np.float32(flat[r, vidx[j]] * vmul[j])
+
+
+@nb.njit(**_OPTS)
+def seam_rows(parents, a_rots, a_pos, b_rots, b_pos, ia, ib, a_gpos, a_heading, b_gpos, b_heading, keys, up, fps,
+              pidx0, pdiv0, pmul0, vidx0, vmul0, pidx1, pdiv1, pmul1, vidx1, vmul1, pose, vel, root, p0, v0, p1, v1):
+    """:meth:`posturemap.synth.retrieval.Retriever.seam_pair` in one call: the frames ``ia`` (2,) of
+    A and ``ib`` of B through forward kinematics and :func:`seam_features` into ``pose``, ``vel``
+    (2, K, 3) and ``root`` (2, 5), and both seams' rows of both parts (``_scaled`` with each
+    part's plan) into ``p0``, ``v0`` and ``p1``, ``v1`` (2, D), row 0 A's end, row 1 B's start."""
+    n_j = parents.shape[0]
+    rots, pos = np.empty((4, n_j, 4)), np.empty((4, n_j, 3))
+    root_pos, heading = np.empty((4, 3)), np.empty(4)
+    for r in range(2):
+        rots[r], pos[r], root_pos[r], heading[r] = a_rots[ia[r]], a_pos[ia[r]], a_gpos[ia[r]], a_heading[ia[r]]
+        rots[r + 2], pos[r + 2] = b_rots[ib[r]], b_pos[ib[r]]
+        root_pos[r + 2], heading[r + 2] = b_gpos[ib[r]], b_heading[ib[r]]
+    grot, gp = np.empty((4, n_j, 4)), np.empty((4, n_j, 3))
+    fk(parents, rots, pos, grot, gp)
+    seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root)
+    n_k = keys.shape[0]
+    flat = np.empty((2, 6 * n_k + 5))
+    for r in range(2):
+        for k in range(n_k):
+            for x in range(3):
+                flat[r, 3 * k + x] = pose[r, k, x]
+                flat[r, 3 * (n_k + k) + x] = vel[r, k, x]
+        for x in range(5):
+            flat[r, 6 * n_k + x] = root[r, x]
+    _scale_rows(flat, pidx0, pdiv0, pmul0, vidx0, vmul0, p0, v0)
+    _scale_rows(flat, pidx1, pdiv1, pmul1, vidx1, vmul1, p1, v1)
 
 
 @nb.njit(**_OPTS)
