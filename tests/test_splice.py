@@ -113,6 +113,35 @@ def test_compiled_splice_rotations_match_the_numpy_reference(alpha):
         assert np.all(np.sum(got[tail] * got[tail - 1], axis=-1) > 0.0)
 
 
+def test_compiled_splice_matches_the_numpy_steps():
+    # splice() runs one compiled call (rotations, path, B's place, contacts); the numpy steps are
+    # the reference, also where the second half's headings lie whole turns from the first's.
+    from posturemap.core import kernels
+    from posturemap.synth import retrieval
+
+    assert retrieval._compiled() is not None
+    rng = np.random.default_rng(23)
+    length, joints = 21, 5
+    for i, (alpha, up, turns) in enumerate(((0.0, 1, 0), (0.5, 2, 1), (1.0, 1, -2), (0.3, 1, 0.5))):
+        halves = []
+        for h in range(2):
+            halves.append(SimpleNamespace(
+                rots=quat.exp(np.cumsum(rng.normal(scale=0.2, size=(length, joints, 3)), axis=0)),
+                gpos=np.cumsum(rng.normal(size=(length, 3)), axis=0),
+                heading=np.cumsum(rng.normal(scale=0.1, size=length)) + 2 * np.pi * turns * h,
+                dtheta=float(rng.normal()), shift=rng.normal(size=3), contacts=rng.random((length, 2)) < 0.5))
+        w = splice_weights(length, alpha)
+        args = (halves[0], halves[1], w, rng.normal(size=3), float(rng.normal()), rng.normal(size=3), up)
+        got = splice(*args)
+        with kernels.numpy_backend():
+            ref = splice(*args)
+        np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-12)  # rotations
+        for x, y in zip(got[1:5], ref[1:5]):  # path, headings, B's turn and shift
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(got[5], ref[5])  # planted feet of the dominant half
+        assert np.any(got[5] != halves[0].contacts) and np.any(got[5] != halves[1].contacts)
+
+
 def test_compiled_splice_path_matches_the_numpy_reference():
     from posturemap.core import kernels
     from posturemap.synth import retrieval

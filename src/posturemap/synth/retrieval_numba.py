@@ -761,3 +761,35 @@ def splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up, gpos, heading):
         acc_h += u * (h1[t] - q1) + w[t] * ((h2[t] + turn2) - q2)
         heading[t] = a_heading + acc_h
 
+
+@nb.njit(**_OPTS)
+def _turned(v, c, s, up):
+    """:func:`posturemap.synth.trajectory.rotate_about_up` of one vector (3,) by the turn of cosine
+    ``c`` and sine ``s``."""
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    out = v.copy()
+    out[a_] = c * v[a_] - s * v[b_]
+    out[b_] = s * v[a_] + c * v[b_]
+    return out
+
+
+@nb.njit(**_OPTS)
+def splice(a_rots, b_rots, w, g1, h1, g2, h2, a_pos, a_heading, b_pos, b_dtheta, b_shift, c1, c2, up, rots, gpos,
+           heading, shift, contacts):
+    """:func:`posturemap.synth.splice.splice` in one call: the rotations (:func:`splice_rotations`)
+    and root path (:func:`splice_path`) of ``first`` (``a_rots``, ``g1``, ``h1``, contacts ``c1``)
+    blended into ``second`` (``b_rots``, ``g2``, ``h2``, ``c2``; it placed B by ``b_dtheta``,
+    ``b_shift``) by ``w``; B (``b_pos``, as it lies in its clip) carried to the path's end.
+    Writes ``rots``, ``gpos``, ``heading``, ``shift`` and ``contacts``; returns B's turn."""
+    splice_rotations(a_rots, b_rots, w, rots)
+    turn2 = 2 * math.pi * np.rint((h1[0] - h2[0]) / (2 * math.pi))
+    splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up, gpos, heading)
+    n_l = w.shape[0]
+    turn = heading[n_l - 1] - (h2[n_l - 1] + turn2)
+    b_placed = _turned(b_pos, math.cos(b_dtheta), math.sin(b_dtheta), up) + b_shift
+    end = gpos[n_l - 1] + _turned(b_placed - g2[n_l - 1], math.cos(turn), math.sin(turn), up)
+    dtheta = b_dtheta + turn
+    shift[:] = end - _turned(b_pos, math.cos(dtheta), math.sin(dtheta), up)
+    for t in range(n_l):
+        contacts[t] = c1[t] if w[t] < 0.5 else c2[t]
+    return dtheta

@@ -49,8 +49,19 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
     ``w`` (L,) the weight of ``second`` per new frame (:func:`splice_weights`); ``a_pos`` (3,)
     and ``a_heading`` A's root at its last frame; ``b_pos`` (3,) B's root at its first frame
     as it lies in its clip. Returns ``(rots, gpos, heading, dtheta, shift, contacts)`` in the
-    form of a :class:`~posturemap.synth.retrieval.Result`'s fields.
+    form of a :class:`~posturemap.synth.retrieval.Result`'s fields. Where numba is in use, one
+    compiled call (:func:`posturemap.synth.retrieval_numba.splice`).
     """
+    w = np.asarray(w, dtype=np.float64)
+    jit = _compiled()
+    if jit is not None:  # the steps below in one call
+        rots, gpos, heading = np.empty(first.rots.shape), np.empty((len(w), 3)), np.empty(len(w))
+        shift, contacts = np.empty(3), np.empty(first.contacts.shape, dtype=first.contacts.dtype)
+        dtheta = jit.splice(first.rots, second.rots, w, first.gpos, first.heading, second.gpos, second.heading,
+                            np.asarray(a_pos, dtype=np.float64), float(a_heading), np.asarray(b_pos, dtype=np.float64),
+                            float(second.dtheta), np.asarray(second.shift, dtype=np.float64), first.contacts,
+                            second.contacts, up, rots, gpos, heading, shift, contacts)
+        return rots, gpos, heading, float(dtheta), shift, contacts
     rots = splice_rotations(first.rots, second.rots, w)
     # One turn of 2 pi for the whole second segment (its headings are continuous): frame by
     # frame the two may drift more than pi apart.
