@@ -57,9 +57,11 @@ from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
 from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                     linear_basis)
+from . import retrieval
 from .feet import lock_feet
 from .keys import VELOCITY_HORIZON_S, MapKeys
 from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest
+from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
 
 
@@ -338,6 +340,13 @@ def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     the joints above the root (L, J, 4; only those set) and the local translations (L, J, 3)."""
     basis = linear_basis(length)
     chain = eng._chain
+    jit = retrieval._compiled()
+    if jit is not None:  # the steps below in one call (the matrix products as sums: within 1e-15)
+        rots = np.empty((length, eng.skeleton.num_joints, 4)) if len(chain) else np.empty((0, 0, 4))
+        pos = np.empty((length, eng.skeleton.num_joints, 3))
+        jit.open_columns(chain, ta.rots, tb.rots, a_end, b_start, ta.motion.positions, tb.motion.positions, basis,
+                         rots, pos)
+        return (rots if len(chain) else None), pos
     rots = None
     if len(chain):
         ref = tb.rots[b_start, chain]
@@ -353,8 +362,6 @@ def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
 
 def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):
     """``method="retrieval"`` (:mod:`posturemap.synth.retrieval`), with its fallback blended by confidence."""
-    from . import retrieval
-
     length, a_end, b_start, align = req.length, req.a_end, req.b_start, req.align
     lib = getattr(eng.model, "library_", None)
     res = None
@@ -370,8 +377,6 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         shared = {"alphas": (0.0, 1.0)} if align else {}
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
         if align and found is not None and found.confidence[0] < 1.0:
-            from .splice import spliced
-
             res = spliced(rt, ta, tb, a_end, b_start, length, req.alpha, shared, beat=found.confidence[0])
         if res is None and found is not None:
             res = retrieval.replay(rt, found, skip_unconfident=True)

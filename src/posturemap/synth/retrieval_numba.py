@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..core.numba_kernels import _FAST, _mul, fk, slerp
+from ..core.numba_kernels import _FAST, _mul, exp_relative, fk, log_relative, slerp
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -793,3 +793,34 @@ def splice(a_rots, b_rots, w, g1, h1, g2, h2, a_pos, a_heading, b_pos, b_dtheta,
     for t in range(n_l):
         contacts[t] = c1[t] if w[t] < 0.5 else c2[t]
     return dtheta
+
+
+@nb.njit(**_OPTS)
+def open_columns(chain, a_rots, b_rots, a_end, b_start, a_positions, b_positions, basis, rots, pos):
+    """What a fully retrieved transition leaves open, as the slerp method makes it
+    (:func:`posturemap.synth.engine._open_columns`): the rotations of the joints ``chain`` above the
+    root into their columns of ``rots`` (L, J, 4), SLERPed from A's frame ``a_end`` to B's
+    ``b_start`` by the linear ``basis`` (L, 2), and every joint's local translation into
+    ``pos`` (L, J, 3), LERPed alike (``basis[t, 0] a + basis[t, 1] b``)."""
+    n_l, n_c = basis.shape[0], chain.shape[0]
+    if n_c:
+        q, ref = np.empty((2, n_c, 4)), np.empty((n_c, 4))
+        for m in range(n_c):
+            q[0, m], ref[m] = a_rots[a_end, chain[m]], b_rots[b_start, chain[m]]
+            q[1, m] = ref[m]
+        seam = np.empty((2, n_c, 3))
+        log_relative(q, ref, seam)
+        lin = np.empty((n_l, n_c, 3))
+        for t in range(n_l):
+            for m in range(n_c):
+                for c in range(3):
+                    lin[t, m, c] = basis[t, 0] * seam[0, m, c] + basis[t, 1] * seam[1, m, c]
+        part = np.empty((n_l, n_c, 4))
+        exp_relative(lin, ref, part)
+        for t in range(n_l):
+            for m in range(n_c):
+                rots[t, chain[m]] = part[t, m]
+    for t in range(n_l):
+        for j in range(pos.shape[1]):
+            for c in range(3):
+                pos[t, j, c] = basis[t, 0] * a_positions[a_end, j, c] + basis[t, 1] * b_positions[b_start, j, c]
