@@ -138,8 +138,8 @@ class TransitionEngine:
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
-        if self._retriever is not None:  # and its matrices of the library's rows (read only)
-            for name in ("_mats", "_index_w"):
+        if self._retriever is not None:  # and its rows of the library's frames (read only)
+            for name in ("_mats", "_lists", "_index_w"):
                 value = getattr(self._retriever, name, None)
                 if value is not None:
                     shared[id(value)] = value

@@ -245,17 +245,17 @@ def _smallest(c, keep):
 
 
 @nb.njit(**_OPTS)
-def _prefilter(pm, vm, clip_end, frames, end, p, v, keep):
-    """:meth:`posturemap.synth.retrieval.Retriever.prefilter`: the ``keep`` frames that match best at natural speed."""
+def _prefilter(P, V, pos_of, frames, p, v, keep):
+    """:meth:`posturemap.synth.retrieval.Retriever.prefilter`: the ``keep`` frames that match best at
+    natural speed; ``P``, ``V`` the rows in index order (``pos_of`` a frame's row; for a seam at a
+    segment's end ``V`` holds each frame's next frame's velocities)."""
     if frames.shape[0] <= keep:
         return frames
     n = frames.shape[0]
-    g = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        f = frames[i]
-        g[i] = min(f + 1, clip_end[f] - 1) if end else f
     c = np.empty(n)
-    _seam_costs(pm, vm, frames, g, p, v, np.ones(n), c)
+    for i in range(n):
+        q = pos_of[frames[i]]
+        c[i] = _pos_cost(P, q, p) + _vel_cost(V, q, v, 1.0)
     return frames[_smallest(c, keep)]
 
 
@@ -296,10 +296,13 @@ def _best(total, cs, ce, k, out):
 
 
 @nb.njit(**_OPTS)
-def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alphas,
+def search(P, V, Vn, pos_of, clip_of, sa, sb, pa, va, pb, vb, ns, penalty, rates, keep, alphas,
            use_disp, gpos, heading, up, disp, disp_scale, w_disp, k):
     """:meth:`posturemap.synth.retrieval.Retriever.search_alphas` after the gather, in one call.
 
+    The part's rows come in the inverted index's order (:attr:`posturemap.synth.retrieval.Retriever.lists`):
+    ``P``, ``V`` and ``Vn`` (the next frame's velocities) at row ``pos_of[frame]``, so that the
+    prefilter reads each gathered neuron's frames from one stretch of memory.
     Prefilters the gathered starts ``sa`` and ends ``sb`` to ``keep`` frames each, makes the
     candidate segments (every prefiltered start and end with every duration ``ns`` (W,), inside
     one clip), costs them once (``penalty`` (W,) the warp term and ``rates`` (W,) the speed
@@ -309,8 +312,8 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     ordered by start, then end (count 0 when no segment fits).
     """
     n_lib = clip_of.shape[0]
-    fa = _prefilter(pm, vm, clip_end, sa, False, pa, va, keep)
-    fb = _prefilter(pm, vm, clip_end, sb, True, pb, vb, keep)
+    fa = _prefilter(P, V, pos_of, sa, pa, va, keep)
+    fb = _prefilter(P, Vn, pos_of, sb, pb, vb, keep)
     n_w = ns.shape[0]
     cap = (fa.shape[0] + fb.shape[0]) * n_w
     cs = np.empty(cap, dtype=np.int64)
@@ -318,8 +321,8 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     cw = np.empty(cap, dtype=np.int64)
     # The position part of a prefiltered frame's seam cost is the same at every warp: once each.
     pos_a, pos_b = np.empty(fa.shape[0]), np.empty(fb.shape[0])
-    _pos_costs(pm, fa, pa, pos_a)
-    _pos_costs(pm, fb, pb, pos_b)
+    _pos_costs(P, pos_of[fa], pa, pos_a)
+    _pos_costs(P, pos_of[fb], pb, pos_b)
     known = np.empty(cap)
     m = 0
     for i in range(fa.shape[0]):
@@ -340,14 +343,14 @@ def search(pm, vm, clip_of, clip_end, sa, sb, pa, va, pb, vb, ns, penalty, rates
     base = np.empty(m)
     moved = np.zeros(m)
     rate = np.empty(m)
-    nxt = np.empty(m, dtype=np.int64)
+    qs, qe = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)  # the segments' rows
     for i in range(m):
         rate[i] = rates[cw[i]]
-        nxt[i] = min(ce[i] + 1, clip_end[ce[i]] - 1)
-    _vel_costs(vm, cs[:m_a], va, rate[:m_a], known[:m_a], ca[:m_a])
-    _seam_costs(pm, vm, cs[m_a:m], cs[m_a:m], pa, va, rate[m_a:], ca[m_a:])
-    _seam_costs(pm, vm, ce[:m_a], nxt[:m_a], pb, vb, rate[:m_a], cb[:m_a])
-    _vel_costs(vm, nxt[m_a:], vb, rate[m_a:], known[m_a:m], cb[m_a:])
+        qs[i], qe[i] = pos_of[cs[i]], pos_of[ce[i]]
+    _vel_costs(V, qs[:m_a], va, rate[:m_a], known[:m_a], ca[:m_a])
+    _seam_costs(P, V, qs[m_a:], qs[m_a:], pa, va, rate[m_a:], ca[m_a:])
+    _seam_costs(P, Vn, qe[:m_a], qe[:m_a], pb, vb, rate[:m_a], cb[:m_a])
+    _vel_costs(Vn, qe[m_a:], vb, rate[m_a:], known[m_a:m], cb[m_a:])
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     for i in range(m):  # what does not depend on alpha: the warp and displacement terms
         s, e = cs[i], ce[i]
