@@ -558,7 +558,8 @@ ELSEWHERE = {
     "test_splice.py::test_compiled_splice_rotations_match_the_numpy_reference": (
         "retrieval_numba:splice_rotations",),
     "test_splice.py::test_compiled_splice_path_matches_the_numpy_reference": ("retrieval_numba:splice_path",),
-    "test_splice.py::test_compiled_splice_matches_the_numpy_steps": ("retrieval_numba:splice", "retrieval_numba:_turned"),
+    "test_splice.py::test_compiled_splice_matches_the_numpy_steps": (
+        "retrieval_numba:splice", "retrieval_numba:_turned"),
     "test_retrieval.py::test_compiled_replay_of_a_match_equals_the_numpy_steps": ("retrieval_numba:replay_part",),
     "test_retrieval.py::test_a_fully_confident_transition_takes_the_open_columns_from_slerp": (
         "retrieval_numba:open_columns",),

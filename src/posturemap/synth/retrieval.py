@@ -838,9 +838,9 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     ``shared``: a dict kept by the caller between calls: for calls on the same transition
     (tracks, seams, ``length``, ``align``, ``exhaustive``, ``top_k``) the seams' features, the
     frames gathered for them, their :func:`still_weight` and the searches are made once; a call
-    on another transition starts afresh. With ``shared["alphas"]`` set, the first call ranks the candidates for all of
-    those alphas in its one search (as :meth:`Retriever.search_alphas`), and later calls for
-    those alphas search no more.
+    on another transition starts afresh. With ``shared["alphas"]`` set, the first call ranks
+    the candidates for all of those alphas in its one search (as
+    :meth:`Retriever.search_alphas`), and later calls for those alphas search no more.
     """
     lib = rt.lib
     fps = float(ta.motion.fps)

@@ -516,7 +516,8 @@ def seam_features(gp, root_pos, heading, keys, up, fps, pose, vel, root):
 
 @nb.njit(**_OPTS)
 def _scale_rows(flat, pidx, pdiv, pmul, vidx, vmul, p_out, v_out):
-    """:meth:`posturemap.synth.retrieval.Retriever._scaled` of the rows of ``flat`` into ``p_out``, ``v_out`` (float32)."""
+    """:meth:`posturemap.synth.retrieval.Retriever._scaled` of the rows of ``flat``, into ``p_out``
+    and ``v_out`` (float32)."""
     for r in range(flat.shape[0]):
         for j in range(pidx.shape[0]):
             p_out[r, j] = np.float32(flat[r, pidx[j]] / pdiv[j] * pmul[j])
