@@ -106,7 +106,7 @@ def test_log_rel_is_the_short_arc_log_of_p_times_q_inverse():
 
 
 @crosschecks("retrieval_numba:_sample")
-def test_sample_is_the_sign_aligned_normalised_lerp():
+def test_sample_is_the_sign_aligned_lerp():
     rng = np.random.default_rng(103)
     rots = random_quats(rng, (30, 4)).astype(np.float32)  # the library stores float32
     for _ in range(40):
@@ -114,11 +114,10 @@ def test_sample_is_the_sign_aligned_normalised_lerp():
         f = float(rng.random())
         a, b = rots[i0, j].astype(np.float64), rots[i1, j].astype(np.float64)
         b = -b if a @ b < 0 else b
-        ref = (a + f * (b - a)) / np.linalg.norm(a + f * (b - a))
+        ref = a + f * (b - a)  # not normalised: the mean of the segments' samples is
         # 1e-7: numba's float() of a float32 stays float32, so b - a is rounded to float32
         # (the numpy path subtracts in float64); float32 rows carry no more than that anyway.
         np.testing.assert_allclose(RN._sample(rots, i0, i1, f, j), ref, atol=1e-7)
-        assert abs(np.linalg.norm(RN._sample(rots, i0, i1, f, j)) - 1.0) < 1e-12
 
 
 # -- per-transition kernels -----------------------------------------------------------------

@@ -617,11 +617,13 @@ def sample_trajectory(lib: MotionLibrary, i0, i1, f) -> tuple[np.ndarray, np.nda
 
 
 def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.ndarray:
-    """Rotations (K, T, M, 4) of ``joints`` (M,) at the samples: normalised lerp of neighbours."""
+    """Rotations (K, T, M, 4) of ``joints`` (M,) at the samples: lerp of neighbours, not normalised
+    (:func:`average_rotations` normalises their sum: the mean of the segments' rotations
+    weighs each by its lerp's length, within 1e-4 of 1 between neighbouring frames)."""
     q0 = lib.rots[i0][:, :, joints].astype(np.float64)
     q1 = lib.rots[i1][:, :, joints].astype(np.float64)
     q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
-    return quat.normalize(q0 + f[..., None, None] * (q1 - q0))
+    return q0 + f[..., None, None] * (q1 - q0)
 
 
 def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
@@ -715,9 +717,10 @@ def offset_values(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.nd
 
 
 def average_rotations(q: np.ndarray) -> np.ndarray:
-    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum)."""
+    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum;
+    the rotations need not be unit length)."""
     if len(q) == 1:
-        return q[0]
+        return quat.normalize(q[0])
     sign = np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
     return quat.normalize(np.sum(q * sign, axis=0))
 

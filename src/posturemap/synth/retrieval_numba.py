@@ -28,14 +28,13 @@ def _log_rel(p, q):
 
 @nb.njit(**_OPTS)
 def _sample(rots, i0, i1, f, j):
-    """Normalised lerp of library rotations i0 and i1 (sign-aligned) of joint j, a 4-tuple."""
+    """Lerp of library rotations i0 and i1 (sign-aligned) of joint j, a 4-tuple; not normalised
+    (:func:`_mean_samples` normalises the segments' sum)."""
     a0, a1, a2, a3 = float(rots[i0, j, 0]), float(rots[i0, j, 1]), float(rots[i0, j, 2]), float(rots[i0, j, 3])
     b0, b1, b2, b3 = float(rots[i1, j, 0]), float(rots[i1, j, 1]), float(rots[i1, j, 2]), float(rots[i1, j, 3])
     if a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 < 0.0:
         b0, b1, b2, b3 = -b0, -b1, -b2, -b3
-    q0, q1, q2, q3 = a0 + f * (b0 - a0), a1 + f * (b1 - a1), a2 + f * (b2 - a2), a3 + f * (b3 - a3)
-    n = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
-    return q0 / n, q1 / n, q2 / n, q3 / n
+    return a0 + f * (b0 - a0), a1 + f * (b1 - a1), a2 + f * (b2 - a2), a3 + f * (b3 - a3)
 
 
 @nb.njit(**_OPTS)
