@@ -196,8 +196,9 @@ def _smallest(c, keep):
 
     Bucket selection: the values spread over 64 buckets between their min and max; the buckets
     below the one holding the ``keep``-th value are kept whole, that one is split again, and
-    the last few are picked one by one. Two passes over the search's 1,300-1,600 costs, about
-    half a heap's time and a third of ``np.partition``'s.
+    the last few are picked one by one. Two passes over the values: on the search's 1,600 costs
+    13 -> 8.4 us and the gather's 1,281 neuron distances 12.5 -> 7 us, against the one-pass
+    max-heap it replaced (itself faster than ``np.partition`` and a pass).
     """
     n = c.shape[0]
     if n <= keep:
