@@ -10,7 +10,9 @@ every clip with default parameters, every clip prepared once in a
   p99 of ``time.perf_counter_ns`` after warm-up calls;
 - **10x library**: the same calls with a library of ten copies of every clip, each copy's
   rotations jittered by a seeded random rotation of about 1 degree per joint and frame (the
-  map is the same; the copies' frames are indexed through it);
+  map is the same; the copies' frames are indexed through it), on a second engine interleaved
+  call by call with the first, so that the 10x / 1x ratio does not depend on how busy the
+  shared machine was in one part of the run or another;
 - **index**: how the candidate frames are found, each followed by the same exact re-rank of
   the same cost (:meth:`posturemap.synth.retrieval.Retriever.search`), against the exhaustive search
   (every start frame of the library with every warp):
@@ -31,6 +33,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import copy
 import datetime
 import gc
 import json
@@ -62,23 +65,26 @@ def jittered(motion, rng, degrees: float):
     return Motion(motion.skeleton, rots, motion.positions.copy(), motion.fps)
 
 
-def time_methods(engine, names, lengths, calls, rng, log=None) -> dict:
-    """Median/p99 (us) of ``engine.generate`` per method, interleaved call by call."""
+def time_methods(engines: dict, names, lengths, calls, rng) -> dict:
+    """Median/p99 (us) of ``engine.generate`` per engine (``{label: engine}``) and method,
+    interleaved call by call (the order rotated from call to call), so that every engine and
+    method meets the same phases of a shared machine: ``{label: {method: stats}}``."""
     draws = _draws(rng, lengths, calls + 20)
+    runs = [(label, engine, m, feet) for label, engine in engines.items() for m, feet in METHODS]
     for a, b, a_end, b_start, alpha in draws[:20]:  # warm-up
-        for m, feet in METHODS:
+        for _, engine, m, feet in runs:
             engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
                             method=m, foot_lock=feet)
-    times = {m: [] for m, _ in METHODS}
+    times = {(label, m): [] for label, _, m, _ in runs}
     gc.collect()
     for i, (a, b, a_end, b_start, alpha) in enumerate(draws[20:]):
-        k = i % len(METHODS)
-        for m, feet in METHODS[k:] + METHODS[:k]:
+        k = i % len(runs)
+        for label, engine, m, feet in runs[k:] + runs[:k]:
             t0 = time.perf_counter_ns()
             engine.generate(names[a], names[b], length=LENGTH, alpha=alpha, a_end=a_end, b_start=b_start,
                             method=m, foot_lock=feet)
-            times[m].append(time.perf_counter_ns() - t0)
-    return {m: _stats(t) for m, t in times.items()}
+            times[label, m].append(time.perf_counter_ns() - t0)
+    return {label: {m: _stats(times[label, m]) for m, _ in METHODS} for label in engines}
 
 
 def seam_queries(rt, engine, names, lengths, count, rng):
@@ -172,28 +178,28 @@ def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
     for n, m in zip(names, clips):
         engine.add(n, m)
     calls = 100 if quick else 1000
-    rng = np.random.default_rng(seed)
-    latency = time_methods(engine, names, lengths, calls, rng, log)
-    for m, s in latency.items():
-        log(f"  {m}: median {s['median_us']:.0f} us, p99 {s['p99_us']:.0f} us")
 
-    # Ten jittered copies of every clip, indexed through the same map.
+    # Ten jittered copies of every clip, indexed through the same map (a copy of the model that
+    # holds them as its library: the two engines are timed side by side).
     jrng = np.random.default_rng(seed + 1)
     copies = [jittered(m, jrng, JITTER_DEG) for _ in range(COPIES) for m in clips]
     t0 = time.perf_counter()
     builder = TransitionEngine(model)
     tracks = [builder.add(str(i), m) for i, m in enumerate(copies)]
-    big = build_library(tracks, model, [f"{n} copy {k}" for k in range(COPIES) for n in names])
+    model_big = copy.copy(model)
+    model_big.library_ = build_library(tracks, model, [f"{n} copy {k}" for k in range(COPIES) for n in names])
+    big = model_big.library_
     build_s = time.perf_counter() - t0
     del tracks, builder
-    model.library_ = big
-    engine_big = TransitionEngine(model)
+    engine_big = TransitionEngine(model_big)
     for n, m in zip(names, clips):
         engine_big.add(n, m)
-    latency_big = time_methods(engine_big, names, lengths, calls, np.random.default_rng(seed), log)
+    timed = time_methods({"1x": engine, "10x": engine_big}, names, lengths, calls, np.random.default_rng(seed))
+    latency, latency_big = timed["1x"], timed["10x"]
+    for m, s in latency.items():
+        log(f"  {m}: median {s['median_us']:.0f} us, p99 {s['p99_us']:.0f} us")
     log(f"  10x library ({len(big)} frames, built in {build_s:.1f} s): retrieval median "
         f"{latency_big['retrieval']['median_us']:.0f} us")
-    model.library_ = lib
 
     rt = Retriever(engine, lib)
     queries = seam_queries(rt, engine, names, lengths, 40 if quick else 200, np.random.default_rng(seed + 2))
@@ -215,7 +221,7 @@ def markdown(result: dict, command: str | None = None) -> str:
     lines = [
         f"Library: {result['library_frames']} frames of {result['clips']} Bandai clips, "
         f"{result['bytes_per_frame']:.0f} bytes per frame. One {result['length']}-frame transition between "
-        f"two different clips, {result['calls']} seeded calls per method, interleaved.",
+        f"two different clips, {result['calls']} seeded calls per method and library, all interleaved.",
         "",
         "| method | median | p99 | median / SLERP | 10x library median | 10x p99 | 10x / 1x |",
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
