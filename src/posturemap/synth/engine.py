@@ -341,7 +341,7 @@ def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     basis = linear_basis(length)
     chain = eng._chain
     jit = retrieval._compiled()
-    if jit is not None:  # the steps below in one call (the matrix products as sums: within 1e-15)
+    if jit is not None:  # the steps below in one call (the matrix products as sums: within 1e-13)
         rots = np.empty((length, eng.skeleton.num_joints, 4)) if len(chain) else np.empty((0, 0, 4))
         pos = np.empty((length, eng.skeleton.num_joints, 3))
         jit.open_columns(chain, ta.rots, tb.rots, a_end, b_start, ta.motion.positions, tb.motion.positions, basis,

@@ -303,6 +303,7 @@ def search(P, V, Vn, pos_of, clip_of, sa, sb, pa, va, pb, vb, ns, penalty, rates
     The part's rows come in the inverted index's order (:attr:`posturemap.synth.retrieval.Retriever.lists`):
     ``P``, ``V`` and ``Vn`` (the next frame's velocities) at row ``pos_of[frame]``, so that the
     prefilter reads each gathered neuron's frames from one stretch of memory.
+
     Prefilters the gathered starts ``sa`` and ends ``sb`` to ``keep`` frames each, makes the
     candidate segments (every prefiltered start and end with every duration ``ns`` (W,), inside
     one clip), costs them once (``penalty`` (W,) the warp term and ``rates`` (W,) the speed

@@ -51,7 +51,8 @@ def rotate_about_up(v: np.ndarray, angle, up: int) -> np.ndarray:
     """Vectors ``v (..., 3)`` turned by ``angle`` (radians, right-handed) about the up axis; an
     array of angles broadcasts over the leading axes."""
     a, b = (up + 1) % 3, (up + 2) % 3
-    if isinstance(angle, float):  # a Python or numpy float64: math's cos is numpy's, without the ufunc call
+    if isinstance(angle, float):  # a Python or numpy float64: math's cos, without a ufunc call (numpy's
+        # values here; within an ulp where numpy has its own SIMD cos)
         c, s = math.cos(angle), math.sin(angle)
     else:
         c, s = np.cos(angle), np.sin(angle)
