@@ -114,7 +114,7 @@ def test_sample_is_the_sign_aligned_lerp():
         f = float(rng.random())
         a, b = rots[i0, j].astype(np.float64), rots[i1, j].astype(np.float64)
         b = -b if a @ b < 0 else b
-        ref = a + f * (b - a)  # not normalised: the mean of the segments' samples is
+        ref = a + f * (b - a)  # not normalised: the mean of the segments' samples normalises
         # 1e-7: numba's float() of a float32 stays float32, so b - a is rounded to float32
         # (the numpy path subtracts in float64); float32 rows carry no more than that anyway.
         np.testing.assert_allclose(RN._sample(rots, i0, i1, f, j), ref, atol=1e-7)

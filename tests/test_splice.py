@@ -122,7 +122,7 @@ def test_compiled_splice_matches_the_numpy_steps():
     assert retrieval._compiled() is not None
     rng = np.random.default_rng(23)
     length, joints = 21, 5
-    for i, (alpha, up, turns) in enumerate(((0.0, 1, 0), (0.5, 2, 1), (1.0, 1, -2), (0.3, 1, 0.5))):
+    for alpha, up, turns in ((0.0, 1, 0), (0.5, 2, 1), (1.0, 1, -2), (0.3, 1, 0.5)):
         halves = []
         for h in range(2):
             halves.append(SimpleNamespace(
