@@ -619,8 +619,9 @@ def sample_trajectory(lib: MotionLibrary, i0, i1, f) -> tuple[np.ndarray, np.nda
 
 def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.ndarray:
     """Rotations (K, T, M, 4) of ``joints`` (M,) at the samples: lerp of neighbours, not normalised
-    (:func:`average_rotations` normalises their sum: the mean of the segments' rotations
-    weighs each by its lerp's length, within 1e-4 of 1 between neighbouring frames)."""
+    (:func:`average_rotations` normalises their sum, so the mean weighs each segment by its
+    lerp's length: halfway between two neighbouring frames of bandai1, 1 - 5e-6 for the median
+    pair, 1 - 2e-3 at the 99th percentile)."""
     q0 = lib.rots[i0][:, :, joints].astype(np.float64)
     q1 = lib.rots[i1][:, :, joints].astype(np.float64)
     q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
