@@ -9,7 +9,6 @@ match at B monotonically, and the library survives the map file.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import itertools
 
@@ -374,24 +373,26 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)
     assert quat.angle_between(out, ref).max() < 1e-6
     # Only some frames (as the splice asks of each half): those rows the same, the rest identity.
-    part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))
+    part = np.empty_like(ref)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 4, 11, part)
     np.testing.assert_array_equal(part[4:11], out[4:11])
     assert np.all(part[:4] == (1.0, 0.0, 0.0, 0.0)) and np.all(part[11:] == (1.0, 0.0, 0.0, 0.0))
-    with kernels.numpy_backend():  # the numpy path of the same range
-        ref_part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))
+    ref_part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))  # numpy steps
     assert quat.angle_between(ref_part[4:11], part[4:11]).max() < 1e-6
     np.testing.assert_array_equal(ref_part[:4], part[:4])
     np.testing.assert_array_equal(ref_part[11:], part[11:])
     # Into the whole skeleton's frames (A's and B's rows of every joint): the columns of
-    # `joints` as above, the others untouched; the numpy path the same.
+    # `joints` as above, the others untouched; the numpy steps the same.
     n_j = lib.rots.shape[1]
     a_all, b_all = (quat.normalize(rng.normal(size=(2, n_j, 4))) for _ in range(2))
     a_all[:, joints], b_all[:, joints] = a2, b2
-    for backend in (None, "numpy"):
+    for compiled in (True, False):
         full = np.full((length, n_j, 4), 7.0)
-        with (kernels.numpy_backend() if backend else contextlib.nullcontext()):
+        if compiled:
+            retrieval_numba.replay(lib.rots, i0, i1, f, joints, joints, a_all, b_all, curves, 4, 11, full)
+        else:
             got = retrieval.replay_rotations(lib, i0, i1, f, joints, a_all, b_all, curves, frames=(4, 11), out=full)
-        assert got is full
+            assert got is full
         assert quat.angle_between(full[:, joints][4:11], part[4:11]).max() < 1e-6
         assert np.all(full[:, joints][:4] == (1.0, 0.0, 0.0, 0.0))
         others = np.setdiff1d(np.arange(n_j), joints)
@@ -707,7 +708,8 @@ def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
 
 
 def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
-    assert retrieval._compiled() is not None
+    from posturemap.synth import retrieval_numba
+
     rt = retrieval.Retriever(engine, engine.model.library_)
     rng = np.random.default_rng(13)
     for i in range(12):
@@ -724,8 +726,12 @@ def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
         i0, i1, f = retrieval.segment_times(rt.lib, s, e, length + 1.0)
         curves = retrieval.hermite_offsets(length, float(rng.uniform(5, 25)))
         align = bool(i % 2)
-        got = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
-        ref = retrieval.root_trajectory_numpy(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
+        gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
+        dtheta = retrieval_numba.trajectory(rt.lib.gpos, rt.lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia],
+                                            tb.gpos[ib], tb.heading[ib], align, UP, curves,
+                                            retrieval.smoothstep(length), gpos, heading, shift)
+        got = gpos, heading, dtheta, shift
+        ref = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
         for g, r in zip(got, ref):  # positions, headings, B's turn and shift
             np.testing.assert_allclose(g, r, rtol=0, atol=1e-9)
         assert np.ptp(ref[0][:, 0]) > 1.0  # the root moves (not a trivial comparison)
@@ -766,17 +772,20 @@ def test_compiled_replay_of_a_match_equals_the_numpy_steps(engine, monkeypatch):
     assert planted >= 5 and moving >= 5  # feet planted, roots moving: not a trivial comparison
 
 
-def test_compiled_segment_times_match_the_numpy_steps(model, monkeypatch):
+def test_compiled_segment_times_match_the_numpy_steps(model):
+    from posturemap.synth import retrieval_numba
+
     lib = model.library_
     rng = np.random.default_rng(14)
     # Segments anywhere, also at a clip's first and last frames (the samples before and after clip).
     s = np.concatenate([rng.integers(0, len(lib) - 50, 40), lib.clip_start[:-1][:5]])
     e = np.minimum(s + rng.integers(0, 45, len(s)), lib.clip_end[s] - 1)
     for d in (6.0, 21.0, 31.0, 46.0):
-        got = retrieval.segment_times(lib, s, e, d)
-        with monkeypatch.context() as m:
-            m.setattr(retrieval, "_compiled", lambda: None)
-            ref = retrieval.segment_times(lib, s, e, d)
+        t = np.arange(-1, d + 2, dtype=float)
+        got = np.empty((len(s), len(t)), dtype=np.int64), np.empty((len(s), len(t)), dtype=np.int64), \
+            np.empty((len(s), len(t)))
+        retrieval_numba.segment_times(lib.clip_start, lib.clip_of, lib.clip_end, s, e, d, t, *got)
+        ref = retrieval.segment_times(lib, s, e, d)
         for g, r in zip(got, ref):
             assert g.dtype == r.dtype
             np.testing.assert_array_equal(g, r)

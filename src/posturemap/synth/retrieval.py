@@ -587,14 +587,10 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
 
     Returns ``(i0, i1, f)``, each (K, T) with ``T = d + 3``: the library frames on both sides
     of each sample and the fraction between them; times before the clip's start or after its
-    end hold its first/last frame.
+    end hold its first/last frame. The numpy steps of :func:`replay` (its compiled call runs
+    :func:`posturemap.synth.retrieval_numba.segment_times`).
     """
     t = _sample_times(d)
-    if _compiled() is not None:
-        i0, i1, f = np.empty((len(s), len(t)), dtype=np.int64), np.empty((len(s), len(t)), dtype=np.int64), \
-            np.empty((len(s), len(t)))
-        _compiled().segment_times(lib.clip_start, lib.clip_of, lib.clip_end, s, e, float(d), t, i0, i1, f)
-        return i0, i1, f
     u = s[:, None] + t[None] * ((e - s) / d)[:, None]
     lo = lib.clip_start[lib.clip_of[s]][:, None]
     hi = (lib.clip_end[s] - 1)[:, None]
@@ -641,16 +637,14 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
     the second order (the product of the seam offsets and the segments' spread): on the bench's
     hold-outs L2Q, L2P and skate moved by at most 0.001 (0.1%), cross-clip jerk by -0.5%.
 
-    Where numba is in use, one compiled kernel (:func:`posturemap.synth.retrieval_numba.replay`) does the same.
+    The numpy steps of :func:`replay` (its compiled call runs
+    :func:`posturemap.synth.retrieval_numba.replay`).
     """
     length = curves.shape[1]
     lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
     cols = np.arange(len(joints)) if out is None else joints
     if out is None:
         out = np.empty((length, len(joints), 4))
-    if _compiled() is not None:
-        _compiled().replay(lib.rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out)
-        return out
     part = offset_rotations(average_rotations(sample_rotations(lib, i0, i1, f, joints))[None], a2[:, cols],
                             b2[:, cols], curves)[0]
     part[:lo] = part[max(hi, lo):] = (1.0, 0.0, 0.0, 0.0)
@@ -734,22 +728,9 @@ def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: li
     (frames ``ib`` of ``tb``; with ``align`` B moves to where the segments end, with ``curves``
     (4, L) the offsets and the horizontal path spread over the gap into B), averaged.
 
-    Returns positions (L, 3), headings (L,), B's turn and shift (3,). Compiled where numba is in use
-    (:func:`posturemap.synth.retrieval_numba.trajectory`; :func:`root_trajectory_numpy` is the reference).
+    Returns positions (L, 3), headings (L,), B's turn and shift (3,). The numpy steps of
+    :func:`replay` (its compiled call runs :func:`posturemap.synth.retrieval_numba.trajectory`).
     """
-    if _compiled() is None:
-        return root_trajectory_numpy(lib, i0, i1, f, ta, tb, ia, ib, align, up, curves)
-    length = curves.shape[1]
-    gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
-    dtheta = _compiled().trajectory(lib.gpos, lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia], tb.gpos[ib],
-                                    tb.heading[ib], align, up, curves, _smoothstep_cached(length), gpos, heading,
-                                    shift)
-    return gpos, heading, float(dtheta), shift
-
-
-def root_trajectory_numpy(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: list[int], align: bool,
-                          up: int, curves: np.ndarray):
-    """:func:`root_trajectory` in numpy steps."""
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     length = curves.shape[1]
     a_end, b_start = ia[1], ib[0]

@@ -82,14 +82,10 @@ def splice_path(g1, h1, g2, h2, turn2: float, w: np.ndarray, a_pos: np.ndarray, 
     """The spliced root path: positions (L, 3) and headings (L,). The horizontal velocity and
     turning rate of the first segment (``g1`` (L, 3), ``h1`` (L,)) and of the second (``g2``,
     ``h2 + turn2``) are blended by ``w`` (L,) and integrated from A's root (``a_pos``,
-    ``a_heading``), so the path has no kink; the height is blended as it is. Compiled where
-    numba is in use (:func:`posturemap.synth.retrieval_numba.splice_path`)."""
+    ``a_heading``), so the path has no kink; the height is blended as it is. The numpy steps of
+    :func:`splice` (its compiled call runs :func:`posturemap.synth.retrieval_numba.splice_path`)."""
     w = np.asarray(w, dtype=np.float64)
     a_pos = np.asarray(a_pos, dtype=np.float64)
-    if _compiled() is not None:
-        gpos, heading = np.empty((len(w), 3)), np.empty(len(w))
-        _compiled().splice_path(g1, h1, g2, h2, float(turn2), w, a_pos, float(a_heading), up, gpos, heading)
-        return gpos, heading
     h2 = h2 + turn2
     vel = (1 - w)[:, None] * np.diff(np.concatenate([a_pos[None], g1]), axis=0) \
         + w[:, None] * np.diff(np.concatenate([a_pos[None], g2]), axis=0)
@@ -105,12 +101,9 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     ``w`` (L,): ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` (on the short arc, in
     ``a``'s hemisphere) in between, ``b[t]`` where ``w[t] >= 1``, each joint's sign in the
     hemisphere of the frame before (so each may hold only the frames it shows: :func:`spliced`
-    replays no more). Compiled where numba is in use
-    (:func:`posturemap.synth.retrieval_numba.splice_rotations`)."""
+    replays no more). The numpy steps of :func:`splice` (its compiled call runs
+    :func:`posturemap.synth.retrieval_numba.splice_rotations`)."""
     out = np.empty(a.shape)
-    if _compiled() is not None:
-        _compiled().splice_rotations(a, b, np.asarray(w, dtype=np.float64), out)
-        return out
     for t, wt in enumerate(np.asarray(w, dtype=np.float64).tolist()):
         if wt <= 0.0:
             out[t] = a[t]
