@@ -553,7 +553,7 @@ ELSEWHERE = {
         "retrieval_numba:_pos_costs", "retrieval_numba:_vel_cost", "retrieval_numba:_vel_costs",
         "retrieval_numba:_seam_costs", "retrieval_numba:_sqdist", "retrieval_numba:_sqdists"),
     "test_retrieval.py::test_compiled_selection_of_the_smallest": (
-        "retrieval_numba:_smallest", "retrieval_numba:_first_smallest"),
+        "retrieval_numba:_smallest", "retrieval_numba:_first_smallest", "retrieval_numba:_buckets"),
     "test_splice.py::test_compiled_splice_rotations_match_the_numpy_reference": (
         "retrieval_numba:splice_rotations",),
     "test_splice.py::test_compiled_splice_path_matches_the_numpy_reference": ("retrieval_numba:splice_path",),
