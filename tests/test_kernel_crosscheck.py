@@ -560,6 +560,8 @@ ELSEWHERE = {
     "test_splice.py::test_compiled_splice_matches_the_numpy_steps": (
         "retrieval_numba:splice", "retrieval_numba:_turned"),
     "test_retrieval.py::test_compiled_replay_of_a_match_equals_the_numpy_steps": ("retrieval_numba:replay_part",),
+    "test_retrieval.py::test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays": (
+        "retrieval_numba:spliced", "retrieval_numba:_replay_half"),
     "test_retrieval.py::test_a_fully_confident_transition_takes_the_open_columns_from_slerp": (
         "retrieval_numba:open_columns",),
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (

@@ -901,25 +901,43 @@ def test_a_shared_dict_serves_one_transition_and_starts_afresh_for_another(engin
         retrieval.match(rt, tr, tr, 40, 71, 30, 0.5, True, top_k=0)
 
 
-def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engine, monkeypatch):
-    # Each half of a splice replays only the frames its blend weight shows; the result must be
-    # the splice of the two whole replays (the same rotations; the others are never read).
+def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engine):
+    # Each half of a splice replays only the frames its blend weight shows, both halves and the
+    # splice in one compiled call: the result must be bit for bit the splice of the two halves
+    # replayed step by step (replay, then splice), and the splice of the two whole replays (the
+    # same rotations; the others are never read).
     from posturemap.synth import splice
 
     rt = retrieval.Retriever(engine, engine.model.library_)
     a, b = engine.tracks[HELD_OUT[0]], engine.tracks[HELD_OUT[1]]
-    done = 0
-    for length, alpha, a_end, b_start in ((30, 0.5, 60, 20), (20, 0.0, 90, 5), (45, 1.0, 120, 40), (1, 0.5, 70, 10)):
+    jit = retrieval._compiled()
+    assert jit is not None
+    done, skipped = 0, 0
+    for length, alpha, a_end, b_start in ((30, 0.5, 60, 20), (20, 0.0, 90, 5), (45, 1.0, 120, 40), (1, 0.5, 70, 10),
+                                          (5, 0.3, 80, 12)):
         got = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
-        whole = retrieval.replay
-        with monkeypatch.context() as m:
-            m.setattr(splice, "replay", lambda rt_, found, **kw: whole(rt_, found, skip_unconfident=True))
-            ref = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
-        assert (got is None) == (ref is None)
+        shared = {}
+        first = retrieval.match(rt, a, b, a_end, b_start, length, 0.0, True, seam="a", shared=shared)
+        second = retrieval.match(rt, a, b, a_end, b_start, length, 1.0, True, seam="b", shared=shared)
         if got is None:
+            assert min(first.confidence[0], second.confidence[0]) <= 0.0
             continue
-        gap = np.minimum(np.abs(got.rots - ref.rots), np.abs(got.rots + ref.rots)).max()
+        w = splice.splice_weights(length, alpha)
+        shown = (0, int(np.flatnonzero(w < 1.0)[-1]) + 1), (int(np.flatnonzero(w > 0.0)[0]), length)
+        place = (a.gpos[a_end], float(a.heading[a_end]), b.gpos[b_start], UP)
+        steps = splice.splice(retrieval.replay(rt, first, skip_unconfident=True, frames=shown[0]),
+                              retrieval.replay(rt, second, skip_unconfident=True, frames=shown[1]), w, *place)
+        whole = splice.splice(retrieval.replay(rt, first, skip_unconfident=True),
+                              retrieval.replay(rt, second, skip_unconfident=True), w, *place)
+        for x, y in zip((got.rots, got.gpos, got.heading, got.dtheta, got.shift, got.contacts), steps):
+            np.testing.assert_array_equal(x, y)
+        gap = np.minimum(np.abs(got.rots - whole[0]), np.abs(got.rots + whole[0])).max()
         assert gap < 1e-12, gap  # the same quaternions (up to sign)
-        np.testing.assert_array_equal(got.gpos, ref.gpos)
+        np.testing.assert_array_equal(got.gpos, whole[1])
+        # A half whose upper body has no confidence leaves it as the identity (the caller's).
+        for half in (first, second):
+            if half.confidence[1] <= 0.0:
+                skipped += 1
+                assert np.all(retrieval.replay(rt, half, skip_unconfident=True).rots[:, rt.part_joints[1], 0] == 1.0)
         done += 1
-    assert done >= 3
+    assert done >= 3 and skipped >= 1

@@ -823,6 +823,65 @@ def splice(a_rots, b_rots, w, g1, h1, g2, h2, a_pos, a_heading, b_pos, b_dtheta,
 
 
 @nb.njit(**_OPTS)
+def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper, d, t, joints0, joints1,
+                 open_joints, a_rots, b_rots, ia, ib, curves, lo, hi, lib_gpos, lib_heading, lib_contacts, a_gpos,
+                 a_heading, b_gpos, b_heading, up, smooth, out, gpos, heading, shift, contacts):
+    """One half of a splice as :func:`posturemap.synth.retrieval.replay` makes it with
+    ``skip_unconfident`` and its legs confident (B placed to continue A): the rotations of the new
+    frames ``lo <= t < hi`` into ``out`` (the identity elsewhere, in the open joints and in a
+    skipped upper body), the lower body's segments ``[s0, e0]`` with the root path and contacts,
+    the upper body's ``[s1, e1]``; returns B's turn."""
+    for u in range(out.shape[0]):
+        for j in range(open_joints.shape[0]):
+            out[u, open_joints[j], 0] = 1.0
+            for c in range(1, 4):
+                out[u, open_joints[j], c] = 0.0
+    dtheta = replay_part(rots, clip_start, clip_of, clip_end, s0, e0, d, t, joints0, joints0, a_rots, b_rots, ia, ib,
+                         curves, lo, hi, out, True, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
+                         b_heading, True, up, smooth, gpos, heading, shift, contacts)
+    if skip_upper:
+        for u in range(out.shape[0]):
+            for j in range(joints1.shape[0]):
+                out[u, joints1[j], 0] = 1.0
+                for c in range(1, 4):
+                    out[u, joints1[j], c] = 0.0
+    else:
+        replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
+                    curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
+                    b_heading, True, up, smooth, gpos[:0], heading[:0], shift, contacts[:0])
+    return dtheta
+
+
+@nb.njit(**_OPTS)
+def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e_b0, s_b1, e_b1, skip_upper, d, t,
+            joints0,
+            joints1, open_joints, a_rots, b_rots, ia, ib, curves, frames, lib_gpos, lib_heading, lib_contacts,
+            a_gpos, a_heading, b_gpos, b_heading, up, smooth, w, out, gpos, heading, shift, contacts):
+    """:func:`posturemap.synth.splice.spliced` after the search, in one call: both halves replayed
+    (:func:`_replay_half`: the segments ``[s_a0, e_a0]`` (lower body) and ``[s_a1, e_a1]`` (upper)
+    of the half continuing A, ``s_b*``, ``e_b*`` of the half arriving in B; ``skip_upper`` (2,)
+    a half's upper body left out, ``frames`` (2, 2) the new frames each half shows; both halves'
+    legs are replayed) and spliced by the
+    weights ``w`` (:func:`splice`) into ``out`` (L, J, 4), ``gpos``, ``heading``, ``shift`` and
+    ``contacts``; returns B's turn."""
+    n_l, n_j = out.shape[0], out.shape[1]
+    rot = np.empty((2, n_l, n_j, 4))
+    g, h = np.empty((2, n_l, 3)), np.empty((2, n_l))
+    sh = np.empty((2, 3))
+    con = np.empty((2, n_l, contacts.shape[1]), dtype=contacts.dtype)
+    _replay_half(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, skip_upper[0], d, t, joints0, joints1,
+                 open_joints, a_rots, b_rots, ia, ib, curves, max(frames[0, 0], 0), min(frames[0, 1], n_l), lib_gpos,
+                 lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, smooth, rot[0], g[0], h[0],
+                 sh[0], con[0])
+    turn_b = _replay_half(rots, clip_start, clip_of, clip_end, s_b0, e_b0, s_b1, e_b1, skip_upper[1], d, t, joints0,
+                          joints1, open_joints, a_rots, b_rots, ia, ib, curves, max(frames[1, 0], 0),
+                          min(frames[1, 1], n_l), lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
+                          b_heading, up, smooth, rot[1], g[1], h[1], sh[1], con[1])
+    return splice(rot[0], rot[1], w, g[0], h[0], g[1], h[1], a_gpos[ia[1]], a_heading[ia[1]], b_gpos[ib[0]], turn_b,
+                  sh[1], con[0], con[1], up, out, gpos, heading, shift, contacts)
+
+
+@nb.njit(**_OPTS)
 def open_columns(chain, a_rots, b_rots, a_end, b_start, a_positions, b_positions, basis, rots, pos):
     """What a fully retrieved transition leaves open, as the slerp method makes it
     (:func:`posturemap.synth.engine._open_columns`): the rotations of the joints ``chain`` above the

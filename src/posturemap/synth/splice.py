@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import kernels
-from .retrieval import Result, _compiled, match, replay
+from .retrieval import (BLEND_S, Result, _compiled, _hermite_offsets_cached, _sample_times, _smoothstep_cached,
+                        match, replay)
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
@@ -138,11 +139,15 @@ def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
     ends = np.flatnonzero(w < 1.0)
     first_frames = (0, int(ends[-1]) + 1 if len(ends) else 0)
     second_frames = (int(blended[0]) if len(blended) else length, length)
-    rots, gpos, heading, dtheta, shift, contacts = splice(replay(rt, first, skip_unconfident=True, frames=first_frames),
-                                                          replay(rt, second, skip_unconfident=True,
-                                                                 frames=second_frames), w,
-                                                          ta.gpos[a_end], float(ta.heading[a_end]),
-                                                          tb.gpos[b_start], up)
+    jit = _compiled()
+    if jit is not None:  # the replays and the splice below in one call
+        rots, gpos, heading, dtheta, shift, contacts = _spliced_compiled(jit, rt, first, second, w,
+                                                                         (first_frames, second_frames))
+    else:
+        rots, gpos, heading, dtheta, shift, contacts = splice(
+            replay(rt, first, skip_unconfident=True, frames=first_frames),
+            replay(rt, second, skip_unconfident=True, frames=second_frames), w, ta.gpos[a_end],
+            float(ta.heading[a_end]), tb.gpos[b_start], up)
     # Per body part: the segment continuing A, with the one arriving in B under "then"; the
     # part's confidence is the splice's.
     parts = {part: {**entry, "confidence": round(c, 3), "then": second.info["parts"][part]}
@@ -150,3 +155,25 @@ def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
     info = {"parts": parts, "confidence": round(min(conf), 3),
             "splice": {"centre": round(0.75 - 0.5 * float(alpha), 3), "width": SPLICE_WIDTH}}
     return Result(rots, gpos, heading, dtheta, shift, contacts, info, conf)
+
+
+def _spliced_compiled(jit, rt, first, second, w: np.ndarray, frames):
+    """:func:`splice` of the :func:`~posturemap.synth.retrieval.replay` of ``first`` and of
+    ``second`` (each with ``skip_unconfident`` and only its ``frames``; both with confident legs)
+    in one compiled call (:func:`posturemap.synth.retrieval_numba.spliced`): the same values."""
+    lib, ta, tb, length = rt.lib, first.ta, first.tb, first.length
+    d = length + 1.0
+    (s_a0, e_a0, *_), (s_a1, e_a1, *_) = first.found
+    (s_b0, e_b0, *_), (s_b1, e_b1, *_) = second.found
+    rots = np.empty((length, rt.engine.skeleton.num_joints, 4))
+    gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
+    contacts = np.empty((length, lib.contacts.shape[1]), dtype=lib.contacts.dtype)
+    dtheta = jit.spliced(lib.rots, lib.clip_start, lib.clip_of, lib.clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e_b0, s_b1,
+                         e_b1, np.array([first.confidence[1] <= 0.0, second.confidence[1] <= 0.0]), d,
+                         _sample_times(d), rt.part_joints[0], rt.part_joints[1], rt.open_joints, ta.rots, tb.rots,
+                         np.array(first.ia), np.array(first.ib),
+                         _hermite_offsets_cached(length, BLEND_S * float(ta.motion.fps)),
+                         np.array(frames, dtype=np.int64), lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading,
+                         tb.gpos, tb.heading, rt.engine._up, _smoothstep_cached(length), w, rots, gpos, heading,
+                         shift, contacts)
+    return rots, gpos, heading, float(dtheta), shift, contacts
