@@ -12,7 +12,9 @@ from posturemap.core.joints import leg_chains, leg_length
 from posturemap.synth import feet
 from posturemap.synth.feet import FADE, MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, two_bone_ik
 from posturemap.core.skeleton import fk
+from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine
+from posturemap.synth.trajectory import rotate_about_up
 
 
 def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
@@ -237,3 +239,25 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
     w = np.concatenate(weights_seen)
     # Not a vacuous comparison: feet were locked, faded in and out, and left free.
     assert np.sum(w == 1.0) > 20 and np.sum((w > 0) & (w < 1)) > 5 and np.sum(w == 0) > 20
+
+
+def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_ends(bandai_files, monkeypatch):
+    # The lock's context: A's frames a_end - 1 and a_end, B's b_start and b_start + 1 (as placed),
+    # the clip's end frame repeated where there is no other; also at the first and last frames.
+    by_name = {p.name: p for p in bandai_files}
+    a = bvh.read(by_name["dataset-1_walk_normal_001.bvh"])
+    b = bvh.read(by_name["dataset-1_run_normal_001.bvh"])
+    e = TransitionEngine(None, a.skeleton)
+    e.add("a", a)
+    e.add("b", b)
+    ta, tb = e.tracks["a"], e.tracks["b"]
+    seen = []
+    real = engine_module.lock_feet
+    monkeypatch.setattr(engine_module, "lock_feet", lambda *args, **kw: seen.append(args) or real(*args, **kw))
+    for a_end, b_start in ((0, len(b) - 1), (1, len(b) - 2), (len(a) - 1, 0), (40, 17)):
+        e.generate("a", "b", length=12, a_end=a_end, b_start=b_start, method="slerp", foot_lock=True)
+        a_feet, b_feet = seen[-1][6], seen[-1][7]
+        np.testing.assert_array_equal(a_feet, ta.feet[[max(a_end - 1, 0), a_end]])
+        ib = [b_start, min(b_start + 1, len(b) - 1)]
+        placed = rotate_about_up(tb.feet[ib], e.last["dtheta"], e.up) + e.last["shift"]
+        np.testing.assert_array_equal(b_feet, placed)

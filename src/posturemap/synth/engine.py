@@ -191,10 +191,12 @@ class TransitionEngine:
         """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with
         A's last two frames and B's first two (B placed by ``dtheta``, ``shift``) as context;
         returns the lock weights."""
-        ia = [max(req.a_end - 1, 0), req.a_end]
-        ib = [req.b_start, min(req.b_start + 1, len(tb.gpos) - 1)]
-        b_feet = rotate_about_up(tb.feet[ib], dtheta, self._up) + shift
-        return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, ta.feet[ia], b_feet,
+        a_end, b_start = req.a_end, req.b_start
+        # A's frames a_end - 1, a_end and B's b_start, b_start + 1 (repeated at a clip's end): slices where they can be
+        a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
+        b_feet = tb.feet[b_start: b_start + 2] if b_start + 1 < len(tb.feet) else tb.feet[[b_start, b_start]]
+        b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
+        return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -796,18 +796,18 @@ class Match:
         and confidence, and how many segments are blended; the overall confidence. Made on
         first use (a transition reports one of the matches it weighs)."""
         if self._info is None:
-            lib, fps = self.lib, float(self.ta.motion.fps)
-            d = self.length + 1.0
+            lib = self.lib
+            seconds = (self.length + 1.0) / float(self.ta.motion.fps)
             parts = {}
             for p, (s, e, total, ca, cb) in enumerate(self.found):
-                s0, e0 = int(s[0]), int(e[0])
+                s0, e0 = s.item(0), e.item(0)  # Python numbers: rounding numpy's is slow
                 clip, first, last = lib.source_frames(s0, e0)
-                parts["lower" if p == 0 else "upper"] = {  # Python floats: rounding numpy's is slow
-                    "clip": clip, "frames": [first, last], "reversed": bool(first > last),
-                    "warp": round((e0 - s0) / float(lib.fps) / (d / fps), 3),
-                    "cost": round(float(total[0]), 4), "cost_a": round(float(ca[0]), 4),
-                    "cost_b": round(float(cb[0]), 4), "distance": round(float(self.distance[p]), 3),
-                    "confidence": round(float(self.confidence[p]), 3), "blended": len(s)}
+                parts["lower" if p == 0 else "upper"] = {
+                    "clip": clip, "frames": [first, last], "reversed": first > last,
+                    "warp": round((e0 - s0) / float(lib.fps) / seconds, 3),
+                    "cost": round(total.item(0), 4), "cost_a": round(ca.item(0), 4), "cost_b": round(cb.item(0), 4),
+                    "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
+                    "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
         return self._info
 
