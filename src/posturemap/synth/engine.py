@@ -403,8 +403,8 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     else:
         rt = eng._retriever
         out_r[:] = res.rots
-        if len(eng._chain):
-            out_r[:, eng._chain] = rots_fb[:, eng._chain]
+        for j in eng._chain.tolist():  # one joint at a time: basic indexing, no gather and scatter
+            out_r[:, j] = rots_fb[:, j]
         out_p[:] = pos_fb
         if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
             kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
