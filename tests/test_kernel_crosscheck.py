@@ -541,6 +541,36 @@ def compiled_functions() -> set[str]:
     return found
 
 
+@crosschecks("retrieval_numba:_prefetch_row")
+def test_prefetch_hints_change_nothing():
+    # The prefetch hints (LLVM's llvm.prefetch, named for this LLVM's pointers) compile and are
+    # only hints: every row, the last ones included, reads back as it was.
+    @numba.njit
+    def touch_and_sum(a, rows, idx):
+        for r in rows:
+            RN._prefetch_row(a, r)
+        for i in idx:
+            RN._prefetch(idx, (i,))
+        acc = 0.0
+        for r in rows:
+            for j in range(a.shape[1]):
+                acc += float(a[r, j])
+        return acc
+
+    rng = np.random.default_rng(31)
+    for dtype in (np.float32, np.float64):
+        a = rng.normal(size=(257, 13)).astype(dtype)
+        before = a.copy()
+        rows = np.array([0, 1, 128, 255, 256], dtype=np.int64)
+        got = touch_and_sum(a, rows, np.arange(5, dtype=np.int64))
+        np.testing.assert_array_equal(a, before)
+        want = 0.0
+        for r in rows:
+            for x in before[r].astype(np.float64):
+                want += float(x)
+        assert got == want
+
+
 # Kernels whose cross-check against the numpy reference lives next to that reference: the test
 # (file and name) that compares them. The guard checks that each named test exists.
 ELSEWHERE = {
@@ -567,6 +597,7 @@ ELSEWHERE = {
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (
         "retrieval_numba:gather", "retrieval_numba:_frames_of_nearest"),
     "test_retrieval.py::test_gathering_both_seams_at_once_equals_one_by_one": ("retrieval_numba:gather_seams",),
+    "test_retrieval.py::test_searching_both_parts_at_once_equals_each_alone": ("retrieval_numba:search_parts",),
     "test_retrieval.py::test_batched_seams_and_distances_equal_the_single_ones": (
         "retrieval_numba:seam_features", "retrieval_numba:seam_distances", "retrieval_numba:seam_rows",
         "retrieval_numba:_scale_rows"),

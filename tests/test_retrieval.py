@@ -707,6 +707,33 @@ def test_gathering_both_seams_at_once_equals_one_by_one(engine, circular):
             assert len(both[part][0]) >= retrieval.BUDGET
 
 
+def test_searching_both_parts_at_once_equals_each_alone(engine):
+    # search_parts (one compiled call for both body parts) finds what search_alphas finds for
+    # each part alone: the same segments, costs and counts, with and without the displacement.
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    rng = np.random.default_rng(14)
+    found = 0
+    for i in range(8):
+        ta, tb = engine.tracks[HELD_OUT[i % 3]], engine.tracks[HELD_OUT[(i + 1) % 3]]
+        a_end, b_start = int(rng.integers(2, len(ta.gpos))), int(rng.integers(0, len(tb.gpos) - 2))
+        qa, qb = rt.seam_pair(ta, [a_end - 1, a_end], tb, [b_start, b_start + 1])
+        gathered = rt.gather_seams(ta.features[a_end], tb.features[b_start])
+        d, alphas = float(rng.integers(6, 46)), (float(rng.random()), 0.0, 1.0)
+        disp = (float(rng.normal(scale=30)), float(rng.normal(scale=30)), float(rng.normal())) if i % 2 else None
+        both = rt.search_parts(qa, qb, gathered, d, 30.0, alphas, disp, 1 + i)
+        for part in (0, 1):
+            alone = rt.search_alphas(part, qa, qb, *gathered[part], d, 30.0, alphas, disp if part == 0 else None, 1 + i)
+            for got, ref in zip(both[part], alone):
+                assert (got is None) == (ref is None)
+                if ref is not None:
+                    for x, y in zip(got, ref):
+                        np.testing.assert_array_equal(x, y)
+                    found += len(ref[0])
+    assert found > 100
+    with pytest.raises(ValueError, match="top_k"):
+        rt.search_parts(qa, qb, gathered, 31.0, 30.0, (0.5,), None, 0)
+
+
 def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
     from posturemap.synth import retrieval_numba
 

@@ -450,6 +450,29 @@ class Retriever:
             return self._search_compiled(part, qa, qb, sa, sb, d, fps, alphas, disp, k)
         return self._search_numpy(part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive)
 
+    def search_parts(self, qa, qb, gathered, d, fps, alphas, disp=None, k=None, exhaustive=False):
+        """:meth:`search_alphas` of both body parts (``gathered`` = ``[(sa, sb)]`` per part; ``disp``
+        for the lower body only): ``[per alpha]`` per part. Where numba is in use, one compiled call
+        (:func:`posturemap.synth.retrieval_numba.search_parts`)."""
+        if exhaustive or _compiled() is None:
+            return [self.search_alphas(p, qa, qb, *gathered[p], d, fps, alphas, disp if p == 0 else None, k,
+                                       exhaustive) for p in (0, 1)]
+        k = TOP_K if k is None else int(k)
+        if k < 1:
+            raise ValueError(f"top_k must be at least 1, got {k}")
+        lib = self.lib
+        rows, pos_of = self.lists
+        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
+        (sa0, sb0), (sa1, sb1) = gathered
+        s, e, total, ca, cb, count = _compiled().search_parts(
+            *rows[0], *rows[1], pos_of, lib.clip_of, sa0, sb0, sa1, sb1, *self.query_vectors(0, qa),
+            *self.query_vectors(0, qb), *self.query_vectors(1, qa), *self.query_vectors(1, qb), ns, penalty, rates,
+            self.keep, np.array(alphas, dtype=np.float64), disp is not None, lib.gpos, lib.heading, lib.up,
+            np.array(disp if disp is not None else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg, W_DISP,
+            k)
+        return [[(s[p, r, :n], e[p, r, :n], total[p, r, :n], ca[p, r, :n], cb[p, r, :n]) if n else None
+                 for r, n in enumerate(counts)] for p, counts in enumerate(count.tolist())]
+
     def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive=False):
         """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
@@ -511,7 +534,7 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     """
     lo, hi = STILL_SPEED
     a, b = [i for i in range(3) if i != up]
-    speed = max(math.sqrt(q.root[a] ** 2 + q.root[b] ** 2) for q in (qa, qb)) / leg
+    speed = max(math.sqrt(r[a] ** 2 + r[b] ** 2) for r in (qa.root.tolist(), qb.root.tolist())) / leg
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
@@ -853,8 +876,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         alphas = tuple(a for a in dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ())))
                        if a not in searched)
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
-        per_part = [rt.search_alphas(p, qa, qb, *gathered[p], d, fps, alphas, disp if p == 0 else None, top_k,
-                                     exhaustive) for p in (0, 1)]
+        per_part = rt.search_parts(qa, qb, gathered, d, fps, alphas, disp, top_k, exhaustive)
         for i, a in enumerate(alphas):
             searched[a] = [per_part[0][i], per_part[1][i]]
     found = searched[float(alpha)]

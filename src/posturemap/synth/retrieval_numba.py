@@ -461,6 +461,26 @@ def search(P, V, Vn, pos_of, clip_of, sa, sb, pa, va, pb, vb, ns, penalty, rates
 
 
 @nb.njit(**_OPTS)
+def search_parts(P0, V0, Vn0, P1, V1, Vn1, pos_of, clip_of, sa0, sb0, sa1, sb1, pa0, va0, pb0, vb0, pa1, va1, pb1,
+                 vb1, ns, penalty, rates, keep, alphas, use_disp, gpos, heading, up, disp, disp_scale, w_disp, k):
+    """:func:`search` of both body parts in one call (the lower body's rows ``P0``, ``V0``,
+    ``Vn0``, gathered frames ``sa0``, ``sb0`` and seam rows ``pa0``... with the displacement term
+    when ``use_disp``; the upper body's without): ``(s, e, total, cost_a, cost_b)`` (2, A, k)
+    and the counts (2, A), part first."""
+    r0 = search(P0, V0, Vn0, pos_of, clip_of, sa0, sb0, pa0, va0, pb0, vb0, ns, penalty, rates, keep, alphas,
+                use_disp, gpos, heading, up, disp, disp_scale, w_disp, k)
+    r1 = search(P1, V1, Vn1, pos_of, clip_of, sa1, sb1, pa1, va1, pb1, vb1, ns, penalty, rates, keep, alphas,
+                False, gpos, heading, up, disp, disp_scale, w_disp, k)
+    n_a = alphas.shape[0]
+    s, e = np.empty((2, n_a, k), dtype=np.int64), np.empty((2, n_a, k), dtype=np.int64)
+    total, ca, cb = np.empty((2, n_a, k)), np.empty((2, n_a, k)), np.empty((2, n_a, k))
+    count = np.empty((2, n_a), dtype=np.int64)
+    s[0], e[0], total[0], ca[0], cb[0], count[0] = r0
+    s[1], e[1], total[1], ca[1], cb[1], count[1] = r1
+    return s, e, total, ca, cb, count
+
+
+@nb.njit(**_OPTS)
 def _sqdist(weights, i, cols, q, period):
     """Squared distance of neuron ``i`` to ``q`` over the columns ``cols`` (circular where
     ``period`` is finite; ``min(d, inf - d)`` leaves the others as they are)."""
