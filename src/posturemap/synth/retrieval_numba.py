@@ -1,7 +1,9 @@
-"""Compiled replay of retrieved segments (numba; cached on disk): see
-:func:`posturemap.synth.retrieval.replay_rotations`, whose numpy path is the reference it is tested
-against. Loaded only in processes that already use numba (training, the studio, benchmarks).
-Quaternions are (w, x, y, z) tuples inside; nothing is allocated per frame."""
+"""Compiled retrieval (numba; cached on disk): the gather, the search (with prefetch hints for
+the library rows it reads scattered), the seams, the replay of retrieved segments and the splice;
+each against the numpy steps of :mod:`posturemap.synth.retrieval` and
+:mod:`posturemap.synth.splice`, the references it is tested against. Loaded only in processes
+that already use numba (training, the studio, benchmarks). Quaternions are (w, x, y, z) tuples
+inside; nothing is allocated per frame."""
 
 from __future__ import annotations
 
@@ -928,16 +930,14 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
 
 @nb.njit(**_OPTS)
 def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e_b0, s_b1, e_b1, skip_upper, d, t,
-            joints0,
-            joints1, open_joints, a_rots, b_rots, ia, ib, curves, frames, lib_gpos, lib_heading, lib_contacts,
-            a_gpos, a_heading, b_gpos, b_heading, up, smooth, w, out, gpos, heading, shift, contacts):
+            joints0, joints1, open_joints, a_rots, b_rots, ia, ib, curves, frames, lib_gpos, lib_heading,
+            lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, smooth, w, out, gpos, heading, shift, contacts):
     """:func:`posturemap.synth.splice.spliced` after the search, in one call: both halves replayed
     (:func:`_replay_half`: the segments ``[s_a0, e_a0]`` (lower body) and ``[s_a1, e_a1]`` (upper)
     of the half continuing A, ``s_b*``, ``e_b*`` of the half arriving in B; ``skip_upper`` (2,)
     a half's upper body left out, ``frames`` (2, 2) the new frames each half shows; both halves'
-    legs are replayed) and spliced by the
-    weights ``w`` (:func:`splice`) into ``out`` (L, J, 4), ``gpos``, ``heading``, ``shift`` and
-    ``contacts``; returns B's turn."""
+    legs are replayed), then spliced by the weights ``w`` (:func:`splice`) into ``out``
+    (L, J, 4), ``gpos``, ``heading``, ``shift`` and ``contacts``; returns B's turn."""
     n_l, n_j = out.shape[0], out.shape[1]
     rot = np.empty((2, n_l, n_j, 4))
     g, h = np.empty((2, n_l, 3)), np.empty((2, n_l))
