@@ -113,17 +113,23 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift):
         assert np.all(raised[k0: k0 + k] > 0)
 
 
+def _pair_engine(bandai_files, a_name: str, b_name: str):
+    """Bandai clips ``a_name`` and ``b_name`` as "a" and "b" of a map-less engine: (engine, a, b)."""
+    by_name = {p.name: p for p in bandai_files}
+    a = bvh.read(by_name[f"dataset-1_{a_name}.bvh"])
+    b = bvh.read(by_name[f"dataset-1_{b_name}.bvh"])
+    e = TransitionEngine(None, a.skeleton)
+    e.add("a", a)
+    e.add("b", b)
+    return e, a, b
+
+
 def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
     # Transitions from a bow to a walk, B placed to continue A: between two frames where a foot
     # is fully locked it moves at most as fast as the step's smoothstep allows (1.5 / (step + 1)
     # of the largest A-to-B distance the lock accepts). Without the step (STEP_S = 0, as before
     # it existed) a foot planted at both seams jumps from A's spot to B's in one frame.
-    by_name = {p.name: p for p in bandai_files}
-    a = bvh.read(by_name["dataset-1_bow_normal_001.bvh"])
-    b = bvh.read(by_name["dataset-1_walk_normal_001.bvh"])
-    e = TransitionEngine(None, a.skeleton)
-    e.add("a", a)
-    e.add("b", b)
+    e, a, b = _pair_engine(bandai_files, "bow_normal_001", "walk_normal_001")
     ankles = [c[2] for c in e._legs]
     leg = leg_length(a.skeleton)
     bound = MAX_DRIFT[1] * leg * 1.5 / (round(STEP_S * a.fps) + 1)
@@ -148,12 +154,7 @@ def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
 
 @pytest.mark.parametrize("pair", [("walk_normal_001", "run_normal_001"), ("bow_normal_001", "walk_happy_001")])
 def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
-    by_name = {p.name: p for p in bandai_files}
-    a = bvh.read(by_name[f"dataset-1_{pair[0]}.bvh"])
-    b = bvh.read(by_name[f"dataset-1_{pair[1]}.bvh"])
-    e = TransitionEngine(None, a.skeleton)
-    e.add("a", a)
-    e.add("b", b)
+    e, a, b = _pair_engine(bandai_files, *pair)
     ankles = [c[2] for c in e._legs]
     rng = np.random.default_rng(1)
     free_steps, locked_steps = [], []
@@ -244,12 +245,7 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
 def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_ends(bandai_files, monkeypatch):
     # The lock's context: A's frames a_end - 1 and a_end, B's b_start and b_start + 1 (as placed),
     # the clip's end frame repeated where there is no other; also at the first and last frames.
-    by_name = {p.name: p for p in bandai_files}
-    a = bvh.read(by_name["dataset-1_walk_normal_001.bvh"])
-    b = bvh.read(by_name["dataset-1_run_normal_001.bvh"])
-    e = TransitionEngine(None, a.skeleton)
-    e.add("a", a)
-    e.add("b", b)
+    e, a, b = _pair_engine(bandai_files, "walk_normal_001", "run_normal_001")
     ta, tb = e.tracks["a"], e.tracks["b"]
     seen = []
     real = engine_module.lock_feet
