@@ -534,7 +534,7 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     """
     lo, hi = STILL_SPEED
     a, b = [i for i in range(3) if i != up]
-    speed = max(math.sqrt(r[a] ** 2 + r[b] ** 2) for r in (qa.root.tolist(), qb.root.tolist())) / leg
+    speed = max(math.sqrt(q.root[a] ** 2 + q.root[b] ** 2) for q in (qa, qb)) / leg
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 

@@ -21,7 +21,9 @@ from ..core.numba_kernels import _FAST, _mul, exp_relative, fk, log_relative, sl
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
-# LLVM's prefetch hint; its name carries the pointer type (typed pointers up to LLVM 14).
+# LLVM's prefetch hint; its name carries the pointer type: LLVM 14 (numba 0.59-0.60) wants
+# "p0i8", later ones "p0" (and rename it where they still print typed pointers). Checked with
+# numba 0.59.1 (LLVM 14), 0.61.2 (LLVM 15) and 0.68.1 (LLVM 22).
 _PREFETCH = "llvm.prefetch.p0" if llvmlite.binding.llvm_version_info >= (15,) else "llvm.prefetch.p0i8"
 AHEAD = 16  # how many rows ahead the search's scattered reads are prefetched
 
@@ -33,12 +35,16 @@ def _prefetch(typingctx, arr, index):
     effect on any value. The search reads library rows scattered over tens of megabytes: most
     reads miss the caches, and a row fetched while the previous ones are costed is there when
     its turn comes."""
+    if not (isinstance(arr, types.Array) and isinstance(index, types.BaseTuple) and len(index) == arr.ndim
+            and all(isinstance(t, types.Integer) for t in index)):
+        return None  # not an array and one integer per dimension: no such signature
     sig = types.void(arr, index)
 
     def codegen(context, builder, signature, args):
         aryty, idxty = signature.args
         ary = context.make_array(aryty)(context, builder, args[0])
-        idx = cgutils.unpack_tuple(builder, args[1], len(idxty))
+        idx = [context.cast(builder, x, t, types.intp)
+               for x, t in zip(cgutils.unpack_tuple(builder, args[1], len(idxty)), idxty)]
         ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False)
         i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
         fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
@@ -239,13 +245,16 @@ def _first_smallest(c, work, n_w, need, out, n_out):
 def _buckets(c, work, n_w, n_b, bucket, count):
     """Spread ``c[work[i]]`` (``c[i]`` when ``work`` is None), ``i < n_w``, over ``n_b`` buckets
     between their min and max: each one's bucket into ``bucket``, the buckets' sizes into
-    ``count``; False when all the values are equal (no buckets)."""
+    ``count``; 1 when done, 0 when all the values are equal, -1 when their range is not finite
+    (an infinite or NaN value: no buckets either way)."""
     lo = hi = c[0] if work is None else c[work[0]]
     for i in range(1, n_w):
         x = c[i] if work is None else c[work[i]]
         lo, hi = min(lo, x), max(hi, x)
+    if not hi - lo < np.inf:
+        return -1
     if not hi > lo:
-        return False
+        return 0
     scale = n_b / (hi - lo)
     count[:] = 0
     for i in range(n_w):
@@ -253,7 +262,7 @@ def _buckets(c, work, n_w, n_b, bucket, count):
         b = np.int64(x) if x < n_b else n_b - 1
         bucket[i] = b
         count[b] += 1
-    return True
+    return 1
 
 
 @nb.njit(**_OPTS)
@@ -281,10 +290,13 @@ def _smallest(c, keep):
     n_out, n_w, need = 0, n, keep
     first = True  # the first level: work is 0..n-1, read c directly
     while n_w > 16:
-        if not _buckets(c, None if first else work, n_w, n_b, bucket, count):  # all equal: the first ones
+        spread = _buckets(c, None if first else work, n_w, n_b, bucket, count)
+        if spread == 0:  # all equal: the first ones
             for i in range(need):
                 out[n_out + i] = i if first else work[i]
             return out
+        if spread < 0:  # a range that is not finite: pick one by one
+            break
         cut, below = 0, 0
         while below + count[cut] < need:
             below += count[cut]
@@ -306,7 +318,7 @@ def _smallest(c, keep):
         if need == n_w:
             out[n_out:] = work[:n_w]
             return out
-    if first:
+    if first:  # work was never filled: every index is still in
         for i in range(n):
             work[i] = i
     _first_smallest(c, work, n_w, need, out, n_out)
@@ -951,7 +963,10 @@ def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e
                           joints1, open_joints, a_rots, b_rots, ia, ib, curves, max(frames[1, 0], 0),
                           min(frames[1, 1], n_l), lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
                           b_heading, up, smooth, rot[1], g[1], h[1], sh[1], con[1])
-    return splice(rot[0], rot[1], w, g[0], h[0], g[1], h[1], a_gpos[ia[1]], a_heading[ia[1]], b_gpos[ib[0]], turn_b,
+    a_pos, b_pos = np.empty(3), np.empty(3)  # in float64, whatever the tracks' type (as splice() has them)
+    for c in range(3):
+        a_pos[c], b_pos[c] = a_gpos[ia[1], c], b_gpos[ib[0], c]
+    return splice(rot[0], rot[1], w, g[0], h[0], g[1], h[1], a_pos, np.float64(a_heading[ia[1]]), b_pos, turn_b,
                   sh[1], con[0], con[1], up, out, gpos, heading, shift, contacts)
 
 
