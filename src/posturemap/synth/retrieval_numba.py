@@ -37,7 +37,7 @@ def _prefetch(typingctx, arr, index):
     its turn comes."""
     if not (isinstance(arr, types.Array) and isinstance(index, types.BaseTuple) and len(index) == arr.ndim
             and all(isinstance(t, types.Integer) for t in index)):
-        return None  # not an array and one integer per dimension: no such signature
+        return None  # not an array with one integer per dimension: no such signature
     sig = types.void(arr, index)
 
     def codegen(context, builder, signature, args):
