@@ -442,9 +442,7 @@ class Retriever:
         """:meth:`search` for several ``alphas`` at once: one list entry per alpha, the same as
         searching for each alone (the candidates and their seam costs do not depend on alpha;
         only the ranking does), at the cost of one search."""
-        k = TOP_K if k is None else int(k)
-        if k < 1:
-            raise ValueError(f"top_k must be at least 1, got {k}")
+        k = _top_k(k)
         alphas = tuple(float(a) for a in alphas)
         if not exhaustive and _compiled() is not None:
             return self._search_compiled(part, qa, qb, sa, sb, d, fps, alphas, disp, k)
@@ -457,21 +455,14 @@ class Retriever:
         if exhaustive or _compiled() is None:
             return [self.search_alphas(p, qa, qb, *gathered[p], d, fps, alphas, disp if p == 0 else None, k,
                                        exhaustive) for p in (0, 1)]
-        k = TOP_K if k is None else int(k)
-        if k < 1:
-            raise ValueError(f"top_k must be at least 1, got {k}")
-        lib = self.lib
+        k = _top_k(k)
         rows, pos_of = self.lists
-        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
         (sa0, sb0), (sa1, sb1) = gathered
-        s, e, total, ca, cb, count = _compiled().search_parts(
-            *rows[0], *rows[1], pos_of, lib.clip_of, sa0, sb0, sa1, sb1, *self.query_vectors(0, qa),
-            *self.query_vectors(0, qb), *self.query_vectors(1, qa), *self.query_vectors(1, qb), ns, penalty, rates,
-            self.keep, np.array(alphas, dtype=np.float64), disp is not None, lib.gpos, lib.heading, lib.up,
-            np.array(disp if disp is not None else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg, W_DISP,
-            k)
-        return [[(s[p, r, :n], e[p, r, :n], total[p, r, :n], ca[p, r, :n], cb[p, r, :n]) if n else None
-                 for r, n in enumerate(counts)] for p, counts in enumerate(count.tolist())]
+        found = _compiled().search_parts(
+            *rows[0], *rows[1], pos_of, self.lib.clip_of, sa0, sb0, sa1, sb1, *self.query_vectors(0, qa),
+            *self.query_vectors(0, qb), *self.query_vectors(1, qa), *self.query_vectors(1, qb),
+            *self._kernel_terms(d, fps, alphas, disp), k)
+        return [_ranked(*(x[p] for x in found)) for p in (0, 1)]
 
     def _search_numpy(self, part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive=False):
         """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
@@ -498,17 +489,36 @@ class Retriever:
 
     def _search_compiled(self, part, qa, qb, sa, sb, d, fps, alphas, disp, k):
         """:meth:`search_alphas` in one compiled call (:func:`posturemap.synth.retrieval_numba.search`)."""
-        lib = self.lib
         rows, pos_of = self.lists
-        ns, penalty, rates = _warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP)
-        use_disp = disp is not None and part == 0
-        s, e, total, ca, cb, count = _compiled().search(
-            *rows[part], pos_of, lib.clip_of, np.asarray(sa, dtype=np.int64), np.asarray(sb, dtype=np.int64),
-            *self.query_vectors(part, qa), *self.query_vectors(part, qb), ns, penalty, rates, self.keep,
-            np.array(alphas, dtype=np.float64), use_disp, lib.gpos, lib.heading, lib.up,
-            np.asarray(disp if use_disp else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg, W_DISP, k)
-        return [(s[r, :n], e[r, :n], total[r, :n], ca[r, :n], cb[r, :n]) if n else None
-                for r, n in enumerate(count.tolist())]
+        return _ranked(*_compiled().search(
+            *rows[part], pos_of, self.lib.clip_of, np.asarray(sa, dtype=np.int64), np.asarray(sb, dtype=np.int64),
+            *self.query_vectors(part, qa), *self.query_vectors(part, qb),
+            *self._kernel_terms(d, fps, alphas, disp if part == 0 else None), k))
+
+    def _kernel_terms(self, d, fps, alphas, disp):
+        """The arguments both compiled searches take after the seams' rows: the durations, warp
+        penalties and speed factors, the prefilter's size, the alphas, and the displacement term
+        (whether, the library's root path, the gap's ``disp``, its scale and weight)."""
+        lib = self.lib
+        return (*_warp_terms(float(d), float(lib.fps), float(fps), WARPS, W_WARP), self.keep,
+                np.array(alphas, dtype=np.float64), disp is not None, lib.gpos, lib.heading, lib.up,
+                np.array(disp if disp is not None else (0.0, 0.0, 0.0), dtype=np.float64), DISP_SCALE * lib.leg,
+                W_DISP)
+
+
+def _top_k(k: int | None) -> int:
+    """How many best segments a search keeps (:data:`TOP_K` by default); at least 1."""
+    k = TOP_K if k is None else int(k)
+    if k < 1:
+        raise ValueError(f"top_k must be at least 1, got {k}")
+    return k
+
+
+def _ranked(s, e, total, ca, cb, count) -> list:
+    """A compiled search's rows (A, k) and counts (A,) as one entry per alpha: ``(s, e, total,
+    cost_a, cost_b)`` of its best segments, or None where none fits."""
+    return [(s[r, :n], e[r, :n], total[r, :n], ca[r, :n], cb[r, :n]) if n else None
+            for r, n in enumerate(count.tolist())]
 
 
 @lru_cache(maxsize=256)
