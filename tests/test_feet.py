@@ -10,7 +10,8 @@ from posturemap.evaluate import metrics
 from posturemap.core import quat
 from posturemap.core.joints import leg_chains, leg_length
 from posturemap.synth import feet
-from posturemap.synth.feet import FADE, MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, two_bone_ik
+from posturemap.synth.feet import (MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, soft_reach,
+                                   swing_offsets, two_bone_ik)
 from posturemap.core.skeleton import fk
 from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine
@@ -59,7 +60,7 @@ def test_contact_runs():
     assert contact_runs(np.zeros(4, bool)) == []
 
 
-def test_lock_targets_from_a_and_b_and_fades_in_the_air():
+def test_lock_targets_from_a_and_b_and_nothing_in_the_air():
     length = 20
     h = np.full(length, 30.0)
     h[:5] = 0.5   # planted at the start (A's end)
@@ -74,16 +75,85 @@ def test_lock_targets_from_a_and_b_and_fades_in_the_air():
     np.testing.assert_array_equal(target[:5], np.tile(a_spot, (5, 1)))
     np.testing.assert_array_equal(target[15:], np.tile(b_spot, (5, 1)))
     np.testing.assert_array_equal(target[10:12], np.tile(horiz[10], (2, 1)))  # the run's middle
-    # Fades happen in the air next to the runs, decreasing away from them.
-    assert w[5] == pytest.approx(1 - 1 / (FADE + 1)) and w[6] == pytest.approx(1 - 2 / (FADE + 1))
-    np.testing.assert_array_equal(target[5:7], np.tile(a_spot, (2, 1)))  # fading out of A's spot
-    # Not planted at A's end: the first run gets its own spot and fades in.
+    # In the air: no weight, the foot's own position (swing_offsets carries the corrections there).
+    assert not w[5:10].any() and not w[12:15].any()
+    np.testing.assert_array_equal(target[5:10], horiz[5:10])
+    # Not planted at A's end: the first run gets its own spot.
     w2, t2, _ = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
     np.testing.assert_array_equal(t2[:5], np.tile(horiz[2], (5, 1)))
     # A fast low foot is swinging, not planted.
     w3, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
                                         speed=np.full(length, 5.0), speed_tol=1.0)
     assert not w3.any()
+
+
+def test_swing_offsets_carry_the_runs_corrections_smoothly():
+    # Runs [3, 7) and [12, 16) of 20 frames hold corrections that drift; the frames around them get
+    # a curve with the runs' values and rates at its ends, starting and ending at rest on 0 at A's
+    # last frame (-1) and B's first (20).
+    length = 20
+    runs = [(3, 7), (12, 16)]
+    offset = np.zeros((length, 2))
+    offset[3:7] = np.array([4.0, -1.0]) + np.arange(4)[:, None] * [0.5, 0.25]
+    offset[12:16] = np.array([-6.0, 2.0]) + np.arange(4)[:, None] * [-0.3, 0.0]
+    in_runs = offset.copy()
+    swing_offsets(offset, runs)
+    for start, stop in runs:
+        np.testing.assert_array_equal(offset[start:stop], in_runs[start:stop])  # runs untouched
+    full = np.concatenate([np.zeros((2, 2)), offset, np.zeros((2, 2))])  # A's last 2 frames, B's first 2
+    rate = np.diff(full, axis=0)
+    # The rate changes little from one frame to the next anywhere (no jump in value or rate),
+    # against a ramp over 3 frames that would step the rate by a third of the 6-unit run value.
+    assert np.abs(np.diff(rate, axis=0)).max() < 1.5
+    # Value and rate are both continued: runs on one straight line give that line between them.
+    line = np.zeros((length, 2))
+    line[3:7] = line[12:16] = 0.0
+    for start, stop in runs:
+        line[start:stop, 0] = 1.0 + 0.5 * np.arange(start, stop)
+    swing_offsets(line, runs)
+    np.testing.assert_allclose(line[7:12, 0], 1.0 + 0.5 * np.arange(7, 12), atol=1e-12)
+    # Before the first run the offset rises from rest at 0; after the last it settles to 0.
+    assert np.all(np.abs(offset[0]) < np.abs(offset[1])) and np.all(np.abs(offset[1]) < np.abs(offset[2]))
+    assert np.all(np.abs(offset[-1]) < np.abs(offset[-2]))
+    # No runs: nothing moves.
+    empty = np.ones((length, 2))
+    assert not swing_offsets(empty, []).any()
+
+
+def test_soft_reach_is_the_distance_until_the_last_part_of_the_reach():
+    reach, soft = 2.0, 0.05
+    d = np.linspace(0.0, 4.0, 4001)
+    current = np.full_like(d, 1.0)
+    out = soft_reach(d, current, reach, soft)
+    inside = d <= (1 - soft) * reach
+    np.testing.assert_array_equal(out[inside], d[inside])  # reached exactly
+    assert np.all(out < reach) and np.all(np.diff(out) >= 0)  # never straight, never back
+    slope = np.diff(out) / np.diff(d)
+    assert np.abs(np.diff(slope)).max() < 0.01  # no kink where the soft part starts
+    # A foot already farther out than the soft part's start is not moved by its own position.
+    np.testing.assert_array_equal(soft_reach(np.array([1.97]), np.array([1.97]), reach, soft), [1.97])
+    assert soft_reach(np.array([1.99]), np.array([1.97]), reach, soft)[0] < 1.99
+
+
+def test_soft_ik_bends_the_knee_smoothly_near_full_reach():
+    # A target pulled away from the hip past the leg's reach: the hard IK snaps the knee straight
+    # (the knee's angle changes fastest just before), the soft one straightens it gradually.
+    parents = np.array([-1, 0, 1])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    bend = quat.from_axis_angle(np.array([1.0, 0, 0]), 0.6)
+    local = np.stack([quat.identity(), bend, quat.identity()])[None].repeat(200, axis=0)
+    pos = np.broadcast_to(offsets, (200, 3, 3)).copy()
+    grot, gpos = fk(parents, local, pos)
+    dist = np.linalg.norm(gpos[0, 2]) + np.linspace(0.0, 0.3, 200)
+    target = gpos[:, 2] / np.linalg.norm(gpos[:, 2], axis=-1, keepdims=True) * dist[:, None]
+    knee = {}
+    for soft in (0.0, 0.05):
+        a_lr, b_lr = two_bone_ik(gpos[:, 0], gpos[:, 1], gpos[:, 2], target, grot[:, 0], grot[:, 1],
+                                 local[:, 0], local[:, 1], soft=soft)
+        knee[soft] = quat.angle_between(b_lr, quat.identity()[None])
+    step = {soft: np.abs(np.diff(k)).max() for soft, k in knee.items()}
+    assert step[0.05] < 0.5 * step[0.0], step
+    assert knee[0.05].min() > 0  # never fully straight
 
 
 @pytest.mark.parametrize("step, lift", [(9, 8.0), (9, 100.0), (40, 8.0), (0, 8.0)])
@@ -196,12 +266,12 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
     g_all = fk(sk.parents, m.rotations, m.positions)[1]
     rng = np.random.default_rng(7)
     length = 30
-    weights_seen = []
+    weights_seen, moved_in_air = [], []
     for trial in range(20):
         start = int(rng.integers(2, len(m) - length - 2))
         axis = rng.normal(size=(length, sk.num_joints, 3))
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-        if trial % 4:
+        if trial % 4 > 1:
             # The clip's frames turned a little at every joint; A's and B's feet from around them.
             frames = np.arange(start, start + length)
             angle = rng.normal(scale=0.05, size=(length, sk.num_joints))
@@ -216,6 +286,8 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
             a_feet = np.repeat(g_all[start: start + 1, ankles], 2, axis=0)
             b_feet = a_feet + rng.normal(scale=0.5, size=(1, len(ankles), 3)) * (np.arange(3) != up)
             contacts = np.ones((length, len(chains)), dtype=bool) if given_contacts else None
+            if trial % 4 == 1:  # B's feet a third of a leg away: the run to B's spot is locked partly
+                b_feet = b_feet + leg_length(sk, chains) / 3 * (np.arange(3) == (up + 1) % 3)
         rots = quat.mul(m.rotations[frames], quat.from_axis_angle(axis, angle))
         pos = m.positions[frames].copy()
 
@@ -237,9 +309,14 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
         np.testing.assert_allclose(w_nb, w_np, atol=1e-12)
         np.testing.assert_allclose(r_nb, r_np, atol=1e-10)
         weights_seen.append(w_np)
+        thighs = [c[0] for c in chains]
+        moved_in_air.append((np.abs(r_np[:, thighs] - rots[:, thighs]).max(axis=-1) > 1e-9) & (w_np == 0))
     w = np.concatenate(weights_seen)
-    # Not a vacuous comparison: feet were locked, faded in and out, and left free.
-    assert np.sum(w == 1.0) > 20 and np.sum((w > 0) & (w < 1)) > 5 and np.sum(w == 0) > 20
+    # Not a vacuous comparison: feet were locked, partly locked (a far spot) and left free; with
+    # the given contacts' many short runs, legs were also moved in the air between runs.
+    assert np.sum(w == 1.0) > 20 and np.sum((w > 0) & (w < 1)) > 20 and np.sum(w == 0) > 20
+    if given_contacts:
+        assert np.concatenate(moved_in_air).sum() > 20
 
 
 def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_ends(bandai_files, monkeypatch):

@@ -391,16 +391,23 @@ def _axis_angle_in(q, ax, ay, az, angle):
 
 
 @nb.njit(**_OPTS)
-def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps):
-    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f``: returns the thigh's and shin's
-    new local rotations (``lock_legs`` writes them, and the ankle's that keeps the foot's global
-    rotation)."""
+def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft):
+    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` as there): returns the
+    thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that keeps
+    the foot's global rotation)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
     bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
     cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
-    lat = min(max(math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2), eps), lab + lcb - eps)
+    lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
+    if soft > 0.0:  # posturemap.synth.feet.soft_reach
+        reach = lab + lcb
+        start = max(math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2), (1.0 - soft) * reach)
+        room = reach - start
+        if lat > start and room > 0.0:
+            lat = start + room * -math.expm1(-((lat - start) / room))
+    lat = min(max(lat, eps), lab + lcb - eps)
     ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
     ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)
     ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
@@ -424,20 +431,23 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps):
 
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
-              fade, drift_lo, drift_hi, eps, step, lift, weights):
+              drift_lo, drift_hi, eps, soft, step, lift, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
     grot/gpos (L, J, 4/3) their global rotations and positions; a_feet/b_feet (2, n, 3) ankle
     positions in A's last two and B's first two frames; contacts (L, n) planted frames, or an
-    array with no rows to detect them from height and speed; step (frames) and lift (length
-    unit): the step of a foot planted all through from A's spot to B's; weights (L, n) out.
+    array with no rows to detect them from height and speed; drift_lo/drift_hi, eps and soft:
+    ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
+    and lift (length unit): the step of a foot planted all through from A's spot to B's;
+    weights (L, n) out.
     """
     n_l = rots.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     on = np.empty(n_l, dtype=np.bool_)
     weight = np.empty(n_l)
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
+    offset = np.empty((n_l, 2))  # the ankle's horizontal correction (posturemap.synth.feet.swing_offsets)
     raised = np.empty(n_l)  # the step's lift
     goal = np.empty(3)
     for leg in range(legs.shape[0]):
@@ -513,25 +523,62 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     sa, sb = ma, mb
                 weight[u] = 1.0
                 target[u, 0], target[u, 1] = sa, sb
-            for k in range(1, fade + 1):
-                w = 1.0 - k / (fade + 1.0)
-                for side in range(2):
-                    tt = start - k if side == 0 else stop - 1 + k
-                    src = start if side == 0 else stop - 1
-                    if 0 <= tt < n_l and not on[tt] and w > weight[tt]:
-                        weight[tt] = w
-                        target[tt, 0], target[tt, 1] = target[src, 0], target[src, 1]
+        # Each run's offset, scaled down as a whole where its spot is far from the foot.
         for t in range(n_l):
-            ha, hb = gpos[t, ankle, a_], gpos[t, ankle, b_]
-            drift = math.sqrt((target[t, 0] - ha) ** 2 + (target[t, 1] - hb) ** 2) / body
-            w = weight[t] * min(max((drift_hi - drift) / (drift_hi - drift_lo), 0.0), 1.0)
-            weights[t, leg] = w
-            if not w > 0.0:
+            offset[t, 0] = target[t, 0] - gpos[t, ankle, a_]
+            offset[t, 1] = target[t, 1] - gpos[t, ankle, b_]
+        t = 0
+        while t < n_l:
+            if not on[t]:
+                t += 1
                 continue
-            goal[a_] = ha + w * (target[t, 0] - ha)
-            goal[b_] = hb + w * (target[t, 1] - hb)
-            goal[up] = gpos[t, ankle, up] + w * raised[t]
-            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps)
+            start = t
+            drift = 0.0
+            while t < n_l and on[t]:
+                drift = max(drift, math.sqrt(offset[t, 0] ** 2 + offset[t, 1] ** 2) / body)
+                t += 1
+            scale = min(max((drift_hi - drift) / (drift_hi - drift_lo), 0.0), 1.0)
+            for u in range(start, t):
+                weight[u] *= scale
+                offset[u, 0] *= scale
+                offset[u, 1] *= scale
+                raised[u] *= scale
+        # Carried through the frames between the runs: cubic Hermite from the value and rate at
+        # one run's end (0 at rest on frame -1) to those at the next one's start (0 on frame L).
+        prev, vp0, vp1, rp0, rp1 = -1, 0.0, 0.0, 0.0, 0.0
+        t = 0
+        while True:
+            while t < n_l and not on[t]:
+                t += 1
+            q, vq0, vq1, rq0, rq1 = t, 0.0, 0.0, 0.0, 0.0
+            stop = t
+            while stop < n_l and on[stop]:
+                stop += 1
+            if q < n_l:
+                vq0, vq1 = offset[q, 0], offset[q, 1]
+                if stop - q >= 2:
+                    rq0, rq1 = offset[q + 1, 0] - offset[q, 0], offset[q + 1, 1] - offset[q, 1]
+            span = float(q - prev)
+            for f in range(prev + 1, q):
+                u = (f - prev) / span
+                h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+                h01, h11 = 3 * u**2 - 2 * u**3, u**3 - u**2
+                offset[f, 0] = h00 * vp0 + h10 * span * rp0 + h01 * vq0 + h11 * span * rq0
+                offset[f, 1] = h00 * vp1 + h10 * span * rp1 + h01 * vq1 + h11 * span * rq1
+            if q >= n_l:
+                break
+            prev, vp0, vp1, rp0, rp1 = stop - 1, offset[stop - 1, 0], offset[stop - 1, 1], 0.0, 0.0
+            if stop - q >= 2:
+                rp0, rp1 = offset[stop - 1, 0] - offset[stop - 2, 0], offset[stop - 1, 1] - offset[stop - 2, 1]
+            t = stop
+        for t in range(n_l):
+            weights[t, leg] = weight[t]
+            if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
+                continue
+            goal[a_] = gpos[t, ankle, a_] + offset[t, 0]
+            goal[b_] = gpos[t, ankle, b_] + offset[t, 1]
+            goal[up] = gpos[t, ankle, up] + raised[t]
+            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps, soft)
             # Keep the foot's global orientation: its parent chain turned.
             p = parents[thigh]
             sg = _mul(grot[t, p, 0], grot[t, p, 1], grot[t, p, 2], grot[t, p, 3], th[0], th[1], th[2], th[3])

@@ -4,15 +4,22 @@ The paper leaves the "skidding effect between ground and foot" open. Here, after
 in-between frames are made:
 
 1. each ankle's height and speed tell when it is on the ground (in the frames around the seams
-   and in the new frames);
+   and in the new frames), or the retrieved segment's contacts say so;
 2. every run of ground frames gets one spot: A's last foot position if the run starts at A's
    end with the foot planted there, B's first if it ends at B's start with the foot planted,
    otherwise the foot's position in the middle of the run. A foot planted all through a gap, on
    A's spot at one end and B's at the other, makes a step between them in the middle of the run
    (lifted, over ``STEP_S`` seconds) instead of jumping;
-3. the ankle is pulled onto that spot (height kept), fading in and out over a few frames at
-   the ends of a run, by analytic two-bone IK on thigh and shin (Holden's formulation); the
-   foot keeps its global orientation.
+3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
+   where the motion put it, scaled down for a run whose spot lies far from the foot
+   (``MAX_DRIFT``). Between runs, while the foot is in the air, the offset passes smoothly (a
+   cubic with the runs' offsets and their rates at both ends) from one run's to the next, and
+   from and to zero at A's and B's frames: the correction a planted foot needs is spread over
+   the whole swing, not made in a few frames before and after it;
+4. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
+   position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
+   end of the leg's reach bends the knee smoothly instead of snapping it straight. The foot keeps
+   its global orientation.
 
 Legs are found by name (:func:`posturemap.core.joints.leg_chains`); thresholds in leg lengths
 (:mod:`posturemap.core.joints`).
@@ -26,12 +33,12 @@ from ..core import kernels, quat
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length
 from ..core.skeleton import Skeleton
 
-FADE = 3  # frames to fade the lock in and out
-MAX_DRIFT = (0.2, 0.4)  # leg lengths: a lock that would move the foot farther than the
-#                           first fades out, and is gone at the second (the leg would stretch)
+MAX_DRIFT = (0.2, 0.4)  # leg lengths: a run whose spot lies farther from the foot than the first
+#                           (at its farthest frame) is locked partly, not at all at the second
 STEP_S = 0.3  # seconds of the step from A's spot to B's of a foot planted all through a gap
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
+SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_reach)
 
 
 def _compiled():
@@ -40,11 +47,28 @@ def _compiled():
     return kernels.compiled() if kernels.backend() == "numba" else None
 
 
-def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
+def soft_reach(dist, current, reach, soft):
+    """The thigh-ankle distance the IK aims at for a target ``dist`` away, the ankle now
+    ``current`` away and the leg ``reach`` long (arrays of one shape): ``dist`` itself up to
+    ``start = max(current, (1 - soft) * reach)``, beyond it ``start + room * (1 - exp(-(dist -
+    start) / room))`` with ``room = reach - start``: it meets the line at ``start`` with slope 1
+    and never reaches ``reach`` (soft IK). A target near the end of the reach bends the knee
+    smoothly instead of snapping it straight (where the knee's angle changes fastest with the
+    distance); a foot already as far out as the target is not moved."""
+    start = np.maximum(current, (1.0 - soft) * reach)
+    room = reach - start
+    ok = (dist > start) & (room > 0)
+    excess = np.where(ok, dist - start, 0.0) / np.where(ok, room, 1.0)
+    return np.where(ok, start + room * -np.expm1(-excess), dist)
+
+
+def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
     """Local rotations of joints a (thigh) and b (shin) that put c (ankle) on target t.
 
     Positions (N, 3), global rotations ``a_gr``/``b_gr`` and local rotations ``a_lr``/``b_lr``
     (N, 4). Returns the new ``(a_lr, b_lr)``; the knee stays in its current bending plane.
+    ``soft`` > 0: the last ``soft`` of the leg's reach is approached softly (:func:`soft_reach`;
+    a target there is reached a little short).
     """
     def norm(v):
         return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
@@ -54,7 +78,10 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5):
 
     lab = np.linalg.norm(b - a, axis=-1)
     lcb = np.linalg.norm(b - c, axis=-1)
-    lat = np.clip(np.linalg.norm(t - a, axis=-1), eps, lab + lcb - eps)
+    lat = np.linalg.norm(t - a, axis=-1)
+    if soft > 0:
+        lat = soft_reach(lat, np.linalg.norm(c - a, axis=-1), lab + lcb, soft)
+    lat = np.clip(lat, eps, lab + lcb - eps)
     ac_ab_0, ba_bc_0, ac_at_0 = angle(c - a, b - a), angle(a - b, c - b), angle(c - a, t - a)
     ac_ab_1 = np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0))
     ba_bc_1 = np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0))
@@ -82,10 +109,10 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``a_on``/``b_on`` whether the foot is planted at A's end / B's start and ``a_spot``/``b_spot``
     where (up coordinate zeroed). A frame is on the ground when the ankle is low and, given
     ``speed`` (L,) per frame, slow (a low foot that swings through is not planted). Inside a run
-    of ground frames the weight is 1; it fades over ``FADE`` frames before and after the run,
-    while the foot is in the air, so the foot never slides along the ground to catch up.
-    ``on`` (L,) bool, when given, says which frames are planted instead (e.g. the contacts of
-    a retrieved real segment).
+    of ground frames the weight is 1 and the target the run's spot; elsewhere the weight is 0 and
+    the target the foot's own position (:func:`swing_offsets` carries the runs' corrections
+    through the frames between them). ``on`` (L,) bool, when given, says which frames are planted
+    instead (e.g. the contacts of a retrieved real segment).
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
@@ -123,13 +150,43 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
             spot[:] = horiz[(start + stop - 1) // 2]
         weight[start:stop] = 1.0
         target[start:stop] = spot
-        for k in range(1, FADE + 1):
-            w = 1.0 - k / (FADE + 1.0)
-            for t, where in ((start - k, spot[0]), (stop - 1 + k, spot[-1])):
-                if 0 <= t < length and not on[t] and w > weight[t]:
-                    weight[t] = w
-                    target[t] = where
     return weight, target, raised
+
+
+def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
+    """Fill ``offset`` (L, k) between the ``runs`` (``[start, stop)``, in order) in place; returns it.
+
+    ``offset`` holds in the runs' frames what they need (a planted foot's correction). Each stretch
+    of frames between two runs gets the cubic Hermite curve from the value and rate (the
+    difference of its last two frames; 0 for a one-frame run) at the end of the run before to those
+    at the start of the run after; before the first run it starts from 0 at rest on frame -1 (A's
+    last frame), after the last it comes to rest at 0 on frame L (B's first). Without runs the
+    offset is 0. The curve has a continuous value and rate everywhere, A's and B's frames included.
+    """
+    length = len(offset)
+    zero = np.zeros(offset.shape[1:])
+
+    def rate(start, stop, at_start):
+        if stop - start < 2:
+            return zero
+        return offset[start + 1] - offset[start] if at_start else offset[stop - 1] - offset[stop - 2]
+
+    if not runs:
+        offset[:] = 0.0
+        return offset
+    anchors = [(-1, zero, zero)]  # (frame, value, rate) at each side of a free stretch
+    for start, stop in runs:
+        anchors += [(start, offset[start], rate(start, stop, True)),
+                    (stop - 1, offset[stop - 1], rate(start, stop, False))]
+    anchors.append((length, zero, zero))
+    for (p, vp, rp), (q, vq, rq) in zip(anchors[0::2], anchors[1::2], strict=True):
+        if q - p < 2:
+            continue
+        span = float(q - p)
+        u = (np.arange(p + 1, q) - p)[:, None] / span
+        offset[p + 1: q] = ((2 * u**3 - 3 * u**2 + 1) * vp + (u**3 - 2 * u**2 + u) * span * rp
+                            + (3 * u**2 - 2 * u**3) * vq + (u**3 - u**2) * span * rq)
+    return offset
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
@@ -143,7 +200,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     given, are the planted frames (otherwise they are detected from height and speed). ``body``:
     :func:`leg_length` of the skeleton, when the caller keeps it.
 
-    Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, fading to 0.
+    Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, less in a run whose
+    spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs' corrections are
+    carried smoothly: :func:`swing_offsets`).
     """
     weights = np.zeros((len(rots), len(chains)))
     if not chains or len(rots) == 0:
@@ -158,7 +217,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
         jit.lock_legs(sk.parents, legs, rots, grot, gpos, up,
                       np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
-                      speed_tol, planted, FADE, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, round(STEP_S * fps),
+                      speed_tol, planted, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, round(STEP_S * fps),
                       STEP_LIFT * body, weights)
         return weights
     flat = np.ones(3)
@@ -184,20 +243,28 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
                                                           on, round(STEP_S * fps), STEP_LIFT * body)
-        drift = np.linalg.norm(target - horiz, axis=-1) / body
+        # Each run's offset, scaled down as a whole where its spot is far from the foot; carried
+        # through the frames between the runs.
+        runs = contact_runs(weight > 0)
+        offset = target - horiz
         lo, hi = MAX_DRIFT
-        weight *= np.clip((hi - drift) / (hi - lo), 0.0, 1.0)
+        for start, stop in runs:
+            drift = float(np.linalg.norm(offset[start:stop], axis=-1).max()) / body
+            scale = min(max((hi - drift) / (hi - lo), 0.0), 1.0)
+            weight[start:stop] *= scale
+            offset[start:stop] *= scale
+            raised[start:stop] *= scale
+        swing_offsets(offset, runs)
         weights[:, leg] = weight
-        frames = np.flatnonzero(weight > 0)
+        frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:
             continue
-        goal = gpos[frames, ankle] * flat
-        goal = goal + weight[frames, None] * (target[frames] - goal)
-        goal[:, up] = gpos[frames, ankle, up] + weight[frames] * raised[frames]
+        goal = gpos[frames, ankle] + offset[frames]
+        goal[:, up] = gpos[frames, ankle, up] + raised[frames]
         foot_global = grot[frames, ankle]
         new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
                                           grot[frames, thigh], grot[frames, shin],
-                                          rots[frames, thigh], rots[frames, shin], IK_EPS)
+                                          rots[frames, thigh], rots[frames, shin], IK_EPS, SOFT_REACH)
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
         # Keep the foot's global orientation: its parent chain turned.
