@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -9,8 +11,9 @@ from posturemap.io import bvh
 from posturemap.evaluate import metrics
 from posturemap.core import quat
 from posturemap.core.joints import leg_chains, leg_length
+from posturemap.core.motion import up_axis
 from posturemap.synth import feet
-from posturemap.synth.feet import (MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, soft_reach,
+from posturemap.synth.feet import (MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, soft_limit,
                                    swing_offsets, two_bone_ik)
 from posturemap.core.skeleton import fk
 from posturemap.synth import engine as engine_module
@@ -120,19 +123,65 @@ def test_swing_offsets_carry_the_runs_corrections_smoothly():
     assert not swing_offsets(empty, []).any()
 
 
-def test_soft_reach_is_the_distance_until_the_last_part_of_the_reach():
-    reach, soft = 2.0, 0.05
-    d = np.linspace(0.0, 4.0, 4001)
-    current = np.full_like(d, 1.0)
-    out = soft_reach(d, current, reach, soft)
-    inside = d <= (1 - soft) * reach
-    np.testing.assert_array_equal(out[inside], d[inside])  # reached exactly
-    assert np.all(out < reach) and np.all(np.diff(out) >= 0)  # never straight, never back
-    slope = np.diff(out) / np.diff(d)
+def test_soft_limit_is_the_value_until_its_start_then_bends_onto_the_limit():
+    start, limit = 1.9, 2.0
+    x = np.linspace(0.0, 4.0, 4001)
+    out = soft_limit(x, start, limit)
+    inside = x <= start
+    np.testing.assert_array_equal(out[inside], x[inside])  # the value itself up to the start
+    assert np.all(out < limit) and np.all(np.diff(out) >= 0)  # never the limit, never back
+    slope = np.diff(out) / np.diff(x)
     assert np.abs(np.diff(slope)).max() < 0.01  # no kink where the soft part starts
-    # A foot already farther out than the soft part's start is not moved by its own position.
-    np.testing.assert_array_equal(soft_reach(np.array([1.97]), np.array([1.97]), reach, soft), [1.97])
-    assert soft_reach(np.array([1.99]), np.array([1.97]), reach, soft)[0] < 1.99
+    # Per element (the IK's start is the ankle's own distance where that is farther out), and
+    # no bend where the limit is not above the start.
+    np.testing.assert_array_equal(soft_limit(np.array([1.97, 1.5]), np.array([1.97, 2.0]), 2.0), [1.97, 1.5])
+    assert soft_limit(np.array([1.99]), np.array([1.97]), 2.0)[0] < 1.99
+    # The compiled scalar version gives the same values.
+    from posturemap.core import kernels
+    jit = kernels.compiled()
+    for xs, st, lim in ((x[::50], start, limit), (np.array([1.5, 2.5]), 2.0, 2.0), (np.array([0.3]), 0.2, 0.4)):
+        np.testing.assert_allclose([jit._soft_limit(v, st, lim) for v in xs], soft_limit(xs, st, lim), rtol=1e-12)
+
+
+def test_a_far_spot_drags_the_foot_instead_of_letting_it_go(sample_clips):
+    # A foot planted on a spot a growing distance from where the motion puts it: held exactly
+    # while the spot is within MAX_DRIFT[0] leg lengths, then moved ever less of the way, never
+    # more than MAX_DRIFT[1]; the weight is the fraction of the way.
+    from posturemap.core import kernels
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)[:1]
+    leg = leg_length(sk, chains)
+    length = 20
+    rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+    g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    # The motion's foot slides sideways (0 to 0.6 leg lengths) while its contacts say planted;
+    # A's end planted on the first frame's spot.
+    pos[:, 0] -= np.linspace(0.0, 0.6 * leg, length)[:, None] * side
+    a_feet = np.repeat(g[:1], 2, axis=0)[:, None]
+    b_feet = a_feet + 5 * leg * side  # far away and not relevant (no run reaches B)
+    contacts = np.ones((length, 1), dtype=bool)
+    contacts[-1] = False
+    for backend in ("numpy", "numba"):
+        r = rots.copy()
+        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
+        if backend == "numba":
+            kernels.compiled()
+        with ctx:
+            w = feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, m.fps,
+                               contacts)
+        ankle = fk(sk.parents, r, pos)[1][:, chains[0][2]]
+        moved = np.linalg.norm((ankle - g[:1]) * (1 - (np.arange(3) == up)), axis=-1) / leg
+        slide = np.linspace(0.0, 0.6, length)[:-1]
+        held = slide <= MAX_DRIFT[0]
+        assert np.all(w[:-1][held, 0] == 1) and np.all(moved[:-1][held] < 1e-6)
+        assert np.all(np.diff(w[:-1][~held, 0]) < 0) and np.all(w[:-1][~held, 0] > 0)
+        # Where the foot is dragged, the correction (slide less what is left of it) grows past the
+        # first bound and stays under the second.
+        correction = slide - moved[:-1]
+        assert np.all(moved[:-1][~held] > 0) and np.all(np.diff(correction[~held]) > 0)
+        assert np.all(correction[~held] > MAX_DRIFT[0] - 1e-9) and np.all(correction < MAX_DRIFT[1])
 
 
 def test_soft_ik_bends_the_knee_smoothly_near_full_reach():

@@ -391,6 +391,15 @@ def _axis_angle_in(q, ax, ay, az, angle):
 
 
 @nb.njit(**_OPTS)
+def _soft_limit(x, start, limit):
+    """:func:`posturemap.synth.feet.soft_limit` of one value."""
+    room = limit - start
+    if x > start and room > 0.0:
+        return start + room * -math.expm1(-((x - start) / room))
+    return x
+
+
+@nb.njit(**_OPTS)
 def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft):
     """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` as there): returns the
     thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that keeps
@@ -401,12 +410,10 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
-    if soft > 0.0:  # posturemap.synth.feet.soft_reach
+    if soft > 0.0:  # soft IK (posturemap.synth.feet.two_bone_ik)
         reach = lab + lcb
-        start = max(math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2), (1.0 - soft) * reach)
-        room = reach - start
-        if lat > start and room > 0.0:
-            lat = start + room * -math.expm1(-((lat - start) / room))
+        lat = _soft_limit(lat, max(math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2), (1.0 - soft) * reach),
+                          reach)
     lat = min(max(lat, eps), lab + lcb - eps)
     ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
     ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)
@@ -523,26 +530,17 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     sa, sb = ma, mb
                 weight[u] = 1.0
                 target[u, 0], target[u, 1] = sa, sb
-        # Each run's offset, scaled down as a whole where its spot is far from the foot.
+        # The runs' offsets, softly limited where the spot is far from the foot.
         for t in range(n_l):
             offset[t, 0] = target[t, 0] - gpos[t, ankle, a_]
             offset[t, 1] = target[t, 1] - gpos[t, ankle, b_]
-        t = 0
-        while t < n_l:
-            if not on[t]:
-                t += 1
-                continue
-            start = t
-            drift = 0.0
-            while t < n_l and on[t]:
-                drift = max(drift, math.sqrt(offset[t, 0] ** 2 + offset[t, 1] ** 2) / body)
-                t += 1
-            scale = min(max((drift_hi - drift) / (drift_hi - drift_lo), 0.0), 1.0)
-            for u in range(start, t):
-                weight[u] *= scale
-                offset[u, 0] *= scale
-                offset[u, 1] *= scale
-                raised[u] *= scale
+            far = math.sqrt(offset[t, 0] ** 2 + offset[t, 1] ** 2) / body
+            if on[t] and far > 0.0:
+                scale = _soft_limit(far, drift_lo, drift_hi) / far
+                weight[t] *= scale
+                offset[t, 0] *= scale
+                offset[t, 1] *= scale
+                raised[t] *= scale
         # Carried through the frames between the runs: cubic Hermite from the value and rate at
         # one run's end (0 at rest on frame -1) to those at the next one's start (0 on frame L).
         prev, vp0, vp1, rp0, rp1 = -1, 0.0, 0.0, 0.0, 0.0

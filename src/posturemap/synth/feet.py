@@ -11,11 +11,12 @@ in-between frames are made:
    A's spot at one end and B's at the other, makes a step between them in the middle of the run
    (lifted, over ``STEP_S`` seconds) instead of jumping;
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
-   where the motion put it, scaled down for a run whose spot lies far from the foot
-   (``MAX_DRIFT``). Between runs, while the foot is in the air, the offset passes smoothly (a
-   cubic with the runs' offsets and their rates at both ends) from one run's to the next, and
-   from and to zero at A's and B's frames: the correction a planted foot needs is spread over
-   the whole swing, not made in a few frames before and after it;
+   where the motion put it, its length softly limited where the spot lies far from the foot
+   (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
+   foot is in the air, the offset passes smoothly (a cubic with the runs' offsets and their
+   rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
+   the correction a planted foot needs is spread over the whole swing, not made in a few frames
+   before and after it;
 4. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
    end of the leg's reach bends the knee smoothly instead of snapping it straight. The foot keeps
@@ -33,12 +34,13 @@ from ..core import kernels, quat
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length
 from ..core.skeleton import Skeleton
 
-MAX_DRIFT = (0.2, 0.4)  # leg lengths: a run whose spot lies farther from the foot than the first
-#                           (at its farthest frame) is locked partly, not at all at the second
+MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while the spot lies within
+#                           the first of where the motion put the foot; farther, it is moved ever
+#                           less toward it, never past the second (soft_limit): dragged, not stretched
 STEP_S = 0.3  # seconds of the step from A's spot to B's of a foot planted all through a gap
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
-SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_reach)
+SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 
 
 def _compiled():
@@ -47,19 +49,21 @@ def _compiled():
     return kernels.compiled() if kernels.backend() == "numba" else None
 
 
-def soft_reach(dist, current, reach, soft):
-    """The thigh-ankle distance the IK aims at for a target ``dist`` away, the ankle now
-    ``current`` away and the leg ``reach`` long (arrays of one shape): ``dist`` itself up to
-    ``start = max(current, (1 - soft) * reach)``, beyond it ``start + room * (1 - exp(-(dist -
-    start) / room))`` with ``room = reach - start``: it meets the line at ``start`` with slope 1
-    and never reaches ``reach`` (soft IK). A target near the end of the reach bends the knee
-    smoothly instead of snapping it straight (where the knee's angle changes fastest with the
-    distance); a foot already as far out as the target is not moved."""
-    start = np.maximum(current, (1.0 - soft) * reach)
-    room = reach - start
-    ok = (dist > start) & (room > 0)
-    excess = np.where(ok, dist - start, 0.0) / np.where(ok, room, 1.0)
-    return np.where(ok, start + room * -np.expm1(-excess), dist)
+def soft_limit(x, start, limit):
+    """``x`` up to ``start``; beyond it ``start + room * (1 - exp(-(x - start) / room))`` with
+    ``room = limit - start``: it meets the line with slope 1 at ``start`` and approaches
+    ``limit`` without reaching it. Where ``limit <= start``, ``x`` itself. Arrays broadcast.
+
+    The lock uses it twice: for the thigh-ankle distance the IK aims at (soft IK: ``start`` the
+    larger of the ankle's own distance and ``1 - SOFT_REACH`` of the leg's reach, ``limit`` the
+    reach; a target near the end of the reach bends the knee smoothly instead of snapping it
+    straight, where the knee's angle changes fastest with the distance), and for how far a
+    planted foot is moved (``MAX_DRIFT``).
+    """
+    room = limit - start
+    ok = (x > start) & (room > 0)
+    excess = np.where(ok, x - start, 0.0) / np.where(ok, room, 1.0)
+    return np.where(ok, start + room * -np.expm1(-excess), x)
 
 
 def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
@@ -67,7 +71,7 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
 
     Positions (N, 3), global rotations ``a_gr``/``b_gr`` and local rotations ``a_lr``/``b_lr``
     (N, 4). Returns the new ``(a_lr, b_lr)``; the knee stays in its current bending plane.
-    ``soft`` > 0: the last ``soft`` of the leg's reach is approached softly (:func:`soft_reach`;
+    ``soft`` > 0: the last ``soft`` of the leg's reach is approached softly (:func:`soft_limit`;
     a target there is reached a little short).
     """
     def norm(v):
@@ -80,7 +84,7 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
     lcb = np.linalg.norm(b - c, axis=-1)
     lat = np.linalg.norm(t - a, axis=-1)
     if soft > 0:
-        lat = soft_reach(lat, np.linalg.norm(c - a, axis=-1), lab + lcb, soft)
+        lat = soft_limit(lat, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * (lab + lcb)), lab + lcb)
     lat = np.clip(lat, eps, lab + lcb - eps)
     ac_ab_0, ba_bc_0, ac_at_0 = angle(c - a, b - a), angle(a - b, c - b), angle(c - a, t - a)
     ac_ab_1 = np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0))
@@ -200,9 +204,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     given, are the planted frames (otherwise they are detected from height and speed). ``body``:
     :func:`leg_length` of the skeleton, when the caller keeps it.
 
-    Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, less in a run whose
-    spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs' corrections are
-    carried smoothly: :func:`swing_offsets`).
+    Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
+    way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
+    corrections are carried smoothly: :func:`swing_offsets`).
     """
     weights = np.zeros((len(rots), len(chains)))
     if not chains or len(rots) == 0:
@@ -243,18 +247,16 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
                                                           on, round(STEP_S * fps), STEP_LIFT * body)
-        # Each run's offset, scaled down as a whole where its spot is far from the foot; carried
-        # through the frames between the runs.
-        runs = contact_runs(weight > 0)
+        # The runs' offsets, softly limited where the spot is far from the foot; carried through
+        # the frames between the runs.
         offset = target - horiz
-        lo, hi = MAX_DRIFT
-        for start, stop in runs:
-            drift = float(np.linalg.norm(offset[start:stop], axis=-1).max()) / body
-            scale = min(max((hi - drift) / (hi - lo), 0.0), 1.0)
-            weight[start:stop] *= scale
-            offset[start:stop] *= scale
-            raised[start:stop] *= scale
-        swing_offsets(offset, runs)
+        far = np.linalg.norm(offset, axis=-1) / body
+        held = weight > 0
+        scale = np.where(far > 0, soft_limit(far, MAX_DRIFT[0], MAX_DRIFT[1]) / np.maximum(far, 1e-300), 1.0)
+        weight[held] *= scale[held]
+        offset[held] *= scale[held, None]
+        raised[held] *= scale[held]
+        swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
         frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:

@@ -23,8 +23,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    exactly on B; in transitions B takes the segment's end as its place (``last["dtheta"]``,
    ``last["shift"]``);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
-   they touch down (A's or B's spot at a seam), fading in and out while the foot is in the air
-   (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
+   they touch down (A's or B's spot at a seam), the correction carried smoothly through the
+   swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
 5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
    rotations between the segment and A / B at the seams (degrees per joint, the larger seam),
    times how much the root moves at the seams (:func:`still_weight`: standing gestures are
