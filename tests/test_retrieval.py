@@ -144,9 +144,12 @@ def test_retrieved_frames_are_real_library_frames_up_to_the_seam_correction(engi
             bound = sum(np.abs(curves[i])[:, None] * np.linalg.norm(seam[i], axis=-1)[None] for i in range(4))
             angle = quat.angle_between(res.rots[:, mask], src[2:-2])
             assert np.all(angle <= bound + 1e-5), (part, float((angle - bound).max()))
-            # Where both offsets have faded, the frame is the library frame itself.
-            middle = np.flatnonzero(np.abs(curves).sum(axis=0) == 0)
-            assert np.allclose(angle[middle], 0.0, atol=1e-5)
+            # Where the velocity offsets have faded, the frame is the library frame turned by the
+            # value offsets alone, carried from A's into B's: exp((1 - s) r_A + s r_B) * frame.
+            middle = np.flatnonzero((curves[1] == 0) & (curves[3] == 0))
+            turn = curves[0, middle, None, None] * seam[0] + curves[2, middle, None, None] * seam[2]
+            expected = quat.mul(quat.exp(turn), src[2:-2][middle])
+            assert np.allclose(quat.angle_between(res.rots[middle][:, mask], expected), 0.0, atol=1e-5)
             checked_middle += len(middle)
     assert checked_middle > 0
 
@@ -168,6 +171,28 @@ def test_planted_feet_stay_within_a_centimetre(engine, clips):
     assert held > 40  # the feet were planted for a good part of these walks and runs
 
 
+def test_the_upper_body_follows_the_legs_and_its_offset_change():
+    lo, hi = retrieval.CHANGE_RANGE
+    conf = retrieval.confidences
+    # Legs: by the match distance (full below CONF_RANGE[0], none above [1]), times still.
+    assert conf([0.0, 90.0], [0.0, 0.0], 1.0, 1.0)[0] == 1.0
+    assert conf([retrieval.CONF_RANGE[1] + 1, 0.0], [0.0, 0.0], 1.0, 1.0) == [0.0, 0.0]
+    assert conf([0.0, 0.0], [0.0, 0.0], 0.0, 1.0) == [0.0, 0.0]  # standing still: interpolated
+    # The upper body: a distance of 90 degrees does not matter, a change does.
+    assert conf([0.0, 90.0], [0.0, 0.0], 1.0, 1.0)[1] == 1.0
+    assert conf([0.0, 0.0], [0.0, hi], 1.0, 1.0)[1] == 0.0
+    ups = [conf([0.0, 0.0], [0.0, c], 1.0, 1.0)[1] for c in np.linspace(lo - 5, hi + 5, 30)]
+    assert ups[0] == 1.0 and ups[-1] == 0.0 and np.all(np.diff(ups) <= 0) and 0 < ups[15] < 1
+    # ... in full while the legs are at least UPPER_FOLLOWS confident, less below, times `upper`.
+    dist_half = retrieval.CONF_RANGE[1] - retrieval.UPPER_FOLLOWS * np.ptp(retrieval.CONF_RANGE)
+    assert conf([dist_half, 0.0], [0.0, 0.0], 1.0, 1.0)[1] == pytest.approx(1.0)
+    quarter = conf([dist_half, 0.0], [0.0, 0.0], 0.5, 0.5)
+    assert quarter[0] == pytest.approx(0.5 * retrieval.UPPER_FOLLOWS) and quarter[1] == pytest.approx(0.25)
+    # A splice's halves are matched at one seam: both parts judged by their distance.
+    assert conf([0.0, 90.0], [0.0, 0.0], 1.0, 1.0, both=False) == [1.0, 0.0]
+    assert conf([0.0, 0.0], [0.0, 0.0], 1.0, 0.5, both=False) == [1.0, 0.5]
+
+
 def test_offset_curves_put_the_ends_exactly_on_a_and_b():
     d, blend = 31.0, 9.0
     eps = 1e-6
@@ -176,7 +201,14 @@ def test_offset_curves_put_the_ends_exactly_on_a_and_b():
     slope0, slope_d = (c[:, 1] - c[:, 0]) / eps, (c[:, 3] - c[:, 2]) / eps
     assert np.allclose(slope0, [0, 1, 0, 0], atol=1e-4) and np.allclose(slope_d, [0, 0, 0, 1], atol=1e-4)
     mid = retrieval.offset_curves(np.arange(blend, d - blend + 1), d, blend)
-    assert np.all(mid == 0)
+    assert np.all(mid[[1, 3]] == 0)  # the velocity offsets fade within blend frames of their seam
+    # The value offsets carry A's into B's over the whole gap: they sum to 1 (a constant offset
+    # stays constant), A's falls and B's rises throughout, B's the mirror image of A's.
+    t = np.linspace(0.0, d, 50)
+    c = retrieval.offset_curves(t, d, blend)
+    assert np.allclose(c[0] + c[2], 1.0)
+    assert np.all(np.diff(c[0]) < 0) and np.all(np.diff(c[2]) > 0)
+    assert np.allclose(c[2], c[0][::-1])
     s = retrieval.smoothstep(int(d) - 1)
     assert s[0] > 0 and s[-1] < 1 and np.all(np.diff(s) > 0)
 
@@ -342,6 +374,7 @@ def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_pat
                      "--method", "retrieval", "--length", "30"]) == 0
     text = capsys.readouterr().out
     assert "lower: " in text and "upper: " in text and "confidence" in text and "match distance" in text
+    assert "offset change" in text
     assert any(n in text for n in LIBRARY)  # a recorded clip, or one played backwards
     assert len(bvh.read(out)) == len(clips[HELD_OUT[0]]) + 30 + len(clips[HELD_OUT[1]])
 
@@ -665,11 +698,23 @@ def test_batched_seams_and_distances_equal_the_single_ones(engine):
         both = rt.seam_distances(segments, xa, xb)
         assert both == [rt.seam_distance(p, s, e, xa, xb) for p, s, e in segments]
         assert min(both) > 0
-        for (p, s, e), got in zip(segments, both):  # the posture features of the map's encoding
+        dist, change = rt.seam_measures(segments, xa, xb)
+        assert dist == both and min(change) > 0
+        for (p, s, e), got, ch in zip(segments, both, change):  # the posture features of the map's encoding
             x = rt.space.encode_parts(lib.rots[[s, e]][:, rt.space.joints].astype(float), lib.gpos[[s, e], UP])
             dims = rt.part_dims[p]
             d = max(np.linalg.norm((x[0] - xa)[dims]), np.linalg.norm((x[1] - xb)[dims]))
             assert got == pytest.approx(np.degrees(d / np.sqrt(len(dims) / 3.0)), abs=1e-9)
+            c = np.linalg.norm(((xb - x[1]) - (xa - x[0]))[dims])  # B's offset minus A's
+            assert ch == pytest.approx(np.degrees(c / np.sqrt(len(dims) / 3.0)), abs=1e-9)
+        # A segment whose offset is the same at both seams (its end posture is to B's what its
+        # start is to A's) has no change, however far it lies.
+        p, s, e = segments[1]
+        dist, change = rt.seam_measures([(p, s, s)], xa, xa)
+        assert change == [0.0] and dist[0] > 0
+        with kernels.numpy_backend():  # the numpy steps give the same measures
+            ref = rt.seam_measures(segments, xa, xb)
+        np.testing.assert_allclose(ref, rt.seam_measures(segments, xa, xb), rtol=1e-9)
 
 
 def test_a_seams_query_rows_are_the_librarys_rows_of_its_features(engine):

@@ -16,22 +16,23 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    arrives in B;
 2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
    continue A, and averages them (per joint; the trajectory after turning each);
-3. **removes the seam errors** with offsets that decay smoothly from each seam (value and
-   velocity, cubic Hermite over :data:`BLEND_S` seconds, at most the gap), so rotations, root
-   height and trajectory meet A and B with continuous position and velocity; in in-betweening
-   the root's horizontal error at B is spread over the whole gap (smoothstep) so it lands
-   exactly on B; in transitions B takes the segment's end as its place (``last["dtheta"]``,
-   ``last["shift"]``);
+3. **removes the seam errors** with smooth offsets (:func:`offset_curves`): the value offsets
+   at A and B carried from one into the other over the whole gap (a constant offset, such as
+   another style's posture, stays constant), the velocity offsets fading from each seam over
+   :data:`BLEND_S` seconds, so rotations, root height and trajectory meet A and B with
+   continuous position and velocity; in in-betweening the root lands exactly on B; in
+   transitions B takes the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), the correction carried smoothly through the
    swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
-5. **falls back** by confidence: the match distance, the RMS difference of the part's joint
-   rotations between the segment and A / B at the seams (degrees per joint, the larger seam),
-   times how much the root moves at the seams (:func:`still_weight`: standing gestures are
-   interpolated) and, for the upper body, times :func:`upper_weight` (short gaps take the arms
-   from the fallback, which matches the seams' velocities there);
-   below ``CONF_RANGE[0]`` the part is the retrieved motion, above ``CONF_RANGE[1]`` it is the
-   interpolating fallback (:func:`fallback_method`), in between a per-joint SLERP of the two.
+5. **falls back** by confidence (:func:`confidences`): for the legs, the match distance, the
+   RMS difference of their joint rotations between the segment and A / B at the seams (degrees
+   per joint, the larger seam), times how much the root moves at the seams (:func:`still_weight`:
+   standing gestures are interpolated); the upper body follows the legs, fading with its
+   *offset change* (how much its seam offset changes between A and B) and, on short gaps, with
+   :func:`upper_weight` (there the arms come from the fallback, which matches the seams'
+   velocities); where a part's confidence is 0 it is the interpolating fallback
+   (:func:`fallback_method`), at 1 the retrieved motion, in between a per-joint SLERP of the two.
 """
 
 from __future__ import annotations
@@ -50,13 +51,17 @@ from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
-TOP_K = 8  # segments averaged per part
-BLEND_S = 0.67  # seconds over which a seam's offset fades into the retrieved motion
+TOP_K = 16  # segments averaged per part
+# Seconds over which a seam's velocity offset fades (value offsets span the gap): in in-betweening
+# (B fixed) and in transitions (B placed to continue A); see blend_frames.
+BLEND_S = {False: 0.33, True: 0.67}
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
 PREFILTER = 96  # of those, the best matches at natural speed that become segment ends, per ...
 PREFILTER_FPS = 30.0  # ... this library frame rate (see Retriever.keep)
 CONF_RANGE = (12.0, 24.0)  # match distance (RMS degrees per joint): full confidence below, none above
+CHANGE_RANGE = (30.0, 60.0)  # the upper body's offset change (RMS degrees per joint), likewise
+UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
 FALLBACK = "upm-valid"
 FALLBACK_SHORT = ("spline", 0.6)  # gaps shorter than this many seconds fall back to this method
 W_VEL = 1.0  # weight of velocities against positions in the match
@@ -167,10 +172,21 @@ class Retriever:
         """Match distance in degrees: the larger, over the two seams, of the RMS joint-rotation
         difference between the segment's end posture and A's end / B's start over the part's
         joints (posture features; the root height counts in leg lengths as one radian)."""
-        return self.seam_distances([(part, s, e)], xa, xb)[0]
+        return self.seam_measures([(part, s, e)], xa, xb)[0][0]
 
     def seam_distances(self, segments, xa: np.ndarray, xb: np.ndarray) -> list[float]:
         """:meth:`seam_distance` of several segments ``[(part, s, e), ...]``, encoded in one go."""
+        return self.seam_measures(segments, xa, xb)[0]
+
+    def seam_measures(self, segments, xa: np.ndarray, xb: np.ndarray) -> tuple[list[float], list[float]]:
+        """Per segment ``(part, s, e)``: its :meth:`seam_distance` and its **offset change**, in
+        degrees: the RMS over the part's joints of how much the seam offset changes across the
+        gap, ``(xb - x[e]) - (xa - x[s])`` in posture features (the same scale as the distance).
+
+        The seam correction carries A's offset into B's over the whole gap, so an offset that
+        stays the same at both seams (another style's posture: a prouder chest, a bent back)
+        costs nothing; one that changes (the segment moves where A and B do not, or the other
+        way) is bridged by a drift the real motion never made."""
         lib, space = self.lib, self.space
         frames = [f for _, s, e in segments for f in (s, e)]
         if self._logmap and _compiled() is not None:
@@ -179,11 +195,11 @@ class Retriever:
                 dims = [self.part_dims[p] for p in parts]
                 self._dims_of[parts] = (np.concatenate(dims).astype(np.int64),
                                         np.cumsum([0] + [len(d) for d in dims]).astype(np.int64))
-            out = np.empty(len(segments))
+            out = np.empty((2, len(segments)))
             _compiled().seam_distances(lib.rots, lib.gpos, np.array(frames, dtype=np.int64), space.joints,
                                        space.reference, space.up, float(space.height_scale), xa, xb,
                                        *self._dims_of[parts], out)
-            return out.tolist()
+            return out[0].tolist(), out[1].tolist()
         rots = lib.rots[frames][:, space.joints].astype(np.float64)
         if space.mode == "logmap":  # space.encode_parts, with the hot kernel for the rotations
             x = np.empty((len(frames), 3 * len(space.joints) + 1))
@@ -192,13 +208,15 @@ class Retriever:
         else:
             x = space.encode_parts(rots, lib.gpos[frames, space.up])
         circ = space.circular
-        out = []
+        dist, change = [], []
         for i, (part, _, _) in enumerate(segments):
             dims = self.part_dims[part]
-            d = max(np.linalg.norm(wrap_diff(x[2 * i], xa, circ)[dims]),
-                    np.linalg.norm(wrap_diff(x[2 * i + 1], xb, circ)[dims]))
-            out.append(float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0))))
-        return out
+            oa = wrap_diff(xa, x[2 * i], circ)[dims]
+            ob = wrap_diff(xb, x[2 * i + 1], circ)[dims]
+            scale = math.degrees(1.0) / math.sqrt(max(len(dims), 1) / 3.0)
+            dist.append(float(max(np.linalg.norm(oa), np.linalg.norm(ob)) * scale))
+            change.append(float(np.linalg.norm(wrap_diff(ob, oa, circ[dims])) * scale))
+        return dist, change
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
@@ -548,6 +566,33 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int) -> float:
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
+def confidences(distance, change, still: float, upper: float, both: bool = True) -> list[float]:
+    """The confidence (0..1) of each body part of a match, from its seam measures (degrees,
+    :meth:`Retriever.seam_measures`), :func:`still_weight` and :func:`upper_weight`.
+
+    The legs: full below ``CONF_RANGE[0]`` of match distance, none above ``CONF_RANGE[1]``,
+    times ``still``. The upper body (``both``: one segment matched at both seams) follows the
+    legs that carry it: in full while their confidence is at least :data:`UPPER_FOLLOWS`,
+    times ``upper``, and fading with its *offset change* over :data:`CHANGE_RANGE`: its
+    distance says little, since the seam correction carries a constant offset (another style's
+    arms) through the gap at no cost, while a change of offset (the library's arms swing where
+    A's and B's wave) is a motion nobody made. On the bench's held-out styles at 30 frames,
+    judging the arms by their distance (as the legs) retrieved them in 18 of the 32 walks'
+    windows (mean confidence 0.35); this way in all 32 (1.0), and L2Q at 30 / 45 frames fell
+    from 0.522 / 0.610 to 0.462 / 0.567 (held-out contents 0.633 / 0.702 -> 0.613 / 0.689;
+    L2P within 2%). For the halves of a splice (``both`` False: each matched at one seam,
+    where no change can be measured) the upper body is judged as the legs are, times ``upper``.
+    """
+    def ramp(x, lo, hi):
+        return min(max((hi - x) / (hi - lo), 0.0), 1.0)
+
+    lower = ramp(distance[0], *CONF_RANGE) * still
+    if both:
+        follows = min(lower / UPPER_FOLLOWS, 1.0) if UPPER_FOLLOWS > 0 else float(lower > 0)
+        return [lower, follows * upper * ramp(change[1], *CHANGE_RANGE)]
+    return [lower, ramp(distance[1], *CONF_RANGE) * still * upper]
+
+
 def upper_weight(length: int, fps: float) -> float:
     """How much of the upper body is retrieved on a gap of ``length`` frames: 0 up to
     ``UPPER_RAMP_S[0]`` seconds (where ``auto`` takes the spline for the whole body), 1 from
@@ -568,22 +613,45 @@ def upper_weight(length: int, fps: float) -> float:
     return min(max((seconds - lo) / (hi - lo), 0.0), 1.0) if hi > lo else float(seconds >= lo)
 
 
+def blend_frames(align: bool, fps: float) -> float:
+    """Frames over which a seam's velocity offset fades (:func:`offset_curves`): ``BLEND_S[align]``
+    seconds.
+
+    In in-betweening (B fixed; both seams matched, as the bench's hold-outs measure it) 0.33 s:
+    the real motion takes over sooner. Held-out styles, L2Q at 30 / 45 frames, 0.488 / 0.587
+    with 0.67 s, 0.462 / 0.567 with 0.33 s (contents 0.631 / 0.709 -> 0.613 / 0.689). In
+    transitions between clips (B placed to continue A) 0.67 s: there the segments meet the seams'
+    velocities less well, and a correction over 0.33 s moved the feet faster: the bench's
+    cross-clip foot skate on held-out contents 4.7 cm/s with 0.67 s, 5.9 with 0.33 s (the real
+    frames' 3.0; jerk 20,200 and 18,400 cm/s^3).
+    """
+    return BLEND_S[bool(align)] * float(fps)
+
+
 def offset_curves(t: np.ndarray, d: float, blend: float) -> np.ndarray:
     """Seam offset curves (4, len(t)) at times ``t`` of a gap from 0 (A's end) to ``d`` (B's start).
 
-    Rows: A's value and velocity offsets, decaying from ``t = 0`` over ``blend`` frames (at
-    most ``d``; cubic Hermite ``h00``, ``h10``: value 1 / slope 0, and value 0 / slope 1, at
-    ``t = 0``; value and slope 0 from ``t = blend`` on); B's value and velocity offsets, the
-    mirror image rising into ``t = d`` (value 1 / slope 0, and value 0 / slope 1, there).
-    Adding them to a curve moves its ends onto A and B, value and velocity, and leaves it
-    untouched where both have faded.
+    Rows: A's value offset, falling from 1 at ``t = 0`` to 0 at ``t = d`` (``1 - smoothstep(t / d)``);
+    A's velocity offset, the cubic Hermite ``h10`` over ``blend`` frames (at most ``d``: value 0
+    and slope 1 at ``t = 0``, value and slope 0 from ``t = blend`` on); B's value and velocity
+    offsets, their mirror images into ``t = d``. Adding them to a curve moves its ends onto A and
+    B, value and velocity; what differs between the curve and the seams in value is carried from
+    A's offset into B's over the whole gap (a constant offset, such as another style's posture,
+    stays constant), what differs in velocity only near its seam.
+
+    The first version let the value offsets fade as the velocity offsets did then (0.67 s), so that
+    the middle of a long gap was the library's motion unchanged, posture and all: on the bench's
+    held-out styles (L2Q at 30 / 45 frames, with the upper body's confidence of
+    :func:`confidences`) that was 0.574 / 0.750 against 0.462 / 0.567 now: a retrieved arm
+    swing of another style went back to that style's posture in the middle of the gap.
     """
     blend = min(float(blend), d)
     t = np.asarray(t, dtype=float)
     out = np.zeros((4, len(t)))
     for row, tau, sign in ((0, t, 1.0), (2, d - t, -1.0)):
+        w = np.clip(tau / d, 0.0, 1.0)
+        out[row] = 2 * w**3 - 3 * w**2 + 1
         u = np.clip(tau / blend, 0.0, 1.0)
-        out[row] = 2 * u**3 - 3 * u**2 + 1
         out[row + 1] = sign * blend * (u**3 - 2 * u**2 + u)
     return out
 
@@ -809,7 +877,8 @@ class Result:
 class Match:
     """What the search found for one transition, before anything is replayed: per body part
     the best segments ``found[p] = (s, e, total, cost_a, cost_b)``, the match distance (degrees)
-    and ``confidence``, and the transition it was made for; :attr:`info` is the report."""
+    and offset change (:meth:`Retriever.seam_measures`) and ``confidence``
+    (:func:`confidences`), and the transition it was made for; :attr:`info` is the report."""
 
     ta: object
     tb: object
@@ -819,6 +888,7 @@ class Match:
     align: bool
     found: list
     distance: list
+    change: list
     confidence: list
     lib: MotionLibrary
     _info: dict | None = field(default=None, repr=False)
@@ -839,7 +909,8 @@ class Match:
                     "clip": clip, "frames": [first, last], "reversed": first > last,
                     "warp": round((e0 - s0) / float(lib.fps) / seconds, 3),
                     "cost": round(total.item(0), 4), "cost_a": round(ca.item(0), 4), "cost_b": round(cb.item(0), 4),
-                    "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
+                    "distance": round(float(self.distance[p]), 3), "change": round(float(self.change[p]), 3),
+                    "confidence": round(float(self.confidence[p]), 3),
                     "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
         return self._info
@@ -892,15 +963,14 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     found = searched[float(alpha)]
     if found[0] is None or found[1] is None:
         return None
-    weight = (still, still * upper_weight(length, fps))
     if seam == "a":  # the segment's start against A's end on both sides of the measure
-        dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
+        dist, change = rt.seam_measures([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
     elif seam == "b":
-        dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
+        dist, change = rt.seam_measures([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
     else:
-        dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = [min(max((CONF_RANGE[1] - c) / (CONF_RANGE[1] - CONF_RANGE[0]), 0.0), 1.0) * w for c, w in zip(dist, weight)]
-    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib)
+        dist, change = rt.seam_measures([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
+    conf = confidences(dist, change, still, upper_weight(length, fps), seam == "both")
+    return Match(ta, tb, ia, ib, length, align, found, dist, change, conf, lib)
 
 
 def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:
@@ -926,7 +996,7 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     ta, tb, ia, ib, length = m.ta, m.tb, m.ia, m.ib, m.length
     fps = float(ta.motion.fps)
     d = length + 1.0
-    curves = _hermite_offsets_cached(length, BLEND_S * fps if blend is None else float(blend))
+    curves = _hermite_offsets_cached(length, blend_frames(m.align, fps) if blend is None else float(blend))
     out = np.empty((length, eng.skeleton.num_joints, 4))
     out[:, rt.open_joints] = (1.0, 0.0, 0.0, 0.0)  # above the root: the caller's
     jit = _compiled()

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import kernels
-from .retrieval import (BLEND_S, Result, _compiled, _hermite_offsets_cached, _sample_times, _smoothstep_cached,
+from .retrieval import (Result, _compiled, _hermite_offsets_cached, _sample_times, _smoothstep_cached, blend_frames,
                         match, replay)
 from .trajectory import rotate_about_up
 
@@ -170,7 +170,7 @@ def _spliced_compiled(jit, rt, first, second, w: np.ndarray, frames):
                          e_b1, np.array([first.confidence[1] <= 0.0, second.confidence[1] <= 0.0]), d,
                          _sample_times(d), rt.part_joints[0], rt.part_joints[1], rt.open_joints, ta.rots, tb.rots,
                          np.array(first.ia), np.array(first.ib),
-                         _hermite_offsets_cached(length, BLEND_S * float(ta.motion.fps)),
+                         _hermite_offsets_cached(length, blend_frames(True, ta.motion.fps)),
                          np.array(frames, dtype=np.int64), lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading,
                          tb.gpos, tb.heading, rt.engine._up, _smoothstep_cached(length), w, rots, gpos, heading,
                          shift, contacts)
