@@ -171,6 +171,28 @@ def test_planted_feet_stay_within_a_centimetre(engine, clips):
     assert held > 40  # the feet were planted for a good part of these walks and runs
 
 
+def test_partly_confident_legs_still_plant_the_segments_feet(engine, clips, monkeypatch):
+    # Legs blended with the fallback (confidence 0.3) keep the retrieved segment's contacts: the
+    # same feet are planted as with full confidence, and held within a centimetre.
+    sk, ankles = engine.skeleton, [c[2] for c in engine._legs]
+    name, a_end, b_start = "run_proud_001", 40, 71  # a run: blended with the fallback, its feet glide
+    kw = dict(length=30, a_end=a_end, b_start=b_start, align=False, method="retrieval", foot_lock=True)
+    engine.generate(name, name, **kw)
+    full = engine.last["planted"] >= 1.0
+    assert full.sum() > 10
+    conf = retrieval.confidences
+    monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.3 * c for c in conf(*a, **k)])
+    rots, pos = engine.generate(name, name, **kw)
+    assert engine.last["retrieval"]["parts"]["lower"]["confidence"] < 0.5
+    planted = engine.last["planted"] >= 1.0
+    assert planted.sum() >= 0.8 * full.sum()
+    _, g = fk(sk.parents, rots, pos)
+    for leg, ankle in enumerate(ankles):
+        both = planted[1:, leg] & planted[:-1, leg]
+        step = np.linalg.norm(np.diff(g[:, ankle][:, [0, 2]], axis=0), axis=-1)
+        assert np.all(step[both] < 1.0), (leg, step[both].max())
+
+
 def test_the_upper_body_follows_the_legs_and_its_offset_change():
     lo, hi = retrieval.CHANGE_RANGE
     conf = retrieval.confidences
