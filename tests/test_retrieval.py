@@ -910,6 +910,7 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
     from posturemap.core.joints import foot_joints, leg_length
     from posturemap.evaluate import metrics
     from posturemap.synth import engine as engine_module
+    from posturemap.synth import splice as splice_module
 
     sk = engine.skeleton
     feet = foot_joints(sk.names)
@@ -928,6 +929,11 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
             if info and "splice" in info:
                 used += 1
                 assert all("then" in part for part in info["parts"].values())
+                # Each half averages its best HALF_TOP_K segments, where the single one averages TOP_K.
+                assert all(part["blended"] == part["then"]["blended"] == splice_module.HALF_TOP_K
+                           for part in info["parts"].values())
+            elif info:
+                assert all(part["blended"] == retrieval.TOP_K for part in info["parts"].values())
             g = fk(sk.parents, r, p)[1][:, feet]
             out.append(metrics.weighted_skate(g[None], 30.0, UP, height)[0])
         return np.mean(out), used
@@ -1011,9 +1017,7 @@ def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engi
     for length, alpha, a_end, b_start in ((30, 0.5, 60, 20), (20, 0.0, 90, 5), (45, 1.0, 120, 40), (1, 0.5, 70, 10),
                                           (5, 0.3, 80, 12)):
         got = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
-        shared = {}
-        first = retrieval.match(rt, a, b, a_end, b_start, length, 0.0, True, seam="a", shared=shared)
-        second = retrieval.match(rt, a, b, a_end, b_start, length, 1.0, True, seam="b", shared=shared)
+        first, second = splice.halves(rt, a, b, a_end, b_start, length)
         if got is None:
             assert min(first.confidence[0], second.confidence[0]) <= 0.0
             continue

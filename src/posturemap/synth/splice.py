@@ -24,6 +24,8 @@ motion-graph transition (Kovar, Gleicher and Pighin 2002) inside the gap, both e
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..core import kernels
@@ -32,6 +34,11 @@ from .retrieval import (Result, _compiled, _hermite_offsets_cached, _sample_time
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
+# Segments averaged per half (the single segment averages retrieval.TOP_K = 16): on the bench's
+# cross-clip pairs, 16 per half skated 4.37 / 4.38 cm/s (held-out styles / contents; the real
+# frames 3.65 / 3.02) with jerk 16,200 / 20,400 cm/s^3, 8 per half 4.08 / 4.26 with 17,300 /
+# 21,600 (real 12,700 / 19,300), in half the replay's time.
+HALF_TOP_K = 8
 
 
 def splice_weights(length: int, alpha: float, width: float = SPLICE_WIDTH) -> np.ndarray:
@@ -115,6 +122,21 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
+def halves(rt, ta, tb, a_end: int, b_start: int, length: int, shared: dict | None = None):
+    """The two halves of a splice as :class:`~posturemap.synth.retrieval.Match` es: the best
+    segments continuing A (matched at A's end, ``alpha`` 0) and arriving in B (at B's start,
+    ``alpha`` 1), :data:`HALF_TOP_K` of each; None for a half that finds no segment.
+    ``shared``: as for :func:`~posturemap.synth.retrieval.match`."""
+    shared = {} if shared is None else shared
+    out = []
+    for alpha, seam in ((0.0, "a"), (1.0, "b")):
+        m = match(rt, ta, tb, a_end, b_start, length, alpha, True, seam=seam, shared=shared)
+        if m is not None:  # a new list: the search's own stays whole in `shared`
+            m = dataclasses.replace(m, found=[tuple(x[:HALF_TOP_K] for x in f) for f in m.found], _info=None)
+        out.append(m)
+    return out[0], out[1]
+
+
 def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
             shared: dict | None = None, beat: float | None = None) -> Result | None:
     """The splice of the best segment continuing A into the best segment arriving in B, in a
@@ -124,9 +146,7 @@ def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
     seams searched once for both halves; with ``shared["alphas"]`` holding 0 and 1, no search
     at all after the single segment's). ``beat``: a leg confidence to beat; None, without
     replaying anything, when the splice's is not higher."""
-    shared = {} if shared is None else shared
-    first = match(rt, ta, tb, a_end, b_start, length, 0.0, True, seam="a", shared=shared)
-    second = match(rt, ta, tb, a_end, b_start, length, 1.0, True, seam="b", shared=shared)
+    first, second = halves(rt, ta, tb, a_end, b_start, length, shared)
     if first is None or second is None:
         return None
     conf = [min(c1, c2) for c1, c2 in zip(first.confidence, second.confidence)]
