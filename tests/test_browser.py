@@ -12,7 +12,6 @@ import http.client
 import io
 import json
 import os
-import re
 import statistics
 import time
 from pathlib import Path
@@ -320,9 +319,6 @@ def test_retrieval_shows_its_source_and_confidence(studio, clips):
     for part, p in r["parts"].items():
         assert p["clip"] in clips and f"{part}: {p['clip']} {p['frames'][0]}–{p['frames'][1]}" in text
         assert f"confidence {round(100 * p['confidence'])}%" in text
-        line = next(ln for ln in text.splitlines() if ln.startswith(f"{part}:"))
-        shown = re.search(r"match ([0-9.]+)°, change ([0-9.]+)°", line)  # to one decimal
-        assert shown and abs(float(shown[1]) - p["distance"]) <= 0.051 and abs(float(shown[2]) - p["change"]) <= 0.051
     costs = []
     for alpha in ("0", "1"):
         set_range(studio, "#alpha", alpha)

@@ -204,7 +204,7 @@ def describe_retrieval(info) -> str:
         return "  retrieval: the best library segments match too loosely (confidence 0); interpolated instead"
     def source(r):
         return (f"{r['clip']} frames {r['frames'][0]}..{r['frames'][1]}{' (played backwards)' if r['reversed'] else ''} "
-                f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees, offset change {r['change']:.2f}")
+                f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees")
 
     lines = []
     for part, r in info["parts"].items():

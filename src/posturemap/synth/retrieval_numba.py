@@ -754,10 +754,9 @@ def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head
 
 @nb.njit(**_OPTS)
 def seam_distances(rots, gpos, frames, joints, reference, up, height_scale, xa, xb, dims, dim_ptr, out):
-    """:meth:`posturemap.synth.retrieval.Retriever.seam_measures` for a map in logmap mode (no circular
+    """:meth:`posturemap.synth.retrieval.Retriever.seam_distances` for a map in logmap mode (no circular
     dimension): segment ``i`` starts at library frame ``frames[2 i]`` and ends at ``frames[2 i + 1]``
-    and counts the feature dimensions ``dims[dim_ptr[i]:dim_ptr[i + 1]]``; ``out[0, i]`` its match
-    distance, ``out[1, i]`` its offset change, in degrees."""
+    and counts the feature dimensions ``dims[dim_ptr[i]:dim_ptr[i + 1]]``; ``out[i]`` in degrees."""
     n_j = joints.shape[0]
     x = np.empty((frames.shape[0], 3 * n_j + 1))
     for r in range(frames.shape[0]):
@@ -772,21 +771,15 @@ def seam_distances(rots, gpos, frames, joints, reference, up, height_scale, xa, 
             k = 2.0 * math.atan2(s, w) / s if s > 1e-8 else 2.0 + s * s / 3.0
             x[r, 3 * m], x[r, 3 * m + 1], x[r, 3 * m + 2] = a * k, b * k, c * k
         x[r, 3 * n_j] = gpos[f, up] / height_scale
-    for i in range(out.shape[1]):
+    for i in range(out.shape[0]):
         da = 0.0
         db = 0.0
-        dc = 0.0
         for q in range(dim_ptr[i], dim_ptr[i + 1]):
             d = dims[q]
-            oa = xa[d] - x[2 * i, d]
-            ob = xb[d] - x[2 * i + 1, d]
-            da += oa * oa
-            db += ob * ob
-            dc += (ob - oa) ** 2
+            da += (x[2 * i, d] - xa[d]) ** 2
+            db += (x[2 * i + 1, d] - xb[d]) ** 2
         n = max(dim_ptr[i + 1] - dim_ptr[i], 1)
-        scale = (180.0 / math.pi) / math.sqrt(n / 3.0)
-        out[0, i] = max(math.sqrt(da), math.sqrt(db)) * scale
-        out[1, i] = math.sqrt(dc) * scale
+        out[i] = max(math.sqrt(da), math.sqrt(db)) / math.sqrt(n / 3.0) * (180.0 / math.pi)
 
 
 @nb.njit(**_OPTS)

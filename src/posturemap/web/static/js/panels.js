@@ -111,7 +111,7 @@ export function showLabels(res, cres, params) {
 // Which real motion a retrieval transition replayed, and how well it matched (one line per part;
 // a splice names the segment continuing A, then the one arriving in B).
 const source = (p) => `${p.clip} ${p.frames[0]}–${p.frames[1]}` + (p.reversed ? ' (played backwards)' : '')
-  + ` · match ${p.distance.toFixed(1)}°, change ${p.change.toFixed(1)}°`;
+  + ` · match ${p.distance.toFixed(1)}°`;
 
 function showRetrieval(res) {
   const el = $('retrieval-info');
