@@ -247,6 +247,9 @@ def test_quick_run_writes_every_file(quick):
     for title in report.HOLDOUT_TITLES.values():
         assert f"## {title}" in md and f"**{title}**" in md  # a section and an acceptance table
     assert "| truth |" in md and "L=180" in md and "angry, old, proud" in md and "dash, walk-back, byebye" in md
+    assert "## More splits of bandai1" in md and "**Every Bandai split**" in md
+    for name in evaluate.MORE_SPLITS:
+        assert f"### {name}: " in md and f"| {name} | {evaluate.DEFAULT_SPEC} |" in md
 
 
 def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
@@ -306,6 +309,48 @@ def test_quick_run_splits(quick):
     assert holds["cmu"]["feet"]["joints"] == ["LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase"]
     for h in holds.values():
         assert h["feet"]["skate_height_cm"] == pytest.approx(2.5 * h["feet"]["leg_length_cm"] / 80.0)
+
+
+def test_quick_run_more_splits(quick):
+    results, _, settings = quick
+    splits = results["more_splits"]
+    assert list(splits) == list(evaluate.MORE_SPLITS)
+    for name, sp in splits.items():
+        styles, contents = evaluate.MORE_SPLITS[name]
+        test = [evaluate.parse_name(n) for n in sp["test_files"]]
+        train = [evaluate.parse_name(n) for n in sp["train_files"]]
+        held = {t["style"] for t in test} if styles else {t["content"] for t in test}
+        assert held == set(styles or contents), name  # whole styles or whole motion types held out
+        assert all(t["style"] not in styles and t["content"] not in contents for t in train), name
+        assert not set(sp["train_files"]) & set(sp["test_files"])
+        assert sp["windows"] == settings.max_windows and sp["lengths"] == list(evaluate.SPLIT_LENGTHS)
+        assert list(sp["methods"]) == list(evaluate.SPLIT_METHODS)
+        for m, per_length in sp["methods"].items():
+            assert set(per_length) == {str(n) for n in evaluate.SPLIT_LENGTHS}
+            for scores in per_length.values():
+                assert {"l2q", "l2p", "skate"} <= set(scores)
+                assert all(math.isfinite(v) and v > 0 for v in scores.values()), (name, m)
+        assert all(t["skate"] > 0 for t in sp["truth"].values())
+        # slerp glides the feet where the default steps: never less skate than the truth's here
+        assert all(sp["methods"]["slerp"][n]["skate"] > sp["truth"][n]["skate"] for n in ("30", "45"))
+
+
+def test_split_ratios_divide_by_slerp_and_the_truth_and_average_the_splits():
+    def per(l2q, l2p, skate):
+        return {str(n): {"l2q": l2q * n, "l2p": l2p * n, "skate": skate} for n in report.SKATE_LENGTHS}
+
+    def split(a, truth_skate):
+        return {"methods": {"slerp": per(1.0, 2.0, 8.0), "auto+feet": per(a, 1.0, 2.0)},
+                "truth": {str(n): {"skate": truth_skate} for n in report.SKATE_LENGTHS}}
+
+    results = {"holdouts": {"style": {"inbetween": split(0.5, 4.0)}, "cmu": {"inbetween": split(9.0, 1.0)}},
+               "more_splits": {"styles-2": split(0.7, 1.0)}}
+    ratios = report.split_ratios(results)
+    assert set(ratios) == {"style", "styles-2", "mean"}  # Bandai splits only: not CMU
+    assert ratios["style"]["auto+feet"]["30"] == pytest.approx({"l2q": 0.5, "l2p": 0.5, "skate": 0.5})
+    assert ratios["styles-2"]["auto+feet"]["45"] == pytest.approx({"l2q": 0.7, "l2p": 0.5, "skate": 2.0})
+    assert ratios["mean"]["auto+feet"]["15"] == pytest.approx({"l2q": 0.6, "l2p": 0.5, "skate": 1.25})
+    assert ratios["mean"]["slerp"]["30"]["l2q"] == 1.0
 
 
 @pytest.fixture(scope="module")

@@ -327,8 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=_cmd_inspect)
 
     e = sub.add_parser("bench", help="evaluate every method on a style, a content and a 120 fps hold-out "
-                                     "(in-betweening accuracy, realism, speed) and write results.md, results.json "
-                                     "and plots")
+                                     "(in-betweening accuracy, realism, speed), the main methods on four more "
+                                     "splits of bandai1, and write results.md, results.json and plots")
     e.add_argument("--quick", action="store_true", help="small run for CI (about 20 s on 2 idle cores)")
     e.add_argument("--data", default=None, help="data folder holding bandai1/ and cmu/ (default: $POSTUREMAP_DATA)")
     e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")

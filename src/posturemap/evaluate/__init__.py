@@ -56,6 +56,14 @@ velocity features in the character's frame); pose validity (distance to the near
 posture in the map's feature space) and jerk (cm/s^3). Beside each realism figure, the truth's.
 Every method against slerp, window by window, with a bootstrap interval.
 
+More splits (:data:`MORE_SPLITS`, :func:`run_split`): four more splits of bandai1, two holding
+out other whole styles (childish, giant, tired; chimpira, musical, sad) and two other whole
+motion types (walk-left, run, bye; walk, guide), with the same protocol at 15, 30 and 45
+frames, scored for the main methods (:data:`SPLIT_METHODS`: the baselines, the previous default
+and the default) by L2Q, L2P and foot skate only; the report puts every Bandai split's ratios
+to slerp (and the skate's to the truth's) side by side, with their mean. One split can flatter
+a rule developed on it; six are harder to flatter.
+
 Cross-clip transitions (hold-outs with two or more test clips): seeded random pairs of two
 different test clips, random ``a_end`` and ``b_start``, ``length`` 20 (the paper's),
 ``align=True``. No ground truth: foot skate, validity and jerk, next to the same figures on the
@@ -75,13 +83,14 @@ from . import report
 from .baselines import (KeyModel, KeyTable, centred, engine_call, fixed_key_model, grid_edges, set_key, som_grid,
                         som_model, train_som)
 from .protocol import (ASF_UNIT_CM, CMU_FILE, CMU_LENGTHS, CROSS_LENGTH, DEFAULT_SPEC, FEET, FLOOR_PERCENTILE,
-                       HOLDOUTS, LENGTHS, METHODS, N_FUTURE, N_PAST, QUALITY_KEYS, STATS_STRIDE,
+                       HOLDOUTS, LENGTHS, METHODS, MORE_SPLITS, N_FUTURE, N_PAST, QUALITY_KEYS, SPLIT_LENGTHS,
+                       SPLIT_METHODS, STATS_STRIDE,
                        STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS, TEST_STYLES, UNIT_CM,
                        VARIANTS, Settings, Split, load_split, make_windows, method_spec, parse_name,
                        random_pairs, split_files, unit_cm, window_starts)
 from .runner import (clips_in, code_version, default_data_dir, empty_engines, generate_from_context,
                      make_engines, predict_windows, prepare, round_per_window, run, run_cli, run_cross,
-                     run_diagnostics, run_holdout, run_inbetween, sweep)
+                     run_diagnostics, run_holdout, run_inbetween, run_split, sweep)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, PER_CONTENT_KEYS, Context, global_windows,
                       natural_frames, natural_reference, naturalness_fn, paired_difference, per_content,
                       rebuilt_frames, score_inbetween, score_truth, skate_scores, truth_globals, window_features)
@@ -90,13 +99,15 @@ from .speed import bench_dir, latency, run_bench_script, training_speed
 __all__ = ["report", "KeyModel", "KeyTable", "centred", "engine_call", "fixed_key_model", "grid_edges",
            "set_key", "som_grid", "som_model", "train_som", "ASF_UNIT_CM", "CMU_FILE", "CMU_LENGTHS",
            "CROSS_LENGTH", "DEFAULT_SPEC", "FEET", "FLOOR_PERCENTILE", "HOLDOUTS",
-           "LENGTHS", "METHODS", "N_FUTURE", "N_PAST", "QUALITY_KEYS", "STATS_STRIDE", "STATS_WINDOW",
+           "LENGTHS", "METHODS", "MORE_SPLITS", "N_FUTURE", "N_PAST", "SPLIT_LENGTHS", "SPLIT_METHODS",
+           "QUALITY_KEYS", "STATS_STRIDE", "STATS_WINDOW",
            "STRIDE", "SWEEP_FRACTIONS", "SWEEP_LENGTHS", "TEST_CONTENTS", "TEST_STYLES", "UNIT_CM",
            "VARIANTS", "Settings", "Split", "load_split", "make_windows", "method_spec",
            "parse_name", "random_pairs", "split_files", "unit_cm", "window_starts", "code_version",
            "default_data_dir", "generate_from_context", "clips_in", "empty_engines", "round_per_window",
            "make_engines", "predict_windows", "prepare", "run", "run_cli", "run_cross", "run_diagnostics",
-           "run_holdout", "run_inbetween", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S", "PER_CONTENT_KEYS", "Context",
+           "run_holdout", "run_inbetween", "run_split", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S",
+           "PER_CONTENT_KEYS", "Context",
            "global_windows", "natural_frames", "natural_reference", "naturalness_fn", "paired_difference",
            "per_content", "rebuilt_frames", "score_inbetween", "score_truth", "skate_scores",
            "truth_globals", "window_features", "bench_dir", "latency", "run_bench_script", "training_speed"]

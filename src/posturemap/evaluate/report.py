@@ -283,6 +283,16 @@ def markdown(results: dict) -> str:
              f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames.\n")
     for name, hold in holds.items():
         _acceptance_rows(r, name, hold["inbetween"])
+    if results.get("more_splits"):
+        ratios = split_ratios(results)
+        default = next(iter(holds.values()))["inbetween"]["default_method"]
+        mean = ratios["mean"][default]
+        r.append(f"**Every Bandai split** (the style and content hold-outs and the {len(results['more_splits'])} "
+                 f"of [More splits of bandai1](#more-splits-of-bandai1)): {default}'s mean ratio to slerp's L2Q "
+                 + " / ".join(f"{mean[str(n)]['l2q']:.3f}" for n in SKATE_LENGTHS) + ", L2P "
+                 + " / ".join(f"{mean[str(n)]['l2p']:.3f}" for n in SKATE_LENGTHS) + " at "
+                 + " / ".join(str(n) for n in SKATE_LENGTHS) + " frames; its skate "
+                 + " / ".join(f"{mean[str(n)]['skate']:.2f}" for n in SKATE_LENGTHS) + "x the truth's.\n")
     r.append("## Protocol\n")
     r.append("- Hold-outs: " + "; ".join(f"**{n}**: {h['split']['rule']}" for n, h in holds.items()) + ".")
     r.append(f"- In-betweening: windows of {cfg['n_past']} past + L + {cfg['n_future']} future frames starting "
@@ -316,10 +326,73 @@ def markdown(results: dict) -> str:
     r.append("- Jerk: every third difference of global positions that touches a rebuilt frame.\n")
     for name, hold in holds.items():
         _holdout_section(r, name, hold, cfg)
+    if results.get("more_splits"):
+        _splits_section(r, results)
     if results.get("diagnostics"):
         _diagnostics_section(r, results)
     _speed_section(r, results)
     return "\n".join(r) + "\n"
+
+
+def split_ratios(results: dict) -> dict:
+    """Per Bandai split (the style and content hold-outs and every split of ``more_splits``), per
+    method scored on all of them, per length of :data:`SKATE_LENGTHS`: ``{"l2q", "l2p"}`` as
+    ratios to slerp's and ``skate`` as a ratio to the truth's. Also ``"mean"``: the mean of each
+    ratio over the splits."""
+    tables = {}
+    for name, hold in results["holdouts"].items():
+        if name in ("style", "content"):
+            inb = hold["inbetween"]
+            tables[name] = (inb["methods"], inb["truth"])
+    for name, sp in results.get("more_splits", {}).items():
+        tables[name] = (sp["methods"], sp["truth"])
+    methods = [m for m in next(iter(results["more_splits"].values()))["methods"]
+               if all(m in t[0] for t in tables.values())]
+    out = {}
+    for name, (meth, truth) in tables.items():
+        out[name] = {m: {str(n): {"l2q": meth[m][str(n)]["l2q"] / meth["slerp"][str(n)]["l2q"],
+                                  "l2p": meth[m][str(n)]["l2p"] / meth["slerp"][str(n)]["l2p"],
+                                  "skate": meth[m][str(n)]["skate"] / truth[str(n)]["skate"]}
+                         for n in SKATE_LENGTHS} for m in methods}
+    out["mean"] = {m: {str(n): {k: float(np.mean([out[s][m][str(n)][k] for s in tables]))
+                                for k in ("l2q", "l2p", "skate")} for n in SKATE_LENGTHS} for m in methods}
+    return out
+
+
+def _splits_section(r: list[str], results: dict) -> None:
+    splits = results["more_splits"]
+    ratios = split_ratios(results)
+    default = results["holdouts"][next(iter(results["holdouts"]))]["inbetween"]["default_method"]
+    lengths = " / ".join(str(n) for n in SKATE_LENGTHS)
+    r.append("## More splits of bandai1\n")
+    r.append("The style and content hold-outs above are one split of bandai1 each, and the default's rules "
+             "were developed on them. These splits hold out other whole styles or motion types, with the same "
+             "protocol (the map and its library from the split's training side only, the windows of its test "
+             "clips, the context alone), scored for the main methods' accuracy and foot skate: "
+             + "; ".join(f"**{n}**: {sp['rule']} ({sp['windows']} windows)" for n, sp in splits.items()) + ".\n")
+    r.append(f"Every Bandai split, at {lengths} frames: L2Q and L2P as ratios to slerp's, foot skate as a ratio "
+             "to the truth's (lower is better; the mean of the ratios over the splits last).\n")
+    body = []
+    for name, per in ratios.items():
+        for m, v in per.items():
+            if m == "slerp":
+                continue
+            body.append([f"**{name}**" if name == "mean" else name, m]
+                        + [" ".join(f"{v[str(n)][k]:.2f}" for n in SKATE_LENGTHS) for k in ("l2q", "l2p", "skate")])
+    _table(r, ["split", "method", f"L2Q / slerp at {lengths}", f"L2P / slerp at {lengths}",
+               f"skate / truth at {lengths}"], body)
+    goal = [ratios["mean"][default][str(n)]["l2q"] for n in GOAL_LENGTHS]
+    r.append(f"The default ({default}) over all {len(ratios) - 1} splits: L2Q "
+             + " and ".join(f"{g:.3f}x" for g in goal) + f" slerp's at {' and '.join(map(str, GOAL_LENGTHS))} "
+             f"frames (goal: {GOAL_FACTOR:g}x).\n")
+    for name, sp in splits.items():
+        r.append(f"### {name}: {sp['rule']}\n")
+        r.append(f"{sp['test_clips']} test clips, {sp['windows']} windows; {sp['train_clips']} training clips. "
+                 f"Values at {lengths} frames.\n")
+        body = [[m] + [" ".join(f"{sp['methods'][m][str(n)][k]:.3f}" for n in SKATE_LENGTHS) for k in ("l2q", "l2p")]
+                + [" ".join(f"{sp['methods'][m][str(n)]['skate']:.2f}" for n in SKATE_LENGTHS)] for m in sp["methods"]]
+        body.append(["truth", "-", "-", " ".join(f"{sp['truth'][str(n)]['skate']:.2f}" for n in SKATE_LENGTHS)])
+        _table(r, ["method", "L2Q", "L2P", "foot skate cm/s"], body)
 
 
 def _diagnostics_section(r: list[str], results: dict) -> None:

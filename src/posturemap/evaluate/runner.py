@@ -20,8 +20,8 @@ from ..synth.engine import TransitionEngine
 from . import report
 from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
 from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
-                       STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS,
-                       TEST_STYLES, VARIANTS, Settings, Split, _log, load_split, make_windows,
+                       SPLIT_METHODS, STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS,
+                       TEST_CONTENTS, TEST_STYLES, VARIANTS, Settings, Split, _log, load_split, make_windows,
                        random_pairs, window_starts)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, global_windows, natural_reference,
                       naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
@@ -29,8 +29,12 @@ from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, global_windows,
 from .report import jsonable
 from .speed import latency, run_bench_script, training_speed
 
-def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
-    """Train the maps on a hold-out's training side; returns the shared state of the run."""
+def prepare(split: Split, settings: Settings, seed: int, log=_log, full: bool = True) -> dict:
+    """Train the maps on a hold-out's training side; returns the shared state of the run.
+
+    ``full=False``: the posture map alone, no classic SOM and no pose-validity index (what
+    :func:`run_split` scores needs neither; ``state["som"]`` is then None).
+    """
     from ..learn.model import PostureMap
 
     train, test = split.train, split.test
@@ -43,9 +47,10 @@ def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
     log(f"upm: {sum(model.neuron_counts())} neurons {model.neuron_counts()} in {upm_seconds:.1f} s "
         f"(root {model.skeleton_.names[space.root]}, up axis {'XYZ'[space.up]})")
     x_train = np.concatenate([space.encode(m) for m in train])
-    parts = space.split(x_train)
-    log(f"som: MiniSom per class, {settings.som_epochs} epoch(s)")
-    som, som_info = som_model(model, parts, settings.som_epochs, seed, log)
+    som, som_info = None, None
+    if full:
+        log(f"som: MiniSom per class, {settings.som_epochs} epoch(s)")
+        som, som_info = som_model(model, space.split(x_train), settings.som_epochs, seed, log)
 
     sk = model.skeleton_
     root, up, fps = space.root, space.up, float(train[0].fps)
@@ -63,7 +68,7 @@ def prepare(split: Split, settings: Settings, seed: int, log=_log) -> dict:
     floor = np.percentile(heights, FLOOR_PERCENTILE, axis=0)
     skate_height = metrics.SKATE_HEIGHT_LEGS * leg_length(sk, leg_chains(sk))
     ctx = Context(sk, space, root, up, fps, feet, floor, std,
-                  metrics.build_posture_index(x_train[:, space.active]), skate_height, split.cm)
+                  metrics.build_posture_index(x_train[:, space.active]) if full else None, skate_height, split.cm)
     return {"split": split, "train_files": split.train_names, "test_files": split.test_names,
             "train": train, "test": test, "model": model, "som": som, "som_info": som_info,
             "upm_seconds": upm_seconds, "ctx": ctx, "x_train": x_train, "stats_windows": len(wins_r)}
@@ -403,6 +408,38 @@ def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_l
     return out, diag, example, state
 
 
+def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log) -> dict:
+    """One split of :data:`MORE_SPLITS`: in-betweening accuracy (L2Q, L2P) and foot skate of the
+    main methods (:data:`SPLIT_METHODS`) and the truth's skate, at :data:`SPLIT_LENGTHS`, with
+    the protocol of the hold-outs (the map and everything else from the split's training side)."""
+    split = load_split(name, data_dir, settings)
+    state = prepare(split, settings, seed, log, full=False)
+    windows = make_windows(state, settings, seed)
+    ctx, test = state["ctx"], state["test"]
+    engines = {"upm": TransitionEngine(state["model"])}
+    out = {"rule": split.rule, "train_clips": len(split.train), "train_clips_all": split.train_clips_all,
+           "test_clips": len(split.test), "windows": len(windows), "lengths": list(split.lengths),
+           "train_files": list(split.train_names), "test_files": list(split.test_names),
+           "methods": {m: {} for m in SPLIT_METHODS}, "truth": {}}
+    t0 = time.perf_counter()
+    for length in split.lengths:
+        truth_r, truth_p, preds = predict_windows(engines, SPLIT_METHODS, test, windows, length)
+        n, steps = str(length), slice(N_PAST - 1, N_PAST + length)
+        truth_g = truth_globals(ctx, truth_r, truth_p)
+        for m in SPLIT_METHODS:
+            sc = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, accuracy_only=True, truth_g=truth_g)
+            full_r, full_p = truth_r.copy(), truth_p.copy()
+            full_r[:, N_PAST: N_PAST + length], full_p[:, N_PAST: N_PAST + length] = preds[m]
+            _, gpos = global_windows(full_r, full_p, ctx.skeleton.parents)
+            sc["skate"] = float(skate_scores(ctx, gpos, steps)[0].mean())
+            out["methods"][m][n] = sc
+        out["truth"][n] = {"skate": float(skate_scores(ctx, truth_g[1], steps)[0].mean())}
+    log(f"  {name}: {len(windows)} windows from {len(test)} test clips in {time.perf_counter() - t0:.1f} s; "
+        + ", ".join(f"{m} L2Q at 30 {out['methods'][m]['30']['l2q']:.3f}" for m in SPLIT_METHODS
+                    if "30" in out["methods"][m]))
+    return out
+
+
 def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log) -> dict:
     """Run the benchmark; writes results.md, results.json and PNG plots into ``out``.
 
@@ -433,6 +470,11 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
         if speed_state is None or name == "style":
             speed_state = state
         lap(f"{name} hold-out")
+    splits = {}
+    for name in settings.more_splits:
+        log(f"split {name}")
+        splits[name] = run_split(name, data_dir, settings, seed, log)
+        lap(f"split {name}")
     log("speed: latency")
     if "engines" not in speed_state:
         speed_state["engines"] = make_engines(speed_state)
@@ -456,7 +498,8 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
                    "natural_stride_s": NATURAL_STRIDE_S, "skate_height_legs": metrics.SKATE_HEIGHT_LEGS,
                    "test_styles": list(TEST_STYLES), "test_contents": list(TEST_CONTENTS)},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code},
-        "holdouts": holdouts, "diagnostics": diag, "speed": speed, "section_seconds": sections,
+        "holdouts": holdouts, "more_splits": splits, "diagnostics": diag, "speed": speed,
+        "section_seconds": sections,
     }
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
     results["wall_seconds"] = time.perf_counter() - t_start
