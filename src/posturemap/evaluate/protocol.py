@@ -20,7 +20,7 @@ TEST_STYLES = ("angry", "old", "proud")
 TEST_CONTENTS = ("dash", "walk-back", "byebye")
 # More splits of bandai1, each holding out other whole styles or motion types (every clip of
 # them): the default's choices are checked on these too, since one split can flatter a rule
-# tuned on it. Scored for the main methods' accuracy and skate only (see runner.run_splits).
+# tuned on it. Scored for the main methods' accuracy and skate only (see runner.run_split).
 MORE_SPLITS = {"styles-2": (("childish", "giant", "tired"), ()),
                "styles-3": (("chimpira", "musical", "sad"), ()),
                "contents-2": ((), ("walk-left", "run", "bye")),
@@ -54,7 +54,8 @@ SWEEP_LENGTHS = (15, 30, 45)
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)
 FLOOR_PERCENTILE = 5.0
 # The methods scored on MORE_SPLITS: the baselines, the previous default and the default.
-SPLIT_METHODS = tuple(m for m in ("slerp", "spline", "inertialize", "upm-valid" + FEET, DEFAULT_SPEC) if m in METHODS)
+SPLIT_METHODS = tuple(m for m in ("slerp", "spline", "inertialize", "upm-valid" + FEET, DEFAULT_SPEC)
+                      if m in METHODS)
 UNIT_CM = {"m": 100.0, "cm": 1.0, "mm": 0.1, "inch": 2.54}
 ASF_UNIT_CM = 2.54 / 0.45  # CMU's BVH conversions keep the ASF unit, 1/0.45 inch
 QUALITY_KEYS = ("holdouts", "diagnostics")
