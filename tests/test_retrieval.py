@@ -234,8 +234,9 @@ def test_offset_curves_put_the_ends_exactly_on_a_and_b():
     assert np.allclose(c[0] + c[2], 1.0)
     assert np.all(np.diff(c[0]) < 0) and np.all(np.diff(c[2]) > 0)
     assert np.allclose(c[2], c[0][::-1])
-    s = retrieval.smoothstep(int(d) - 1)
-    assert s[0] > 0 and s[-1] < 1 and np.all(np.diff(s) > 0)
+    # At the new frames t = 1 .. d - 1, B's value offset never reaches 0 or 1 (A's and B's own frames do).
+    rise = retrieval.hermite_offsets(int(d) - 1, blend)[2]
+    assert rise[0] > 0 and rise[-1] < 1 and np.all(np.diff(rise) > 0)
 
 
 def test_inbetweening_keeps_b_exactly_and_lands_the_root_on_it(model, clips):
@@ -813,8 +814,8 @@ def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
         align = bool(i % 2)
         gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
         dtheta = retrieval_numba.trajectory(rt.lib.gpos, rt.lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia],
-                                            tb.gpos[ib], tb.heading[ib], align, UP, curves,
-                                            retrieval.smoothstep(length), gpos, heading, shift)
+                                            tb.gpos[ib], tb.heading[ib], align, UP, curves, gpos, heading,
+                                            shift)
         got = gpos, heading, dtheta, shift
         ref = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
         for g, r in zip(got, ref):  # positions, headings, B's turn and shift

@@ -661,20 +661,6 @@ def _hermite_offsets_cached(length: int, blend: float) -> np.ndarray:
     return out
 
 
-@lru_cache(maxsize=64)
-def _smoothstep_cached(length: int) -> np.ndarray:
-    """:func:`smoothstep`, kept per length and read-only."""
-    out = smoothstep(length)
-    out.setflags(write=False)
-    return out
-
-
-def smoothstep(length: int) -> np.ndarray:
-    """``3 u^2 - 2 u^3`` at frames 1..length of a gap of ``d = length + 1`` frames (u = t / d)."""
-    u = np.arange(1, length + 1) / (length + 1.0)
-    return 3 * u**2 - 2 * u**3
-
-
 def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     """Where library segments ``[s, e]`` (K,) are sampled at output times ``t = -1 .. d + 1``.
 
@@ -818,8 +804,8 @@ def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: li
                     curves: np.ndarray):
     """The root path of the lower body's segments sampled at (i0, i1, f) (K, T): each turned and
     moved to continue A (frames ``ia`` of track ``ta``), its seams corrected towards A and B
-    (frames ``ib`` of ``tb``; with ``align`` B moves to where the segments end, with ``curves``
-    (4, L) the offsets and the horizontal path spread over the gap into B), averaged.
+    (frames ``ib`` of ``tb``; with ``align`` B moves to where the segments end; ``curves`` (4, L)
+    the offsets, whose value rows span the gap: in in-betweening the path lands on B), averaged.
 
     Returns positions (L, 3), headings (L,), B's turn and shift (3,). The numpy steps of
     :func:`replay` (its compiled call runs :func:`posturemap.synth.retrieval_numba.trajectory`).
@@ -847,9 +833,7 @@ def root_trajectory(lib: MotionLibrary, i0, i1, f, ta, tb, ia: list[int], ib: li
     b_head = tb.heading[ib] + dtheta
     b_head += 2 * math.pi * np.round((traj[:, -2, 2].mean() - b_head[0]) / (2 * math.pi))
     b2 = np.stack([b_pos[:, a_], b_pos[:, b_], b_head], axis=1)
-    tcurves = curves.copy()
-    tcurves[2] = smoothstep(length)
-    tr = offset_values(traj, a2, b2, tcurves).mean(axis=0)
+    tr = offset_values(traj, a2, b2, curves).mean(axis=0)
     height = offset_values(gp[..., up], ta.gpos[ia, up], tb.gpos[ib, up], curves).mean(axis=0)
     gpos = np.empty((length, 3))
     gpos[:, a_], gpos[:, b_], gpos[:, up] = tr[:, 0], tr[:, 1], height
@@ -1027,7 +1011,7 @@ def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: i
     dtheta = jit.replay_part(lib.rots, lib.clip_start, lib.clip_of, lib.clip_end, s, e, d, _sample_times(d), joints,
                              joints, ta.rots, tb.rots, np.array(m.ia), np.array(m.ib), curves, lo, hi, out, p == 0,
                              lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading, tb.gpos, tb.heading, m.align,
-                             up, _smoothstep_cached(length), *root)
+                             up, *root)
     if p != 0:
         return None
     gpos, heading, shift, contacts = root

@@ -688,15 +688,15 @@ def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
 
 
 @nb.njit(**_OPTS)
-def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head_in, align, up, curves, smooth,
-               gpos, heading, shift):
+def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head_in, align, up, curves, gpos,
+               heading, shift):
     """The root trajectory of the lower body's segments (see :func:`posturemap.synth.retrieval.retrieve`):
     each segment's root path sampled at (i0, i1, f) (K, T), turned and moved to continue A
     (``a_pos`` (2, 3), ``a_head`` (2,): A at a_end-1, a_end), its seams corrected towards A and B
     (B at b_start, b_start+1 moved by the returned turn and ``shift``, when ``align`` to where
     the segments end), averaged. Writes ``gpos`` (L, 3), ``heading`` (L,) and ``shift`` (3,);
-    returns B's turn ``dtheta``. ``curves`` (4, L) are the seam offsets, ``smooth`` (L,) the
-    horizontal path's rise into B."""
+    returns B's turn ``dtheta``. ``curves`` (4, L) are the seam offsets (their value rows span the
+    gap, so the horizontal path lands on B in in-betweening)."""
     n_k, n_t = i0.shape
     n_l = curves.shape[1]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -738,14 +738,12 @@ def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head
     turns = np.rint((end[2] - b_head[0]) / (2 * math.pi))
     for i in range(2):
         b_head[i] += 2 * math.pi * turns
-    tcurves = curves.copy()
-    tcurves[2] = smooth
     out = np.empty(n_l)
-    _offset_mean(traj, a_pos[0, a_], a_pos[1, a_], b_pos[0, a_], b_pos[1, a_], tcurves, out, 0)
+    _offset_mean(traj, a_pos[0, a_], a_pos[1, a_], b_pos[0, a_], b_pos[1, a_], curves, out, 0)
     gpos[:, a_] = out
-    _offset_mean(traj, a_pos[0, b_], a_pos[1, b_], b_pos[0, b_], b_pos[1, b_], tcurves, out, 1)
+    _offset_mean(traj, a_pos[0, b_], a_pos[1, b_], b_pos[0, b_], b_pos[1, b_], curves, out, 1)
     gpos[:, b_] = out
-    _offset_mean(traj, a_head[0], a_head[1], b_head[0], b_head[1], tcurves, out, 2)
+    _offset_mean(traj, a_head[0], a_head[1], b_head[0], b_head[1], curves, out, 2)
     heading[:] = out
     _offset_mean(traj, a_pos[0, up], a_pos[1, up], b_pos_in[0, up], b_pos_in[1, up], curves, out, 3)
     gpos[:, up] = out
@@ -800,7 +798,7 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 @nb.njit(**_OPTS)
 def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a_rots, b_rots, ia, ib, curves, lo,
                 hi, out, root, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, align, up,
-                smooth, gpos, heading, shift, contacts):
+                gpos, heading, shift, contacts):
     """One body part of :func:`posturemap.synth.retrieval.replay` in one call: the segments
     ``[s, e]`` (K,) sampled at the times ``t`` (:func:`segment_times`), averaged and
     seam-corrected into the columns ``cols`` of ``out`` (:func:`replay`; A's rows ``ia`` (2,)
@@ -826,8 +824,8 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
         b_pos[r] = b_gpos[ib[r]]
         a_head[r] = a_heading[ia[r]]
         b_head[r] = b_heading[ib[r]]
-    dtheta = trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos, b_head, align, up, curves, smooth,
-                        gpos, heading, shift)
+    dtheta = trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos, b_head, align, up, curves, gpos,
+                        heading, shift)
     for u in range(contacts.shape[0]):
         contacts[u] = lib_contacts[np.int64(np.rint(i0[0, u + 2] + f[0, u + 2]))]
     return dtheta
@@ -913,7 +911,7 @@ def splice(a_rots, b_rots, w, g1, h1, g2, h2, a_pos, a_heading, b_pos, b_dtheta,
 @nb.njit(**_OPTS)
 def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper, d, t, joints0, joints1,
                  open_joints, a_rots, b_rots, ia, ib, curves, lo, hi, lib_gpos, lib_heading, lib_contacts, a_gpos,
-                 a_heading, b_gpos, b_heading, up, smooth, out, gpos, heading, shift, contacts):
+                 a_heading, b_gpos, b_heading, up, out, gpos, heading, shift, contacts):
     """One half of a splice as :func:`posturemap.synth.retrieval.replay` makes it with
     ``skip_unconfident`` and its legs confident (B placed to continue A): the rotations of the new
     frames ``lo <= t < hi`` into ``out`` (the identity elsewhere, in the open joints and in a
@@ -926,7 +924,7 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
                 out[u, open_joints[j], c] = 0.0
     dtheta = replay_part(rots, clip_start, clip_of, clip_end, s0, e0, d, t, joints0, joints0, a_rots, b_rots, ia, ib,
                          curves, lo, hi, out, True, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                         b_heading, True, up, smooth, gpos, heading, shift, contacts)
+                         b_heading, True, up, gpos, heading, shift, contacts)
     if skip_upper:
         for u in range(out.shape[0]):
             for j in range(joints1.shape[0]):
@@ -936,14 +934,14 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
     else:
         replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
                     curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                    b_heading, True, up, smooth, gpos[:0], heading[:0], shift, contacts[:0])
+                    b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0])
     return dtheta
 
 
 @nb.njit(**_OPTS)
 def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e_b0, s_b1, e_b1, skip_upper, d, t,
             joints0, joints1, open_joints, a_rots, b_rots, ia, ib, curves, frames, lib_gpos, lib_heading,
-            lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, smooth, w, out, gpos, heading, shift, contacts):
+            lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, w, out, gpos, heading, shift, contacts):
     """:func:`posturemap.synth.splice.spliced` after the search, in one call: both halves replayed
     (:func:`_replay_half`: the segments ``[s_a0, e_a0]`` (lower body) and ``[s_a1, e_a1]`` (upper)
     of the half continuing A, ``s_b*``, ``e_b*`` of the half arriving in B; ``skip_upper`` (2,)
@@ -957,12 +955,12 @@ def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e
     con = np.empty((2, n_l, contacts.shape[1]), dtype=contacts.dtype)
     _replay_half(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, skip_upper[0], d, t, joints0, joints1,
                  open_joints, a_rots, b_rots, ia, ib, curves, max(frames[0, 0], 0), min(frames[0, 1], n_l), lib_gpos,
-                 lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, smooth, rot[0], g[0], h[0],
+                 lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, rot[0], g[0], h[0],
                  sh[0], con[0])
     turn_b = _replay_half(rots, clip_start, clip_of, clip_end, s_b0, e_b0, s_b1, e_b1, skip_upper[1], d, t, joints0,
                           joints1, open_joints, a_rots, b_rots, ia, ib, curves, max(frames[1, 0], 0),
                           min(frames[1, 1], n_l), lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                          b_heading, up, smooth, rot[1], g[1], h[1], sh[1], con[1])
+                          b_heading, up, rot[1], g[1], h[1], sh[1], con[1])
     a_pos, b_pos = np.empty(3), np.empty(3)  # in float64, whatever the tracks' type (as splice() has them)
     for c in range(3):
         a_pos[c], b_pos[c] = a_gpos[ia[1], c], b_gpos[ib[0], c]

@@ -29,8 +29,7 @@ import dataclasses
 import numpy as np
 
 from ..core import kernels
-from .retrieval import (Result, _compiled, _hermite_offsets_cached, _sample_times, _smoothstep_cached, blend_frames,
-                        match, replay)
+from .retrieval import Result, _compiled, _hermite_offsets_cached, _sample_times, blend_frames, match, replay
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 0.5  # fraction of the gap over which A's continuation blends into B's arrival
@@ -192,6 +191,6 @@ def _spliced_compiled(jit, rt, first, second, w: np.ndarray, frames):
                          np.array(first.ia), np.array(first.ib),
                          _hermite_offsets_cached(length, blend_frames(True, ta.motion.fps)),
                          np.array(frames, dtype=np.int64), lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading,
-                         tb.gpos, tb.heading, rt.engine._up, _smoothstep_cached(length), w, rots, gpos, heading,
+                         tb.gpos, tb.heading, rt.engine._up, w, rots, gpos, heading,
                          shift, contacts)
     return rots, gpos, heading, float(dtheta), shift, contacts
