@@ -283,9 +283,9 @@ def markdown(results: dict) -> str:
              f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames.\n")
     for name, hold in holds.items():
         _acceptance_rows(r, name, hold["inbetween"])
-    if results.get("more_splits"):
-        ratios = split_ratios(results)
-        default = next(iter(holds.values()))["inbetween"]["default_method"]
+    ratios = split_ratios(results) if results.get("more_splits") else None
+    default = next(iter(holds.values()))["inbetween"]["default_method"]
+    if ratios:
         mean = ratios["mean"][default]
         r.append(f"**Every Bandai split** (the style and content hold-outs and the {len(results['more_splits'])} "
                  f"of [More splits of bandai1](#more-splits-of-bandai1)): {default}'s mean ratio to slerp's L2Q "
@@ -326,8 +326,8 @@ def markdown(results: dict) -> str:
     r.append("- Jerk: every third difference of global positions that touches a rebuilt frame.\n")
     for name, hold in holds.items():
         _holdout_section(r, name, hold, cfg)
-    if results.get("more_splits"):
-        _splits_section(r, results)
+    if ratios:
+        _splits_section(r, results["more_splits"], ratios, default)
     if results.get("diagnostics"):
         _diagnostics_section(r, results)
     _speed_section(r, results)
@@ -359,10 +359,7 @@ def split_ratios(results: dict) -> dict:
     return out
 
 
-def _splits_section(r: list[str], results: dict) -> None:
-    splits = results["more_splits"]
-    ratios = split_ratios(results)
-    default = results["holdouts"][next(iter(results["holdouts"]))]["inbetween"]["default_method"]
+def _splits_section(r: list[str], splits: dict, ratios: dict, default: str) -> None:
     lengths = " / ".join(str(n) for n in SKATE_LENGTHS)
     r.append("## More splits of bandai1\n")
     r.append("The style and content hold-outs above are one split of bandai1 each, and the default's rules "

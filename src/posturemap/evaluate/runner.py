@@ -427,12 +427,8 @@ def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log
         n, steps = str(length), slice(N_PAST - 1, N_PAST + length)
         truth_g = truth_globals(ctx, truth_r, truth_p)
         for m in SPLIT_METHODS:
-            sc = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, accuracy_only=True, truth_g=truth_g)
-            full_r, full_p = truth_r.copy(), truth_p.copy()
-            full_r[:, N_PAST: N_PAST + length], full_p[:, N_PAST: N_PAST + length] = preds[m]
-            _, gpos = global_windows(full_r, full_p, ctx.skeleton.parents)
-            sc["skate"] = float(skate_scores(ctx, gpos, steps)[0].mean())
-            out["methods"][m][n] = sc
+            out["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, accuracy_only=True,
+                                                   truth_g=truth_g)
         out["truth"][n] = {"skate": float(skate_scores(ctx, truth_g[1], steps)[0].mean())}
     log(f"  {name}: {len(windows)} windows from {len(test)} test clips in {time.perf_counter() - t0:.1f} s; "
         + ", ".join(f"{m} L2Q at 30 {out['methods'][m]['30']['l2q']:.3f}" for m in SPLIT_METHODS

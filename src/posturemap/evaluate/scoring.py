@@ -145,7 +145,8 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
                     accuracy_only: bool = False, natural=None, truth_g: tuple | None = None) -> dict:
     """Every metric for windows (N, 20 + L, J, ...) of truth and rebuilt frames (N, L, J, ...).
 
-    ``accuracy_only``: only L2Q and L2P (skips the pose-validity queries, the slow part).
+    ``accuracy_only``: only L2Q, L2P and the foot skate (skips the pose-validity queries, the slow
+    part).
     ``natural``: the naturalness of each window (N,) (:func:`naturalness_fn`), or None.
     ``truth_g``: :func:`truth_globals` of the truth when already known.
     Per-window values of L2Q, L2P, MPJPE, skate (and naturalness) go to ``per_window``.
@@ -156,16 +157,16 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
     tg_r, tg_p, t_pos, t_rot = truth_g or truth_globals(ctx, truth_r, truth_p)
     pg_r, pg_p = global_windows(full_r, full_p, ctx.skeleton.parents)
     p_pos, p_rot = metrics.normalize_windows(pg_p, pg_r, ctx.root, ctx.up, N_PAST - 1, tg_p, tg_r)
+    skate, contact = skate_scores(ctx, pg_p, slice(N_PAST - 1, N_PAST + length))
     if accuracy_only:
         return {"l2q": metrics.l2q(p_rot[:, sl], t_rot[:, sl]),
-                "l2p": metrics.l2p(p_pos[:, sl], t_pos[:, sl], ctx.std)}
+                "l2p": metrics.l2p(p_pos[:, sl], t_pos[:, sl], ctx.std), "skate": float(skate.mean())}
     t_q = quat.unroll(t_rot[:, sl], axis=1)
     p_q = metrics.align_signs(p_rot[:, sl], t_q)
     n = len(truth_r)
     root_err = np.linalg.norm(pg_p[:, sl, ctx.root] - tg_p[:, sl, ctx.root], axis=-1)
     rel_p = pg_p[:, sl] - pg_p[:, sl, ctx.root: ctx.root + 1]
     rel_t = tg_p[:, sl] - tg_p[:, sl, ctx.root: ctx.root + 1]
-    skate, contact = skate_scores(ctx, pg_p, slice(N_PAST - 1, N_PAST + length))
     valid = metrics.pose_validity(window_features(ctx, pred_r, pred_p), ctx.index)
     per_window = {
         "l2q": [metrics.l2q(p_rot[i: i + 1, sl], t_rot[i: i + 1, sl]) for i in range(n)],

@@ -580,8 +580,7 @@ def confidences(distance, still: float, upper: float, both: bool = True) -> list
 
     lower = ramp(distance[0], *CONF_RANGE) * still
     if both:
-        follows = min(lower / UPPER_FOLLOWS, 1.0) if UPPER_FOLLOWS > 0 else float(lower > 0)
-        return [lower, ramp(distance[1], *UPPER_CONF_RANGE) * follows * upper]
+        return [lower, ramp(distance[1], *UPPER_CONF_RANGE) * min(lower / UPPER_FOLLOWS, 1.0) * upper]
     return [lower, ramp(distance[1], *CONF_RANGE) * still * upper]
 
 
