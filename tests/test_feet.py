@@ -10,11 +10,11 @@ import pytest
 from posturemap.io import bvh
 from posturemap.evaluate import metrics
 from posturemap.core import quat
-from posturemap.core.joints import leg_chains, leg_length
+from posturemap.core.joints import leg_chains, leg_length, leg_toes
 from posturemap.core.motion import up_axis
 from posturemap.synth import feet
-from posturemap.synth.feet import (MAX_DRIFT, STEP_S, contact_runs, lock_weights_and_targets, soft_limit,
-                                   swing_offsets, two_bone_ik)
+from posturemap.synth.feet import (CLEAR_S, CLEAR_SPEED, MAX_DRIFT, STEP_S, TOE_CLEAR, clearance_lift, contact_runs,
+                                   lock_weights_and_targets, soft_limit, swing_offsets, two_bone_ik)
 from posturemap.core.skeleton import fk
 from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine
@@ -31,6 +31,15 @@ def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
     cmu = bvh.read(cmu_file).skeleton
     assert [tuple(cmu.names[j] for j in c) for c in leg_chains(cmu)] == [
         ("LeftUpLeg", "LeftLeg", "LeftFoot"), ("RightUpLeg", "RightLeg", "RightFoot")]
+    assert [bandai.names[j] for j in leg_toes(bandai)] == ["Toes_L", "Toes_R"]
+    assert [cmu.names[j] for j in leg_toes(cmu)] == ["LeftToeBase", "RightToeBase"]
+    # A leg whose ankle has no child: its toe is the ankle itself; of two children, the longer bone.
+    from posturemap.core.skeleton import Skeleton
+    bare = Skeleton(("Hips", "UpperLeg_L", "LowerLeg_L", "Foot_L", "UpperLeg_R", "LowerLeg_R", "Foot_R", "Heel_R",
+                     "Toe_R"), np.array([-1, 0, 1, 2, 0, 4, 5, 6, 6]),
+                    np.array([[0, 0, 0], [1, 0, 0], [0, -4, 0], [0, -4, 0], [-1, 0, 0], [0, -4, 0], [0, -4, 0],
+                              [0, -1, -0.5], [0, -1, 1.5]], dtype=float), (("Xrotation",),) * 9)
+    assert list(leg_toes(bare)) == [3, 8]
 
 
 def test_two_bone_ik_reaches_reachable_targets():
@@ -382,3 +391,93 @@ def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_end
         ib = [b_start, min(b_start + 1, len(b) - 1)]
         placed = rotate_about_up(tb.feet[ib], e.last["dtheta"], e.up) + e.last["shift"]
         np.testing.assert_array_equal(b_feet, placed)
+        # The toes' floor: their lowest in the same frames, B's moved with B.
+        toe_floor = min(ta.toes[[max(a_end - 1, 0), a_end]].min(), tb.toes[ib].min() + e.last["shift"][e.up])
+        assert seen[-1][11] == toe_floor
+        g_a = fk(a.skeleton.parents, a.rotations, a.positions)[1]
+        np.testing.assert_allclose(ta.toes, g_a[:, leg_toes(a.skeleton), e.up], atol=1e-9)
+
+
+def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while_it_swings():
+    fps, body, up, length = 30.0, 80.0, 1, 40
+    r = round(CLEAR_S * fps)
+    x = np.arange(length) * 3.0 * body / fps  # 3 leg lengths per second along x
+    toe = np.zeros((length, 3))
+    toe[:, 0] = x
+    toe[:, up] = 0.002 * body  # grazing the floor (0.16 cm above it)
+    free = np.ones(length, dtype=bool)
+    free[28:] = False  # held from frame 28 on
+    lift = clearance_lift(toe, free, 0.0, up, body, fps)
+    u = (3.0 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0])
+    need = TOE_CLEAR * body * u - 0.002 * body
+    # At least the shortfall in every free frame past the seam's fade; nothing far into the held run.
+    assert np.all(lift[r: 28] >= need - 1e-9)
+    assert np.all(lift[28 + 2 * r + 1:] == 0)
+    # Continuous: it falls over 2r + 1 frames into the held run, and rises from A's seam on a
+    # smoothstep over r + 1 frames (its steepest slope 1.5 / (r + 1) of the lift).
+    assert np.max(np.abs(np.diff(lift[r:]))) <= need / (2 * r + 1) + 1e-9
+    assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:r + 1]])))) <= 1.5 * need / (r + 1) + 1e-9
+    assert 0 < lift[0] < 0.2 * need
+    # Slow, high enough or held: no lift.
+    slow = toe.copy()
+    slow[:, 0] = np.arange(length) * 0.2 * body / fps
+    assert not clearance_lift(slow, free, 0.0, up, body, fps).any()
+    high = toe.copy()
+    high[:, up] = 1.01 * TOE_CLEAR * body
+    assert not clearance_lift(high, free, 0.0, up, body, fps).any()
+    assert not clearance_lift(toe, np.zeros(length, dtype=bool), 0.0, up, body, fps).any()
+    # The floor counts: the same toe over a floor 5 cm lower is high enough.
+    assert not clearance_lift(toe, free, -5.0, up, body, fps).any()
+
+
+def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
+    # One posture held while the whole body glides forward at 2.5 leg lengths per second, the left
+    # toe on the floor: nothing is planted (too fast), and the lock lifts that toe clear of the
+    # floor through the leg's IK, the foot keeping its orientation. The compiled kernel
+    # (numba_kernels._toe_lift inside lock_legs) does what the numpy reference does.
+    from posturemap.core import kernels
+
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains, toes = leg_chains(sk), leg_toes(sk)
+    body = leg_length(sk, chains)
+    length, fps = 30, m.fps
+    g_all = fk(sk.parents, m.rotations, m.positions)[1]
+    frame = int(np.argmax(g_all[:, toes[1], up] - g_all[:, toes[0], up]))  # left toe down, right up
+    rots, pos = m.rotations[np.full(length, frame)].copy(), m.positions[np.full(length, frame)].copy()
+    ahead = (np.arange(3) == (up + 2) % 3).astype(float)
+    step = 2.5 * body / fps * ahead
+    pos[:, 0] += np.arange(length)[:, None] * step
+    grot0, gpos0 = fk(sk.parents, rots, pos)
+    floor = gpos0[:, toes, up].min()
+    ankles = [c[2] for c in chains]
+    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
+    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    results = {}
+    for backend in ("numpy", "numba"):
+        r = rots.copy()
+        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
+        if backend == "numba":
+            kernels.compiled()
+        with ctx:
+            w = feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, fps,
+                               body=body, toe_floor=floor, toes=toes)
+        assert not w.any()
+        results[backend] = r
+    np.testing.assert_allclose(results["numba"], results["numpy"], atol=1e-10)
+    r = results["numpy"]
+    grot1, gpos1 = fk(sk.parents, r, pos)
+    u = min(1.0, (2.5 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]))
+    rr = round(CLEAR_S * fps)
+    mid = slice(rr, length - rr)
+    assert np.all(gpos0[mid, toes[0], up] - floor < 0.2 * TOE_CLEAR * body)  # not clear before
+    assert np.all(gpos0[:, toes[1], up] - floor > TOE_CLEAR * body)
+    assert np.all(gpos1[mid, toes[0], up] - floor >= TOE_CLEAR * body * u * (1 - 1e-6))
+    # The ankle rose as the toe did (the foot's global orientation kept), horizontally unmoved.
+    ankle = chains[0][2]
+    np.testing.assert_allclose(gpos1[:, toes[0]] - gpos1[:, ankle], gpos0[:, toes[0]] - gpos0[:, ankle], atol=1e-6)
+    horizontal = np.arange(3) != up
+    np.testing.assert_allclose(gpos1[:, ankle][:, horizontal], gpos0[:, ankle][:, horizontal], atol=1e-6)
+    # Only the left leg moved (the right toe is high already).
+    moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
+    assert set(np.flatnonzero(moved)) == set(chains[0])

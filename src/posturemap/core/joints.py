@@ -61,6 +61,18 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     return out
 
 
+def leg_toes(sk: Skeleton, chains=None) -> np.ndarray:
+    """The toe joint of each leg (n_legs,): the ankle's child with the longest bone (``Toes_L``,
+    ``LeftToeBase``), or the ankle itself where it has no child. ``chains`` defaults to
+    :func:`leg_chains`."""
+    chains = leg_chains(sk) if chains is None else chains
+    toes = []
+    for _, _, ankle in chains:
+        kids = np.flatnonzero(sk.parents == ankle)
+        toes.append(int(kids[np.argmax(np.linalg.norm(sk.offsets[kids], axis=-1))]) if len(kids) else ankle)
+    return np.array(toes, dtype=np.int64)
+
+
 def leg_length(sk: Skeleton, chains=None) -> float:
     """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit; 1.0
     without legs. ``chains`` defaults to :func:`leg_chains`."""

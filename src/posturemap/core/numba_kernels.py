@@ -437,8 +437,48 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
 
 
 @nb.njit(**_OPTS)
+def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, clear_hi, r, deficit, widest):
+    """Add to ``raised`` (L,) the lift that keeps the swinging toe clear of the floor
+    (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
+    moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
+    ``deficit`` and ``widest`` scratch."""
+    n_l = gpos.shape[0]
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    floor = toe_floor
+    any_deficit = False
+    for t in range(n_l):
+        deficit[t] = 0.0
+        if held[t] or n_l < 2:
+            continue
+        lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
+        da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
+        db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
+        u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
+        short = clear * u - (gpos[t, toe, up] + raised[t] - floor)
+        if short > 0.0:
+            deficit[t] = short
+            any_deficit = True
+    if not any_deficit:
+        return
+    for i in range(n_l + 2 * r):
+        m = 0.0
+        for f in range(i - 2 * r, i + 1):
+            if 0 <= f < n_l:
+                m = max(m, deficit[f])
+        widest[i] = m
+    width = 2 * r + 1
+    for t in range(n_l):
+        total = 0.0
+        for i in range(t, t + width):
+            total += widest[i]
+        edge = min(min(t + 1, n_l - t) / (r + 1.0), 1.0)
+        raised[t] += total / width * edge * edge * (3.0 - 2.0 * edge)
+
+
+@nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
-              drift_lo, drift_hi, eps, soft, step, lift, weights):
+              drift_lo, drift_hi, eps, soft, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
+              weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -447,7 +487,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     array with no rows to detect them from height and speed; drift_lo/drift_hi, eps and soft:
     ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step of a foot planted all through from A's spot to B's;
-    weights (L, n) out.
+    toes (n,) each leg's toe joint and toe_floor the toes' floor;
+    clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
+    swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
+    :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); weights (L, n) out.
     """
     n_l = rots.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -455,7 +498,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     weight = np.empty(n_l)
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
     offset = np.empty((n_l, 2))  # the ankle's horizontal correction (posturemap.synth.feet.swing_offsets)
-    raised = np.empty(n_l)  # the step's lift
+    raised = np.empty(n_l)  # the step's lift, then also the swinging toe's
+    deficit = np.empty(n_l)  # the swinging toe's shortfall below its clearance
+    widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goal = np.empty(3)
     for leg in range(legs.shape[0]):
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
@@ -569,6 +614,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             if stop - q >= 2:
                 rp0, rp1 = offset[stop - 1, 0] - offset[stop - 2, 0], offset[stop - 1, 1] - offset[stop - 2, 1]
             t = stop
+        _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear, clear_lo, clear_hi, clear_r,
+                  deficit, widest)
         for t in range(n_l):
             weights[t, leg] = weight[t]
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:

@@ -51,7 +51,7 @@ import copy
 import numpy as np
 
 from ..core import kernels
-from ..core.joints import ancestors, leg_chains, leg_length
+from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
 from ..core.motion import Motion, concatenate, root_index, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
@@ -116,6 +116,7 @@ class TransitionEngine:
         if not self._legs:
             self._legs = leg_chains(self.skeleton)
             self._leg_length = leg_length(self.skeleton, self._legs)
+            self._toes = leg_toes(self.skeleton, self._legs)
         tr = make_track(motion, self._root, self._up, self._rest, space)
         self.tracks[name] = tr
         return tr
@@ -196,8 +197,11 @@ class TransitionEngine:
         a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
         b_feet = tb.feet[b_start: b_start + 2] if b_start + 1 < len(tb.feet) else tb.feet[[b_start, b_start]]
         b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
+        # The toes' floor: their lowest in the same frames (B's heights moved with B).
+        toe_floor = min(ta.toes[max(a_end - 1, 0): a_end + 1].min(initial=np.inf),
+                        tb.toes[b_start: b_start + 2].min(initial=np.inf) + shift[self._up])
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
-                         ta.motion.fps, contacts, self._leg_length)
+                         ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import kernels, quat
-from ..core.joints import leg_chains
+from ..core.joints import leg_chains, leg_toes
 from ..core.motion import Motion, up_vector
 from ..learn.features import root_global
 
@@ -32,6 +32,7 @@ class Track:
     rots : (F, J, 4) local rotations, with the root's replaced by its tilt
     features : (F, D) posture vectors for a map, or None
     feet : (F, n_legs, 3) global ankle positions (for foot locking)
+    toes : (F, n_legs) global heights of each leg's toe (:func:`posturemap.core.joints.leg_toes`)
     """
 
     motion: Motion
@@ -40,6 +41,7 @@ class Track:
     rots: np.ndarray
     features: np.ndarray | None
     feet: np.ndarray
+    toes: np.ndarray
 
 
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
@@ -71,13 +73,14 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
     rots = motion.rotations.copy()
     rots[:, root] = tilt
     feats = space.encode(motion) if space is not None else None
-    ankles = [c[2] for c in leg_chains(motion.skeleton)]
-    feet = np.zeros((len(motion), 0, 3))
-    if ankles:
+    chains = leg_chains(motion.skeleton)
+    feet, toes = np.zeros((len(motion), 0, 3)), np.zeros((len(motion), 0))
+    if chains:
         grot_all, gpos_all = np.empty(motion.rotations.shape), np.empty(motion.positions.shape)
         kernels.fk(motion.skeleton.parents, motion.rotations, motion.positions, grot_all, gpos_all)
-        feet = gpos_all[:, ankles]
-    return Track(motion, gpos, heading, rots, feats, feet)
+        feet = gpos_all[:, [c[2] for c in chains]]
+        toes = gpos_all[:, leg_toes(motion.skeleton, chains), up]
+    return Track(motion, gpos, heading, rots, feats, feet, toes)
 
 
 def alignment(a: Track, b: Track, a_end: int, b_start: int, length: int, up: int) -> tuple[float, np.ndarray]:
