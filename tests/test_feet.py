@@ -481,3 +481,11 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # Only the left leg moved (the right toe is high already).
     moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
     assert set(np.flatnonzero(moved)) == set(chains[0])
+    # A foot without a toe joint (its "toe" the ankle) is not lifted: an ankle swings low at heel strike.
+    for backend in ("numpy", "numba"):
+        r = rots.copy()
+        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
+        with ctx:
+            feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, fps,
+                           body=body, toe_floor=floor, toes=np.array(ankles))
+        np.testing.assert_array_equal(r, rots)

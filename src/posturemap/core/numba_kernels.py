@@ -487,7 +487,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     array with no rows to detect them from height and speed; drift_lo/drift_hi, eps and soft:
     ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step of a foot planted all through from A's spot to B's;
-    toes (n,) each leg's toe joint and toe_floor the toes' floor;
+    toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' floor;
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); weights (L, n) out.
@@ -614,8 +614,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             if stop - q >= 2:
                 rp0, rp1 = offset[stop - 1, 0] - offset[stop - 2, 0], offset[stop - 1, 1] - offset[stop - 2, 1]
             t = stop
-        _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear, clear_lo, clear_hi, clear_r,
-                  deficit, widest)
+        if toes[leg] != ankle:  # a foot without a toe joint is left alone
+            _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear, clear_lo, clear_hi, clear_r,
+                      deficit, widest)
         for t in range(n_l):
             weights[t, leg] = weight[t]
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:

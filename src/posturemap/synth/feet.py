@@ -17,7 +17,8 @@ in-between frames are made:
    rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
    before and after it;
-4. a swinging foot clears the floor: while it is in the air, its toe is kept at least
+4. a swinging foot clears the floor: while it is in the air, its toe (where the foot has a toe
+   joint: :func:`posturemap.core.joints.leg_toes`) is kept at least
    ``TOE_CLEAR`` leg lengths above the floor once it moves at ``CLEAR_SPEED[1]`` leg lengths per
    second, less in proportion below (nothing under ``CLEAR_SPEED[0]``). Blends of real segments
    (and interpolation) can drag a toe along the floor at walking speed, which real feet do not
@@ -308,10 +309,12 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         raised[held] *= scale[held]
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
-        # The toe where the ankle goes (the foot keeps its orientation), clear of the floor in the air.
-        toe = gpos[:, toes[leg]] + offset
-        toe[:, up] += raised
-        raised += clearance_lift(toe, ~held, toe_floor, up, body, fps)
+        # The toe where the ankle goes (the foot keeps its orientation), clear of the floor in the
+        # air. A foot without a toe joint is left alone: an ankle swings low at heel strike.
+        if toes[leg] != ankle:
+            toe = gpos[:, toes[leg]] + offset
+            toe[:, up] += raised
+            raised += clearance_lift(toe, ~held, toe_floor, up, body, fps)
         frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:
             continue
