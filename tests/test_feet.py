@@ -21,6 +21,24 @@ from posturemap.synth.engine import TransitionEngine
 from posturemap.synth.trajectory import rotate_about_up
 
 
+def lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, *args, **kw):
+    """``feet.lock_feet`` on a copy of ``rots`` with the numpy code and with the compiled kernel:
+    ``{"numpy": (rots, weights), "numba": (rots, weights)}``."""
+    from posturemap.core import kernels
+
+    out = {}
+    for backend in ("numpy", "numba"):
+        r = rots.copy()
+        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
+        if backend == "numba":
+            kernels.compiled()
+        with ctx:
+            w = feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, fps,
+                               *args, **kw)
+        out[backend] = (r, w)
+    return out
+
+
 def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
     sk = sample_clips["walk"].skeleton
     names = [tuple(sk.names[j] for j in c) for c in leg_chains(sk)]
@@ -155,7 +173,6 @@ def test_a_far_spot_drags_the_foot_instead_of_letting_it_go(sample_clips):
     # A foot planted on a spot a growing distance from where the motion puts it: held exactly
     # while the spot is within MAX_DRIFT[0] leg lengths, then moved ever less of the way, never
     # more than MAX_DRIFT[1]; the weight is the fraction of the way.
-    from posturemap.core import kernels
     m = sample_clips["walk"]
     sk, up = m.skeleton, up_axis(m)
     chains = leg_chains(sk)[:1]
@@ -171,14 +188,7 @@ def test_a_far_spot_drags_the_foot_instead_of_letting_it_go(sample_clips):
     b_feet = a_feet + 5 * leg * side  # far away and not relevant (no run reaches B)
     contacts = np.ones((length, 1), dtype=bool)
     contacts[-1] = False
-    for backend in ("numpy", "numba"):
-        r = rots.copy()
-        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
-        if backend == "numba":
-            kernels.compiled()
-        with ctx:
-            w = feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, m.fps,
-                               contacts)
+    for r, w in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts).values():
         ankle = fk(sk.parents, r, pos)[1][:, chains[0][2]]
         moved = np.linalg.norm((ankle - g[:1]) * (1 - (np.arange(3) == up)), axis=-1) / leg
         slide = np.linspace(0.0, 0.6, length)[:-1]
@@ -435,8 +445,6 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # toe on the floor: nothing is planted (too fast), and the lock lifts that toe clear of the
     # floor through the leg's IK, the foot keeping its orientation. The compiled kernel
     # (numba_kernels._toe_lift inside lock_legs) does what the numpy reference does.
-    from posturemap.core import kernels
-
     m = sample_clips["walk"]
     sk, up = m.skeleton, up_axis(m)
     chains, toes = leg_chains(sk), leg_toes(sk)
@@ -453,19 +461,10 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     ankles = [c[2] for c in chains]
     a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
     b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
-    results = {}
-    for backend in ("numpy", "numba"):
-        r = rots.copy()
-        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
-        if backend == "numba":
-            kernels.compiled()
-        with ctx:
-            w = feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, fps,
-                               body=body, toe_floor=floor, toes=toes)
-        assert not w.any()
-        results[backend] = r
-    np.testing.assert_allclose(results["numba"], results["numpy"], atol=1e-10)
-    r = results["numpy"]
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor, toes=toes)
+    assert not results["numpy"][1].any() and not results["numba"][1].any()
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    r = results["numpy"][0]
     grot1, gpos1 = fk(sk.parents, r, pos)
     u = min(1.0, (2.5 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]))
     rr = round(CLEAR_S * fps)
@@ -482,10 +481,6 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
     assert set(np.flatnonzero(moved)) == set(chains[0])
     # A foot without a toe joint (its "toe" the ankle) is not lifted: an ankle swings low at heel strike.
-    for backend in ("numpy", "numba"):
-        r = rots.copy()
-        ctx = kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext()
-        with ctx:
-            feet.lock_feet(sk, chains, r, pos, lambda q: fk(sk.parents, q, pos), up, a_feet, b_feet, fps,
-                           body=body, toe_floor=floor, toes=np.array(ankles))
+    for r, _ in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor,
+                          toes=np.array(ankles)).values():
         np.testing.assert_array_equal(r, rots)
