@@ -487,7 +487,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     array with no rows to detect them from height and speed; drift_lo/drift_hi, eps and soft:
     ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step of a foot planted all through from A's spot to B's;
-    toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' floor;
+    toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
+    (the floor is the lower of it and their lowest in the new frames);
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); weights (L, n) out.
@@ -502,6 +503,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     deficit = np.empty(n_l)  # the swinging toe's shortfall below its clearance
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goal = np.empty(3)
+    for leg in range(legs.shape[0]):
+        for t in range(n_l):
+            toe_floor = min(toe_floor, gpos[t, toes[leg], up])
     for leg in range(legs.shape[0]):
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))

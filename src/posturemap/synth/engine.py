@@ -198,8 +198,10 @@ class TransitionEngine:
         b_feet = tb.feet[b_start: b_start + 2] if b_start + 1 < len(tb.feet) else tb.feet[[b_start, b_start]]
         b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
         # The toes' floor: their lowest in the same frames (B's heights moved with B).
-        toe_floor = min(ta.toes[max(a_end - 1, 0): a_end + 1].min(initial=np.inf),
-                        tb.toes[b_start: b_start + 2].min(initial=np.inf) + shift[self._up])
+        low_a, low_b = ta.lowest_toe, tb.lowest_toe
+        toe_floor = min(low_a[max(a_end - 1, 0)].item(), low_a[a_end].item(),
+                        low_b[b_start].item() + shift[self._up].item(),
+                        low_b[min(b_start + 1, len(low_b) - 1)].item() + shift[self._up].item())
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes)
 

@@ -262,7 +262,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     body = leg_length(sk, chains) if body is None else body
     toes = leg_toes(sk, chains) if toes is None else np.asarray(toes, dtype=np.int64)
     grot, gpos = gpos_fn(rots)
-    toe_floor = min(np.inf if toe_floor is None else float(toe_floor), float(gpos[:, toes, up].min()))
+    toe_floor = np.inf if toe_floor is None else float(toe_floor)
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
     jit = _compiled()
@@ -275,6 +275,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), weights)
         return weights
+    toe_floor = min(toe_floor, float(gpos[:, toes, up].min()))  # and the new frames' lowest toe
     flat = np.ones(3)
     flat[up] = 0.0
     for leg, (thigh, shin, ankle) in enumerate(chains):
