@@ -484,3 +484,10 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     for r, _ in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor,
                           toes=np.array(ankles)).values():
         np.testing.assert_array_equal(r, rots)
+    # A swinging toe under the context's floor (here 1 cm below it) does not lower the floor: it is
+    # lifted out of it, to the clearance above the floor. Nothing is held, so the context decides.
+    raised_floor = floor + 0.0125 * body
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=raised_floor, toes=toes)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
+    assert np.all(lifted - raised_floor >= TOE_CLEAR * body * u * (1 - 1e-6))

@@ -488,25 +488,23 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step of a foot planted all through from A's spot to B's;
     toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
-    (the floor is the lower of it and their lowest in the new frames);
+    (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); weights (L, n) out.
     """
-    n_l = rots.shape[0]
+    n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
-    on = np.empty(n_l, dtype=np.bool_)
+    on_all = np.empty((n_legs, n_l), dtype=np.bool_)
     weight = np.empty(n_l)
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
-    offset = np.empty((n_l, 2))  # the ankle's horizontal correction (posturemap.synth.feet.swing_offsets)
-    raised = np.empty(n_l)  # the step's lift, then also the swinging toe's
+    offset_all = np.empty((n_legs, n_l, 2))  # the ankle's horizontal correction (posturemap.synth.feet.swing_offsets)
+    raised_all = np.empty((n_legs, n_l))  # the step's lift, then also the swinging toe's
     deficit = np.empty(n_l)  # the swinging toe's shortfall below its clearance
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goal = np.empty(3)
-    for leg in range(legs.shape[0]):
-        for t in range(n_l):
-            toe_floor = min(toe_floor, gpos[t, toes[leg], up])
-    for leg in range(legs.shape[0]):
+    for leg in range(n_legs):
+        on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
         for t in range(n_l):
@@ -618,11 +616,25 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             if stop - q >= 2:
                 rp0, rp1 = offset[stop - 1, 0] - offset[stop - 2, 0], offset[stop - 1, 1] - offset[stop - 2, 1]
             t = stop
+        for t in range(n_l):
+            weights[t, leg] = weight[t]
+    # The toes' floor: the context's, or lower where a planted foot's toe is lower in the new
+    # frames (a swinging toe that dips does not lower it); the new frames' lowest toe without either.
+    for leg in range(n_legs):
+        for t in range(n_l):
+            if on_all[leg, t]:
+                toe_floor = min(toe_floor, gpos[t, toes[leg], up])
+    if toe_floor == np.inf:
+        for leg in range(n_legs):
+            for t in range(n_l):
+                toe_floor = min(toe_floor, gpos[t, toes[leg], up])
+    for leg in range(n_legs):
+        on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
+        thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         if toes[leg] != ankle:  # a foot without a toe joint is left alone
             _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear, clear_lo, clear_hi, clear_r,
                       deficit, widest)
         for t in range(n_l):
-            weights[t, leg] = weight[t]
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
                 continue
             goal[a_] = gpos[t, ankle, a_] + offset[t, 0]

@@ -23,7 +23,8 @@ in-between frames are made:
    second, less in proportion below (nothing under ``CLEAR_SPEED[0]``). Blends of real segments
    (and interpolation) can drag a toe along the floor at walking speed, which real feet do not
    do; the foot is raised by the shortfall, spread smoothly over ``CLEAR_S`` seconds on each side
-   (:func:`clearance_lift`);
+   (:func:`clearance_lift`). The floor is where feet stand: the lowest toe in A's and B's frames
+   or of a held foot in the new ones, so a swinging toe that dips under it is lifted out too;
 5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
    end of the leg's reach bends the knee smoothly instead of snapping it straight. The foot keeps
@@ -249,8 +250,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     given, are the planted frames (otherwise they are detected from height and speed). ``body``:
     :func:`leg_length` of the skeleton, and ``toes`` (n_legs,): :func:`leg_toes`, when the caller
     keeps them. ``toe_floor``, when given: the lowest height of the toes in the context (A's and
-    B's frames); the toes' floor is the lower of it and their lowest in the new frames (without
-    it, the latter alone).
+    B's frames). The toes' floor is the lower of it and the lowest toe of a held foot in the new
+    frames (a swinging toe that dips under the floor does not lower it, it is lifted out); with
+    neither, the lowest toe in the new frames.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -275,9 +277,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), weights)
         return weights
-    toe_floor = min(toe_floor, float(gpos[:, toes, up].min()))  # and the new frames' lowest toe
     flat = np.ones(3)
     flat[up] = 0.0
+    locks = []  # per leg: the offsets, lifts and held frames; the IK once the toes' floor is known
     for leg, (thigh, shin, ankle) in enumerate(chains):
         h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
@@ -310,6 +312,17 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         raised[held] *= scale[held]
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
+        locks.append((offset, raised, held))
+    # The toes' floor: the context's, or lower where a planted foot's toe is lower in the new
+    # frames (a swinging toe that dips does not lower it: it is lifted out of the floor); the new
+    # frames' lowest toe when there is neither.
+    for leg, (_, _, held) in enumerate(locks):
+        if held.any():
+            toe_floor = min(toe_floor, float(gpos[held, toes[leg], up].min()))
+    if toe_floor == np.inf:
+        toe_floor = float(gpos[:, toes, up].min())
+    for leg, (thigh, shin, ankle) in enumerate(chains):
+        offset, raised, held = locks[leg]
         # The toe where the ankle goes (the foot keeps its orientation), clear of the floor in the
         # air. A foot without a toe joint is left alone: an ankle swings low at heel strike.
         if toes[leg] != ankle:
