@@ -491,3 +491,18 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
     lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
     assert np.all(lifted - raised_floor >= TOE_CLEAR * body * u * (1 - 1e-6))
+    # A held foot's toe lower than the context says is where the floor is: with the right foot held
+    # in the middle frames and the context's floor 10 cm up, the left toe clears the right toe's
+    # height, not the context's.
+    contacts = np.zeros((length, 2), dtype=bool)
+    contacts[5:25, 1] = True  # a run off the seams (one at a seam where the foot moves would be dropped)
+    high_floor = floor + 0.125 * body
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, body=body, toe_floor=high_floor,
+                        toes=toes)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    assert results["numpy"][1][5:25, 1].min() > 0 and not results["numpy"][1][:, 0].any()
+    right_toe = gpos0[0, toes[1], up]
+    assert right_toe < high_floor
+    lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
+    assert np.all(lifted - right_toe >= TOE_CLEAR * body * u * (1 - 1e-6))
+    assert np.all(lifted < high_floor)
