@@ -167,10 +167,9 @@ def test_page_loads_without_console_errors_and_draws(studio, clips):
 
 def test_picking_clips_and_alpha_change_the_key_posture(studio, clips):
     # Mid-clip seams: both clips start and end standing still, where every alpha gives one key.
-    # The ghost shows the result's key frame; without the foot lock, whose IK may move the legs
-    # there (a planted foot held, a swinging toe lifted), that frame is the key itself.
+    # With the foot lock on (it may move the legs at the key's frame), the ghost shows the key.
     studio.page.select_option("#method", "upm-valid")
-    studio.page.uncheck("#foot-lock")
+    assert studio.page.is_checked("#foot-lock")
     studio.choose("bow_normal_001", "bye_normal_001", a_end=60, b_start=40)
     s = studio.js("__studio.result")
     assert (s["a"], s["b"]) == ("bow_normal_001", "bye_normal_001")

@@ -85,6 +85,15 @@ export class Character {
     if (this.action) this.mixer.setTime(clamp(t, 0, Math.max(this.duration - 1e-6, 0)));
   }
 
+  // The named bones turned to these local rotations (x, y, z, w), over the clip's pose at its time:
+  // the ghost shows the key posture itself, not the result's frame (which the foot lock may change).
+  setRotations(names, quaternions) {
+    names.forEach((name, i) => {
+      const j = this.skel.bones.indexOf(name);
+      if (j >= 0) this.bones[j].quaternion.fromArray(quaternions[i]);
+    });
+  }
+
   tint(color, amount) {
     this.material.color.copy(this.baseColor).lerp(color, amount);
   }

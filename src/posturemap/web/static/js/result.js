@@ -74,7 +74,8 @@ export function showResult(res, cres, params, kind) {
   cmp.group.visible = !!cres;
   if (res.key) {
     ghost.setClip(main.clip);
-    ghost.setTime(res.key.frame / res.fps);
+    ghost.setTime(res.key.frame / res.fps);  // placed where the result is at the key's frame
+    ghost.setRotations(res.key.bones, res.key.quaternions);
   } else {
     ghost.setClip(null);
   }
