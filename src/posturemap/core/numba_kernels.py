@@ -443,18 +443,19 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
     ``deficit`` and ``widest`` scratch."""
     n_l = gpos.shape[0]
+    if n_l < 2:  # no speed in one frame: nothing to clear
+        return
     a_, b_ = (up + 1) % 3, (up + 2) % 3
-    floor = toe_floor
     any_deficit = False
     for t in range(n_l):
         deficit[t] = 0.0
-        if held[t] or n_l < 2:
+        if held[t]:
             continue
         lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
         da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
         db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
         u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
-        short = clear * u - (gpos[t, toe, up] + raised[t] - floor)
+        short = clear * u - (gpos[t, toe, up] + raised[t] - toe_floor)
         if short > 0.0:
             deficit[t] = short
             any_deficit = True
