@@ -531,6 +531,26 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
 
 
+def test_a_gap_that_must_travel_is_not_a_standing_gesture(model, clips):
+    """Standing at both seams, but B is two metres away: the character must walk there, so the
+    still weight follows the gap's speed and the legs are retrieved rather than gliding."""
+    leg = model.library_.leg
+    still = retrieval.Seams(np.zeros((7, 3)), np.zeros((7, 3)), np.array([0.1 * leg, 0.0, 0.05 * leg, 0.0, 90.0]))
+    assert retrieval.still_weight(still, still, leg, 1, travel=0.1 * leg) == 0.0
+    assert retrieval.still_weight(still, still, leg, 1, travel=0.35 * leg) == pytest.approx(0.5)
+    assert retrieval.still_weight(still, still, leg, 1, travel=2.0 * leg) == 1.0
+    bow = clips["bow_happy_001"]
+    far = dataclasses.replace(bow, positions=bow.positions.copy())
+    far.positions[:, 0, 0] += 200.0  # cm: B's place two metres along x
+    eng = TransitionEngine(model)
+    eng.add("bow", bow)
+    eng.add("far", far)
+    for align, expected in ((False, True), (True, False)):
+        eng.generate("bow", "far", length=30, a_end=20, b_start=51, align=align, method="retrieval")
+        assert (eng.last["retrieval"]["parts"]["lower"]["confidence"] > 0.0) == expected
+    # In a transition B takes the segment's place, so nothing asks the bow to travel.
+
+
 def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
     from types import SimpleNamespace
 
