@@ -256,7 +256,8 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     results, _, settings = quick
     holds = results["holdouts"]
     assert list(holds) == list(evaluate.HOLDOUTS)
-    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "naturalness", "validity", "jerk"}
+    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "penetration_cm", "naturalness", "validity",
+            "jerk"}
     for name, hold in holds.items():
         inb = hold["inbetween"]
         lengths = evaluate.CMU_LENGTHS if name == "cmu" else LENGTHS
@@ -270,7 +271,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
                 assert len(scores["per_window"]["naturalness"]) == inb["windows"]
         for n in map(str, lengths):
             t = inb["truth"][n]
-            assert {"skate", "naturalness", "validity", "jerk"} <= set(t)
+            assert {"skate", "penetration_cm", "naturalness", "validity", "jerk"} <= set(t)
             assert t["naturalness"] > 0  # the truth is never compared with its own frames
             assert all(inb["methods"][m][n]["l2q"] > 0 and inb["methods"][m][n]["mpjpe_cm"] > 0
                        for m in METHODS)

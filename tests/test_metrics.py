@@ -164,6 +164,26 @@ def test_weighted_skate_hand_case_counts_a_foot_sliding_above_the_contact_height
     assert metrics.weighted_skate(np.stack([pos, lifted]), fps, up, H).tolist() == pytest.approx([got[0]] * 2)
 
 
+def test_floor_penetration_keeps_the_contexts_floor():
+    up = 1
+    # Two foot joints over 5 frames; frames 0 and 4 are context, the floor their lowest joint (1 cm).
+    pos = np.zeros((5, 2, 3))
+    pos[:, 0, up] = [1.0, 0.0, -2.0, 1.0, 3.0]  # through the floor by 1 and 3 cm in the gap
+    pos[:, 1, up] = [4.0, 2.0, 0.5, -1.0, 4.0]  # the deeper joint counts in each frame
+    context = np.array([True, False, False, False, True])
+    got = metrics.floor_penetration(pos[None], up, context, slice(1, 4))
+    assert got.shape == (1,)
+    assert got[0] == pytest.approx((1.0 + 3.0 + 2.0) / 3)
+    # Above the floor: nothing, however low the context's feet; the floor moves with the window.
+    high = pos.copy()
+    high[1:4, :, up] = 1.5
+    lifted = pos + np.array([0.0, 50.0, 0.0])
+    assert metrics.floor_penetration(np.stack([high, lifted]), up, context, slice(1, 4)).tolist() == \
+        pytest.approx([0.0, got[0]])
+    # The window's own lowest foot is no floor: a skate measure that takes it sees no penetration.
+    assert metrics.floor_penetration(pos[None], up, np.ones(5, dtype=bool), slice(1, 4))[0] == 0.0
+
+
 def _turned(gpos, grot, angle, shift):
     turn = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), angle)
     return quat.mul_vec(turn, gpos) + shift, quat.mul(turn, grot)

@@ -222,6 +222,26 @@ def weighted_skate(pos: np.ndarray, fps: float, up: int, height: float, offset: 
     return (w * horizontal_speed(pos, fps, up))[..., steps, :].mean(axis=(-2, -1))
 
 
+def floor_penetration(pos: np.ndarray, up: int, context: np.ndarray, frames: slice) -> np.ndarray:
+    """How deep feet go into the floor: per window, the mean over ``frames`` of the deepest foot
+    joint's depth under the floor (0 where every foot joint is above it).
+
+    pos : ndarray (..., T, K, 3), global positions of K foot joints over a window of T frames
+    up : up axis
+    context : bool (T,), the frames that say where the floor is (the real frames around a gap):
+        the floor is the lowest foot joint over them, the same for every method and the truth
+    frames : the frames scored (e.g. the gap's)
+
+    Returns ndarray (...,) in the unit of ``pos``. A measure whose ground is the window's own
+    lowest foot (such as :func:`weighted_skate`) counts a foot through the floor as the floor,
+    and every other foot as that much higher: this one keeps the context's floor.
+    """
+    h = pos[..., up]  # (..., T, K)
+    floor = h[..., np.asarray(context, dtype=bool), :].min(axis=(-2, -1))
+    depth = np.maximum(floor[..., None] - h[..., frames, :].min(axis=-1), 0.0)
+    return depth.mean(axis=-1)
+
+
 def motion_features(gpos: np.ndarray, grot: np.ndarray, root: int, up: int, fps: float) -> np.ndarray:
     """Pose and velocity of every frame after the first, in the character's own frame.
 

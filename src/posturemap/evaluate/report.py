@@ -157,6 +157,8 @@ METRIC_TITLES = {
     "skate": "Foot skate (cm/s, height-weighted horizontal foot speed, no contact detection; truth row for reference)",
     "naturalness": "Naturalness (distance to the nearest real window of unseen data, z-scored pose and velocity; "
                    "truth row for reference; lower is more natural)",
+    "penetration_cm": "Floor penetration (cm: the deepest foot joint under the floor, the lowest foot joint in the "
+                      "context frames, averaged over the gap's frames; truth row for reference)",
     "contact_skate": "Secondary: contact-based foot skate (cm/s over detected contact steps only; blind to a foot "
                      "sliding above the contact height)",
     "validity": "Pose validity (mean distance to the nearest training posture, feature units; truth row for reference)",
@@ -315,6 +317,10 @@ def markdown(results: dict) -> str:
              f"{metrics.CONTACT_HEIGHT:g} cm of its planted height, the {pct:g}th percentile of its height in "
              f"training, at both ends and slower than {metrics.CONTACT_SPEED:g} cm/s) is kept as a secondary "
              "table.")
+    r.append("- Floor penetration: per window, the floor is the lowest foot joint in the context frames (the same "
+             "for every method and the truth); per frame of the gap, the depth of the lowest foot joint under it "
+             "(0 above it); the mean over the gap. The skate's ground is the window's own lowest foot, so a foot "
+             "through the floor lowers it and makes every other foot count as higher: this measure shows it.")
     r.append(f"- Naturalness: per frame, joint positions relative to the root, the root's height and every joint's "
              f"velocity, all in the character's heading frame, z-scored over the reference frames; a window is "
              f"described by at most {cfg['natural_frames']} evenly spaced rebuilt frames; its naturalness is the "

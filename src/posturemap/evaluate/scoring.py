@@ -68,6 +68,15 @@ def skate_scores(ctx: Context, gpos: np.ndarray, steps: slice) -> tuple[np.ndarr
     return per, metrics.foot_skate(span, ctx.fps, ctx.up, contacts)[0] * ctx.cm
 
 
+def penetration(ctx: Context, gpos: np.ndarray, length: int) -> np.ndarray:
+    """Floor penetration of windows of global positions (N, N_PAST + L + N_FUTURE, J, 3) per
+    window (N,), in the clip's unit (:func:`metrics.floor_penetration`: the floor is the lowest
+    foot joint in the context frames, the depth averaged over the gap's)."""
+    context = np.ones(gpos.shape[1], dtype=bool)
+    context[N_PAST: N_PAST + length] = False
+    return metrics.floor_penetration(gpos[:, :, ctx.feet], ctx.up, context, slice(N_PAST, N_PAST + length))
+
+
 def natural_frames(length: int) -> np.ndarray:
     """Indices of the (at most :data:`NATURAL_FRAMES`) evenly spaced frames naturalness compares."""
     return np.unique(np.round(np.linspace(0, length - 1, min(length, NATURAL_FRAMES))).astype(np.int64))
@@ -173,6 +182,7 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "l2p": [metrics.l2p(p_pos[i: i + 1, sl], t_pos[i: i + 1, sl], ctx.std) for i in range(n)],
         "mpjpe_cm": (np.linalg.norm(pg_p[:, sl] - tg_p[:, sl], axis=-1).mean(axis=(1, 2)) * ctx.cm).tolist(),
         "skate": skate.tolist(),
+        "penetration_cm": (penetration(ctx, pg_p, length) * ctx.cm).tolist(),
     }
     out = {
         "l2q": metrics.l2q(p_rot[:, sl], t_rot[:, sl]),
@@ -183,6 +193,7 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "pose_error_cm": metrics.mpjpe(rel_p, rel_t) * ctx.cm,
         "skate": float(skate.mean()),
         "contact_skate": contact,
+        "penetration_cm": float(np.mean(per_window["penetration_cm"])),
         "validity": float(valid.mean()),
         "validity_p95": float(np.percentile(valid, 95)),
         "jerk": metrics.jerk(pg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
@@ -213,10 +224,11 @@ def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> di
     _, tg_p = global_windows(truth_r, truth_p, ctx.skeleton.parents)
     skate, contact = skate_scores(ctx, tg_p, slice(N_PAST - 1, N_PAST + length))
     valid = metrics.pose_validity(window_features(ctx, truth_r[:, sl], truth_p[:, sl]), ctx.index)
-    out = {"skate": float(skate.mean()), "contact_skate": contact, "validity": float(valid.mean()),
-           "validity_p95": float(np.percentile(valid, 95)),
+    pen = penetration(ctx, tg_p, length) * ctx.cm
+    out = {"skate": float(skate.mean()), "contact_skate": contact, "penetration_cm": float(pen.mean()),
+           "validity": float(valid.mean()), "validity_p95": float(np.percentile(valid, 95)),
            "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
-           "per_window": {"skate": skate.tolist()}}
+           "per_window": {"skate": skate.tolist(), "penetration_cm": pen.tolist()}}
     if natural is not None:
         out["naturalness"] = float(np.mean(natural))
         out["per_window"]["naturalness"] = np.asarray(natural).tolist()
