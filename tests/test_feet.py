@@ -13,8 +13,8 @@ from posturemap.core import quat
 from posturemap.core.joints import leg_chains, leg_length, leg_toes
 from posturemap.core.motion import up_axis
 from posturemap.synth import feet
-from posturemap.synth.feet import (CLEAR_S, CLEAR_SPEED, MAX_DRIFT, STEP_S, TOE_CLEAR, clearance_lift, contact_runs,
-                                   lock_weights_and_targets, soft_limit, swing_offsets, two_bone_ik)
+from posturemap.synth.feet import (CLEAR_S, CLEAR_SPEED, FLOOR_S, MAX_DRIFT, STEP_S, TOE_CLEAR, clearance_lift,
+                                   contact_runs, lock_weights_and_targets, soft_limit, swing_offsets, two_bone_ik)
 from posturemap.core.skeleton import fk
 from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine
@@ -389,11 +389,13 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
 def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_ends(bandai_files, monkeypatch):
     # The lock's context: A's frames a_end - 1 and a_end, B's b_start and b_start + 1 (as placed),
     # the clip's end frame repeated where there is no other; also at the first and last frames.
+    # The toes' floor looks further: FLOOR_S seconds on each side.
     e, a, b = _pair_engine(bandai_files, "walk_normal_001", "run_normal_001")
     ta, tb = e.tracks["a"], e.tracks["b"]
     seen = []
     real = engine_module.lock_feet
     monkeypatch.setattr(engine_module, "lock_feet", lambda *args, **kw: seen.append(args) or real(*args, **kw))
+    lower = []
     for a_end, b_start in ((0, len(b) - 1), (1, len(b) - 2), (len(a) - 1, 0), (40, 17)):
         e.generate("a", "b", length=12, a_end=a_end, b_start=b_start, method="slerp", foot_lock=True)
         a_feet, b_feet = seen[-1][6], seen[-1][7]
@@ -401,33 +403,39 @@ def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_end
         ib = [b_start, min(b_start + 1, len(b) - 1)]
         placed = rotate_about_up(tb.feet[ib], e.last["dtheta"], e.up) + e.last["shift"]
         np.testing.assert_array_equal(b_feet, placed)
-        # The toes' floor: their lowest in the same frames, B's moved with B.
+        # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first, B's moved with B.
         g_a = fk(a.skeleton.parents, a.rotations, a.positions)[1][:, leg_toes(a.skeleton), e.up]
         g_b = fk(b.skeleton.parents, b.rotations, b.positions)[1][:, leg_toes(b.skeleton), e.up]
-        toe_floor = min(g_a[[max(a_end - 1, 0), a_end]].min(), g_b[ib].min() + e.last["shift"][e.up])
+        n = round(FLOOR_S * a.fps) + 1
+        toe_floor = min(g_a[max(a_end + 1 - n, 0): a_end + 1].min(),
+                        g_b[b_start: b_start + n].min() + e.last["shift"][e.up])
+        lower.append(toe_floor < min(g_a[[max(a_end - 1, 0), a_end]].min(), g_b[ib].min() + e.last["shift"][e.up]))
         assert seen[-1][11] == pytest.approx(toe_floor, abs=1e-9)
+    assert any(lower)  # the longer context found a lower toe than the seams' two frames
 
 
 def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while_it_swings():
     fps, body, up, length = 30.0, 80.0, 1, 40
     r = round(CLEAR_S * fps)
-    x = np.arange(length) * 3.0 * body / fps  # 3 leg lengths per second along x
+    x = np.arange(length) * 2.0 * body / fps  # 2 leg lengths per second along x (on CLEAR_SPEED's ramp)
     toe = np.zeros((length, 3))
     toe[:, 0] = x
     toe[:, up] = 0.002 * body  # grazing the floor (0.16 cm above it)
     free = np.ones(length, dtype=bool)
     free[28:] = False  # held from frame 28 on
     lift = clearance_lift(toe, free, 0.0, up, body, fps)
-    u = (3.0 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0])
+    u = (2.0 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0])
+    assert 0.0 < u < 1.0
     need = TOE_CLEAR * body * u - 0.002 * body
     # At least the shortfall in every free frame past the seam's fade; nothing far into the held run.
-    assert np.all(lift[r: 28] >= need - 1e-9)
+    assert np.all(lift[2 * r: 28] >= need - 1e-9)
     assert np.all(lift[28 + 2 * r + 1:] == 0)
     # Continuous: it falls over 2r + 1 frames into the held run, and rises from A's seam on a
-    # smoothstep over r + 1 frames (its steepest slope 1.5 / (r + 1) of the lift).
-    assert np.max(np.abs(np.diff(lift[r:]))) <= need / (2 * r + 1) + 1e-9
-    assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:r + 1]])))) <= 1.5 * need / (r + 1) + 1e-9
-    assert 0 < lift[0] < 0.2 * need
+    # smoothstep over 2r + 1 frames (its steepest slope 1.5 / (2r + 1) of the lift).
+    fade = 2 * r + 1
+    assert np.max(np.abs(np.diff(lift[fade - 1:]))) <= need / (2 * r + 1) + 1e-9
+    assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:fade]])))) <= 1.5 * need / fade + 1e-9
+    assert 0 < lift[0] < 0.1 * need
     # Slow, high enough or held: no lift.
     slow = toe.copy()
     slow[:, 0] = np.arange(length) * 0.2 * body / fps
@@ -438,6 +446,11 @@ def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while
     assert not clearance_lift(toe, np.zeros(length, dtype=bool), 0.0, up, body, fps).any()
     # The floor counts: the same toe over a floor 5 cm lower is high enough.
     assert not clearance_lift(toe, free, -5.0, up, body, fps).any()
+    # A held toe under the floor is lifted onto it (the floor only, no clearance), faded at the seams.
+    held = np.zeros(length, dtype=bool)
+    lift = clearance_lift(toe, held, 0.002 * body + 1.0, up, body, fps)
+    np.testing.assert_allclose(lift[2 * r: length - 2 * r], 1.0)
+    assert 0 < lift[0] < lift[r] < 1.0
 
 
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
@@ -468,7 +481,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     grot1, gpos1 = fk(sk.parents, r, pos)
     u = min(1.0, (2.5 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]))
     rr = round(CLEAR_S * fps)
-    mid = slice(rr, length - rr)
+    mid = slice(2 * rr, length - 2 * rr)  # past the seams' fade
     assert np.all(gpos0[mid, toes[0], up] - floor < 0.2 * TOE_CLEAR * body)  # not clear before
     assert np.all(gpos0[:, toes[1], up] - floor > TOE_CLEAR * body)
     assert np.all(gpos1[mid, toes[0], up] - floor >= TOE_CLEAR * body * u * (1 - 1e-6))
@@ -491,18 +504,22 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
     lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
     assert np.all(lifted - raised_floor >= TOE_CLEAR * body * u * (1 - 1e-6))
-    # A held foot's toe lower than the context says is where the floor is: with the right foot held
-    # in the middle frames and the context's floor 10 cm up, the left toe clears the right toe's
-    # height, not the context's.
+    # A held foot (the right, in the middle frames) whose toe is under the context's floor (here
+    # 1 cm) is lifted onto it: a retrieved stance can put it there. Without a context, the held
+    # foot's toe is where the floor is: it stays, and the left toe clears its height.
     contacts = np.zeros((length, 2), dtype=bool)
     contacts[5:25, 1] = True  # a run off the seams (one at a seam where the foot moves would be dropped)
-    high_floor = floor + 0.125 * body
-    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, body=body, toe_floor=high_floor,
-                        toes=toes)
-    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
-    assert results["numpy"][1][5:25, 1].min() > 0 and not results["numpy"][1][:, 0].any()
     right_toe = gpos0[0, toes[1], up]
-    assert right_toe < high_floor
-    lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
-    assert np.all(lifted - right_toe >= TOE_CLEAR * body * u * (1 - 1e-6))
-    assert np.all(lifted < high_floor)
+    held_floor = right_toe + 0.0125 * body
+    for given, ground in ((held_floor, held_floor), (None, right_toe)):
+        results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, body=body, toe_floor=given,
+                            toes=toes)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+        assert results["numpy"][1][5:25, 1].min() > 0 and not results["numpy"][1][:, 0].any()
+        g1 = fk(sk.parents, results["numpy"][0], pos)[1]
+        assert np.all(g1[mid, toes[0], up] - ground >= TOE_CLEAR * body * u * (1 - 1e-6))
+        assert np.all(g1[5:25, toes[1], up] >= ground - 1e-6)
+        # Lifted by the shortfall, no more, where the foot stands on its spot (the run's middle; the
+        # body glides on, so its ends are dragged and the leg, near its reach, raises the foot).
+        on_spot = results["numpy"][1][:, 1] == 1.0
+        assert on_spot.sum() >= 2 and np.all(g1[on_spot, toes[1], up] <= ground + 0.001 * body)

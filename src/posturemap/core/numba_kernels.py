@@ -438,8 +438,8 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
 
 @nb.njit(**_OPTS)
 def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, clear_hi, r, deficit, widest):
-    """Add to ``raised`` (L,) the lift that keeps the swinging toe clear of the floor
-    (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
+    """Add to ``raised`` (L,) the lift that keeps the toe out of the floor and a swinging toe clear
+    of it (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
     ``deficit`` and ``widest`` scratch."""
     n_l = gpos.shape[0]
@@ -449,12 +449,12 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     any_deficit = False
     for t in range(n_l):
         deficit[t] = 0.0
-        if held[t]:
-            continue
-        lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
-        da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
-        db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
-        u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
+        u = 0.0  # a held foot's toe needs the floor only
+        if not held[t]:
+            lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
+            da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
+            db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
+            u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
         short = clear * u - (gpos[t, toe, up] + raised[t] - toe_floor)
         if short > 0.0:
             deficit[t] = short
@@ -472,7 +472,7 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
         total = 0.0
         for i in range(t, t + width):
             total += widest[i]
-        edge = min(min(t + 1, n_l - t) / (r + 1.0), 1.0)
+        edge = min(min(t + 1, n_l - t) / (2.0 * r + 1.0), 1.0)
         raised[t] += total / width * edge * edge * (3.0 - 2.0 * edge)
 
 
@@ -619,12 +619,13 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             t = stop
         for t in range(n_l):
             weights[t, leg] = weight[t]
-    # The toes' floor: the context's, or lower where a planted foot's toe is lower in the new
-    # frames (a swinging toe that dips does not lower it); the new frames' lowest toe without either.
-    for leg in range(n_legs):
-        for t in range(n_l):
-            if on_all[leg, t]:
-                toe_floor = min(toe_floor, gpos[t, toes[leg], up])
+    # The toes' floor: the context's; without one, a held foot's lowest toe in the new frames, or
+    # the new frames' lowest toe when no foot is held.
+    if toe_floor == np.inf:
+        for leg in range(n_legs):
+            for t in range(n_l):
+                if on_all[leg, t]:
+                    toe_floor = min(toe_floor, gpos[t, toes[leg], up])
     if toe_floor == np.inf:
         for leg in range(n_legs):
             for t in range(n_l):

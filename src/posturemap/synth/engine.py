@@ -58,7 +58,7 @@ from ..learn.features import TWO_PI, root_global, upright_rest
 from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                     linear_basis)
 from . import retrieval
-from .feet import lock_feet
+from .feet import FLOOR_S, lock_feet
 from .keys import VELOCITY_HORIZON_S, MapKeys
 from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest
 from .splice import spliced
@@ -197,11 +197,11 @@ class TransitionEngine:
         a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
         b_feet = tb.feet[b_start: b_start + 2] if b_start + 1 < len(tb.feet) else tb.feet[[b_start, b_start]]
         b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
-        # The toes' floor: their lowest in the same frames (B's heights moved with B).
-        low_a, low_b = ta.lowest_toe, tb.lowest_toe
-        toe_floor = min(low_a[max(a_end - 1, 0)].item(), low_a[a_end].item(),
-                        low_b[b_start].item() + shift[self._up].item(),
-                        low_b[min(b_start + 1, len(low_b) - 1)].item() + shift[self._up].item())
+        # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first (B's heights
+        # moved with B): a stance in any gait, so a held foot's toe under it is lifted out.
+        n = round(FLOOR_S * ta.motion.fps) + 1
+        toe_floor = min(ta.lowest_toe[max(a_end + 1 - n, 0): a_end + 1].min().item(),
+                        tb.lowest_toe[b_start: b_start + n].min().item() + shift[self._up].item())
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes)
 

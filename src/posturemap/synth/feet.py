@@ -23,8 +23,10 @@ in-between frames are made:
    second, less in proportion below (nothing under ``CLEAR_SPEED[0]``). Blends of real segments
    (and interpolation) can drag a toe along the floor at walking speed, which real feet do not
    do; the foot is raised by the shortfall, spread smoothly over ``CLEAR_S`` seconds on each side
-   (:func:`clearance_lift`). The floor is where feet stand: the lowest toe in A's and B's frames
-   or of a held foot in the new ones, so a swinging toe that dips under it is lifted out too;
+   (:func:`clearance_lift`). No toe stays under the floor, held or not: a retrieved stance can
+   put a planted foot a few centimetres into it. The floor is where feet stand: the lowest toe over
+   A's last ``FLOOR_S`` seconds and B's first (a stance in any gait), so a toe that dips under it
+   is lifted out rather than taken for the floor;
 5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
    end of the leg's reach bends the knee smoothly instead of snapping it straight. The foot keeps
@@ -50,10 +52,11 @@ STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at mos
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
-#                   full speed; real toes keep it: about the 10th percentile of bandai1's toe heights
-#                   at 2.5-8 leg lengths per second (1.8-2.7 cm; CMU 01_01's are higher)
-CLEAR_SPEED = (0.25, 4.0)  # leg lengths per second: no clearance below the first, full from the second
+#                   full speed; real toes keep it: 79-97% of bandai1's toe samples at 0.3-8 leg lengths
+#                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
+CLEAR_SPEED = (0.25, 2.5)  # leg lengths per second: no clearance below the first, full from the second
 CLEAR_S = 0.1  # seconds: the lift reaches its height this long before the shortfall and leaves it after
+FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait)
 
 
 def _compiled():
@@ -113,18 +116,22 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
 
 
 def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, body: float, fps: float) -> np.ndarray:
-    """How much to raise a foot (L,) so that its toe clears the floor while it swings.
+    """How much to raise a foot (L,) so that its toe stays out of the floor, and clears it while it
+    swings.
 
     ``toe`` (L, 3) the toe's positions over the new frames, ``free`` (L,) bool the frames where the
-    foot is not held, ``floor`` the floor's height for this toe. The toe's horizontal speed (central
-    differences, one-sided at the ends) asks for ``TOE_CLEAR * body`` times ``(v - v0) / (v1 - v0)``
-    clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per second); the shortfall of a
-    free frame's height below it is its deficit. With ``r = round(CLEAR_S * fps)`` (at least 1),
+    foot is not held, ``floor`` the floor's height for this toe. In a free frame the toe's
+    horizontal speed (central differences, one-sided at the ends) asks for ``TOE_CLEAR * body``
+    times ``(v - v0) / (v1 - v0)`` clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per
+    second) above the floor; a held foot's toe asks for the floor itself (a retrieved stance can
+    put it a few centimetres under it). The shortfall of a frame's height below that is its
+    deficit. With ``r = round(CLEAR_S * fps)`` (at least 1),
     the lift is the mean over ``[t - r, t + r]`` of the largest deficit within ``r`` of each frame:
     at least the deficit at every frame, and it rises and falls linearly over ``2r`` frames. Near
-    the seams it is faded to 0 (a smoothstep over ``r + 1`` frames from frame -1 and frame L), so
-    A's and B's frames are not moved. (A fade over ``2r + 1`` frames, as gentle as the lift's own
-    rise, left a third more of the 15-frame skate on three splits of bandai1.)
+    the seams it is faded to 0 (a smoothstep over ``2r + 1`` frames from frame -1 and frame L, as
+    gentle as the lift's own rise), so A's and B's frames are not moved. Lifting a straight leg's
+    ankle bends its knee by the square root of the lift: a fade over ``r + 1`` frames, as until
+    held feet were lifted too, made the knee of a standing leg jump at A's seam.
     """
     length = len(toe)
     if length == 0:
@@ -134,14 +141,14 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     step = np.gradient(toe * flat, axis=0) if length > 1 else np.zeros((1, 3))
     speed = np.linalg.norm(step, axis=-1) * fps / body
     need = TOE_CLEAR * body * np.clip((speed - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]), 0.0, 1.0)
-    deficit = np.where(free, np.maximum(need - (toe[:, up] - floor), 0.0), 0.0)
+    deficit = np.maximum(np.where(free, need, 0.0) - (toe[:, up] - floor), 0.0)
     if not deficit.any():
         return np.zeros(length)
     r = max(1, round(CLEAR_S * fps))
     padded = np.concatenate([np.zeros(2 * r), deficit, np.zeros(2 * r)])
     widest = np.lib.stride_tricks.sliding_window_view(padded, 2 * r + 1).max(axis=-1)  # centred on t - r
     lift = np.lib.stride_tricks.sliding_window_view(widest, 2 * r + 1).mean(axis=-1)
-    edge = np.clip(np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)) / (r + 1.0), 0.0, 1.0)
+    edge = np.clip(np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)) / (2.0 * r + 1.0), 0.0, 1.0)
     return lift * edge * edge * (3.0 - 2.0 * edge)
 
 
@@ -249,10 +256,10 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     B's first two (B as aligned), for the planted test. ``contacts`` (L, n_legs) bool, when
     given, are the planted frames (otherwise they are detected from height and speed). ``body``:
     :func:`leg_length` of the skeleton, and ``toes`` (n_legs,): :func:`leg_toes`, when the caller
-    keeps them. ``toe_floor``, when given: the lowest height of the toes in the context (A's and
-    B's frames). The toes' floor is the lower of it and the lowest toe of a held foot in the new
-    frames (a swinging toe that dips under the floor does not lower it, it is lifted out); with
-    neither, the lowest toe in the new frames.
+    keeps them. ``toe_floor``, when given: the lowest height of the toes in the context (the
+    engine: over A's last ``FLOOR_S`` seconds and B's first); a toe under it is lifted out, held
+    or not. Without it, the lowest toe of a held foot in the new frames, or with none held, the
+    lowest toe in the new frames.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -313,12 +320,12 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
         locks.append((offset, raised, held))
-    # The toes' floor: the context's, or lower where a planted foot's toe is lower in the new
-    # frames (a swinging toe that dips does not lower it: it is lifted out of the floor); the new
-    # frames' lowest toe when there is neither.
-    for leg, (_, _, held) in enumerate(locks):
-        if held.any():
-            toe_floor = min(toe_floor, float(gpos[held, toes[leg], up].min()))
+    # The toes' floor: the context's; without one, a held foot's lowest toe in the new frames, or
+    # the new frames' lowest toe when no foot is held. A toe under it is lifted out.
+    if toe_floor == np.inf:
+        for leg, (_, _, held) in enumerate(locks):
+            if held.any():
+                toe_floor = min(toe_floor, float(gpos[held, toes[leg], up].min()))
     if toe_floor == np.inf:
         toe_floor = float(gpos[:, toes, up].min())
     for leg, (thigh, shin, ankle) in enumerate(chains):

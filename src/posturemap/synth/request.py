@@ -119,8 +119,8 @@ class TransitionRequest:
     b_start : first frame of B used
     align : move and turn B to continue A; False leaves B's root exactly where it is
         (in-betweening)
-    foot_lock : keep planted feet still and swinging toes clear of the floor in the new frames
-        (:mod:`posturemap.synth.feet`)
+    foot_lock : keep planted feet still, toes out of the floor and swinging toes clear of it in
+        the new frames (:mod:`posturemap.synth.feet`)
     """
 
     length: int = DEFAULT_LENGTH
