@@ -406,9 +406,9 @@ def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_end
         # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first, B's moved with B.
         g_a = fk(a.skeleton.parents, a.rotations, a.positions)[1][:, leg_toes(a.skeleton), e.up]
         g_b = fk(b.skeleton.parents, b.rotations, b.positions)[1][:, leg_toes(b.skeleton), e.up]
-        n = round(FLOOR_S * a.fps) + 1
-        toe_floor = min(g_a[max(a_end + 1 - n, 0): a_end + 1].min(),
-                        g_b[b_start: b_start + n].min() + e.last["shift"][e.up])
+        na, nb = round(FLOOR_S * a.fps) + 1, round(FLOOR_S * b.fps) + 1
+        toe_floor = min(g_a[max(a_end + 1 - na, 0): a_end + 1].min(),
+                        g_b[b_start: b_start + nb].min() + e.last["shift"][e.up])
         lower.append(toe_floor < min(g_a[[max(a_end - 1, 0), a_end]].min(), g_b[ib].min() + e.last["shift"][e.up]))
         assert seen[-1][11] == pytest.approx(toe_floor, abs=1e-9)
     assert any(lower)  # the longer context found a lower toe than the seams' two frames
@@ -451,6 +451,25 @@ def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while
     lift = clearance_lift(toe, held, 0.002 * body + 1.0, up, body, fps)
     np.testing.assert_allclose(lift[2 * r: length - 2 * r], 1.0)
     assert 0 < lift[0] < lift[r] < 1.0
+
+
+def test_held_toes_under_the_floor_are_lifted_in_gaps_of_one_to_three_frames(sample_clips):
+    # Both feet held, their toes 1 cm under the context's floor: the compiled lock does what the
+    # numpy reference does, down to one frame (no speed there, the floor still counts), and lifts.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains, toes = leg_chains(sk), leg_toes(sk)
+    ankles = [c[2] for c in chains]
+    for length in (1, 2, 3):
+        rots, pos = m.rotations[np.full(length, 40)].copy(), m.positions[np.full(length, 40)].copy()
+        g0 = fk(sk.parents, rots, pos)[1]
+        floor = g0[:, toes, up].min() + 1.0
+        a_feet = b_feet = np.repeat(g0[:1, ankles], 2, axis=0)
+        contacts = np.ones((length, 2), dtype=bool)
+        results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, toe_floor=floor, toes=toes)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+        lifted = fk(sk.parents, results["numpy"][0], pos)[1][:, toes, up]
+        assert np.all(lifted > g0[:, toes, up] + 1e-3), length
 
 
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):

@@ -184,6 +184,24 @@ def test_floor_penetration_keeps_the_contexts_floor():
     assert metrics.floor_penetration(pos[None], up, np.ones(5, dtype=bool), slice(1, 4))[0] == 0.0
 
 
+def test_bench_penetration_takes_the_floor_from_the_context_frames_only():
+    from types import SimpleNamespace
+
+    from posturemap.evaluate.protocol import N_FUTURE, N_PAST
+    from posturemap.evaluate.scoring import penetration
+
+    length, up = 4, 1
+    gpos = np.zeros((1, N_PAST + length + N_FUTURE, 3, 3))
+    gpos[..., up] = 5.0
+    gpos[0, 2, 1, up] = 1.0  # the lowest foot in the context (a past frame): the floor
+    gpos[0, N_PAST + length + 3, 2, up] = 2.0  # a future frame, higher
+    gpos[0, N_PAST + 1, 2, up] = -1.0  # 2 under the floor in the gap's second frame
+    gpos[0, N_PAST + 3, 1, up] = 0.5  # 0.5 under it in the last
+    gpos[0, 0, 0, up] = -9.0  # not a foot joint
+    got = penetration(SimpleNamespace(feet=[1, 2], up=up), gpos, length)
+    assert got.tolist() == pytest.approx([(2.0 + 0.5) / length])
+
+
 def _turned(gpos, grot, angle, shift):
     turn = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), angle)
     return quat.mul_vec(turn, gpos) + shift, quat.mul(turn, grot)

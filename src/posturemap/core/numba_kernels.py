@@ -443,14 +443,12 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
     ``deficit`` and ``widest`` scratch."""
     n_l = gpos.shape[0]
-    if n_l < 2:  # no speed in one frame: nothing to clear
-        return
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     any_deficit = False
     for t in range(n_l):
         deficit[t] = 0.0
-        u = 0.0  # a held foot's toe needs the floor only
-        if not held[t]:
+        u = 0.0  # a held foot's toe (or one frame, without a speed) needs the floor only
+        if not held[t] and n_l > 1:
             lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
             da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
             db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)

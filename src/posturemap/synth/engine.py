@@ -190,8 +190,8 @@ class TransitionEngine:
 
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
         """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with
-        A's last two frames and B's first two (B placed by ``dtheta``, ``shift``) as context;
-        returns the lock weights."""
+        A's last two frames and B's first two (B placed by ``dtheta``, ``shift``) as context, and
+        the toes' floor from A's last and B's first ``FLOOR_S`` seconds; returns the lock weights."""
         a_end, b_start = req.a_end, req.b_start
         # A's frames a_end - 1, a_end and B's b_start, b_start + 1 (repeated at a clip's end): slices where they can be
         a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
@@ -199,9 +199,9 @@ class TransitionEngine:
         b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
         # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first (B's heights
         # moved with B): a stance in any gait, so a held foot's toe under it is lifted out.
-        n = round(FLOOR_S * ta.motion.fps) + 1
-        toe_floor = min(ta.lowest_toe[max(a_end + 1 - n, 0): a_end + 1].min().item(),
-                        tb.lowest_toe[b_start: b_start + n].min().item() + shift[self._up].item())
+        na, nb = round(FLOOR_S * ta.motion.fps) + 1, round(FLOOR_S * tb.motion.fps) + 1
+        toe_floor = min(ta.lowest_toe[max(a_end + 1 - na, 0): a_end + 1].min().item(),
+                        tb.lowest_toe[b_start: b_start + nb].min().item() + shift[self._up].item())
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes)
 
