@@ -10,7 +10,7 @@ import pytest
 from posturemap.io import bvh
 from posturemap.evaluate import metrics
 from posturemap.core import quat
-from posturemap.core.joints import leg_chains, leg_length, leg_toes
+from posturemap.core.joints import key_joints, leg_chains, leg_length, leg_toes
 from posturemap.core.motion import up_axis
 from posturemap.synth import feet
 from posturemap.synth.feet import (CLEAR_S, CLEAR_SPEED, FLOOR_S, MAX_DRIFT, STEP_S, TOE_CLEAR, clearance_lift,
@@ -58,6 +58,16 @@ def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
                     np.array([[0, 0, 0], [1, 0, 0], [0, -4, 0], [0, -4, 0], [-1, 0, 0], [0, -4, 0], [0, -4, 0],
                               [0, -1, -0.5], [0, -1, 1.5]], dtype=float), (("Xrotation",),) * 9)
     assert list(leg_toes(bare)) == [3, 8]
+    # SMPL's names: L_Foot is the toe below L_Ankle, not a second leg (knee, ankle, foot).
+    smpl = Skeleton(("Pelvis", "L_Hip", "L_Knee", "L_Ankle", "L_Foot", "R_Hip", "R_Knee", "R_Ankle", "R_Foot",
+                     "Spine1", "L_Wrist", "L_Hand", "Head"), np.array([-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 9]),
+                    np.array([[0, 0, 0], [1, -1, 0], [0, -4, 0], [0, -4, 0], [0, -1, 1], [-1, -1, 0], [0, -4, 0],
+                              [0, -4, 0], [0, -1, 1], [0, 1, 0], [3, 2, 0], [1, 0, 0], [0, 2, 0]], dtype=float),
+                    (("Xrotation",),) * 13)
+    assert leg_chains(smpl) == [(1, 2, 3), (5, 6, 7)]
+    assert list(leg_toes(smpl)) == [4, 8]
+    lower, upper = key_joints(smpl)
+    assert list(lower) == [3, 7, 2, 6] and list(upper) == [10, 12]
 
 
 def test_two_bone_ik_reaches_reachable_targets():

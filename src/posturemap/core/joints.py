@@ -47,16 +47,21 @@ def foot_joints(names) -> np.ndarray:
     return np.array([j for j, n in enumerate(names) if FOOT_PATTERN.search(short_name(n))], dtype=np.int64)
 
 
+def _is_ankle(name: str) -> bool:
+    n = short_name(name)
+    return bool(_ANKLE.search(n)) and not _NOT_ANKLE.search(n)
+
+
 def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) joint indices of each leg: an ankle ("foot"/"ankle", not a toe or an
-    end site) whose parent and grandparent are the shin and the thigh."""
+    end site, nor the child of such a joint: SMPL's ``L_Foot`` is the toe below ``L_Ankle``)
+    whose parent and grandparent are the shin and the thigh."""
     out = []
     for j, name in enumerate(sk.names):
-        n = short_name(name)
-        if _ANKLE.search(n) and not _NOT_ANKLE.search(n):
+        if _is_ankle(name):
             shin = int(sk.parents[j])
             thigh = int(sk.parents[shin]) if shin >= 0 else -1
-            if thigh >= 0:
+            if thigh >= 0 and not _is_ankle(sk.names[shin]):
                 out.append((thigh, shin, j))
     return out
 
@@ -86,9 +91,9 @@ def leg_length(sk: Skeleton, chains=None) -> float:
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
-    Found by name (the legs of :func:`leg_chains`; "hand"/"wrist" without a finger word, the
-    outermost of a chain of them; "head"); where a skeleton has no such names, the leaves
-    outside the legs.
+    Found by name (the legs of :func:`leg_chains`; "hand"/"wrist" without a finger word, the one
+    nearest the root of a chain of them, as SMPL's ``L_Wrist`` above ``L_Hand``; "head"); where
+    a skeleton has no such names, the leaves outside the legs.
     """
     chains = leg_chains(sk)
     lower = [c[2] for c in chains] + [c[1] for c in chains]
