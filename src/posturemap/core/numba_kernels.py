@@ -441,12 +441,14 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     """Add to ``raised`` (L,) the lift that keeps the toe out of the floor and a swinging toe clear
     of it (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
-    ``deficit`` and ``widest`` scratch."""
+    ``deficit`` (2, L) and ``widest`` scratch: row 0 the free frames' deficits then lift, row 1
+    the held frames'."""
     n_l = gpos.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     any_deficit = False
     for t in range(n_l):
-        deficit[t] = 0.0
+        deficit[0, t] = 0.0
+        deficit[1, t] = 0.0
         u = 0.0  # a held foot's toe (or one frame, without a speed) needs the floor only
         if not held[t] and n_l > 1:
             lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
@@ -455,23 +457,27 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
             u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
         short = clear * u - (gpos[t, toe, up] + raised[t] - toe_floor)
         if short > 0.0:
-            deficit[t] = short
+            deficit[1 if held[t] else 0, t] = short
             any_deficit = True
     if not any_deficit:
         return
-    for i in range(n_l + 2 * r):
-        m = 0.0
-        for f in range(i - 2 * r, i + 1):
-            if 0 <= f < n_l:
-                m = max(m, deficit[f])
-        widest[i] = m
     width = 2 * r + 1
+    for k in range(2):  # free frames: faded over r + 1 frames at the seams; held: over 2r + 1
+        fade = r + 1.0 if k == 0 else 2.0 * r + 1.0
+        for i in range(n_l + 2 * r):
+            m = 0.0
+            for f in range(i - 2 * r, i + 1):
+                if 0 <= f < n_l:
+                    m = max(m, deficit[k, f])
+            widest[i] = m
+        for t in range(n_l):  # widest holds what the row had: the row now takes its lift
+            total = 0.0
+            for i in range(t, t + width):
+                total += widest[i]
+            edge = min(min(t + 1, n_l - t) / fade, 1.0)
+            deficit[k, t] = total / width * edge * edge * (3.0 - 2.0 * edge)
     for t in range(n_l):
-        total = 0.0
-        for i in range(t, t + width):
-            total += widest[i]
-        edge = min(min(t + 1, n_l - t) / (2.0 * r + 1.0), 1.0)
-        raised[t] += total / width * edge * edge * (3.0 - 2.0 * edge)
+        raised[t] += max(deficit[0, t], deficit[1, t])
 
 
 @nb.njit(**_OPTS)
@@ -499,7 +505,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
     offset_all = np.empty((n_legs, n_l, 2))  # the ankle's horizontal correction (posturemap.synth.feet.swing_offsets)
     raised_all = np.empty((n_legs, n_l))  # the step's lift, then also the swinging toe's
-    deficit = np.empty(n_l)  # the swinging toe's shortfall below its clearance
+    deficit = np.empty((2, n_l))  # the toe's shortfall below its clearance: free frames, held frames
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goal = np.empty(3)
     for leg in range(n_legs):

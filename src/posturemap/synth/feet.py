@@ -126,13 +126,15 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     times ``(v - v0) / (v1 - v0)`` clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per
     second) above the floor; a held foot's toe asks for the floor itself (a retrieved stance can
     put it a few centimetres under it). The shortfall of a frame's height below that is its
-    deficit. With ``r = round(CLEAR_S * fps)`` (at least 1),
-    the lift is the mean over ``[t - r, t + r]`` of the largest deficit within ``r`` of each frame:
-    at least the deficit at every frame, and it rises and falls linearly over ``2r`` frames. Near
-    the seams it is faded to 0 (a smoothstep over ``2r + 1`` frames from frame -1 and frame L, as
-    gentle as the lift's own rise), so A's and B's frames are not moved. Lifting a straight leg's
-    ankle bends its knee by the square root of the lift: a fade over ``r + 1`` frames, as until
-    held feet were lifted too, made the knee of a standing leg jump at A's seam.
+    deficit. With ``r = round(CLEAR_S * fps)`` (at least 1), the free frames' deficits and the
+    held frames' each give a lift, the mean over ``[t - r, t + r]`` of the largest deficit within
+    ``r`` of each frame: at least the deficit at every frame, rising and falling linearly over
+    ``2r`` frames. Near the seams each is faded to 0 on a smoothstep from frame -1 and frame L, so
+    A's and B's frames are not moved: over ``r + 1`` frames for the free frames' (a gentler fade
+    left a third more of the 15-frame skate on three splits of bandai1), over ``2r + 1`` for the
+    held frames' (a planted leg is often straight, and lifting a straight leg's ankle bends its
+    knee by the square root of the lift: over ``r + 1`` frames the knee of a standing leg jumped at
+    A's seam). The lift is the larger of the two.
     """
     length = len(toe)
     if length == 0:
@@ -146,11 +148,17 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     if not deficit.any():
         return np.zeros(length)
     r = max(1, round(CLEAR_S * fps))
-    padded = np.concatenate([np.zeros(2 * r), deficit, np.zeros(2 * r)])
-    widest = np.lib.stride_tricks.sliding_window_view(padded, 2 * r + 1).max(axis=-1)  # centred on t - r
-    lift = np.lib.stride_tricks.sliding_window_view(widest, 2 * r + 1).mean(axis=-1)
-    edge = np.clip(np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)) / (2.0 * r + 1.0), 0.0, 1.0)
-    return lift * edge * edge * (3.0 - 2.0 * edge)
+    lift = np.zeros(length)
+    for frames, fade in ((free, r + 1.0), (~free, 2.0 * r + 1.0)):
+        part = np.where(frames, deficit, 0.0)
+        if not part.any():
+            continue
+        padded = np.concatenate([np.zeros(2 * r), part, np.zeros(2 * r)])
+        widest = np.lib.stride_tricks.sliding_window_view(padded, 2 * r + 1).max(axis=-1)  # centred on t - r
+        smooth = np.lib.stride_tricks.sliding_window_view(widest, 2 * r + 1).mean(axis=-1)
+        edge = np.clip(np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)) / fade, 0.0, 1.0)
+        lift = np.maximum(lift, smooth * edge * edge * (3.0 - 2.0 * edge))
+    return lift
 
 
 def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
