@@ -522,6 +522,11 @@ def test_auto_radius_is_three_median_nearest_neighbour_distances():
     assert m.radius_ == pytest.approx(0.6)
     assert m.invalid_fraction_ == 0.0
     assert auto_radius(np.zeros((5, 2)), np.full(2, np.inf)) > 0  # identical samples: tiny, positive
+    assert 0 < auto_radius(np.zeros((1, 2)), np.full(2, np.inf)) < 1e-3  # one sample: finite
+    # Exact copies are no neighbours: the grid listed twice, or every sample doubled (frames
+    # doubled to raise the frame rate), keeps its radius instead of collapsing to nothing.
+    assert auto_radius(np.concatenate([g, g]), np.full(2, np.inf)) == pytest.approx(3 * 0.2)
+    assert auto_radius(np.repeat(g, 2, axis=0), np.full(2, np.inf)) == pytest.approx(3 * 0.2)
 
 
 def test_auto_radius_scales_with_data():

@@ -80,6 +80,10 @@ def auto_radius(X: np.ndarray, period: np.ndarray, seed: int = 0) -> float:
     thousand per class on the Bandai set) whatever the amount of data, and R follows the
     spread of the data: 10k frames of few motions give a finer radius than 32k frames of
     many. No tuning needed; pass a number to choose the resolution yourself.
+
+    A sample's exact copies are no neighbours (a clip listed twice, a held pose, frames doubled
+    to raise the frame rate would otherwise make the median 0 and the map hold every frame); with
+    no two distinct samples the radius is 1e-6 (one neuron per distinct posture).
     """
     rng = np.random.default_rng(seed)
     m = min(len(X), AUTO_SUBSAMPLE)
@@ -89,9 +93,10 @@ def auto_radius(X: np.ndarray, period: np.ndarray, seed: int = 0) -> float:
     nn = np.empty(m)
     for i in range(m):
         k["sqdist"](sub[i], sub, m, period, d)
-        d[i] = np.inf
+        d[d == 0.0] = np.inf  # itself and its exact copies
         nn[i] = d.min()
-    r = AUTO_FACTOR * float(np.sqrt(np.median(nn)))
+    nn = nn[np.isfinite(nn)]
+    r = AUTO_FACTOR * float(np.sqrt(np.median(nn))) if len(nn) else 0.0
     return r if r > 0 else 1e-6
 
 
