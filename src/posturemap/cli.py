@@ -139,7 +139,7 @@ def _check_output(path: str):
 def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
-    from .core.motion import up_axis
+    from .core.motion import same_fps, up_axis
     from .synth.engine import transition
     from .synth.request import KEYED, RequestError, TransitionRequest
 
@@ -154,7 +154,10 @@ def _cmd_transition(args) -> int:
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
-    if abs(a.fps - b.fps) > 1e-6 * a.fps:
+    why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
+    if why:
+        raise UserError(args.b, why)
+    if not same_fps(a.fps, b.fps):
         raise UserError(args.b, f"{b.fps:g} fps, {args.a} {a.fps:g} fps: resample one clip to the other's rate first")
     _check_output(args.output)
     model = None
@@ -365,6 +368,12 @@ def main(argv=None) -> int:
     except FileNotFoundError as e:
         sys.stderr.write(f"posturemap: error: {e.filename}: no such file or folder\n")
         return 2
+    except BrokenPipeError:  # the reader of stdout stopped early (``| head``): not an error of ours
+        try:
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (Python flushes stdout at exit)
+        except OSError:
+            pass
+        return 141
     except OSError as e:  # permissions, a file where a folder should be, a full disk...
         sys.stderr.write(f"posturemap: error: {e.filename or ''}: {e.strerror or e}\n")
         return 2

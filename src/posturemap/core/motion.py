@@ -69,13 +69,21 @@ class Motion:
         return self.global_transforms()[1]
 
 
+FPS_RTOL = 1e-3  # relative: frame times written with 4-7 digits (0.0333, 0.033333) are one rate
+
+
+def same_fps(a: float, b: float) -> bool:
+    """Whether two frame rates are the same rate (within :data:`FPS_RTOL`, relative)."""
+    return abs(float(a) - float(b)) <= FPS_RTOL * max(abs(float(a)), abs(float(b)))
+
+
 def concatenate(motions: list[Motion]) -> Motion:
     """Frames of ``motions`` one after another (same skeleton and fps required)."""
     first = motions[0]
     for m in motions[1:]:
         if not m.skeleton.same_as(first.skeleton):
             raise ValueError("cannot concatenate motions with different skeletons")
-        if abs(m.fps - first.fps) > 1e-6 * first.fps:
+        if not same_fps(m.fps, first.fps):
             raise ValueError(f"cannot concatenate motions at {first.fps} and {m.fps} fps")
     source = None
     with_source = [m.source for m in motions if m.source is not None]

@@ -10,6 +10,7 @@ from . import quat
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
+BODY_RATIO = 1.5  # clips of one rig whose bones differ in size by more are another unit (Skeleton.body_mismatch)
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,6 +75,40 @@ class Skeleton:
         """True when both have the same joints, hierarchy and channel layout."""
         return (self.names == other.names and np.array_equal(self.parents, other.parents)
                 and self.channels == other.channels)
+
+    def body_mismatch(self, other: "Skeleton", whose: str = "the other skeleton's") -> str | None:
+        """Why clips of this skeleton cannot be mixed with ``other``'s (``whose`` names it in the
+        message) though they have the same
+        joints: their bones (the offsets of the joints below the first that branches, the hips:
+        the offsets above it are where a recording starts, not bones) differ in size by more than
+        :data:`BODY_RATIO` (another unit: metres against centimetres, inches), or point other ways
+        in the rest pose (the rig's bones laid out for another up axis). None when they can. Bodies
+        of one rig a little smaller or larger, or arms in a T against an A pose, pass. (A clip
+        turned to another up axis by its root's rotation has the same offsets: not seen here.)"""
+        if self.offsets.shape != other.offsets.shape:
+            return "its joints differ"
+        bones = np.ones(self.num_joints, dtype=bool)
+        j = 0
+        while True:  # from the top joint down to the first that branches
+            bones[j] = False
+            kids = np.flatnonzero(self.parents == j)
+            if len(kids) != 1:
+                break
+            j = int(kids[0])
+        a, b = self.offsets[bones], other.offsets[bones]
+        la, lb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+        if la.sum() <= 0 or lb.sum() <= 0:
+            return None  # no bone lengths to compare
+        ratio = float(la.sum() / lb.sum())
+        if not 1 / BODY_RATIO <= ratio <= BODY_RATIO:
+            return f"its bones are {ratio:.3g} times as long as {whose} (another unit?)"
+        both = (la > 0) & (lb > 0)
+        w = np.minimum(la, lb)[both]
+        if w.sum() > 0:
+            cos = np.sum(a[both] * b[both], axis=-1) / (la[both] * lb[both])
+            if float(np.sum(w * cos) / w.sum()) < 0.5:
+                return f"its bones point other ways than {whose} in the rest pose (another up axis?)"
+        return None
 
     def to_dict(self) -> dict:
         """Plain JSON-ready description (inverse: :meth:`from_dict`)."""

@@ -25,7 +25,7 @@ from ..errors import UserError
 from .features import CLASSES, FeatureSpace
 from ..io.fileio import write_bytes_atomic
 from ..io.mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
-from ..core.motion import Motion
+from ..core.motion import Motion, same_fps
 from ..core.skeleton import Skeleton
 from .upm import UniformPostureMap
 
@@ -76,11 +76,21 @@ class PostureMap:
 
         if not motions:
             raise ValueError("no training motions")
+        for m in motions:
+            if not isinstance(m, Motion):
+                raise TypeError(f"fit takes Motion objects (read files with posturemap.io.bvh.read), got "
+                                f"{type(m).__name__}")
         names = names or [f"clip {i}" for i in range(len(motions))]
         first = motions[0].skeleton
         for name, m in zip(names, motions):
             if not m.skeleton.same_as(first):
                 raise UserError(name, f"skeleton differs from {names[0]} (a map needs one skeleton)")
+            why = m.skeleton.body_mismatch(first, f"{names[0]}'s")
+            if why:
+                raise UserError(name, f"{why}: a map needs one unit")
+            if not same_fps(m.fps, motions[0].fps):
+                raise UserError(name, f"{m.fps:g} fps, {names[0]} {motions[0].fps:g} fps (a map needs one frame "
+                                      "rate: resample the clips to one rate first)")
         t0 = time.perf_counter()
         space = features.fit_space(motions, self.features, self.classes)
         x = np.concatenate([space.encode(m) for m in motions])
@@ -145,8 +155,8 @@ class PostureMap:
         fps = float(info.get("fps") or (lib.fps if lib is not None else motions[0].fps))
         for name, m in zip(names, motions, strict=True):
             self.check_skeleton(m.skeleton, name)
-            if abs(m.fps - fps) > 1e-6 * fps:
-                raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps")
+            if not same_fps(m.fps, fps):
+                raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first")
         parts = self.space_.split(np.concatenate([self.space_.encode(m) for m in motions]))
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
         for c, m in enumerate(self.maps_):
@@ -196,15 +206,26 @@ class PostureMap:
         return self.space_.encode(motion)
 
     def check_skeleton(self, sk: Skeleton, where: str):
+        """A :class:`UserError` on ``where`` unless ``sk`` is the map's skeleton: its joints,
+        hierarchy and channels, in the map's unit (:meth:`Skeleton.body_mismatch`)."""
         if not sk.same_as(self.skeleton_):
             raise UserError(where, "skeleton differs from the map's (joints, hierarchy or channels)")
+        why = sk.body_mismatch(self.skeleton_, "the map's")
+        if why:
+            raise UserError(where, f"{why}: a map holds one unit; rescale the clip or train a map on clips like it")
 
     def neuron_counts(self) -> list[int]:
         return [m.n_neurons for m in self.maps_]
 
     # -- files ----------------------------------------------------------------------------
+    def require_fitted(self) -> None:
+        """Raise a ``ValueError`` unless the map was fitted or loaded."""
+        if getattr(self, "skeleton_", None) is None:
+            raise ValueError("the posture map is not fitted: fit it on clips or load a map file first")
+
     def save(self, path: str) -> None:
         """Write the map to ``path`` (.npz, no pickle) atomically."""
+        self.require_fitted()
         meta = {
             "format": FORMAT, "version": VERSION,
             "skeleton": self.skeleton_.to_dict(),

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..core import kernels
 from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
-from ..core.motion import Motion, concatenate, root_index, up_axis
+from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
 from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
@@ -60,7 +60,7 @@ from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_b
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import VELOCITY_HORIZON_S, MapKeys
-from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest
+from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest, describe
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
 
@@ -83,6 +83,7 @@ class TransitionEngine:
     def __init__(self, model=None, skeleton=None):
         self.model = model
         if model is not None:
+            model.require_fitted()
             skeleton = model.skeleton_
         self.skeleton = skeleton
         self.tracks: dict[str, Track] = {}
@@ -107,6 +108,9 @@ class TransitionEngine:
             self.skeleton = motion.skeleton
         if not motion.skeleton.same_as(self.skeleton):
             raise UserError(name, "skeleton differs from the other clips (joints, hierarchy or channels)")
+        why = motion.skeleton.body_mismatch(self.skeleton, "the map's" if self.model is not None else "the other clips'")
+        if why:
+            raise UserError(name, why)
         if self._root is None:
             self._root, self._up = root_index(motion), up_axis(motion)
         self._chain = np.array(ancestors(self.skeleton.parents, self._root), dtype=np.int64)
@@ -151,12 +155,22 @@ class TransitionEngine:
         """B's frames from ``b_start`` on, placed to continue A: turned by ``turn`` radians about
         the up axis and moved by ``shift`` (default: as the last :meth:`generate` placed them);
         without ``align``, as they are."""
-        track = self.tracks[b]
+        track = self._track("b", b)
         if not align:
             return track.motion[b_start:]
+        if (turn is None or shift is None) and "dtheta" not in self.last:
+            raise RequestError("turn", "no transition made yet to take B's place from: give turn and shift")
         turn = self.last["dtheta"] if turn is None else turn
         shift = self.last["shift"] if shift is None else shift
         return aligned(track, b_start, turn, shift, self._chain, self._root, self._up)
+
+    def _track(self, field: str, name: str) -> Track:
+        """The prepared clip ``name``; a :class:`RequestError` on ``field`` if there is none."""
+        track = self.tracks.get(name) if isinstance(name, str) else None
+        if track is None:
+            raise RequestError(field, f"no clip named {name!r} (add it first)" if isinstance(name, str)
+                               else f"a clip name must be text, got {describe(name)}")
+        return track
 
     def alignment(self, a: Track, b: Track, a_end: int, b_start: int, length: int) -> tuple[float, np.ndarray]:
         """Turn (radians about up) and translation (3,) that make B continue A."""
@@ -175,7 +189,10 @@ class TransitionEngine:
         source segments and confidence) for inspection. The returned arrays are buffers reused
         by the next call with the same ``length``.
         """
-        ta, tb = self.tracks[a], self.tracks[b]
+        ta, tb = self._track("a", a), self._track("b", b)
+        if not same_fps(ta.motion.fps, tb.motion.fps):
+            raise RequestError("b", f"clip {b!r} is at {tb.motion.fps:g} fps, {a!r} at {ta.motion.fps:g} fps: "
+                                    "resample one clip to the other's rate first")
         if request is not None and not isinstance(request, TransitionRequest):
             raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
                             "(give its fields as keywords: length=..., alpha=...)")
@@ -475,7 +492,7 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     -------
     Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
     """
-    if abs(a.fps - b.fps) > 1e-6 * a.fps:
+    if not same_fps(a.fps, b.fps):
         raise UserError("B", f"{b.fps:g} fps, A {a.fps:g} fps: resample one clip to the other's rate first")
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)

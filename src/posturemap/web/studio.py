@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.motion import Motion, body_height, concatenate, length_unit, root_index, up_axis
+from ..core.motion import Motion, body_height, concatenate, length_unit, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..io import bvh
 from ..synth.engine import TransitionEngine
@@ -264,7 +264,7 @@ class Studio:
             if f not in raw:
                 raise ApiError(422, f"{f}: missing (name of clip {f.upper()})", f)
         ma, mb = self._clip(raw["a"], "a"), self._clip(raw["b"], "b")
-        if abs(ma.fps - mb.fps) > 1e-6 * ma.fps:
+        if not same_fps(ma.fps, mb.fps):
             raise ApiError(422, f"clips {raw['a']!r} ({ma.fps:g} fps) and {raw['b']!r} ({mb.fps:g} fps) "
                                 f"have different frame rates", "b")
         try:

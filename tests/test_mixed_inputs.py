@@ -1,0 +1,123 @@
+"""Clips that cannot be mixed are refused with a clear error; clips that can are not.
+
+Another unit (metres against centimetres), another frame rate, a clip name the engine lacks, a
+map that was never fitted: each is one line naming what is wrong, never garbage nor a traceback.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from clikit import assert_refused, run
+from posturemap import cli
+from posturemap.io import bvh
+from posturemap.learn.model import PostureMap
+from posturemap.synth.engine import TransitionEngine, transition
+from posturemap.synth.request import RequestError
+
+
+def scaled(m, factor: float):
+    """The clip in another unit: every offset and translation times ``factor``."""
+    sk = dataclasses.replace(m.skeleton, offsets=m.skeleton.offsets * factor)
+    return dataclasses.replace(m, skeleton=sk, positions=m.positions * factor)
+
+
+@pytest.fixture(scope="module")
+def walk_map(sample_clips):
+    return PostureMap(seed=0, library=False).fit([sample_clips["walk"], sample_clips["run"]], ["walk", "run"])
+
+
+def test_a_clip_in_another_unit_is_refused_everywhere(sample_clips, walk_map, tmp_path, capsys):
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    metres = scaled(run_, 0.01)
+    assert "0.01 times as long" in metres.skeleton.body_mismatch(walk.skeleton)
+    # The API: training, a map's engine, an engine without a map.
+    with pytest.raises(Exception, match="0.01 times as long as walk's"):
+        PostureMap(seed=0, library=False).fit([walk, metres], ["walk", "metres"])
+    with pytest.raises(Exception, match="as long as the map's"):
+        TransitionEngine(walk_map).add("m", metres)
+    with pytest.raises(Exception, match="as long as the other clips'"):
+        transition(walk, metres, method="spline")
+    # The command line: one line, exit 2.
+    a, b, m = tmp_path / "walk.bvh", tmp_path / "metres.bvh", tmp_path / "map.npz"
+    bvh.write(a, walk)
+    bvh.write(b, metres)
+    walk_map.save(str(m))
+    assert_refused(capsys, b, "transition", a, b, "--method", "spline", "-o", tmp_path / "out.bvh",
+                   words=("0.01 times as long", "another unit"))
+    assert_refused(capsys, b, "transition", b, b, "--map", m, "-o", tmp_path / "out.bvh", words=("the map's",))
+    assert_refused(capsys, b, "train", a, b, "-o", tmp_path / "m2.npz", words=("one unit",))
+    assert not (tmp_path / "out.bvh").exists() and not (tmp_path / "m2.npz").exists()
+
+
+def test_a_smaller_body_of_the_same_rig_is_not_another_unit(sample_clips, walk_map):
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    small = scaled(run_, 0.8)
+    assert small.skeleton.body_mismatch(walk.skeleton) is None
+    out = transition(walk, small, walk_map, length=10, method="auto")
+    assert np.isfinite(out.positions).all() and len(out) == len(walk) + 10 + len(small)
+
+
+def test_frame_rates_within_a_thousandth_are_one_rate(sample_clips, walk_map):
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    # A frame time written with six digits (1/30 as 0.033333) is still 30 fps.
+    near = dataclasses.replace(run_, fps=1 / 0.033333)
+    assert len(transition(walk, near, walk_map, length=10)) == len(walk) + 10 + len(near)
+    double = dataclasses.replace(run_, fps=2 * run_.fps)
+    with pytest.raises(Exception, match="fps"):
+        transition(walk, double, walk_map, length=10)
+    eng = TransitionEngine(walk_map)
+    eng.add("walk", walk)
+    eng.add("double", double)
+    with pytest.raises(RequestError, match="resample"):
+        eng.generate("walk", "double", length=10)
+    # Training refuses clips at two rates, as growing a map does.
+    with pytest.raises(Exception, match="one frame rate"):
+        PostureMap(seed=0, library=False).fit([walk, double], ["walk", "double"])
+
+
+def test_the_engine_and_the_map_name_what_is_missing(sample_clips, walk_map):
+    walk = sample_clips["walk"]
+    eng = TransitionEngine(walk_map)
+    eng.add("walk", walk)
+    with pytest.raises(RequestError, match="no clip named 'zzz'") as e:
+        eng.generate("walk", "zzz", length=10)
+    assert e.value.field == "b"
+    with pytest.raises(RequestError, match="must be text"):
+        eng.generate(3, "walk", length=10)
+    with pytest.raises(RequestError, match="no transition made yet"):
+        eng.continuation("walk", 0)
+    eng.generate("walk", "walk", length=10)
+    assert len(eng.continuation("walk", 0)) == len(walk)
+    with pytest.raises(ValueError, match="not fitted"):
+        TransitionEngine(PostureMap())
+    with pytest.raises(ValueError, match="not fitted"):
+        PostureMap().save("never.npz")
+    assert not os.path.exists("never.npz")
+    with pytest.raises(TypeError, match="Motion objects"):
+        PostureMap().fit(["walk.bvh"])
+
+
+def test_a_reader_that_stops_early_is_no_error(walk_map, tmp_path, monkeypatch, capsys):
+    m = tmp_path / "map.npz"
+    walk_map.save(str(m))
+
+    class Closed:
+        def write(self, _):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            pass
+
+    monkeypatch.setattr(sys, "stdout", Closed())
+    code = cli.main(["inspect", str(m)])
+    assert code == 141
+    assert capsys.readouterr().err == ""
+    monkeypatch.undo()
+    code, out, err = run(capsys, "inspect", m)
+    assert code == 0 and "posture map" in out and err == ""
