@@ -121,3 +121,17 @@ def test_a_reader_that_stops_early_is_no_error(walk_map, tmp_path, monkeypatch, 
     monkeypatch.undo()
     code, out, err = run(capsys, "inspect", m)
     assert code == 0 and "posture map" in out and err == ""
+
+
+def test_inspect_names_the_legs_or_says_there_are_none(sample_clips, tmp_path, capsys):
+    walk = sample_clips["walk"]
+    named, bare = tmp_path / "named.bvh", tmp_path / "bare.bvh"
+    bvh.write(named, walk)
+    renamed = dataclasses.replace(walk.skeleton, names=tuple(f"bone{j:02d}" for j in range(walk.skeleton.num_joints)))
+    bvh.write(bare, dataclasses.replace(walk, skeleton=renamed))
+    code, out, _ = run(capsys, "inspect", named)
+    legs = [line for line in out.splitlines() if line.split()[:1] == ["legs"]]
+    assert code == 0 and legs == ["  legs    UpperLeg_L > LowerLeg_L > Foot_L > Toes_L; "
+                                  "UpperLeg_R > LowerLeg_R > Foot_R > Toes_R"]
+    code, out, _ = run(capsys, "inspect", bare)
+    assert code == 0 and "legs    none found by name" in out and "no foot lock" in out

@@ -405,6 +405,8 @@ def test_cli_train_and_inspect(bvh_dir, tmp_path, capsys):
     for c, n in zip(CLASSES, pm.neuron_counts()):
         assert any(line.split()[:2] == [c, str(n)] for line in text.splitlines()), c
     assert "UpperArm_L" in text
+    legs = [line for line in text.splitlines() if line.split()[:1] == ["legs"]]
+    assert legs == ["  legs    UpperLeg_L > LowerLeg_L > Foot_L > Toes_L; UpperLeg_R > LowerLeg_R > Foot_R > Toes_R"]
 
     assert cli.main(["inspect", str(out), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)

@@ -222,6 +222,7 @@ def _cmd_inspect(args) -> int:
     import json
 
     from .learn.features import CLASSES, assign_classes
+    from .core.joints import describe_legs
     from .learn.model import PostureMap
 
     if args.path.lower().endswith(".bvh"):
@@ -232,13 +233,15 @@ def _cmd_inspect(args) -> int:
         jc = assign_classes(m.skeleton, root_index(m))
         info = {"file": args.path, "summary": summary(m),
                 "assignment": {c: [n for n, k in zip(m.skeleton.names, jc) if k == i]
-                               for i, c in enumerate(CLASSES)}}
+                               for i, c in enumerate(CLASSES)},
+                "legs": describe_legs(m.skeleton)}
         if args.json:
             print(json.dumps(info, indent=2))
         else:
             print(f"{args.path}: {info['summary']}")
             for c, names in info["assignment"].items():
                 print(f"  {c:7s} {', '.join(names) or '-'}")
+            print(_legs_line(info["legs"]))
         return 0
     d = PostureMap.load(args.path).describe()
     if args.json:
@@ -267,7 +270,14 @@ def _cmd_inspect(args) -> int:
               f"{q.get('invalid_neurons', float('nan')):7.3f}")
     for c, names in d["assignment"].items():
         print(f"  {c:7s} {', '.join(names) or '-'}")
+    print(_legs_line(d["legs"]))
     return 0
+
+
+def _legs_line(legs: list[list[str]]) -> str:
+    from .core.joints import LEGS_MISSING
+
+    return "  legs    " + ("; ".join(" > ".join(leg) for leg in legs) if legs else LEGS_MISSING)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -78,6 +78,18 @@ def leg_toes(sk: Skeleton, chains=None) -> np.ndarray:
     return np.array(toes, dtype=np.int64)
 
 
+def describe_legs(sk: Skeleton) -> list[list[str]]:
+    """Each leg found by name as its joints' names, thigh to toe (the toe left out where the ankle
+    has none): what the foot lock moves and what retrieval's lower body holds."""
+    chains = leg_chains(sk)
+    return [[sk.names[j] for j in chain] + ([sk.names[toe]] if toe != chain[2] else [])
+            for chain, toe in zip(chains, leg_toes(sk, chains).tolist())]
+
+
+LEGS_MISSING = ("none found by name (an ankle named foot or ankle, under a shin and a thigh): no foot lock, "
+                "and retrieval's lower body is the root alone")
+
+
 def leg_length(sk: Skeleton, chains=None) -> float:
     """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit; 1.0
     without legs. ``chains`` defaults to :func:`leg_chains`."""

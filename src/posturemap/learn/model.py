@@ -25,6 +25,7 @@ from ..errors import UserError
 from .features import CLASSES, FeatureSpace
 from ..io.fileio import write_bytes_atomic
 from ..io.mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
+from ..core.joints import describe_legs
 from ..core.motion import Motion, same_fps
 from ..core.skeleton import Skeleton
 from .upm import UniformPostureMap
@@ -328,6 +329,7 @@ class PostureMap:
             "training": {k: v for k, v in self.info_.items() if k != "quality"},
             "assignment": {CLASSES[c]: [n for n, jc in zip(self.skeleton_.names, self.space_.joint_class) if jc == c]
                            for c in range(len(CLASSES))},
+            "legs": describe_legs(self.skeleton_),
             "library": None if self.library_ is None else {
                 **{k: v for k, v in self.library_.meta().items() if k != "clips"},
                 "clips": self.library_.num_recorded_clips,
