@@ -86,7 +86,10 @@ def test_keyboard_interrupt_removes_the_temp_file(tmp_path, monkeypatch):
 
 
 _SIGNAL_SCRIPT = textwrap.dedent("""
-    import os, sys, time
+    import os, signal, sys, time
+    # Ctrl-C as in a terminal, even when the tests run in a background job (which starts every
+    # child with SIGINT ignored, so that Python never raises KeyboardInterrupt).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     from posturemap.io import fileio
     real = os.fsync
     def slow(fd):
