@@ -323,7 +323,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
     r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
-    r.add_argument("--no-foot-lock", action="store_true", help="do not pin planted feet nor lift toes out of and clear of the floor (foot-skate cleanup)")
+    r.add_argument("--no-foot-lock", action="store_true",
+                   help="do not pin planted feet nor lift toes out of the floor and clear of it (foot-skate cleanup)")
     r.add_argument("--preview", metavar="OUT.png",
                    help="also draw a filmstrip (side and top view: A's last second, the transition, B's "
                         "first second, planted feet); needs matplotlib: pip install 'posturemap[preview]'")

@@ -78,13 +78,13 @@ class Skeleton:
 
     def body_mismatch(self, other: "Skeleton", whose: str = "the other skeleton's") -> str | None:
         """Why clips of this skeleton cannot be mixed with ``other``'s (``whose`` names it in the
-        message) though they have the same
-        joints: their bones (the offsets of the joints below the first that branches, the hips:
-        the offsets above it are where a recording starts, not bones) differ in size by more than
-        :data:`BODY_RATIO` (another unit: metres against centimetres, inches), or point other ways
-        in the rest pose (the rig's bones laid out for another up axis). None when they can. Bodies
-        of one rig a little smaller or larger, or arms in a T against an A pose, pass. (A clip
-        turned to another up axis by its root's rotation has the same offsets: not seen here.)"""
+        message) though they have the same joints: their bones (the offsets of the joints below the
+        first that branches, the hips: the offsets above it are where a recording starts, not
+        bones) differ in size by more than :data:`BODY_RATIO` (another unit: metres against
+        centimetres, inches), or point other ways in the rest pose (the rig's bones laid out for
+        another up axis). None when they can. Bodies of one rig a little smaller or larger, or arms
+        in a T against an A pose, pass. (A clip turned to another up axis by its root's rotation
+        has the same offsets: not seen here.)"""
         if self.offsets.shape != other.offsets.shape:
             return "its joints differ"
         bones = np.ones(self.num_joints, dtype=bool)

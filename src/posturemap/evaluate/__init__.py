@@ -50,8 +50,9 @@ root-relative joint position error (cm); foot skate, the standard height-weighte
 lowest foot joint over the window, over the L + 1 frame steps from the last past-context
 frame to the first future-context frame; no contact detection), with the older contact-based
 measure as a secondary column (``contact_skate``); floor penetration
-(:func:`posturemap.evaluate.metrics.floor_penetration`, cm: the deepest foot joint under the floor,
-the lowest foot joint in the context frames, averaged over the gap); naturalness (:func:`naturalness_fn`: each
+(:func:`posturemap.evaluate.metrics.floor_penetration`, cm: the deepest foot joint under the
+floor, the lowest foot joint in the context frames, averaged over the gap); naturalness
+(:func:`naturalness_fn`: each
 rebuilt window's distance to its nearest real window of the same length among the test clips,
 which no library has seen, leaving out windows that overlap its own frames; z-scored pose and
 velocity features in the character's frame); pose validity (distance to the nearest training

@@ -108,7 +108,8 @@ class TransitionEngine:
             self.skeleton = motion.skeleton
         if not motion.skeleton.same_as(self.skeleton):
             raise UserError(name, "skeleton differs from the other clips (joints, hierarchy or channels)")
-        why = motion.skeleton.body_mismatch(self.skeleton, "the map's" if self.model is not None else "the other clips'")
+        why = motion.skeleton.body_mismatch(self.skeleton,
+                                            "the map's" if self.model is not None else "the other clips'")
         if why:
             raise UserError(name, why)
         if self._root is None:

@@ -23,11 +23,12 @@ in-between frames are made:
    second, less in proportion below (nothing under ``CLEAR_SPEED[0]``). Blends of real segments
    (and interpolation) can drag a toe along the floor at walking speed, which real feet do not
    do; the foot is raised by the shortfall, spread smoothly over ``CLEAR_S`` seconds on each side
-   (:func:`clearance_lift`). No toe stays under the floor, held or not (beyond the fade at the
-   seams, ``2r + 1`` frames with ``r = CLEAR_S * fps``, so a gap shorter than ``4r + 1`` frames
-   gets part of the lift only): a retrieved stance can put a planted foot a few centimetres into it. The floor is where feet stand: the lowest toe over
-   A's last ``FLOOR_S`` seconds and B's first (a stance in any gait), so a toe that dips under it
-   is lifted out rather than taken for the floor;
+   (:func:`clearance_lift`). No toe stays under the floor, held or not: a retrieved stance can
+   put a planted foot a few centimetres into it (a held foot's lift fades in at the seams over
+   ``2r + 1`` frames, ``r = CLEAR_S * fps``, so a gap shorter than ``4r + 1`` frames gets part of
+   it only). The floor is where feet stand: the lowest toe over A's last ``FLOOR_S`` seconds and
+   B's first (a stance in any gait), so a toe that dips under it is lifted out rather than taken
+   for the floor;
 5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
    end of the leg's reach bends the knee smoothly instead of snapping it straight. The foot keeps
