@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from posturemap.core import quat
-from posturemap.synth.splice import SPLICE_WIDTH, splice, splice_weights
+from posturemap.synth.splice import SPLICE_WIDTH, splice, splice_blend, splice_weights
 from posturemap.synth.trajectory import rotate_about_up
 
 UP = 1
@@ -25,10 +25,15 @@ def test_splice_weights_run_from_a_to_b_and_alpha_moves_the_blend(length):
     alphas = sorted(w)
     for lo, hi in zip(alphas, alphas[1:]):
         assert np.all(w[hi] >= w[lo] - 1e-12) and np.any(w[hi] > w[lo])
-    # The blend covers SPLICE_WIDTH of the gap: frames outside it hold 0 or 1.
+    # The blend is as wide as fits around its centre: the whole gap at alpha 0.5 (no frame holds 0
+    # or 1), half of it at alpha 0 and 1 (frames outside hold 0 or 1).
     t = np.arange(1, length + 1) / (length + 1.0)
-    inside = np.abs(t - 0.5) < SPLICE_WIDTH / 2
-    assert np.all(np.isin(w[0.5][~inside], (0.0, 1.0)))
+    assert splice_blend(0.5) == (0.5, SPLICE_WIDTH) == (0.5, 1.0)
+    assert np.all((w[0.5] > 0) & (w[0.5] < 1))
+    for alpha, centre in ((0.0, 0.75), (1.0, 0.25)):
+        assert splice_blend(alpha) == (centre, 0.5)
+        inside = np.abs(t - centre) < 0.25
+        assert np.all(np.isin(w[alpha][~inside], (0.0, 1.0)))
 
 
 def _result(rng, length, joints, start, velocity, turn_rate, dtheta, shift, contacts):
