@@ -38,11 +38,12 @@ SPLICE_WIDTH = 1.0  # the largest fraction of the gap over which A's continuatio
 # cross-clip pairs, 16 per half skated 4.37 / 4.38 cm/s (held-out styles / contents; the real
 # frames 3.65 / 3.02) with jerk 16,200 / 20,400 cm/s^3, 8 per half 4.08 / 4.26 with 17,300 /
 # 21,600 (real 12,700 / 19,300), in half the replay's time (the foot lock of that time). Since
-# the blend spans the whole gap at alpha 0.5, each half replays every frame there: 6 per half
-# keep the transition's time (0.93-0.94 ms against 0.95-0.97 with 8, same draws) for about the
-# same skate and jerk (3.92 / 3.88 cm/s and 15,400 / 19,300 against 3.94 / 3.82 and 15,200 /
-# 19,300 with 8).
-HALF_TOP_K = 6
+# the blend spans the whole gap at alpha 0.5, each half replays every frame there. On the same
+# seeded draws of bench/retrieval_speed.py's kind (prof runs alternated, this shared machine's
+# spread about 5%), 8 per half took 0.95-0.97 ms a transition, 6 0.95-0.99, 4 0.92-0.93 (the
+# code with the half-gap blend and 8 per half: 0.93-1.03); skate 3.94 / 3.82, 3.92 / 3.88 and
+# 3.80 / 3.75 cm/s, jerk 15,200 / 19,300, 15,400 / 19,300 and 16,000 / 20,200 cm/s^3.
+HALF_TOP_K = 4
 
 
 def splice_blend(alpha: float, widest: float = SPLICE_WIDTH) -> tuple[float, float]:
