@@ -493,8 +493,6 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     -------
     Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
     """
-    if not same_fps(a.fps, b.fps):
-        raise UserError("B", f"{b.fps:g} fps, A {a.fps:g} fps: resample one clip to the other's rate first")
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)
     engine.add("b", b)

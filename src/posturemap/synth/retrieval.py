@@ -926,19 +926,21 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
             shared.pop(name, None)
         shared["key"] = key
     if "seams" in shared:
-        qa, qb, gathered, still = shared["seams"]
+        qa, qb, gathered, still, disp = shared["seams"]
     else:
         qa, qb = rt.seam_pair(ta, ia, tb, ib)
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
-        travel = 0.0 if align else math.hypot(*_displacement(ta, tb, a_end, b_start, rt.engine._up)[:2]) * fps / d
+        # In-betweening: B's place is fixed, so the gap's displacement ranks the segments and its
+        # speed says whether the character must travel (still_weight).
+        disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
+        travel = 0.0 if disp is None else math.hypot(*disp[:2]) * fps / d
         still = still_weight(qa, qb, lib.leg, rt.engine._up, travel)
-        shared["seams"] = (qa, qb, gathered, still)
+        shared["seams"] = (qa, qb, gathered, still, disp)
     searched = shared.setdefault("found", {})
     if float(alpha) not in searched:
         alphas = tuple(a for a in dict.fromkeys((float(alpha),) + tuple(float(a) for a in shared.get("alphas", ())))
                        if a not in searched)
-        disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
         per_part = rt.search_parts(qa, qb, gathered, d, fps, alphas, disp, top_k, exhaustive)
         for i, a in enumerate(alphas):
             searched[a] = [per_part[0][i], per_part[1][i]]
