@@ -57,7 +57,7 @@ TOP_K = 16  # segments averaged per part
 BLEND_S = {False: 0.33, True: 0.67}
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
-PREFILTER = 96  # of those, the best matches at natural speed that become segment ends, per ...
+PREFILTER = 32  # of those, the best matches at natural speed that become segment ends, per ...
 PREFILTER_FPS = 30.0  # ... this library frame rate (see Retriever.keep)
 CONF_RANGE = (12.0, 24.0)  # the legs' match distance (RMS degrees per joint): full confidence below, none above
 UPPER_CONF_RANGE = (24.0, 48.0)  # the upper body's, likewise (see confidences)
@@ -419,7 +419,7 @@ class Retriever:
         """How many gathered frames per seam the prefilter keeps: :data:`PREFILTER` at
         :data:`PREFILTER_FPS`, in proportion to the library's frame rate (neighbouring frames
         at a higher rate are near copies of each other: at 120 fps, 96 frames held a quarter
-        of the moments, and CMU's 1.5 s gaps lost 4% L2Q against 192 or 384)."""
+        of the moments, and CMU's 1.5 s gaps lost 4-5% L2Q against 128 to 384)."""
         return max(1, round(PREFILTER * self.lib.fps / PREFILTER_FPS))
 
     def prefilter(self, part: int, frames: np.ndarray, q: Seams, end: bool, keep: int) -> np.ndarray:
