@@ -70,6 +70,102 @@ def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
     assert list(lower) == [3, 7, 2, 6] and list(upper) == [10, 12]
 
 
+def with_thigh_twist(m, seed=0):
+    """``m`` with a twist joint inside each thigh (Daz's ``lThighBend > lThighTwist > lShin``):
+    halfway down, turning about the bone by a seeded random angle per frame that the shin
+    takes back, so every joint's global transform stays as it was."""
+    from posturemap.core.motion import Motion
+    from posturemap.core.skeleton import Skeleton
+    sk = m.skeleton
+    rng = np.random.default_rng(seed)
+    names, parents, offsets, rots, pos = list(sk.names), list(sk.parents), list(sk.offsets), [], []
+    new_of = {}
+    order = []
+    for j in range(sk.num_joints):
+        if sk.names[j].startswith("LowerLeg"):
+            order.append(("twist", j))
+        order.append(("joint", j))
+    out_names, out_parents, out_offsets, out_r, out_p = [], [], [], [], []
+    for kind, j in order:
+        p = int(sk.parents[j])
+        if kind == "twist":
+            bone = sk.offsets[j]
+            angle = rng.uniform(-1.0, 1.0, len(m))
+            q = quat.from_axis_angle(np.broadcast_to(bone / np.linalg.norm(bone), (len(m), 3)), angle)
+            new_of[("twist", j)] = len(out_names)
+            out_names.append(sk.names[p] + "Twist")
+            out_parents.append(new_of[p])
+            out_offsets.append(0.5 * bone)
+            out_r.append(q)
+            out_p.append(np.broadcast_to(0.5 * bone, (len(m), 3)))
+            continue
+        new_of[j] = len(out_names)
+        out_names.append(sk.names[j])
+        if ("twist", j) in new_of:
+            out_parents.append(new_of[("twist", j)])
+            out_offsets.append(0.5 * sk.offsets[j])
+            out_r.append(quat.mul(quat.inv(out_r[new_of[("twist", j)]]), m.rotations[:, j]))
+            out_p.append(np.broadcast_to(0.5 * sk.offsets[j], (len(m), 3)))
+        else:
+            out_parents.append(new_of[p] if p >= 0 else -1)
+            out_offsets.append(sk.offsets[j])
+            out_r.append(m.rotations[:, j])
+            out_p.append(m.positions[:, j])
+    ends = tuple((new_of[j], o) for j, o in sk.end_sites)
+    twisted = Skeleton(tuple(out_names), np.array(out_parents), np.array(out_offsets),
+                       tuple(sk.channels[0] if n.endswith("Twist") else sk.channels[sk.names.index(n)]
+                             for n in out_names), ends)
+    keep = np.array([new_of[j] for j in range(sk.num_joints)])  # the original joints' rows
+    return Motion(twisted, np.stack(out_r, axis=1), np.stack(out_p, axis=1).copy(), m.fps), keep
+
+
+def test_a_twist_joint_inside_the_thigh_stays_inside_it(sample_clips):
+    # A twist joint between thigh and shin is passed through: the leg is the same leg, as long,
+    # with the thigh (and its subtree) in the lower body; the foot lock moves the same joints to
+    # the same places as on the rig without it, keeps the foot's global orientation, and leaves
+    # the twist's own rotation alone (the thigh does not bend in the middle).
+    from posturemap.core.joints import describe_legs, part_masks
+    m = sample_clips["walk"]
+    tw, keep = with_thigh_twist(m)
+    sk, tsk = m.skeleton, tw.skeleton
+    assert np.allclose(fk(tsk.parents, tw.rotations, tw.positions)[1][:, keep],
+                       fk(sk.parents, m.rotations, m.positions)[1], atol=1e-9)
+    chains, t_chains = leg_chains(sk), leg_chains(tsk)
+    assert [tuple(keep[list(c)]) for c in chains] == t_chains
+    assert describe_legs(tsk) == [["UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L"],
+                                  ["UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R"]] == describe_legs(sk)
+    assert leg_length(tsk, t_chains) == pytest.approx(leg_length(sk, chains), rel=1e-12)
+    lower, upper = part_masks(tsk, 0)
+    twists = [j for j, n in enumerate(tsk.names) if n.endswith("Twist")]
+    assert len(twists) == 2 and lower[twists].all() and lower[[c[0] for c in t_chains]].all()
+    assert np.array_equal(lower[keep], part_masks(sk, 0)[0])
+    # The lock on both rigs: a held foot dragged towards a spot 0.1 leg lengths away.
+    up, length = up_axis(m), 12
+    frames = np.arange(20, 20 + length)
+    leg = leg_length(sk, chains)
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    contacts = np.ones((length, 2), dtype=bool)
+    locked = {}
+    for name, clip, ch in (("plain", m, chains), ("twist", tw, t_chains)):
+        rots, pos = clip.rotations[frames].copy(), clip.positions[frames].copy()
+        g = fk(clip.skeleton.parents, rots, pos)[1][:, [c[2] for c in ch]]
+        a_feet = np.repeat(g[:1], 2, axis=0) + 0.1 * leg * side
+        b_feet = a_feet + 0.2 * leg * side
+        locked[name] = {b: fk(clip.skeleton.parents, r, pos) + (r,) for b, (r, _) in
+                        lock_both(clip.skeleton, ch, rots, pos, up, a_feet, b_feet, m.fps, contacts).items()}
+    for backend in ("numpy", "numba"):
+        (g_r, g_p, _), (t_r, t_p, t_rots) = locked["plain"][backend], locked["twist"][backend]
+        assert np.abs(g_p - fk(sk.parents, m.rotations[frames], m.positions[frames])[1]).max() > 0.05 * leg
+        assert np.allclose(t_p[:, keep], g_p, atol=1e-6 * leg)
+        assert np.allclose(np.abs(np.sum(t_r[:, keep] * g_r, axis=-1)), 1.0, atol=1e-9)
+        assert np.array_equal(t_rots[:, twists], tw.rotations[frames][:, twists])
+        for thigh, shin, _ in t_chains:
+            upper_half, lower_half = t_p[:, tsk.parents[shin]] - t_p[:, thigh], t_p[:, shin] - t_p[:, tsk.parents[shin]]
+            cos = np.sum(upper_half * lower_half, axis=-1) / np.linalg.norm(upper_half, axis=-1) \
+                / np.linalg.norm(lower_half, axis=-1)
+            assert np.all(cos > 1 - 1e-9)
+
+
 def test_two_bone_ik_reaches_reachable_targets():
     rng = np.random.default_rng(0)
     n = 200

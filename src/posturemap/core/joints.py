@@ -22,6 +22,10 @@ CONTACT_SPEED = 0.75  # leg lengths per second (about 60 cm/s on Bandai)
 FOOT_PATTERN = re.compile(r"foot|toe|ankle|heel", re.IGNORECASE)  # every joint of a foot
 _ANKLE = re.compile(r"foot|ankle", re.IGNORECASE)
 _NOT_ANKLE = re.compile(r"toe|end", re.IGNORECASE)
+# Twist and roll joints inside a limb (Daz's ``lThighBend > lThighTwist > lShin``, HumanIK's
+# ``LeftUpLegRoll`` where a rig puts it in the chain): they turn the bone about its own axis,
+# and a leg's chain passes through them to the joint above.
+_TWIST = re.compile(r"twist|roll(?!er)", re.IGNORECASE)
 _HAND = re.compile(r"hand|wrist", re.IGNORECASE)
 _NOT_HAND = re.compile(r"thumb|index|middle|ring|pinky|finger|end|site", re.IGNORECASE)
 _HEAD = re.compile(r"head", re.IGNORECASE)
@@ -52,18 +56,38 @@ def _is_ankle(name: str) -> bool:
     return bool(_ANKLE.search(n)) and not _NOT_ANKLE.search(n)
 
 
+def _chain_parent(sk: Skeleton, j: int) -> int:
+    """The parent of ``j`` in a limb's chain: its parent, or above any twist or roll joints (by
+    name) between them; -1 at the top."""
+    p = int(sk.parents[j])
+    while p >= 0 and _TWIST.search(short_name(sk.names[p])):
+        p = int(sk.parents[p])
+    return p
+
+
 def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) joint indices of each leg: an ankle ("foot"/"ankle", not a toe or an
     end site, nor the child of such a joint: SMPL's ``L_Foot`` is the toe below ``L_Ankle``)
-    whose parent and grandparent are the shin and the thigh."""
+    whose parent and grandparent are the shin and the thigh. Twist and roll joints between them
+    (by name) are passed through: they stay inside the thigh or the shin."""
     out = []
     for j, name in enumerate(sk.names):
         if _is_ankle(name):
-            shin = int(sk.parents[j])
-            thigh = int(sk.parents[shin]) if shin >= 0 else -1
+            shin = _chain_parent(sk, j)
+            thigh = _chain_parent(sk, shin) if shin >= 0 else -1
             if thigh >= 0 and not _is_ankle(sk.names[shin]):
                 out.append((thigh, shin, j))
     return out
+
+
+def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
+    """The rest pose's distance from joint ``top`` to its descendant ``j`` (the offsets between
+    them summed)."""
+    v = np.zeros(3)
+    while j != top and j >= 0:
+        v += sk.offsets[j]
+        j = int(sk.parents[j])
+    return float(np.linalg.norm(v))
 
 
 def leg_toes(sk: Skeleton, chains=None) -> np.ndarray:
@@ -91,13 +115,13 @@ LEGS_MISSING = ("none found by name (an ankle named foot or ankle, under a shin 
 
 
 def leg_length(sk: Skeleton, chains=None) -> float:
-    """Mean thigh + shin bone length of the legs (from the offsets), in the skeleton's unit; 1.0
-    without legs. ``chains`` defaults to :func:`leg_chains`."""
+    """Mean thigh + shin bone length of the legs (from the offsets, through any twist joints
+    between), in the skeleton's unit; 1.0 without legs. ``chains`` defaults to :func:`leg_chains`."""
     chains = leg_chains(sk) if chains is None else chains
     if not chains:
         return 1.0
-    return float(np.mean([np.linalg.norm(sk.offsets[shin]) + np.linalg.norm(sk.offsets[ankle])
-                          for _, shin, ankle in chains]))
+    return float(np.mean([_rest_distance(sk, thigh, shin) + _rest_distance(sk, shin, ankle)
+                          for thigh, shin, ankle in chains]))
 
 
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:

@@ -647,10 +647,21 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             goal[b_] = gpos[t, ankle, b_] + offset[t, 1]
             goal[up] = gpos[t, ankle, up] + raised[t]
             th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps, soft)
-            # Keep the foot's global orientation: its parent chain turned.
+            # Keep the foot's global orientation: its parent chain turned (twist joints between
+            # keep their local rotations and turn with the joint above).
             p = parents[thigh]
             sg = _mul(grot[t, p, 0], grot[t, p, 1], grot[t, p, 2], grot[t, p, 3], th[0], th[1], th[2], th[3])
+            if parents[shin] != thigh:
+                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, thigh, 0], -grot[t, thigh, 1], -grot[t, thigh, 2],
+                          -grot[t, thigh, 3])
+                q = parents[shin]
+                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, q, 0], grot[t, q, 1], grot[t, q, 2], grot[t, q, 3])
             sg = _mul(sg[0], sg[1], sg[2], sg[3], sh[0], sh[1], sh[2], sh[3])
+            if parents[ankle] != shin:
+                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, shin, 0], -grot[t, shin, 1], -grot[t, shin, 2],
+                          -grot[t, shin, 3])
+                q = parents[ankle]
+                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, q, 0], grot[t, q, 1], grot[t, q, 2], grot[t, q, 3])
             ft = _mul(sg[0], -sg[1], -sg[2], -sg[3], grot[t, ankle, 0], grot[t, ankle, 1], grot[t, ankle, 2],
                       grot[t, ankle, 3])
             for c in range(4):

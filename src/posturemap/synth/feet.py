@@ -358,8 +358,14 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
         # Keep the foot's global orientation: its parent chain turned.
-        shin_parent = grot[frames, int(sk.parents[thigh])]
-        shin_global = quat.mul(quat.mul(shin_parent, new_thigh), new_shin)
-        rots[frames, ankle] = quat.mul(quat.inv(shin_global), foot_global)
+        thigh_global = quat.mul(grot[frames, int(sk.parents[thigh])], new_thigh)
+        if sk.parents[shin] == thigh and sk.parents[ankle] == shin:
+            ankle_parent = quat.mul(thigh_global, new_shin)
+        else:  # twist joints between: they keep their local rotations and turn with the joint above
+            shin_global = quat.mul(quat.mul(quat.mul(thigh_global, quat.inv(grot[frames, thigh])),
+                                            grot[frames, int(sk.parents[shin])]), new_shin)
+            ankle_parent = quat.mul(quat.mul(shin_global, quat.inv(grot[frames, shin])),
+                                    grot[frames, int(sk.parents[ankle])])
+        rots[frames, ankle] = quat.mul(quat.inv(ankle_parent), foot_global)
         # The legs share no joint: the next leg's chain is unchanged, no new FK needed.
     return weights
