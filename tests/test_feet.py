@@ -618,10 +618,21 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # Only the left leg moved (the right toe is high already).
     moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
     assert set(np.flatnonzero(moved)) == set(chains[0])
-    # A foot without a toe joint (its "toe" the ankle) is not lifted: an ankle swings low at heel strike.
+    # A foot without a toe joint (its "toe" the ankle) gets no clearance: an ankle swings low at
+    # heel strike. But an ankle under the floor (the ankles' lowest in the context, here 1 cm
+    # above the left one) is lifted onto it, and no higher where it is under it all along.
     for r, _ in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor,
                           toes=np.array(ankles)).values():
         np.testing.assert_array_equal(r, rots)
+    ankle_floor = gpos0[:, ankles[0], up].min() + 0.0125 * body
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=ankle_floor,
+                        toes=np.array(ankles))
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    g1 = fk(sk.parents, results["numpy"][0], pos)[1]
+    assert np.all(gpos0[:, ankles[0], up] < ankle_floor - 0.01 * body)
+    assert np.all(g1[mid, ankles[0], up] >= ankle_floor - 1e-6)
+    assert np.all(g1[mid, ankles[0], up] <= ankle_floor + 1e-6)
+    np.testing.assert_allclose(g1[:, ankles[1]], gpos0[:, ankles[1]], atol=1e-9)  # above the floor: as it was
     # A swinging toe under the context's floor (here 1 cm below it) does not lower the floor: it is
     # lifted out of it, to the clearance above the floor. Nothing is held, so the context decides.
     raised_floor = floor + 0.0125 * body

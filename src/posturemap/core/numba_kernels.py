@@ -637,9 +637,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     for leg in range(n_legs):
         on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
-        if toes[leg] != ankle:  # a foot without a toe joint is left alone
-            _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear, clear_lo, clear_hi, clear_r,
-                      deficit, widest)
+        # A foot without a toe joint: its ankle kept out of the floor, no clearance above it.
+        _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear if toes[leg] != ankle else 0.0, clear_lo,
+                  clear_hi, clear_r, deficit, widest)
         for t in range(n_l):
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
                 continue

@@ -117,15 +117,16 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0):
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
 
 
-def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, body: float, fps: float) -> np.ndarray:
+def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, body: float, fps: float,
+                   clear: float = TOE_CLEAR) -> np.ndarray:
     """How much to raise a foot (L,) so that its toe stays out of the floor, and clears it while it
     swings.
 
     ``toe`` (L, 3) the toe's positions over the new frames, ``free`` (L,) bool the frames where the
     foot is not held, ``floor`` the floor's height for this toe. In a free frame the toe's
-    horizontal speed (central differences, one-sided at the ends) asks for ``TOE_CLEAR * body``
-    times ``(v - v0) / (v1 - v0)`` clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per
-    second) above the floor; a held foot's toe asks for the floor itself (a retrieved stance can
+    horizontal speed (central differences, one-sided at the ends) asks for ``clear * body``
+    (``TOE_CLEAR``; 0 for the ankle of a foot without a toe joint) times ``(v - v0) / (v1 - v0)``
+    clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per second) above the floor; a held foot's toe asks for the floor itself (a retrieved stance can
     put it a few centimetres under it). The shortfall of a frame's height below that is its
     deficit. With ``r = round(CLEAR_S * fps)`` (at least 1), the free frames' deficits and the
     held frames' each give a lift, the mean over ``[t - r, t + r]`` of the largest deficit within
@@ -144,7 +145,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     flat[up] = 0.0
     step = np.gradient(toe * flat, axis=0) if length > 1 else np.zeros((1, 3))
     speed = np.linalg.norm(step, axis=-1) * fps / body
-    need = TOE_CLEAR * body * np.clip((speed - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]), 0.0, 1.0)
+    need = clear * body * np.clip((speed - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]), 0.0, 1.0)
     deficit = np.maximum(np.where(free, need, 0.0) - (toe[:, up] - floor), 0.0)
     if not deficit.any():
         return np.zeros(length)
@@ -341,11 +342,11 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     for leg, (thigh, shin, ankle) in enumerate(chains):
         offset, raised, held = locks[leg]
         # The toe where the ankle goes (the foot keeps its orientation), clear of the floor in the
-        # air. A foot without a toe joint is left alone: an ankle swings low at heel strike.
-        if toes[leg] != ankle:
-            toe = gpos[:, toes[leg]] + offset
-            toe[:, up] += raised
-            raised += clearance_lift(toe, ~held, toe_floor, up, body, fps)
+        # air. A foot without a toe joint: its ankle kept out of the floor (its lowest in the
+        # context), not lifted higher (an ankle swings low at heel strike).
+        toe = gpos[:, toes[leg]] + offset
+        toe[:, up] += raised
+        raised += clearance_lift(toe, ~held, toe_floor, up, body, fps, TOE_CLEAR if toes[leg] != ankle else 0.0)
         frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:
             continue
