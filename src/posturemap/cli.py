@@ -15,6 +15,9 @@ class _Parser(argparse.ArgumentParser):
     """Argument errors as one line on stderr and exit code 2 (no usage dump)."""
 
     def error(self, message):
+        # argparse says "argument --length: ...": the option first, as the other errors name their file
+        if message.startswith("argument ") and ": " in message:
+            message = message[len("argument "):]
         sys.stderr.write(f"posturemap: error: {message}\n")
         sys.exit(2)
 
@@ -24,7 +27,7 @@ def _data_folder(given: str | None) -> str:
     data = given or os.environ.get("POSTUREMAP_DATA")
     if not data:
         raise UserError("--data", "no data folder: give --data DIR or set POSTUREMAP_DATA "
-                                  "(a folder holding bandai1/)")
+                                  "(a folder holding bandai1/ and cmu/01_01.bvh)")
     if not os.path.isdir(data):
         raise UserError(data, "data folder does not exist" + ("" if given else " (from POSTUREMAP_DATA)"))
     return data
@@ -142,8 +145,11 @@ def _cmd_transition(args) -> int:
     from .core.motion import same_fps, up_axis
     from .synth.engine import transition
     from .synth.request import KEYED, RequestError, TransitionRequest
+    from .core.joints import leg_chains
 
     as_gltf = gltf.is_gltf_path(args.output)
+    if not as_gltf and not args.output.lower().endswith(".bvh"):
+        raise UserError(args.output, "the output's name must end in .bvh, .glb or .gltf (it sets the format)")
     if args.split_animations and not as_gltf:
         raise UserError("--split-animations", "needs a glTF output (-o ending in .glb or .gltf)")
     if args.preview:
@@ -158,7 +164,8 @@ def _cmd_transition(args) -> int:
     if why:
         raise UserError(args.b, why)
     if not same_fps(a.fps, b.fps):
-        raise UserError(args.b, f"{b.fps:g} fps, {args.a} {a.fps:g} fps: resample one clip to the other's rate first")
+        raise UserError(args.b, f"{b.fps:g} fps, {args.a} {a.fps:g} fps: resample one clip to the other's rate first "
+                                f"(posturemap resample {args.b} --fps {a.fps:g} -o ...)")
     _check_output(args.output)
     model = None
     if args.map:
@@ -196,6 +203,27 @@ def _cmd_transition(args) -> int:
           f"+ B[{args.b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
     if "retrieval" in report:
         print(describe_retrieval(report["retrieval"]))
+    if not args.no_foot_lock and not leg_chains(a.skeleton):
+        print(f"  foot lock: off, no legs found by name (an ankle named foot or ankle, under a shin and a thigh; "
+              f"posturemap inspect {args.a} shows the skeleton)")
+    return 0
+
+
+def _cmd_resample(args) -> int:
+    from .io import bvh, gltf
+    from .core.motion import resample
+
+    as_gltf = gltf.is_gltf_path(args.output)
+    if not as_gltf and not args.output.lower().endswith(".bvh"):
+        raise UserError(args.output, "the output's name must end in .bvh, .glb or .gltf (it sets the format)")
+    _check_output(args.output)
+    m = bvh.read(args.input)
+    out = resample(m, args.fps)
+    if as_gltf:
+        gltf.write(args.output, out)
+    else:
+        bvh.write(args.output, out)
+    print(f"{args.output}: {len(out)} frames at {out.fps:g} fps ({args.input}: {len(m)} frames at {m.fps:g} fps)")
     return 0
 
 
@@ -289,11 +317,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     t = sub.add_parser("train", help="learn a posture map (four class UPMs) from BVH files or folders")
-    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files")
+    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files (not its subfolders)")
     t.add_argument("-o", "--output", required=True, metavar="MAP", help="map file to write (.npz)")
     t.add_argument("--radius", type=_radius, default="auto",
                    help="maximum distance from a posture to its neuron, or 'auto' (default) to derive it "
-                        "from the data")
+                        "from the data for each bone class (a number is used for all four: their automatic "
+                        "radii differ several times over, see `posturemap inspect MAP`)")
     t.add_argument("--neighborhood", type=_nonneg_int, default=2, help="initial neighbourhood in graph hops (2)")
     t.add_argument("--epochs", type=_positive_int, default=4, help="passes over the data (4)")
     t.add_argument("--learning-rate", type=_gain, default=0.5, help="initial gain in (0, 1), falls to 0 (0.5)")
@@ -331,14 +360,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s, real motion "
-                        "retrieved from the map's library for longer ones; see the README)")
+                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s from A's last "
+                        "kept frame to B's first, (length + 1) / fps, real motion retrieved from the map's library "
+                        "for longer ones; see the README)")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")
     i.add_argument("path", metavar="MAP", help="map file (.npz) or BVH file")
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=_cmd_inspect)
+
+    s = sub.add_parser("resample", help="write a BVH clip at another frame rate (clips used together share one rate)")
+    s.add_argument("input", metavar="IN.bvh")
+    s.add_argument("--fps", type=_checked(float, lambda v: 0.0 < v <= 10000.0, "a frame rate in (0, 10000]"),
+                   required=True, help="the new frame rate (frames per second)")
+    s.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="file to write: .bvh (the clip's skeleton and channels) or .glb / .gltf")
+    s.set_defaults(func=_cmd_resample)
 
     e = sub.add_parser("bench", help="evaluate every method on a style, a content and a 120 fps hold-out "
                                      "(in-betweening accuracy, realism, speed), the main methods on four more "

@@ -90,7 +90,9 @@ def run(out: str, data: str | None = None, log=print) -> dict:
     short = lambda p: os.path.splitext(os.path.basename(p))[0].replace("dataset-1_", "")  # noqa: E731
     for i, (a, b) in enumerate(pairs):
         t0 = time.perf_counter()
-        result = transition(clips[a], clips[b], model, method=DEFAULT_METHOD)
+        report = {}
+        result = transition(clips[a], clips[b], model, method=DEFAULT_METHOD, report=report)
+        used = report.get("method", DEFAULT_METHOD)  # what auto chose
         ms = (time.perf_counter() - t0) * 1e3
         note = " (the first call also compiles or loads the kernels)" if i == 0 else ""
         stem = os.path.join(out, f"{short(a)}_to_{short(b)}")
@@ -100,13 +102,13 @@ def run(out: str, data: str | None = None, log=print) -> dict:
                    name=f"{short(a)}_to_{short(b)}", up=model.space_.up)
         written[f"{short(a)}->{short(b)}"] = stem + ".bvh"
         written[f"{short(a)}->{short(b)} glb"] = stem + ".glb"
-        log(f"out   {stem}.bvh, .glb: {len(result)} frames ({n_a} of A + {LENGTH} {DEFAULT_METHOD} frames "
+        log(f"out   {stem}.bvh, .glb: {len(result)} frames ({n_a} of A + {LENGTH} {used} frames "
             f"+ {len(clips[b])} of B) in {ms:.1f} ms{note}")
         if pictures:
             from .io import preview
 
             preview.transition_filmstrip(result, n_a, LENGTH, stem + ".png", up=model.space_.up,
-                                         title=f"{short(a)} -> {short(b)}: {LENGTH} {DEFAULT_METHOD} frames",
+                                         title=f"{short(a)} -> {short(b)}: {LENGTH} {used} frames",
                                          unit=length_unit(result))
             written[f"{short(a)}->{short(b)} png"] = stem + ".png"
             log(f"      {stem}.png: filmstrip (A's last second grey, the transition orange, B blue)")

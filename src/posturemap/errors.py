@@ -12,7 +12,8 @@ class UserError(ValueError):
 
 
 def require_extra(extra: str, *modules: str, what: str | None = None) -> None:
-    """Raise :class:`UserError` naming ``pip install 'posturemap[extra]'`` unless every module
+    """Raise :class:`UserError` naming ``pip install 'posturemap[extra]'`` (and the editable
+    install of a checkout) unless every module
     of ``modules`` can be imported (looked up, not imported: cheap).
 
     ``what`` names the command or option that needs them (default: the extra).
@@ -21,4 +22,5 @@ def require_extra(extra: str, *modules: str, what: str | None = None) -> None:
 
     missing = [m for m in modules if importlib.util.find_spec(m) is None]
     if missing:
-        raise UserError(what or extra, f"needs {', '.join(missing)}: pip install 'posturemap[{extra}]'")
+        raise UserError(what or extra, f"needs {', '.join(missing)}: pip install 'posturemap[{extra}]' "
+                                       f"(in a checkout: pip install -e '.[{extra}]')")

@@ -95,6 +95,38 @@ def concatenate(motions: list[Motion]) -> Motion:
                   np.concatenate([m.positions for m in motions]), first.fps, source)
 
 
+MAX_FPS = 10000.0  # as a BVH frame time of 0.1 ms (posturemap.io.bvh)
+
+
+def resample(motion: Motion, fps: float) -> Motion:
+    """``motion`` at another frame rate, over the same time: frame ``k`` at ``k / fps`` seconds
+    (the first at 0; as many as make the clip's duration to the nearest frame, a last one past
+    the end taken at the end), each joint's rotation SLERPed and its translation LERPed between
+    the two recorded frames around it. Clips used together share one
+    rate (a transition's A and B, a map's training clips): this makes one clip the other's.
+
+    Raises ValueError for a rate that is not a finite number in (0, 10000] (0.1 ms a frame).
+    """
+    from . import quat
+
+    fps = float(fps)
+    if not (np.isfinite(fps) and 0.0 < fps <= MAX_FPS):
+        raise ValueError(f"fps must be a number in (0, {MAX_FPS:g}], got {fps:g}")
+    if same_fps(fps, motion.fps):
+        return Motion(motion.skeleton, motion.rotations.copy(), motion.positions.copy(), motion.fps,
+                      None if motion.source is None else motion.source.copy())
+    last = motion.num_frames - 1
+    n = int(np.floor(last * fps / motion.fps + 0.5)) + 1
+    u = np.minimum(np.arange(n) * (motion.fps / fps), last)  # in the clip's frames
+    i0 = np.minimum(np.floor(u).astype(np.int64), max(last - 1, 0))
+    i1 = np.minimum(i0 + 1, last)
+    f = u - i0
+    rots = quat.slerp(motion.rotations[i0], motion.rotations[i1],
+                      np.broadcast_to(f[:, None], (n, motion.skeleton.num_joints)))
+    pos = motion.positions[i0] + f[:, None, None] * (motion.positions[i1] - motion.positions[i0])
+    return Motion(motion.skeleton, rots, pos, fps)
+
+
 def root_index(motion_or_skeleton) -> int:
     """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 

@@ -91,7 +91,8 @@ class PostureMap:
                 raise UserError(name, f"{why}: a map needs one unit")
             if not same_fps(m.fps, motions[0].fps):
                 raise UserError(name, f"{m.fps:g} fps, {names[0]} {motions[0].fps:g} fps (a map needs one frame "
-                                      "rate: resample the clips to one rate first)")
+                                      "rate: resample the clips to one rate first, posturemap.resample or "
+                                      "posturemap resample)")
         t0 = time.perf_counter()
         space = features.fit_space(motions, self.features, self.classes)
         x = np.concatenate([space.encode(m) for m in motions])
@@ -157,7 +158,8 @@ class PostureMap:
         for name, m in zip(names, motions, strict=True):
             self.check_skeleton(m.skeleton, name)
             if not same_fps(m.fps, fps):
-                raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first")
+                raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first "
+                                     "(posturemap.resample; on the command line, posturemap resample)")
         parts = self.space_.split(np.concatenate([self.space_.encode(m) for m in motions]))
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
         for c, m in enumerate(self.maps_):

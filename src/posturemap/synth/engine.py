@@ -193,7 +193,7 @@ class TransitionEngine:
         ta, tb = self._track("a", a), self._track("b", b)
         if not same_fps(ta.motion.fps, tb.motion.fps):
             raise RequestError("b", f"clip {b!r} is at {tb.motion.fps:g} fps, {a!r} at {ta.motion.fps:g} fps: "
-                                    "resample one clip to the other's rate first")
+                                    "resample one clip to the other's rate first (posturemap.resample)")
         if request is not None and not isinstance(request, TransitionRequest):
             raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
                             "(give its fields as keywords: length=..., alpha=...)")

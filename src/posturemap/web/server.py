@@ -103,7 +103,8 @@ def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epoc
     The :class:`Studio` is ``app.state.studio``.
     """
     if Starlette is None:
-        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]'")
+        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]' "
+                                         "(in a checkout: pip install -e '.[web]')")
     studio = Studio(clips, model, train=train, epochs=epochs, seed=seed, log=log)
     from starlette.concurrency import run_in_threadpool
 
@@ -229,7 +230,8 @@ def running(app, host: str = "127.0.0.1", port: int = 0):
 def run_cli(args) -> int:
     """``posturemap serve``: load the clips, the map (or learn one in the background) and serve."""
     if Starlette is None:
-        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]'")
+        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]' "
+                                         "(in a checkout: pip install -e '.[web]')")
     import uvicorn
 
     def log(line: str):

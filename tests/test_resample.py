@@ -1,0 +1,111 @@
+"""Frame rates: a clip resampled to another rate (API and command line), and what the command
+line says about its options and outputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import posturemap
+from posturemap.core import quat
+from posturemap.core.motion import Motion, resample
+from posturemap.io import bvh
+
+from clikit import assert_refused, run
+
+
+def test_resample_keeps_the_time_and_the_recorded_frames(sample_clips):
+    m = sample_clips["walk"]
+    duration = (len(m) - 1) / m.fps
+    # Half the rate: every other recorded frame, exactly (an even number of frame steps).
+    even = m[:(len(m) - 1) // 2 * 2 + 1]
+    half = resample(even, m.fps / 2)
+    assert half.fps == m.fps / 2 and len(half) == (len(even) - 1) // 2 + 1
+    np.testing.assert_allclose(np.abs(np.sum(half.rotations * even.rotations[::2], axis=-1)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(half.positions, even.positions[::2], atol=1e-12)
+    # Twice the rate: the recorded frames on the even frames, the halfway SLERP and LERP between.
+    double = resample(m, 2 * m.fps)
+    assert len(double) == 2 * (len(m) - 1) + 1 and (len(double) - 1) / double.fps == pytest.approx(duration)
+    np.testing.assert_allclose(double.positions[::2], m.positions, atol=1e-12)
+    mid = quat.slerp(m.rotations[:-1], m.rotations[1:], np.full((len(m) - 1, m.skeleton.num_joints), 0.5))
+    np.testing.assert_allclose(np.abs(np.sum(double.rotations[1::2] * mid, axis=-1)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(double.positions[1::2], 0.5 * (m.positions[:-1] + m.positions[1:]), atol=1e-12)
+    # There and back: the same motion, the same number of frames.
+    back = resample(resample(m, 24.0), m.fps)
+    assert len(back) == len(m)
+    err = np.abs(back.global_positions() - m.global_positions()).max()
+    assert err < 0.05 * np.ptp(m.global_positions()[..., 1]) and err > 0  # not the same samples, near them
+    # A rate within 0.1% is the same rate: a copy.
+    same = resample(m, m.fps * (1 + 1e-4))
+    assert same.fps == m.fps and np.array_equal(same.rotations, m.rotations) and same.rotations is not m.rotations
+    for bad in (0.0, -30.0, float("nan"), float("inf"), 2e4):
+        with pytest.raises(ValueError, match="fps"):
+            resample(m, bad)
+    assert posturemap.resample is resample
+
+
+def test_resample_one_frame_and_the_last_frame(sample_clips):
+    m = sample_clips["walk"]
+    one = resample(m[:1], 60.0)
+    assert len(one) == 1 and np.allclose(one.rotations, m.rotations[:1], atol=1e-12)
+    # A duration that is not a whole number of new frames: the nearest count, the last one at the end.
+    short = m[:8]  # 7 frame steps
+    r = resample(short, short.fps * 0.55)  # 3.85 new steps: 4, the last clamped to the clip's end
+    assert len(r) == 5
+    np.testing.assert_allclose(r.positions[-1], short.positions[-1], atol=1e-12)
+
+
+def test_resample_command(capsys, tmp_path, sample_clips):
+    m = sample_clips["walk"]
+    src = tmp_path / "walk.bvh"
+    bvh.write(src, m)
+    out = tmp_path / "walk60.bvh"
+    code, stdout, err = run(capsys, "resample", src, "--fps", "60", "-o", out)
+    assert code == 0, err
+    r = bvh.read(out)
+    assert r.fps == pytest.approx(60.0, rel=1e-6) and len(r) == 2 * (len(m) - 1) + 1
+    assert f"{len(r)} frames at 60 fps" in stdout
+    np.testing.assert_allclose(r.global_positions()[::2], bvh.read(src).global_positions(), atol=1e-3)
+    assert option_refused(capsys, "resample", src, "--fps", "0", "-o", out).startswith(
+        "posturemap: error: --fps: must be a frame rate in (0, 10000]")
+    assert_refused(capsys, tmp_path / "w.txt", "resample", src, "--fps", "24", "-o", tmp_path / "w.txt",
+                   words=[".bvh, .glb or .gltf"])
+    assert not (tmp_path / "w.txt").exists()
+
+
+def test_transition_refuses_an_unknown_output_format_and_says_when_no_legs_are_found(capsys, tmp_path,
+                                                                                     sample_clips):
+    a, b = tmp_path / "a.bvh", tmp_path / "b.bvh"
+    bvh.write(a, sample_clips["walk"])
+    bvh.write(b, sample_clips["run"])
+    assert_refused(capsys, tmp_path / "t.txt", "transition", a, b, "-o", tmp_path / "t.txt", words=[".bvh, .glb"])
+    assert not (tmp_path / "t.txt").exists()
+    code, out, err = run(capsys, "transition", a, b, "-o", tmp_path / "t.bvh", "--method", "slerp")
+    assert code == 0 and "foot lock" not in out
+    # The same clips with joints no name finds a leg in: the transition is made, and it says so.
+    for path, clip in ((a, sample_clips["walk"]), (b, sample_clips["run"])):
+        sk = clip.skeleton
+        renamed = type(sk)(tuple(f"J{j:02d}" for j in range(sk.num_joints)), sk.parents, sk.offsets, sk.channels,
+                           sk.end_sites)
+        bvh.write(path, Motion(renamed, clip.rotations, clip.positions, clip.fps))
+    code, out, err = run(capsys, "transition", a, b, "-o", tmp_path / "u.bvh", "--method", "slerp")
+    assert code == 0, err
+    assert "foot lock: off, no legs found by name" in out
+    code, out, _ = run(capsys, "transition", a, b, "-o", tmp_path / "v.bvh", "--method", "slerp", "--no-foot-lock")
+    assert code == 0 and "foot lock" not in out
+
+
+def option_refused(capsys, *argv) -> str:
+    """The one line of an option refused by the parser (exit 2)."""
+    with pytest.raises(SystemExit) as info:
+        run(capsys, *argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err.strip()
+
+
+def test_option_errors_name_the_option_first(capsys, tmp_path):
+    # As a file's errors name the file: "posturemap: error: --length: ...", not argparse's "argument --length".
+    line = option_refused(capsys, "transition", "a.bvh", "b.bvh", "-o", tmp_path / "t.bvh", "--length", "0")
+    assert line == "posturemap: error: --length: must be a whole number of at least 1, got '0'"
