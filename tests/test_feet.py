@@ -70,9 +70,43 @@ def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):
     assert list(lower) == [3, 7, 2, 6] and list(upper) == [10, 12]
 
 
+def chain_skeleton(names):
+    """A one-leg skeleton: ``names`` from the root down, each joint one unit below its parent."""
+    from posturemap.core.skeleton import Skeleton
+    n = len(names)
+    return Skeleton(tuple(names), np.arange(-1, n - 1), np.array([[0.0, 0.0, 0.0]] + [[0.0, -1.0, 0.0]] * (n - 1)),
+                    (("Xrotation",),) * n)
+
+
+@pytest.mark.parametrize("names, legs", [
+    # MakeHuman: thigh and shin in two numbered segments each.
+    (("root", "pelvis.L", "upperleg01.L", "upperleg02.L", "lowerleg01.L", "lowerleg02.L", "foot.L", "toe1-1.L"),
+     [["upperleg01.L", "lowerleg01.L", "foot.L", "toe1-1.L"]]),
+    # Rigify's deform bones: the second segment numbered .001.
+    (("root", "DEF-pelvis.L", "DEF-thigh.L", "DEF-thigh.L.001", "DEF-shin.L", "DEF-shin.L.001", "DEF-foot.L",
+      "DEF-toe.L"), [["DEF-thigh.L", "DEF-shin.L", "DEF-foot.L", "DEF-toe.L"]]),
+    # Daz: a twist joint inside the thigh.
+    (("hip", "pelvis", "lThighBend", "lThighTwist", "lShin", "lFoot", "lToe"),
+     [["lThighBend", "lShin", "lFoot", "lToe"]]),
+    # Numbered alike all the way to the root: the names do not tell the bones apart (the plain
+    # parent and grandparent).
+    (("Bone", "Bone1", "Bone2", "Bone3", "Foot"), [["Bone2", "Bone3", "Foot"]]),
+    # A plain leg is what it was.
+    (("Hips", "LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase"), [["LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase"]]),
+])
+def test_legs_pass_through_a_bone_split_in_segments(names, legs):
+    from posturemap.core.joints import describe_legs
+    sk = chain_skeleton(names)
+    assert describe_legs(sk) == legs
+    thigh, shin, ankle = leg_chains(sk)[0]
+    # The leg's length runs through the segments: from the thigh's top to the shin's, and on to the ankle.
+    assert leg_length(sk) == pytest.approx((shin - thigh) + (ankle - shin))
+
+
 def with_thigh_twist(m, seed=0):
-    """``m`` with a twist joint inside each thigh (Daz's ``lThighBend > lThighTwist > lShin``):
-    halfway down, turning about the bone by a seeded random angle per frame that the shin
+    """``m`` with a twist joint inside each thigh (Daz's ``lThighBend > lThighTwist > lShin``)
+    and a second segment inside each shin (Rigify's ``DEF-shin.L > DEF-shin.L.001``): halfway
+    down each bone, turning about it by a seeded random angle per frame that the joint below
     takes back, so every joint's global transform stays as it was."""
     from posturemap.core.motion import Motion
     from posturemap.core.skeleton import Skeleton
@@ -82,7 +116,7 @@ def with_thigh_twist(m, seed=0):
     new_of = {}
     order = []
     for j in range(sk.num_joints):
-        if sk.names[j].startswith("LowerLeg"):
+        if sk.names[j].startswith(("LowerLeg", "Foot")):
             order.append(("twist", j))
         order.append(("joint", j))
     out_names, out_parents, out_offsets, out_r, out_p = [], [], [], [], []
@@ -93,7 +127,7 @@ def with_thigh_twist(m, seed=0):
             angle = rng.uniform(-1.0, 1.0, len(m))
             q = quat.from_axis_angle(np.broadcast_to(bone / np.linalg.norm(bone), (len(m), 3)), angle)
             new_of[("twist", j)] = len(out_names)
-            out_names.append(sk.names[p] + "Twist")
+            out_names.append(sk.names[p] + ("Twist" if sk.names[j].startswith("LowerLeg") else ".001"))
             out_parents.append(new_of[p])
             out_offsets.append(0.5 * bone)
             out_r.append(q)
@@ -113,17 +147,18 @@ def with_thigh_twist(m, seed=0):
             out_p.append(m.positions[:, j])
     ends = tuple((new_of[j], o) for j, o in sk.end_sites)
     twisted = Skeleton(tuple(out_names), np.array(out_parents), np.array(out_offsets),
-                       tuple(sk.channels[0] if n.endswith("Twist") else sk.channels[sk.names.index(n)]
+                       tuple(sk.channels[0] if n.endswith(("Twist", ".001")) else sk.channels[sk.names.index(n)]
                              for n in out_names), ends)
     keep = np.array([new_of[j] for j in range(sk.num_joints)])  # the original joints' rows
     return Motion(twisted, np.stack(out_r, axis=1), np.stack(out_p, axis=1).copy(), m.fps), keep
 
 
 def test_a_twist_joint_inside_the_thigh_stays_inside_it(sample_clips):
-    # A twist joint between thigh and shin is passed through: the leg is the same leg, as long,
-    # with the thigh (and its subtree) in the lower body; the foot lock moves the same joints to
-    # the same places as on the rig without it, keeps the foot's global orientation, and leaves
-    # the twist's own rotation alone (the thigh does not bend in the middle).
+    # A twist joint between thigh and shin and a second segment of the shin are passed through:
+    # the leg is the same leg, as long, with the thigh (and its subtree) in the lower body; the
+    # foot lock moves the same joints to the same places as on the rig without them, keeps the
+    # foot's global orientation, and leaves their own rotations alone (neither bone bends in the
+    # middle).
     from posturemap.core.joints import describe_legs, part_masks
     m = sample_clips["walk"]
     tw, keep = with_thigh_twist(m)
@@ -136,8 +171,8 @@ def test_a_twist_joint_inside_the_thigh_stays_inside_it(sample_clips):
                                   ["UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R"]] == describe_legs(sk)
     assert leg_length(tsk, t_chains) == pytest.approx(leg_length(sk, chains), rel=1e-12)
     lower, upper = part_masks(tsk, 0)
-    twists = [j for j, n in enumerate(tsk.names) if n.endswith("Twist")]
-    assert len(twists) == 2 and lower[twists].all() and lower[[c[0] for c in t_chains]].all()
+    twists = [j for j, n in enumerate(tsk.names) if n.endswith(("Twist", ".001"))]
+    assert len(twists) == 4 and lower[twists].all() and lower[[c[0] for c in t_chains]].all()
     assert np.array_equal(lower[keep], part_masks(sk, 0)[0])
     # The lock on both rigs: a held foot dragged towards a spot 0.1 leg lengths away.
     up, length = up_axis(m), 12
@@ -159,11 +194,14 @@ def test_a_twist_joint_inside_the_thigh_stays_inside_it(sample_clips):
         assert np.allclose(t_p[:, keep], g_p, atol=1e-6 * leg)
         assert np.allclose(np.abs(np.sum(t_r[:, keep] * g_r, axis=-1)), 1.0, atol=1e-9)
         assert np.array_equal(t_rots[:, twists], tw.rotations[frames][:, twists])
-        for thigh, shin, _ in t_chains:
-            upper_half, lower_half = t_p[:, tsk.parents[shin]] - t_p[:, thigh], t_p[:, shin] - t_p[:, tsk.parents[shin]]
-            cos = np.sum(upper_half * lower_half, axis=-1) / np.linalg.norm(upper_half, axis=-1) \
-                / np.linalg.norm(lower_half, axis=-1)
-            assert np.all(cos > 1 - 1e-9)
+        for thigh, shin, ankle in t_chains:
+            for top, bottom in ((thigh, shin), (shin, ankle)):
+                mid = tsk.parents[bottom]
+                assert mid != top  # a joint inside the bone
+                upper_half, lower_half = t_p[:, mid] - t_p[:, top], t_p[:, bottom] - t_p[:, mid]
+                cos = np.sum(upper_half * lower_half, axis=-1) / np.linalg.norm(upper_half, axis=-1) \
+                    / np.linalg.norm(lower_half, axis=-1)
+                assert np.all(cos > 1 - 1e-9)
 
 
 def test_two_bone_ik_reaches_reachable_targets():

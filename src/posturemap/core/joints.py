@@ -65,18 +65,46 @@ def _chain_parent(sk: Skeleton, j: int) -> int:
     return p
 
 
+def _stem(name: str) -> str:
+    """A joint's name without its numbers: the segments of one bone share it (MakeHuman's
+    ``upperleg01.L``, ``upperleg02.L``; Rigify's ``DEF-shin.L``, ``DEF-shin.L.001``)."""
+    return re.sub(r"[._\- ]+$", "", re.sub(r"\d+", "", short_name(name))).lower()
+
+
+def _segment_top(sk: Skeleton, j: int) -> int:
+    """The first joint of the bone ``j`` belongs to: up through its parents while they carry
+    ``j``'s name but for numbers."""
+    stem = _stem(sk.names[j])
+    while stem and sk.parents[j] >= 0 and _stem(sk.names[int(sk.parents[j])]) == stem:
+        j = int(sk.parents[j])
+    return j
+
+
 def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) joint indices of each leg: an ankle ("foot"/"ankle", not a toe or an
     end site, nor the child of such a joint: SMPL's ``L_Foot`` is the toe below ``L_Ankle``)
-    whose parent and grandparent are the shin and the thigh. Twist and roll joints between them
-    (by name) are passed through: they stay inside the thigh or the shin."""
+    whose parent and grandparent are the shin and the thigh.
+
+    A bone may be several joints, passed through to the one at its top: twist and roll joints
+    (by name; Daz's ``lThighBend > lThighTwist > lShin``) and the segments of a bone split in
+    numbered parts (MakeHuman's ``upperleg01.L > upperleg02.L > lowerleg01.L > lowerleg02.L >
+    foot.L``, Rigify's ``DEF-thigh.L > DEF-thigh.L.001 > DEF-shin.L > DEF-shin.L.001``): they
+    keep their rotations and stay inside the thigh or the shin. Where that would leave no
+    distinct thigh (every joint numbered alike), the plain parent and grandparent."""
     out = []
     for j, name in enumerate(sk.names):
-        if _is_ankle(name):
-            shin = _chain_parent(sk, j)
-            thigh = _chain_parent(sk, shin) if shin >= 0 else -1
-            if thigh >= 0 and not _is_ankle(sk.names[shin]):
-                out.append((thigh, shin, j))
+        if not _is_ankle(name):
+            continue
+        shin = _chain_parent(sk, j)
+        if shin < 0 or _is_ankle(sk.names[shin]):
+            continue
+        top = _segment_top(sk, shin)
+        thigh = _chain_parent(sk, top)
+        thigh = _segment_top(sk, thigh) if thigh >= 0 else -1
+        if thigh < 0 or sk.parents[thigh] < 0:  # the segments ran into the root: names do not tell
+            top, thigh = shin, _chain_parent(sk, shin)
+        if thigh >= 0:
+            out.append((thigh, top, j))
     return out
 
 
