@@ -551,6 +551,22 @@ def test_a_gap_that_must_travel_is_not_a_standing_gesture(model, clips):
     # In a transition B takes the segment's place, so nothing asks the bow to travel.
 
 
+def test_long_gaps_average_more_segments(engine):
+    # 16 segments up to 1.1 s of gap, 24 from 1.5 s, more in between and never fewer; in seconds,
+    # so at any frame rate; what the report says was blended.
+    avg = retrieval.segments_averaged
+    assert [avg(n, 30.0) for n in (5, 20, 32)] == [retrieval.TOP_K] * 3
+    assert [avg(n, 30.0) for n in (44, 60, 300)] == [retrieval.TOP_K_LONG] * 3
+    counts = [avg(n, 30.0) for n in range(1, 60)]
+    assert all(b >= a for a, b in zip(counts, counts[1:])) and retrieval.TOP_K < avg(39, 30.0) < retrieval.TOP_K_LONG
+    assert avg(4 * 39 + 3, 120.0) == avg(39, 30.0)  # the same duration at 120 fps
+    name = HELD_OUT[0]
+    for length, want in ((30, retrieval.TOP_K), (45, retrieval.TOP_K_LONG)):
+        engine.generate(name, name, length=length, a_end=20, b_start=20 + length + 1, align=False, method="retrieval")
+        parts = engine.last["retrieval"]["parts"]
+        assert all(p["blended"] == want for p in parts.values()), (length, parts)
+
+
 def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
     from types import SimpleNamespace
 

@@ -14,7 +14,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    IVF), then an exact re-rank of every candidate. ``alpha`` weighs the two seams:
    ``2 (1 - alpha) cost_A + 2 alpha cost_B``: 0 picks motion that continues A, 1 motion that
    arrives in B;
-2. **replays** the best :data:`TOP_K` segments, resampled to ``d`` frames, turned and moved to
+2. **replays** the best :data:`TOP_K` segments (:func:`segments_averaged`: more on long gaps),
+   resampled to ``d`` frames, turned and moved to
    continue A, and averages them (per joint; the trajectory after turning each);
 3. **removes the seam errors** with smooth offsets (:func:`offset_curves`): the value offsets
    at A and B carried from one into the other over the whole gap (a constant offset, such as
@@ -51,7 +52,9 @@ from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
 WARPS = (0.75, 0.85, 0.93, 1.0, 1.08, 1.18, 1.33)  # segment duration / gap duration
-TOP_K = 16  # segments averaged per part
+TOP_K = 16  # segments averaged per part, on gaps up to TOP_K_RAMP_S[0] seconds ...
+TOP_K_LONG = 24  # ... and from TOP_K_RAMP_S[1] seconds on (see segments_averaged)
+TOP_K_RAMP_S = (1.1, 1.5)
 # Seconds over which a seam's velocity offset fades (value offsets span the gap): in in-betweening
 # (B fixed) and in transitions (B placed to continue A); see blend_frames.
 BLEND_S = {False: 0.33, True: 0.67}
@@ -511,6 +514,25 @@ class Retriever:
                 W_DISP)
 
 
+def segments_averaged(length: int, fps: float) -> int:
+    """How many best segments each body part averages on a gap of ``length`` frames:
+    :data:`TOP_K` up to ``TOP_K_RAMP_S[0]`` seconds (from A's last kept frame to B's first,
+    ``(length + 1) / fps``), :data:`TOP_K_LONG` from ``TOP_K_RAMP_S[1]`` on, linear in between.
+
+    The longer the gap, the less its seams decide its middle, and there the mean of more real
+    segments is the better estimate (a smaller expected error, as for any average of
+    plausible futures). Over the six Bandai splits (the bench's protocol), 24 instead of 16 at
+    45 frames (1.53 s): L2Q against SLERP's 0.728x -> 0.722x (five splits lower, one the same),
+    L2P 0.685x -> 0.683x; at 60 / 90 frames 0.780 / 0.867x -> 0.775 / 0.860x; the skate 2%
+    higher at 45 frames (2.09 -> 2.14 cm/s, the truth's 1.6-4.2), 2-4% at 60-90. Weighting the
+    segments by their cost instead was worse (docs/retrieval.md). Gaps up to 1.1 s (33 frames
+    at 30 fps) keep 16: no change there, nor in the time of the 30-frame transition.
+    """
+    lo, hi = TOP_K_RAMP_S
+    u = min(max(((length + 1) / float(fps) - lo) / (hi - lo), 0.0), 1.0)
+    return int(round(TOP_K + u * (TOP_K_LONG - TOP_K)))
+
+
 def _top_k(k: int | None) -> int:
     """How many best segments a search keeps (:data:`TOP_K` by default); at least 1."""
     k = TOP_K if k is None else int(k)
@@ -906,6 +928,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     ``seam``: the seams whose match distance sets the confidence: ``"both"`` (the larger of
     the two), ``"a"`` (A's end only) or ``"b"`` (B's start only), for the two halves of a
     splice (:mod:`posturemap.synth.splice`; ``alpha`` 0 and 1 rank them by that seam alone).
+    ``top_k``: the segments kept per part (default :func:`segments_averaged` of the gap).
     ``shared``: a dict kept by the caller between calls: for calls on the same transition
     (tracks, seams, ``length``, ``align``, ``exhaustive``, ``top_k``) the seams' features, the
     frames gathered for them, their :func:`still_weight` and the searches are made once; a call
@@ -916,6 +939,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     lib = rt.lib
     fps = float(ta.motion.fps)
     d = length + 1.0
+    top_k = segments_averaged(length, fps) if top_k is None else top_k
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
     xa, xb = ta.features[a_end], tb.features[b_start]
