@@ -26,6 +26,7 @@ _NOT_ANKLE = re.compile(r"toe|end", re.IGNORECASE)
 # ``LeftUpLegRoll`` where a rig puts it in the chain): they turn the bone about its own axis,
 # and a leg's chain passes through them to the joint above.
 _TWIST = re.compile(r"twist|roll(?!er)", re.IGNORECASE)
+_END = re.compile(r"end|nub|tip|site", re.IGNORECASE)  # a chain's last joint, past the bone it ends
 _HAND = re.compile(r"hand|wrist", re.IGNORECASE)
 _NOT_HAND = re.compile(r"thumb|index|middle|ring|pinky|finger|end|site", re.IGNORECASE)
 _HEAD = re.compile(r"head", re.IGNORECASE)
@@ -120,13 +121,24 @@ def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
 
 def leg_toes(sk: Skeleton, chains=None) -> np.ndarray:
     """The toe joint of each leg (n_legs,): the ankle's child with the longest bone (``Toes_L``,
-    ``LeftToeBase``), or the ankle itself where it has no child. ``chains`` defaults to
-    :func:`leg_chains`."""
+    ``LeftToeBase``), on down while that joint has a single child not named like an end (Daz's
+    ``lFoot > lMetatarsals > lToe``: the toe, not the middle of the foot; Mixamo's ``LeftToeBase``
+    keeps its ``LeftToe_End`` below), or the ankle itself where it has no child. ``chains``
+    defaults to :func:`leg_chains`."""
     chains = leg_chains(sk) if chains is None else chains
     toes = []
     for _, _, ankle in chains:
         kids = np.flatnonzero(sk.parents == ankle)
-        toes.append(int(kids[np.argmax(np.linalg.norm(sk.offsets[kids], axis=-1))]) if len(kids) else ankle)
+        if not len(kids):
+            toes.append(ankle)
+            continue
+        toe = int(kids[np.argmax(np.linalg.norm(sk.offsets[kids], axis=-1))])
+        while True:
+            kids = np.flatnonzero(sk.parents == toe)
+            if len(kids) != 1 or _END.search(short_name(sk.names[int(kids[0])])):
+                break
+            toe = int(kids[0])
+        toes.append(toe)
     return np.array(toes, dtype=np.int64)
 
 
@@ -152,20 +164,42 @@ def leg_length(sk: Skeleton, chains=None) -> float:
                           for thigh, shin, ankle in chains]))
 
 
+def legs_root(sk: Skeleton, chains=None) -> int:
+    """The joint the legs hang from: the deepest joint above (or at) every thigh of
+    :func:`leg_chains` (the hips, or the pelvis); -1 with fewer than two legs."""
+    chains = leg_chains(sk) if chains is None else chains
+    if len(chains) < 2:
+        return -1
+    common = None
+    for thigh, _, _ in chains:
+        above = set(ancestors(sk.parents, thigh)) | {thigh}
+        common = above if common is None else common & above
+    if not common:
+        return -1
+    depth = sk.depth()
+    return int(max(common, key=lambda j: depth[j]))
+
+
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
     Found by name (the legs of :func:`leg_chains`; "hand"/"wrist" without a finger word, the one
-    nearest the root of a chain of them, as SMPL's ``L_Wrist`` above ``L_Hand``; "head"); where
-    a skeleton has no such names, the leaves outside the legs.
+    nearest the root of a chain of them, as SMPL's ``L_Wrist`` above ``L_Hand``; "head"), among
+    the body's joints (below the root of :func:`posturemap.core.motion.root_index`: not the IK
+    targets a game rig keeps beside the body, as UE's ``ik_hand_root``); where a skeleton has no
+    such names, the leaves outside the legs.
     """
+    from .motion import root_index
+
     chains = leg_chains(sk)
     lower = [c[2] for c in chains] + [c[1] for c in chains]
     leg_joints = {j for c in chains for j in c}
     names = [short_name(n) for n in sk.names]
-    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n)]
+    root = root_index(sk)
+    body = [j == root or root in ancestors(sk.parents, j) for j in range(sk.num_joints)]
+    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n) and body[j]]
     upper = [j for j in upper if not any(_HAND.search(names[p]) for p in ancestors(sk.parents, j))]
-    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)][:1]
+    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n) and body[j]][:1]
     if not upper:  # no names: the leaves outside the legs
         leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
         upper = leaves[:3]

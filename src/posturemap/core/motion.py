@@ -130,18 +130,28 @@ def resample(motion: Motion, fps: float) -> Motion:
 def root_index(motion_or_skeleton) -> int:
     """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 
-    The deepest joint with position channels whose subtree holds at least 90% of the joints:
-    ``Hips`` for Bandai (its ``joint_Root`` above it is a reference node, fixed in most clips
-    and sliding in a few) and for CMU; joint 0 for a skeleton with a single moving root.
-    Motion of the joints above it is kept: features and alignment use the root's *global*
-    transform through them.
+    Where legs are found by name (:func:`posturemap.core.joints.leg_chains`), the joint they
+    hang from, or its nearest ancestor with position channels, if its subtree holds at least half
+    the joints: ``Hips`` for Bandai (its ``joint_Root`` above it is a reference node, fixed in
+    most clips and sliding in a few) and for CMU, ``pelvis`` for Unreal's mannequin (whose
+    ``root`` also holds the IK targets ``ik_foot_root`` and ``ik_hand_root`` beside the body).
+    Otherwise the deepest joint with position channels whose subtree holds at least 90% of the
+    joints; joint 0 for a skeleton with a single moving root. Motion of the joints above it is
+    kept: features and alignment use the root's *global* transform through them.
     """
+    from .joints import legs_root
+
     sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
     j_count = sk.num_joints
     size = np.ones(j_count, dtype=np.int64)
     for j in range(j_count - 1, 0, -1):
         if sk.parents[j] >= 0:
             size[sk.parents[j]] += size[j]
+    j = legs_root(sk)
+    while j >= 0 and not sk.has_position(j):
+        j = int(sk.parents[j])
+    if j >= 0 and size[j] >= 0.5 * j_count:
+        return int(j)
     depth = sk.depth()
     best = 0
     for j in range(j_count):

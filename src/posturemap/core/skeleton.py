@@ -79,22 +79,21 @@ class Skeleton:
     def body_mismatch(self, other: "Skeleton", whose: str = "the other skeleton's") -> str | None:
         """Why clips of this skeleton cannot be mixed with ``other``'s (``whose`` names it in the
         message) though they have the same joints: their bones (the offsets of the joints below the
-        first that branches, the hips: the offsets above it are where a recording starts, not
-        bones) differ in size by more than :data:`BODY_RATIO` (another unit: metres against
+        root, the hips of :func:`posturemap.core.motion.root_index`: the offsets above and at it are
+        where a recording starts, or a game rig's IK targets, not bones) differ in size by more than :data:`BODY_RATIO` (another unit: metres against
         centimetres, inches), or point other ways in the rest pose (the rig's bones laid out for
         another up axis). None when they can. Bodies of one rig a little smaller or larger, or arms
         in a T against an A pose, pass. (A clip turned to another up axis by its root's rotation
         has the same offsets: not seen here.)"""
         if self.offsets.shape != other.offsets.shape:
             return "its joints differ"
-        bones = np.ones(self.num_joints, dtype=bool)
-        j = 0
-        while True:  # from the top joint down to the first that branches
-            bones[j] = False
-            kids = np.flatnonzero(self.parents == j)
-            if len(kids) != 1:
-                break
-            j = int(kids[0])
+        from .motion import root_index
+
+        root = root_index(self)
+        bones = np.zeros(self.num_joints, dtype=bool)  # the joints below the root: parents come first
+        for j in range(root + 1, self.num_joints):
+            p = int(self.parents[j])
+            bones[j] = p == root or (p >= 0 and bones[p])
         a, b = self.offsets[bones], other.offsets[bones]
         la, lb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
         if la.sum() <= 0 or lb.sum() <= 0:

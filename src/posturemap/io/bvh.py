@@ -794,6 +794,7 @@ def dumps(motion: Motion) -> str:
     fmt = "{:.9g}"
     # Iterative depth-first walk (no recursion limit): ("open", j) writes a joint, ("close", j) its brace.
     todo = [("open", j, 0) for j in reversed(range(sk.num_joints)) if sk.parents[j] < 0]
+    order = []  # the joints as written: the MOTION lines give their channels in this order
     while todo:
         kind, j, depth = todo.pop()
         pad = "  " * min(depth, _MAX_INDENT)  # capped: a deep chain must not grow quadratically
@@ -801,6 +802,7 @@ def dumps(motion: Motion) -> str:
             out.write(f"{pad}}}\n")
             continue
         head = "ROOT" if sk.parents[j] < 0 else "JOINT"
+        order.append(j)
         out.write(f"{pad}{head} {sk.names[j]}\n{pad}{{\n")
         out.write(f"{pad}  OFFSET {' '.join(fmt.format(v) for v in sk.offsets[j])}\n")
         out.write(f"{pad}  CHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}\n")
@@ -810,7 +812,10 @@ def dumps(motion: Motion) -> str:
         todo.append(("close", j, depth))
         todo.extend(("open", c, depth + 1) for c in reversed(children[j]))
     out.write(f"MOTION\nFrames: {motion.num_frames}\nFrame Time: {1.0 / motion.fps:.9g}\n")
-    values = _pose_to_channels(motion)
+    values = _pose_to_channels(motion)  # the joints' channels in index order
+    if order != sorted(order):  # a skeleton built in another order than depth first (a file's is not)
+        start = np.concatenate([[0], np.cumsum([len(c) for c in sk.channels])])
+        values = values[:, np.concatenate([np.arange(start[j], start[j + 1]) for j in order]).astype(np.int64)]
     values[np.abs(values) < 1e-12] = 0.0
     np.savetxt(out, values, fmt="%.9g", delimiter=" ")
     return out.getvalue()

@@ -1,0 +1,92 @@
+"""Rigs from other tools: a game rig's IK targets beside the body, toes below a mid-foot joint,
+skeletons built in another joint order than a file's."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posturemap.core.joints import key_joints, leg_chains, leg_toes
+from posturemap.core.motion import Motion, root_index, up_axis
+from posturemap.core.skeleton import Skeleton
+from posturemap.io import bvh
+
+
+def with_ik_targets(m: Motion) -> Motion:
+    """``m`` as Unreal's mannequin lays it out: a ``root`` at the origin above the hips, and
+    beside the body the IK targets ``ik_foot_root > ik_foot_l/r`` and ``ik_hand_root >
+    ik_hand_gun > ik_hand_l/r``, left where they are (as exported from a rig that does not
+    animate them)."""
+    sk = m.skeleton
+    extra = [("ik_foot_root", 0), ("ik_foot_l", 1), ("ik_foot_r", 1), ("ik_hand_root", 0), ("ik_hand_gun", 4),
+             ("ik_hand_l", 5), ("ik_hand_r", 5)]
+    names = ("root",) + tuple(n for n, _ in extra) + sk.names
+    shift = 1 + len(extra)
+    parents = np.array([-1] + [p for _, p in extra] + [p + shift if p >= 0 else 0 for p in sk.parents])
+    offsets = np.vstack([np.zeros((shift, 3)), sk.offsets])
+    offsets[1:shift] = [[0, 0, 0], [10, 5, 0], [-10, 5, 0], [0, 0, 0], [0, 100, 30], [20, 0, 0], [-20, 0, 0]]
+    pos6 = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
+    channels = (pos6,) + (pos6,) * len(extra) + sk.channels
+    ends = tuple((j + shift, o) for j, o in sk.end_sites)
+    out = Skeleton(names, parents, offsets, channels, ends)
+    f = len(m)
+    rots = np.concatenate([np.tile([1.0, 0, 0, 0], (f, shift, 1)), m.rotations], axis=1)
+    pos = np.concatenate([np.broadcast_to(offsets[:shift], (f, shift, 3)), m.positions], axis=1)
+    return Motion(out, rots, pos.copy(), m.fps)
+
+
+def test_a_game_rigs_ik_targets_are_not_the_body(sample_clips):
+    # The IK targets under the root put the hips' subtree under 90% of the joints, and the body
+    # walks away from them: the root is still the hips, the up axis still Y, the hands the hands.
+    m = sample_clips["walk"]
+    ue = with_ik_targets(m)
+    sk = ue.skeleton
+    hips = sk.names.index("Hips")
+    assert root_index(ue) == hips and root_index(m) == 0
+    assert up_axis(ue) == up_axis(m) == 1
+    lower, upper = key_joints(sk)
+    assert sorted(sk.names[j] for j in upper) == ["Hand_L", "Hand_R", "Head"]
+    assert [sk.names[j] for j in lower] == [m.skeleton.names[j] for j in key_joints(m.skeleton)[0]]
+    # The hips' offset (where a recording starts) and the targets are not bones: another take
+    # with them elsewhere is the same rig.
+    other = Skeleton(sk.names, sk.parents, sk.offsets * np.where(np.arange(sk.num_joints)[:, None] <= hips, 3.0, 1.0),
+                     sk.channels, sk.end_sites)
+    assert sk.body_mismatch(other) is None
+    metres = Skeleton(sk.names, sk.parents, sk.offsets / 100.0, sk.channels, sk.end_sites)
+    assert "another unit" in sk.body_mismatch(metres)
+
+
+def test_the_toe_is_the_toe_not_the_middle_of_the_foot():
+    # Daz: lFoot > lMetatarsals > lToe > the toes; Mixamo: LeftToeBase > LeftToe_End.
+    names = ("hip", "lThigh", "lShin", "lFoot", "lMetatarsals", "lToe", "lBigToe", "lSmallToe1",
+             "rThigh", "rShin", "rFoot", "RightToeBase", "RightToe_End")
+    parents = np.array([-1, 0, 1, 2, 3, 4, 5, 5, 0, 8, 9, 10, 11])
+    offsets = np.array([[0, 90, 0], [10, 0, 0], [0, -42, 0], [0, -42, 0], [0, -3, 5], [0, -3, 5], [2, 0, 3],
+                        [-2, 0, 3], [-10, 0, 0], [0, -42, 0], [0, -42, 0], [0, -6, 10], [0, 0, 5]], dtype=float)
+    sk = Skeleton(names, parents, offsets, (("Xrotation",),) * len(names))
+    assert [sk.names[j] for j in leg_toes(sk)] == ["lToe", "RightToeBase"]
+    assert [sk.names[c[2]] for c in leg_chains(sk)] == ["lFoot", "rFoot"]
+
+
+def test_a_skeleton_in_another_joint_order_is_written_as_it_moves(sample_clips, tmp_path):
+    # Parents come before children, but not depth first (both thighs, then both shins...), with
+    # six channels on some joints and three on others: the file's MOTION lines follow its
+    # hierarchy, and it reads back as the same motion.
+    m = sample_clips["walk"]
+    sk = m.skeleton
+    order = [0] + [j for j in range(1, sk.num_joints) if sk.parents[j] == 0]
+    while len(order) < sk.num_joints:
+        order += [j for j in range(sk.num_joints) if j not in order and sk.parents[j] in order]
+    new_of = {j: i for i, j in enumerate(order)}
+    assert order != sorted(order)
+    shuffled = Skeleton(tuple(sk.names[j] for j in order),
+                        np.array([new_of[int(sk.parents[j])] if sk.parents[j] >= 0 else -1 for j in order]),
+                        sk.offsets[order], tuple(sk.channels[j] for j in order),
+                        tuple((new_of[j], o) for j, o in sk.end_sites))
+    moved = Motion(shuffled, m.rotations[:, order], m.positions[:, order], m.fps)
+    path = tmp_path / "shuffled.bvh"
+    bvh.write(path, moved)
+    back = bvh.read(path)
+    g = moved.global_positions()
+    gb = back.global_positions()
+    names = list(back.skeleton.names)
+    np.testing.assert_allclose(gb[:, [names.index(n) for n in shuffled.names]], g, atol=1e-4)
