@@ -411,6 +411,18 @@ def check_sensible(sk, jc):
             assert jc[j] >= jc[p], (sk.names[p], sk.names[j])
 
 
+@pytest.mark.parametrize("arm", [("LShoulder", "LUArm", "LFArm", "LHand"),  # OptiTrack Motive
+                                 ("lCollar", "lShldrBend", "lForearmBend", "lHand")])  # Daz Genesis
+def test_other_tools_arm_names_take_the_arms_classes(arm):
+    # The humanoid's left arm renamed: shoulder and upper arm global, forearm medium, hand detail,
+    # as Bandai's Shoulder_L, UpperArm_L, LowerArm_L, Hand_L (the upper arm was medium, the
+    # forearm detail, from the hierarchy's fallback).
+    names = [f"j{i}" for i in range(len(HUMANOID_PARENTS))]
+    names[5:9] = arm
+    jc = features.assign_classes(make_skeleton(names, HUMANOID_PARENTS), 0)
+    assert [features.CLASSES[c] for c in jc[5:9]] == ["global", "global", "medium", "detail"]
+
+
 def test_unknown_names_humanoid_from_hierarchy():
     names = [f"j{i}" for i in range(len(HUMANOID_PARENTS))]
     sk = make_skeleton(names, HUMANOID_PARENTS)

@@ -43,8 +43,8 @@ TWO_PI = 2.0 * np.pi
 # "mixamorig:" and of side markers before matching. Covers Bandai, CMU, LaFAN1 and Mixamo.
 _NAME_RULES = [
     ("detail", r"hand|wrist|finger|thumb|index|middle|ring|pinky|little|toe|foot|ankle|heel"),
-    ("medium", r"forearm|lowerarm|elbow|lowerleg|shin|calf|knee|neck|head|^leg$"),
-    ("global", r"clavicle|collar|shoulder|upperarm|^arm$|thigh|upleg|upperleg|^hip$"),
+    ("medium", r"forearm|lowerarm|elbow|lowerleg|shin|calf|knee|neck|head|^leg$|^farm$"),  # OptiTrack's LFArm
+    ("global", r"clavicle|collar|shoulder|shldr|upperarm|^arm$|^uarm$|thigh|upleg|upperleg|^hip$"),  # Daz, OptiTrack
     ("body", r"hips|pelvis|root|spine|chest|torso|back|abdomen|waist|hipjoint|^body$"),
 ]
 
