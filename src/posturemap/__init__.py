@@ -22,7 +22,8 @@ __version__ = "0.1.0"
 # Public names and the module that defines each, imported on first use: ``import posturemap``
 # (and so ``posturemap --help``) loads no numpy; the first name used loads its module.
 _EXPORTS = {"BVHError": "io.bvh", "UserError": "errors", "MapFileError": "io.mapfile",
-            "PostureMap": "learn.model", "Motion": "core.motion", "resample": "core.motion", "Skeleton": "core.skeleton",
+            "PostureMap": "learn.model", "Motion": "core.motion", "resample": "core.motion",
+            "Skeleton": "core.skeleton",
             "DEFAULT_METHOD": "synth.request", "METHODS": "synth.request", "TransitionEngine": "synth.engine",
             "transition": "synth.engine", "TransitionRequest": "synth.request", "RequestError": "synth.request",
             "UniformPostureMap": "learn.upm", "MotionLibrary": "synth.library"}

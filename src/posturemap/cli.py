@@ -360,9 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s from A's last "
-                        "kept frame to B's first, (length + 1) / fps, real motion retrieved from the map's library "
-                        "for longer ones; see the README)")
+                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s "
+                        "from A's last kept frame to B's first, (length + 1) / fps, real motion retrieved from "
+                        "the map's library for longer ones; see the README)")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")

@@ -102,8 +102,8 @@ def resample(motion: Motion, fps: float) -> Motion:
     """``motion`` at another frame rate, over the same time: frame ``k`` at ``k / fps`` seconds
     (the first at 0; as many as make the clip's duration to the nearest frame, a last one past
     the end taken at the end), each joint's rotation SLERPed and its translation LERPed between
-    the two recorded frames around it. Clips used together share one
-    rate (a transition's A and B, a map's training clips): this makes one clip the other's.
+    the two recorded frames around it. Clips used together share one rate (a transition's A and
+    B, a map's training clips): this makes one clip the other's.
 
     Raises ValueError for a rate that is not a finite number in (0, 10000] (0.1 ms a frame).
     """

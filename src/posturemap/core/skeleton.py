@@ -80,7 +80,8 @@ class Skeleton:
         """Why clips of this skeleton cannot be mixed with ``other``'s (``whose`` names it in the
         message) though they have the same joints: their bones (the offsets of the joints below the
         root, the hips of :func:`posturemap.core.motion.root_index`: the offsets above and at it are
-        where a recording starts, or a game rig's IK targets, not bones) differ in size by more than :data:`BODY_RATIO` (another unit: metres against
+        where a recording starts, or a game rig's IK targets, not bones) differ in size by more
+        than :data:`BODY_RATIO` (another unit: metres against
         centimetres, inches), or point other ways in the rest pose (the rig's bones laid out for
         another up axis). None when they can. Bodies of one rig a little smaller or larger, or arms
         in a T against an A pose, pass. (A clip turned to another up axis by its root's rotation

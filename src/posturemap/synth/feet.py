@@ -126,8 +126,9 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     foot is not held, ``floor`` the floor's height for this toe. In a free frame the toe's
     horizontal speed (central differences, one-sided at the ends) asks for ``clear * body``
     (``TOE_CLEAR``; 0 for the ankle of a foot without a toe joint) times ``(v - v0) / (v1 - v0)``
-    clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per second) above the floor; a held foot's toe asks for the floor itself (a retrieved stance can
-    put it a few centimetres under it). The shortfall of a frame's height below that is its
+    clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per second) above the floor; a
+    held foot's toe asks for the floor itself (a retrieved stance can put it a few centimetres
+    under it). The shortfall of a frame's height below that is its
     deficit. With ``r = round(CLEAR_S * fps)`` (at least 1), the free frames' deficits and the
     held frames' each give a lift, the mean over ``[t - r, t + r]`` of the largest deficit within
     ``r`` of each frame: at least the deficit at every frame, rising and falling linearly over
