@@ -38,7 +38,7 @@ def test_resample_keeps_the_time_and_the_recorded_frames(sample_clips):
     # A rate within 0.1% is the same rate: a copy.
     same = resample(m, m.fps * (1 + 1e-4))
     assert same.fps == m.fps and np.array_equal(same.rotations, m.rotations) and same.rotations is not m.rotations
-    for bad in (0.0, -30.0, float("nan"), float("inf"), 2e4):
+    for bad in (0.0, -30.0, 0.05, float("nan"), float("inf"), 2e4):
         with pytest.raises(ValueError, match="fps"):
             resample(m, bad)
     assert posturemap.resample is resample
@@ -67,7 +67,7 @@ def test_resample_command(capsys, tmp_path, sample_clips):
     assert f"{len(r)} frames at 60 fps" in stdout
     np.testing.assert_allclose(r.global_positions()[::2], bvh.read(src).global_positions(), atol=1e-3)
     assert option_refused(capsys, "resample", src, "--fps", "0", "-o", out).startswith(
-        "posturemap: error: --fps: must be a frame rate in (0, 10000]")
+        "posturemap: error: --fps: must be a frame rate in [0.1, 10000]")
     assert_refused(capsys, tmp_path / "w.txt", "resample", src, "--fps", "24", "-o", tmp_path / "w.txt",
                    words=[".bvh, .glb or .gltf"])
     assert not (tmp_path / "w.txt").exists()

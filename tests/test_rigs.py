@@ -90,3 +90,59 @@ def test_a_skeleton_in_another_joint_order_is_written_as_it_moves(sample_clips, 
     gb = back.global_positions()
     names = list(back.skeleton.names)
     np.testing.assert_allclose(gb[:, [names.index(n) for n in shuffled.names]], g, atol=1e-4)
+
+
+def two_legs(names_left, names_right, above=("Reference", "Hips"), upper=("Spine", "Head")):
+    """A skeleton: ``above`` in a chain (the first and last with position channels), the two legs
+    and ``upper`` (a chain) hanging from its last joint, each joint 10 units below (legs) or above
+    (spine) its parent."""
+    names = list(above) + list(names_left) + list(names_right) + list(upper)
+    parents, offsets = [], []
+    for i, _ in enumerate(above):
+        parents.append(i - 1)
+        offsets.append([0.0, 90.0 if i else 0.0, 0.0])
+    hip = len(above) - 1
+    for chain, side in ((names_left, 1.0), (names_right, -1.0)):
+        for k, _ in enumerate(chain):
+            parents.append(hip if k == 0 else len(parents) - 1)
+            offsets.append([10.0 * side, 0.0, 0.0] if k == 0 else [0.0, -10.0, 0.0])
+    for k, _ in enumerate(upper):
+        parents.append(hip if k == 0 else len(parents) - 1)
+        offsets.append([0.0, 10.0, 0.0])
+    pos6 = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
+    return Skeleton(tuple(names), np.array(parents), np.array(offsets),
+                    tuple(pos6 if p < 0 or n == above[-1] else ("Zrotation", "Xrotation", "Yrotation")
+                          for n, p in zip(names, parents)))
+
+
+def test_legs_whose_bones_differ_by_a_number_only_keep_their_thigh():
+    # L_Leg1 > L_Leg2 > L_Foot: merging the numbered segments would give both legs the hips as
+    # their thigh; the plain parent and grandparent instead.
+    sk = two_legs(("L_Leg1", "L_Leg2", "L_Foot"), ("R_Leg1", "R_Leg2", "R_Foot"))
+    assert [tuple(sk.names[j] for j in c) for c in leg_chains(sk)] == [("L_Leg1", "L_Leg2", "L_Foot"),
+                                                                      ("R_Leg1", "R_Leg2", "R_Foot")]
+
+
+def test_a_roll_joint_named_like_a_foot_is_passed_through_to_the_ankle():
+    sk = two_legs(("LeftUpLeg", "LeftLeg", "LeftFootRoll", "LeftFoot", "LeftToeBase"),
+                  ("RightUpLeg", "RightLeg", "RightFootRoll", "RightFoot", "RightToeBase"))
+    assert [tuple(sk.names[j] for j in c) for c in leg_chains(sk)] == [("LeftUpLeg", "LeftLeg", "LeftFoot"),
+                                                                      ("RightUpLeg", "RightLeg", "RightFoot")]
+    assert [sk.names[j] for j in leg_toes(sk)] == ["LeftToeBase", "RightToeBase"]
+
+
+def test_the_root_holds_the_head_and_hands_too():
+    # Legs under a pelvis that holds half the joints, the spine beside it under the top joint:
+    # the pelvis is not the body's root.
+    sk = two_legs(("LeftUpLeg", "LeftUpLegTwist", "LeftLeg", "LeftLegTwist", "LeftFoot", "LeftToeBase"),
+                  ("RightUpLeg", "RightUpLegTwist", "RightLeg", "RightLegTwist", "RightFoot", "RightToeBase"),
+                  above=("Root", "Pelvis"), upper=())
+    spine = ("Spine", "Chest", "Neck", "Head")
+    names = sk.names + spine
+    parents = np.concatenate([sk.parents, [0, len(sk.names), len(sk.names) + 1, len(sk.names) + 2]])
+    offsets = np.vstack([sk.offsets, [[0, 100, 0], [0, 10, 0], [0, 20, 0], [0, 10, 0]]])
+    full = Skeleton(names, parents, offsets, sk.channels + (("Zrotation", "Xrotation", "Yrotation"),) * 4)
+    assert full.names[root_index(full)] == "Root"
+    assert sk.names[root_index(sk)] == "Pelvis"  # no head or hands named elsewhere: the legs' joint
+    _, upper = key_joints(full)
+    assert [full.names[j] for j in upper] == ["Head"]

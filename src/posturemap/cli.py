@@ -372,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("resample", help="write a BVH clip at another frame rate (clips used together share one rate)")
     s.add_argument("input", metavar="IN.bvh")
-    s.add_argument("--fps", type=_checked(float, lambda v: 0.0 < v <= 10000.0, "a frame rate in (0, 10000]"),
+    s.add_argument("--fps", type=_checked(float, lambda v: 0.1 <= v <= 10000.0, "a frame rate in [0.1, 10000]"),
                    required=True, help="the new frame rate (frames per second)")
     s.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="file to write: .bvh (the clip's skeleton and channels) or .glb / .gltf")

@@ -91,7 +91,19 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     numbered parts (MakeHuman's ``upperleg01.L > upperleg02.L > lowerleg01.L > lowerleg02.L >
     foot.L``, Rigify's ``DEF-thigh.L > DEF-thigh.L.001 > DEF-shin.L > DEF-shin.L.001``): they
     keep their rotations and stay inside the thigh or the shin. Where that would leave no
-    distinct thigh (every joint numbered alike), the plain parent and grandparent."""
+    distinct thigh (every joint numbered alike, or thigh and shin named alike but for a number,
+    so that two legs would share the hips as their thigh), the plain parent and grandparent."""
+    chains = _leg_chains(sk, segments=True)
+    # Bones told apart by number only (L_Leg1 > L_Leg2 > L_Foot) would run into the hips: a thigh
+    # shared by two legs, or above another leg's, is no thigh. Then no segments are merged.
+    thighs = [c[0] for c in chains]
+    if len(set(thighs)) < len(thighs) or any(t in ancestors(sk.parents, u) for t in thighs for u in thighs):
+        chains = _leg_chains(sk, segments=False)
+    return chains
+
+
+def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
+    """:func:`leg_chains`, passing through numbered segments (``segments``) or not."""
     out = []
     for j, name in enumerate(sk.names):
         if not _is_ankle(name):
@@ -99,14 +111,17 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
         shin = _chain_parent(sk, j)
         if shin < 0 or _is_ankle(sk.names[shin]):
             continue
-        top = _segment_top(sk, shin)
+        top = _segment_top(sk, shin) if segments else shin
         thigh = _chain_parent(sk, top)
-        thigh = _segment_top(sk, thigh) if thigh >= 0 else -1
+        thigh = _segment_top(sk, thigh) if thigh >= 0 and segments else thigh
         if thigh < 0 or sk.parents[thigh] < 0:  # the segments ran into the root: names do not tell
             top, thigh = shin, _chain_parent(sk, shin)
         if thigh >= 0:
             out.append((thigh, top, j))
-    return out
+    # A roll joint named like a foot above the ankle (LeftFootRoll > LeftFoot) is passed through
+    # by the ankle below it: the leg is that ankle's, not the roll joint's.
+    ankles = [c[2] for c in out]
+    return [c for c in out if not any(c[2] in ancestors(sk.parents, a) for a in ankles)]
 
 
 def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
@@ -180,6 +195,13 @@ def legs_root(sk: Skeleton, chains=None) -> int:
     return int(max(common, key=lambda j: depth[j]))
 
 
+def named_hands_and_head(sk: Skeleton) -> tuple[list[int], list[int]]:
+    """The joints named like a hand or wrist (not a finger) and like a head."""
+    names = [short_name(n) for n in sk.names]
+    return ([j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n)],
+            [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)])
+
+
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
@@ -197,9 +219,9 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     names = [short_name(n) for n in sk.names]
     root = root_index(sk)
     body = [j == root or root in ancestors(sk.parents, j) for j in range(sk.num_joints)]
-    upper = [j for j, n in enumerate(names) if _HAND.search(n) and not _NOT_HAND.search(n) and body[j]]
-    upper = [j for j in upper if not any(_HAND.search(names[p]) for p in ancestors(sk.parents, j))]
-    upper += [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n) and body[j]][:1]
+    hands, heads = named_hands_and_head(sk)
+    upper = [j for j in hands if body[j] and not any(_HAND.search(names[p]) for p in ancestors(sk.parents, j))]
+    upper += [j for j in heads if body[j]][:1]
     if not upper:  # no names: the leaves outside the legs
         leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
         upper = leaves[:3]

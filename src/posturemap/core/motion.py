@@ -95,7 +95,7 @@ def concatenate(motions: list[Motion]) -> Motion:
                   np.concatenate([m.positions for m in motions]), first.fps, source)
 
 
-MAX_FPS = 10000.0  # as a BVH frame time of 0.1 ms (posturemap.io.bvh)
+MIN_FPS, MAX_FPS = 0.1, 10000.0  # as a BVH frame time of 10 s .. 0.1 ms (posturemap.io.bvh)
 
 
 def resample(motion: Motion, fps: float) -> Motion:
@@ -105,13 +105,16 @@ def resample(motion: Motion, fps: float) -> Motion:
     the two recorded frames around it. Clips used together share one rate (a transition's A and
     B, a map's training clips): this makes one clip the other's.
 
-    Raises ValueError for a rate that is not a finite number in (0, 10000] (0.1 ms a frame).
+    Raises ValueError for a rate outside [0.1, 10000] (a BVH frame time of 10 s to 0.1 ms, what
+    the reader takes) and for a motion with no frame.
     """
     from . import quat
 
     fps = float(fps)
-    if not (np.isfinite(fps) and 0.0 < fps <= MAX_FPS):
-        raise ValueError(f"fps must be a number in (0, {MAX_FPS:g}], got {fps:g}")
+    if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise ValueError(f"fps must be a number in [{MIN_FPS:g}, {MAX_FPS:g}], got {fps:g}")
+    if motion.num_frames == 0:
+        raise ValueError("a motion with no frame has no rate to change")
     if same_fps(fps, motion.fps):
         return Motion(motion.skeleton, motion.rotations.copy(), motion.positions.copy(), motion.fps,
                       None if motion.source is None else motion.source.copy())
@@ -139,7 +142,7 @@ def root_index(motion_or_skeleton) -> int:
     joints; joint 0 for a skeleton with a single moving root. Motion of the joints above it is
     kept: features and alignment use the root's *global* transform through them.
     """
-    from .joints import legs_root
+    from .joints import ancestors, legs_root, named_hands_and_head
 
     sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
     j_count = sk.num_joints
@@ -151,7 +154,11 @@ def root_index(motion_or_skeleton) -> int:
     while j >= 0 and not sk.has_position(j):
         j = int(sk.parents[j])
     if j >= 0 and size[j] >= 0.5 * j_count:
-        return int(j)
+        # ... holding the body's hands and head too, where some are named (a pelvis that holds
+        # the legs alone, beside the spine, is not the body's root)
+        below = {k for k in range(j_count) if k == j or j in ancestors(sk.parents, k)}
+        if all(not named or below.intersection(named) for named in named_hands_and_head(sk)):
+            return int(j)
     depth = sk.depth()
     best = 0
     for j in range(j_count):
