@@ -85,7 +85,8 @@ def test_issue12_chain_of_9999_joints_reads_in_linear_time(tmp_path, capsys):
     # Bone classes were found with a scan of all joints per joint on the spine and an ancestor
     # walk per joint (quadratic: 13-24 s); now one pass each. The time itself is measured by
     # bench/fuzz_long.py (no timing asserts in unit tests): here the result must be right.
-    from posturemap.learn.features import assign_classes, subtree_mask
+    from posturemap.core.joints import subtree_mask
+    from posturemap.learn.features import assign_classes
 
     path = tmp_path / "chain.bvh"
     path.write_text(chain(9999))

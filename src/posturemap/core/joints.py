@@ -57,28 +57,31 @@ def _is_ankle(name: str) -> bool:
     return bool(_ANKLE.search(n)) and not _NOT_ANKLE.search(n)
 
 
-def _chain_parent(sk: Skeleton, j: int) -> int:
-    """The parent of ``j`` in a limb's chain: its parent, or above any twist or roll joints (by
-    name) between them; -1 at the top."""
-    p = int(sk.parents[j])
-    while p >= 0 and _TWIST.search(short_name(sk.names[p])):
-        p = int(sk.parents[p])
-    return p
+def subtree_mask(parents: np.ndarray, root: int) -> np.ndarray:
+    """Bool (J,): ``root`` and its descendants (one pass: parents come before children); all
+    False for ``root`` -1."""
+    mask = np.zeros(len(parents), dtype=bool)
+    if root >= 0:
+        mask[root] = True
+        for k in range(root + 1, len(parents)):
+            p = parents[k]
+            mask[k] = p >= 0 and mask[p]
+    return mask
+
+
+def _below_any(parents: np.ndarray, marked: np.ndarray) -> np.ndarray:
+    """Bool (J,): the joints with a ``marked`` joint strictly above them (one pass)."""
+    out = np.zeros(len(parents), dtype=bool)
+    for k in range(len(parents)):
+        p = parents[k]
+        out[k] = p >= 0 and (out[p] or marked[p])
+    return out
 
 
 def _stem(name: str) -> str:
     """A joint's name without its numbers: the segments of one bone share it (MakeHuman's
     ``upperleg01.L``, ``upperleg02.L``; Rigify's ``DEF-shin.L``, ``DEF-shin.L.001``)."""
     return re.sub(r"[._\- ]+$", "", re.sub(r"\d+", "", short_name(name))).lower()
-
-
-def _segment_top(sk: Skeleton, j: int) -> int:
-    """The first joint of the bone ``j`` belongs to: up through its parents while they carry
-    ``j``'s name but for numbers."""
-    stem = _stem(sk.names[j])
-    while stem and sk.parents[j] >= 0 and _stem(sk.names[int(sk.parents[j])]) == stem:
-        j = int(sk.parents[j])
-    return j
 
 
 def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
@@ -97,31 +100,50 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     # Bones told apart by number only (L_Leg1 > L_Leg2 > L_Foot) would run into the hips: a thigh
     # shared by two legs, or above another leg's, is no thigh. Then no segments are merged.
     thighs = [c[0] for c in chains]
-    if len(set(thighs)) < len(thighs) or any(t in ancestors(sk.parents, u) for t in thighs for u in thighs):
+    is_thigh = np.zeros(sk.num_joints, dtype=bool)
+    is_thigh[thighs] = True
+    if len(set(thighs)) < len(thighs) or _below_any(sk.parents, is_thigh)[thighs].any():
         chains = _leg_chains(sk, segments=False)
     return chains
 
 
 def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
-    """:func:`leg_chains`, passing through numbered segments (``segments``) or not."""
+    """:func:`leg_chains`, passing through numbered segments (``segments``) or not; linear in
+    the joints (a hostile file may hold thousands)."""
+    parents, n = sk.parents, sk.num_joints
+    ankle = np.array([_is_ankle(x) for x in sk.names], dtype=bool)
+    twist = [bool(_TWIST.search(short_name(x))) for x in sk.names]
+    stems = [_stem(x) for x in sk.names]
+    up = np.full(n, -1, dtype=np.int64)  # each joint's parent in a limb's chain: past twist and roll joints
+    top = np.arange(n)  # the first joint of the bone each joint belongs to (numbered segments)
+    for k in range(n):
+        p = int(parents[k])
+        if p >= 0:
+            up[k] = up[p] if twist[p] else p
+            if segments and stems[k] and stems[p] == stems[k]:
+                top[k] = top[p]
     out = []
-    for j, name in enumerate(sk.names):
-        if not _is_ankle(name):
+    for j in np.flatnonzero(ankle).tolist():
+        shin = int(up[j])
+        if shin < 0 or ankle[shin]:
             continue
-        shin = _chain_parent(sk, j)
-        if shin < 0 or _is_ankle(sk.names[shin]):
-            continue
-        top = _segment_top(sk, shin) if segments else shin
-        thigh = _chain_parent(sk, top)
-        thigh = _segment_top(sk, thigh) if thigh >= 0 and segments else thigh
-        if thigh < 0 or sk.parents[thigh] < 0:  # the segments ran into the root: names do not tell
-            top, thigh = shin, _chain_parent(sk, shin)
+        first = int(top[shin])
+        thigh = int(up[first])
+        thigh = int(top[thigh]) if thigh >= 0 else -1
+        if thigh < 0 or parents[thigh] < 0:  # the segments ran into the root: names do not tell
+            first, thigh = shin, int(up[shin])
         if thigh >= 0:
-            out.append((thigh, top, j))
+            out.append((thigh, first, j))
     # A roll joint named like a foot above the ankle (LeftFootRoll > LeftFoot) is passed through
     # by the ankle below it: the leg is that ankle's, not the roll joint's.
-    ankles = [c[2] for c in out]
-    return [c for c in out if not any(c[2] in ancestors(sk.parents, a) for a in ankles)]
+    is_ankle = np.zeros(n, dtype=bool)
+    is_ankle[[c[2] for c in out]] = True
+    has_ankle_below = np.zeros(n, dtype=bool)
+    for k in range(n - 1, 0, -1):  # children come after their parents
+        p = parents[k]
+        if p >= 0 and (has_ankle_below[k] or is_ankle[k]):
+            has_ankle_below[p] = True
+    return [c for c in out if not has_ankle_below[c[2]]]
 
 
 def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
@@ -141,18 +163,19 @@ def leg_toes(sk: Skeleton, chains=None) -> np.ndarray:
     keeps its ``LeftToe_End`` below), or the ankle itself where it has no child. ``chains``
     defaults to :func:`leg_chains`."""
     chains = leg_chains(sk) if chains is None else chains
+    has_parent = sk.parents >= 0
+    n_kids = np.bincount(sk.parents[has_parent], minlength=sk.num_joints)
+    last_kid = np.full(sk.num_joints, -1, dtype=np.int64)  # a joint's only child, where it has one
+    last_kid[sk.parents[has_parent]] = np.flatnonzero(has_parent)
     toes = []
     for _, _, ankle in chains:
-        kids = np.flatnonzero(sk.parents == ankle)
-        if not len(kids):
+        kids = sk.children(ankle)
+        if not kids:
             toes.append(ankle)
             continue
-        toe = int(kids[np.argmax(np.linalg.norm(sk.offsets[kids], axis=-1))])
-        while True:
-            kids = np.flatnonzero(sk.parents == toe)
-            if len(kids) != 1 or _END.search(short_name(sk.names[int(kids[0])])):
-                break
-            toe = int(kids[0])
+        toe = kids[int(np.argmax(np.linalg.norm(sk.offsets[kids], axis=-1)))]
+        while n_kids[toe] == 1 and not _END.search(short_name(sk.names[last_kid[toe]])):
+            toe = int(last_kid[toe])
         toes.append(toe)
     return np.array(toes, dtype=np.int64)
 
@@ -185,14 +208,14 @@ def legs_root(sk: Skeleton, chains=None) -> int:
     chains = leg_chains(sk) if chains is None else chains
     if len(chains) < 2:
         return -1
-    common = None
+    count = np.zeros(sk.num_joints, dtype=np.int64)  # the thighs at or below each joint
     for thigh, _, _ in chains:
-        above = set(ancestors(sk.parents, thigh)) | {thigh}
-        common = above if common is None else common & above
-    if not common:
-        return -1
-    depth = sk.depth()
-    return int(max(common, key=lambda j: depth[j]))
+        count[thigh] += 1
+    for k in range(sk.num_joints - 1, 0, -1):
+        if sk.parents[k] >= 0:
+            count[sk.parents[k]] += count[k]
+    common = np.flatnonzero(count == len(chains))
+    return int(common[np.argmax(sk.depth()[common])]) if len(common) else -1
 
 
 def named_hands_and_head(sk: Skeleton) -> tuple[list[int], list[int]]:
@@ -217,10 +240,12 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     lower = [c[2] for c in chains] + [c[1] for c in chains]
     leg_joints = {j for c in chains for j in c}
     names = [short_name(n) for n in sk.names]
-    root = root_index(sk)
-    body = [j == root or root in ancestors(sk.parents, j) for j in range(sk.num_joints)]
+    body = subtree_mask(sk.parents, root_index(sk))
     hands, heads = named_hands_and_head(sk)
-    upper = [j for j in hands if body[j] and not any(_HAND.search(names[p]) for p in ancestors(sk.parents, j))]
+    is_hand = np.zeros(sk.num_joints, dtype=bool)
+    is_hand[hands] = True
+    below_hand = _below_any(sk.parents, is_hand)
+    upper = [j for j in hands if body[j] and not below_hand[j]]
     upper += [j for j in heads if body[j]][:1]
     if not upper:  # no names: the leaves outside the legs
         leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
@@ -236,12 +261,10 @@ def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:
     lower = np.zeros(j, dtype=bool)
     for thigh, _, _ in leg_chains(sk):
         lower[thigh] = True
-    below = np.zeros(j, dtype=bool)
-    below[root] = True
     for k in range(j):  # parents come first
         p = sk.parents[k]
         if p >= 0:
             lower[k] |= lower[p]
-            below[k] |= below[p]
+    below = subtree_mask(sk.parents, root)
     lower[root] = True
     return lower & below, below & ~lower

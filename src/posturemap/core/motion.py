@@ -142,7 +142,7 @@ def root_index(motion_or_skeleton) -> int:
     joints; joint 0 for a skeleton with a single moving root. Motion of the joints above it is
     kept: features and alignment use the root's *global* transform through them.
     """
-    from .joints import ancestors, legs_root, named_hands_and_head
+    from .joints import legs_root, named_hands_and_head, subtree_mask
 
     sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
     j_count = sk.num_joints
@@ -156,8 +156,8 @@ def root_index(motion_or_skeleton) -> int:
     if j >= 0 and size[j] >= 0.5 * j_count:
         # ... holding the body's hands and head too, where some are named (a pelvis that holds
         # the legs alone, beside the spine, is not the body's root)
-        below = {k for k in range(j_count) if k == j or j in ancestors(sk.parents, k)}
-        if all(not named or below.intersection(named) for named in named_hands_and_head(sk)):
+        below = subtree_mask(sk.parents, j)
+        if all(not named or below[named].any() for named in named_hands_and_head(sk)):
             return int(j)
     depth = sk.depth()
     best = 0

@@ -81,20 +81,18 @@ class Skeleton:
         message) though they have the same joints: their bones (the offsets of the joints below the
         root, the hips of :func:`posturemap.core.motion.root_index`: the offsets above and at it are
         where a recording starts, or a game rig's IK targets, not bones) differ in size by more
-        than :data:`BODY_RATIO` (another unit: metres against
-        centimetres, inches), or point other ways in the rest pose (the rig's bones laid out for
-        another up axis). None when they can. Bodies of one rig a little smaller or larger, or arms
+        than :data:`BODY_RATIO` (another unit: metres against centimetres, inches), or point other
+        ways in the rest pose (the rig's bones laid out for another up axis). None when they can. Bodies of one rig a little smaller or larger, or arms
         in a T against an A pose, pass. (A clip turned to another up axis by its root's rotation
         has the same offsets: not seen here.)"""
         if self.offsets.shape != other.offsets.shape:
             return "its joints differ"
+        from .joints import subtree_mask
         from .motion import root_index
 
         root = root_index(self)
-        bones = np.zeros(self.num_joints, dtype=bool)  # the joints below the root: parents come first
-        for j in range(root + 1, self.num_joints):
-            p = int(self.parents[j])
-            bones[j] = p == root or (p >= 0 and bones[p])
+        bones = subtree_mask(self.parents, root)  # the joints below the root
+        bones[root] = False
         a, b = self.offsets[bones], other.offsets[bones]
         la, lb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
         if la.sum() <= 0 or lb.sum() <= 0:

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import quat
+from ..core.joints import subtree_mask
 from ..errors import UserError
 from ..core.motion import Motion, root_index, up_axis, up_vector
 
@@ -109,15 +110,6 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
                 break
     out[root] = 0
     return out
-
-
-def subtree_mask(parents: np.ndarray, root: int) -> np.ndarray:
-    """Bool (J,): ``root`` and its descendants (one pass; parents come before children)."""
-    mask = np.zeros(len(parents), dtype=bool)
-    mask[root] = True
-    for j in range(root + 1, len(parents)):
-        mask[j] = parents[j] >= 0 and mask[parents[j]]
-    return mask
 
 
 def load_class_overrides(path: str, names: tuple[str, ...]) -> dict[str, str]:
