@@ -481,6 +481,15 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
 
 
 @nb.njit(**_OPTS)
+def _carried(g, grot, t, top, joint):
+    """The new global rotation of ``joint`` (frame ``t``) below ``top``, whose new global rotation
+    is ``g`` (a 4-tuple): the joints between keep their local rotations, so ``joint`` turns as
+    ``top`` did: ``g grot[top]^-1 grot[joint]``."""
+    g = _mul(g[0], g[1], g[2], g[3], grot[t, top, 0], -grot[t, top, 1], -grot[t, top, 2], -grot[t, top, 3])
+    return _mul(g[0], g[1], g[2], g[3], grot[t, joint, 0], grot[t, joint, 1], grot[t, joint, 2], grot[t, joint, 3])
+
+
+@nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
               weights):
@@ -652,16 +661,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             p = parents[thigh]
             sg = _mul(grot[t, p, 0], grot[t, p, 1], grot[t, p, 2], grot[t, p, 3], th[0], th[1], th[2], th[3])
             if parents[shin] != thigh:
-                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, thigh, 0], -grot[t, thigh, 1], -grot[t, thigh, 2],
-                          -grot[t, thigh, 3])
-                q = parents[shin]
-                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, q, 0], grot[t, q, 1], grot[t, q, 2], grot[t, q, 3])
+                sg = _carried(sg, grot, t, thigh, parents[shin])
             sg = _mul(sg[0], sg[1], sg[2], sg[3], sh[0], sh[1], sh[2], sh[3])
             if parents[ankle] != shin:
-                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, shin, 0], -grot[t, shin, 1], -grot[t, shin, 2],
-                          -grot[t, shin, 3])
-                q = parents[ankle]
-                sg = _mul(sg[0], sg[1], sg[2], sg[3], grot[t, q, 0], grot[t, q, 1], grot[t, q, 2], grot[t, q, 3])
+                sg = _carried(sg, grot, t, shin, parents[ankle])
             ft = _mul(sg[0], -sg[1], -sg[2], -sg[3], grot[t, ankle, 0], grot[t, ankle, 1], grot[t, ankle, 2],
                       grot[t, ankle, 3])
             for c in range(4):

@@ -82,6 +82,7 @@ try:  # the "web" extra
     from starlette.staticfiles import StaticFiles
 except ImportError:  # pragma: no cover - reported by run_cli / create_app
     Starlette = None
+_NEEDS_WEB = "needs the web extra: pip install 'posturemap[web]' (in a checkout: pip install -e '.[web]')"
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 VENDOR_FILES = ("three.module.js", "three.core.js", "addons/controls/OrbitControls.js")
@@ -103,8 +104,7 @@ def create_app(clips: dict[str, Motion], model=None, *, train: bool = True, epoc
     The :class:`Studio` is ``app.state.studio``.
     """
     if Starlette is None:
-        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]' "
-                                         "(in a checkout: pip install -e '.[web]')")
+        raise UserError("serve", _NEEDS_WEB)
     studio = Studio(clips, model, train=train, epochs=epochs, seed=seed, log=log)
     from starlette.concurrency import run_in_threadpool
 
@@ -230,8 +230,7 @@ def running(app, host: str = "127.0.0.1", port: int = 0):
 def run_cli(args) -> int:
     """``posturemap serve``: load the clips, the map (or learn one in the background) and serve."""
     if Starlette is None:
-        raise UserError("serve", "needs the web extra: pip install 'posturemap[web]' "
-                                         "(in a checkout: pip install -e '.[web]')")
+        raise UserError("serve", _NEEDS_WEB)
     import uvicorn
 
     def log(line: str):
