@@ -146,3 +146,19 @@ def test_the_root_holds_the_head_and_hands_too():
     assert sk.names[root_index(sk)] == "Pelvis"  # no head or hands named elsewhere: the legs' joint
     _, upper = key_joints(full)
     assert [full.names[j] for j in upper] == ["Head"]
+
+
+def test_offsets_near_the_float_limit_are_refused_in_one_line(sample_clips):
+    # A bone of 1e308 units: its length overflows; said as such (no numpy warning on stderr),
+    # naming whichever skeleton holds it.
+    import warnings
+
+    sk = sample_clips["walk"].skeleton
+    offsets = sk.offsets.copy()
+    offsets[sk.names.index("Spine")] = 1e308
+    huge = Skeleton(sk.names, sk.parents, offsets, sk.channels, sk.end_sites)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert huge.body_mismatch(sk) == "its bone offsets are too large to be lengths"
+        assert sk.body_mismatch(huge, "A's") == "A's bone offsets are too large to be lengths"
+        assert sk.body_mismatch(sk) is None

@@ -94,10 +94,16 @@ class Skeleton:
         bones = subtree_mask(self.parents, root)  # the joints below the root
         bones[root] = False
         a, b = self.offsets[bones], other.offsets[bones]
-        la, lb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
-        if la.sum() <= 0 or lb.sum() <= 0:
+        with np.errstate(over="ignore", invalid="ignore"):  # offsets near the float limit: said below
+            la, lb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+            total_a, total_b = la.sum(), lb.sum()
+        if not np.isfinite(total_a):
+            return "its bone offsets are too large to be lengths"
+        if not np.isfinite(total_b):
+            return f"{whose} bone offsets are too large to be lengths"
+        if total_a <= 0 or total_b <= 0:
             return None  # no bone lengths to compare
-        ratio = float(la.sum() / lb.sum())
+        ratio = float(total_a / total_b)
         if not 1 / BODY_RATIO <= ratio <= BODY_RATIO:
             return f"its bones are {ratio:.3g} times as long as {whose} (another unit?)"
         both = (la > 0) & (lb > 0)
