@@ -139,6 +139,18 @@ def _check_output(path: str):
         raise UserError(path, "is a folder, expected a file name")
 
 
+def _is_gltf_output(path: str) -> bool:
+    """Whether ``path`` asks for glTF (.glb, .gltf) rather than BVH (.bvh); any other ending is
+    a :class:`UserError` (the ending sets the format)."""
+    from .io import gltf
+
+    if gltf.is_gltf_path(path):
+        return True
+    if not path.lower().endswith(".bvh"):
+        raise UserError(path, "the output's name must end in .bvh, .glb or .gltf (it sets the format)")
+    return False
+
+
 def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
@@ -147,9 +159,7 @@ def _cmd_transition(args) -> int:
     from .synth.request import KEYED, RequestError, TransitionRequest
     from .core.joints import leg_chains
 
-    as_gltf = gltf.is_gltf_path(args.output)
-    if not as_gltf and not args.output.lower().endswith(".bvh"):
-        raise UserError(args.output, "the output's name must end in .bvh, .glb or .gltf (it sets the format)")
+    as_gltf = _is_gltf_output(args.output)
     if args.split_animations and not as_gltf:
         raise UserError("--split-animations", "needs a glTF output (-o ending in .glb or .gltf)")
     if args.preview:
@@ -213,9 +223,7 @@ def _cmd_resample(args) -> int:
     from .io import bvh, gltf
     from .core.motion import resample
 
-    as_gltf = gltf.is_gltf_path(args.output)
-    if not as_gltf and not args.output.lower().endswith(".bvh"):
-        raise UserError(args.output, "the output's name must end in .bvh, .glb or .gltf (it sets the format)")
+    as_gltf = _is_gltf_output(args.output)
     _check_output(args.output)
     m = bvh.read(args.input)
     out = resample(m, args.fps)

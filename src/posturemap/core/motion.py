@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import quat
 from .skeleton import Skeleton, fk
 
 AXES = "XYZ"
@@ -108,8 +109,6 @@ def resample(motion: Motion, fps: float) -> Motion:
     Raises ValueError for a rate outside [0.1, 10000] (a BVH frame time of 10 s to 0.1 ms, what
     the reader takes) and for a motion with no frame.
     """
-    from . import quat
-
     fps = float(fps)
     if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
         raise ValueError(f"fps must be a number in [{MIN_FPS:g}, {MAX_FPS:g}], got {fps:g}")
