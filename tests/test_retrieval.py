@@ -567,6 +567,72 @@ def test_long_gaps_average_more_segments(engine):
         assert all(p["blended"] == want for p in parts.values()), (length, parts)
 
 
+def test_a_travelling_seam_takes_the_upper_body_only_from_travelling_frames(engine):
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib, leg = rt.lib, rt.lib.leg
+    speed = rt.root_speed
+    a, b = [i for i in range(3) if i != lib.up]
+    np.testing.assert_allclose(speed, np.hypot(lib.root[:, a], lib.root[:, b]) / leg)
+    frames = np.arange(len(lib))
+
+    def seam(v):  # a seam whose root moves at v leg lengths per second, half of it sideways
+        root = np.zeros(5)
+        root[a], root[b] = 0.8 * v * leg, 0.6 * v * leg
+        return retrieval.Seams(np.zeros((1, 3)), np.zeros((1, 3)), root)
+
+    v = float(np.median(speed[speed > 1.0]))  # a walking speed of this library
+    ok = rt.travelling(frames, seam(v))
+    np.testing.assert_array_equal(ok, speed >= retrieval.UPPER_TRAVEL * v)
+    assert 0 < ok.sum() < len(lib)  # the library's slow frames (starts, stops, turns) are left out
+    # A seam that stands (slower than STILL_SPEED[1]) takes any frame; so does one faster than
+    # anything in the library (then nothing would be left).
+    assert rt.travelling(frames, seam(0.99 * retrieval.STILL_SPEED[1])).all()
+    assert rt.travelling(frames, seam(1e3 * speed.max())).all()
+    v = 1.01 * retrieval.STILL_SPEED[1]  # just travelling
+    np.testing.assert_array_equal(rt.travelling(frames, seam(v)), speed >= retrieval.UPPER_TRAVEL * v)
+
+
+@pytest.fixture(scope="module")
+def walks_and_bows(clips):
+    # Walks and standing motion (bows): an old man's bent back over walking legs is, in the arms
+    # and head, close to a bow's first frames.
+    names = ("walk_normal_001", "bow_normal_001", "bow_happy_001")
+    eng = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in names], list(names)))
+    eng.add("walk_old_001", clips["walk_old_001"])
+    return eng
+
+
+def test_walking_legs_do_not_take_a_bows_arms_on_long_gaps(walks_and_bows, monkeypatch):
+    eng = walks_and_bows
+    rt = retrieval.Retriever(eng, eng.model.library_)
+    lib, tr = rt.lib, eng.tracks["walk_old_001"]
+    length, a_end = 45, 80
+    b_start = a_end + length + 1
+
+    def upper(exhaustive=False):
+        m = retrieval.match(rt, tr, tr, a_end, b_start, length, 0.5, False, exhaustive=exhaustive)
+        s, e = m.found[1][0], m.found[1][1]
+        return s, e, {lib.source_frames(int(i), int(j))[0] for i, j in zip(s, e)}
+
+    with monkeypatch.context() as m:
+        m.setattr(retrieval, "UPPER_TRAVEL", 0.0)  # any frame may give the arms
+        assert any(n.startswith("bow") for n in upper()[2])
+    qa, qb = rt.seam_pair(tr, [a_end - 1, a_end], tr, [b_start, b_start + 1])
+    for exhaustive in (False, True):
+        s, e, names = upper(exhaustive)
+        assert names == {"walk_normal_001"}, (exhaustive, names)
+        # Every segment came in through a seam it travels at: its start at A's or its end at B's.
+        assert np.all(rt.travelling(s, qa) | rt.travelling(e, qb))
+    # On a gap shorter than UPPER_TRAVEL_S the rule is off: the search is the same without it.
+    short = int(retrieval.UPPER_TRAVEL_S * tr.motion.fps) - 6
+    got = retrieval.match(rt, tr, tr, a_end, a_end + short + 1, short, 0.5, False)
+    with monkeypatch.context() as m:
+        m.setattr(retrieval, "UPPER_TRAVEL", 0.0)
+        ref = retrieval.match(rt, tr, tr, a_end, a_end + short + 1, short, 0.5, False)
+    for x, y in zip(got.found[1], ref.found[1]):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
     from types import SimpleNamespace
 

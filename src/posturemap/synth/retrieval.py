@@ -11,7 +11,10 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    in-betweening (B fixed, ``align=False``) also matching the root's displacement and turn
    over the gap. Candidates come through the posture map: the frames whose winning neuron
    (``global`` class) is among those nearest A's and B's postures (an inverted index, as
-   IVF), then an exact re-rank of every candidate. ``alpha`` weighs the two seams:
+   IVF), then an exact re-rank of every candidate. On gaps of a second and more, while the
+   body travels at a seam, the upper body's candidates there come from frames where it travels too
+   (:meth:`Retriever.travelling`: arms that match at the seams but belong to a bow or a wave
+   do not swing over walking legs). ``alpha`` weighs the two seams:
    ``2 (1 - alpha) cost_A + 2 alpha cost_B``: 0 picks motion that continues A, 1 motion that
    arrives in B;
 2. **replays** the best :data:`TOP_K` segments (:func:`segments_averaged`: more on long gaps),
@@ -73,6 +76,11 @@ W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
 W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
 DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
 STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_weight
+# On gaps from UPPER_TRAVEL_S seconds, while the root travels at a seam (from STILL_SPEED[1]), the
+# upper body's candidates there come from frames whose root travels at least UPPER_TRAVEL times as
+# fast (see Retriever.travelling).
+UPPER_TRAVEL = 0.5
+UPPER_TRAVEL_S = 1.0
 UPPER_RAMP_S = (AUTO_SHORT_S, FALLBACK_SHORT[1])  # gap seconds: see upper_weight
 
 
@@ -124,6 +132,7 @@ class Retriever:
         self._index_w = None
         self._plan = None  # see _scale_plan
         self._dims_of = {}  # see seam_distances
+        self._speed = None  # see travelling
         self._logmap = space.mode == "logmap" and not space.circular.any()  # seam_distances' compiled case
 
     # -- seams ----------------------------------------------------------------------------
@@ -207,6 +216,40 @@ class Retriever:
                     np.linalg.norm(wrap_diff(x[2 * i + 1], xb, circ)[dims]))
             out.append(float(np.degrees(d / math.sqrt(max(len(dims), 1) / 3.0))))
         return out
+
+    @property
+    def root_speed(self) -> np.ndarray:
+        """Every library frame's horizontal root speed (N,), in leg lengths per second."""
+        if self._speed is None:
+            lib = self.lib
+            a, b = [i for i in range(3) if i != lib.up]
+            self._speed = np.hypot(lib.root[:, a], lib.root[:, b]) / lib.leg
+        return self._speed
+
+    def travelling(self, frames: np.ndarray, q: Seams) -> np.ndarray:
+        """Which of library ``frames`` (a boolean mask) may give the upper body at the seam
+        ``q``: all of them while the root at ``q`` moves slower than ``STILL_SPEED[1]`` leg
+        lengths per second; while it travels at ``v``, those whose root travels at least
+        :data:`UPPER_TRAVEL` ``v`` (all of them if none does).
+
+        The upper body is matched on its own joints (wrists and head relative to the root), so
+        without this a walking seam's arms could come from a bow or a wave whose arms happen to
+        be where the walker's are, and which then bows or waves in the middle of the gap over
+        walking legs. Over six hold-outs of bandai1 (the bench's protocol), 26 of 54 retrieved
+        windows of 3 s mixed walking legs with such arms on the split holding out the styles
+        chimpira, musical and sad, and lost to SLERP's arms there; with this rule that split's
+        L2Q at 4 s fell from 1.054x SLERP's to 0.973x, the six splits' from 0.919x to 0.898x
+        (3 s: 0.860x -> 0.848x, 2 s: 0.775x -> 0.771x; 1 and 1.5 s within 0.2%; the skate
+        unchanged). Half a second is too short for the arms to bow or wave: there it cost 0.9%
+        L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:func:`match`).
+        """
+        lib = self.lib
+        a, b = [i for i in range(3) if i != lib.up]
+        v = math.hypot(q.root[a], q.root[b]) / lib.leg
+        if v < STILL_SPEED[1]:
+            return np.ones(len(frames), dtype=bool)
+        ok = self.root_speed[frames] >= UPPER_TRAVEL * v
+        return ok if ok.any() else np.ones(len(frames), dtype=bool)
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
@@ -476,6 +519,9 @@ class Retriever:
         """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
+            if part == 1 and d / fps >= UPPER_TRAVEL_S:  # as match() keeps the gathered frames
+                keep = self.travelling(s, qa) | self.travelling(e, qb)
+                s, e = s[keep], e[keep]
         else:
             s, e = self.candidates(self.prefilter(part, sa, qa, False, self.keep),
                                    self.prefilter(part, sb, qb, True, self.keep), d, fps)
@@ -955,6 +1001,9 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         qa, qb = rt.seam_pair(ta, ia, tb, ib)
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+        if not exhaustive and d / fps >= UPPER_TRAVEL_S:  # the upper body's from travelling motion
+            sa, sb = gathered[1]
+            gathered[1] = (sa[rt.travelling(sa, qa)], sb[rt.travelling(sb, qb)])
         # In-betweening: B's place is fixed, so the gap's displacement ranks the segments and its
         # speed says whether the character must travel (still_weight).
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
