@@ -241,7 +241,7 @@ class Retriever:
         L2Q at 4 s fell from 1.054x SLERP's to 0.973x, the six splits' from 0.919x to 0.898x
         (3 s: 0.860x -> 0.848x, 2 s: 0.775x -> 0.771x; 1 and 1.5 s within 0.2%; the skate
         unchanged). Half a second is too short for the arms to bow or wave: there it cost 0.9%
-        L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:func:`match`).
+        L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:meth:`upper_frames`).
         """
         lib = self.lib
         a, b = [i for i in range(3) if i != lib.up]
@@ -250,6 +250,14 @@ class Retriever:
             return np.ones(len(frames), dtype=bool)
         ok = self.root_speed[frames] >= UPPER_TRAVEL * v
         return ok if ok.any() else np.ones(len(frames), dtype=bool)
+
+    def upper_frames(self, sa: np.ndarray, sb: np.ndarray, qa: Seams, qb: Seams, d: float, fps: float):
+        """The gathered starts ``sa`` and ends ``sb`` the upper body's search may use on a gap of
+        ``d`` frames at ``fps``: on gaps from :data:`UPPER_TRAVEL_S` seconds, those
+        :meth:`travelling` at A's end (``qa``) and at B's start (``qb``); all on shorter ones."""
+        if d / fps < UPPER_TRAVEL_S:
+            return sa, sb
+        return sa[self.travelling(sa, qa)], sb[self.travelling(sb, qb)]
 
     # -- search ---------------------------------------------------------------------------
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
@@ -495,6 +503,8 @@ class Retriever:
         only the ranking does), at the cost of one search."""
         k = _top_k(k)
         alphas = tuple(float(a) for a in alphas)
+        if part == 1 and not exhaustive:
+            sa, sb = self.upper_frames(sa, sb, qa, qb, d, fps)
         if not exhaustive and _compiled() is not None:
             return self._search_compiled(part, qa, qb, sa, sb, d, fps, alphas, disp, k)
         return self._search_numpy(part, qa, qb, sa, sb, d, fps, alphas, disp, k, exhaustive)
@@ -509,6 +519,7 @@ class Retriever:
         k = _top_k(k)
         rows, pos_of = self.lists
         (sa0, sb0), (sa1, sb1) = gathered
+        sa1, sb1 = self.upper_frames(sa1, sb1, qa, qb, d, fps)
         found = _compiled().search_parts(
             *rows[0], *rows[1], pos_of, self.lib.clip_of, sa0, sb0, sa1, sb1, *self.query_vectors(0, qa),
             *self.query_vectors(0, qb), *self.query_vectors(1, qa), *self.query_vectors(1, qb),
@@ -519,7 +530,7 @@ class Retriever:
         """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
-            if part == 1 and d / fps >= UPPER_TRAVEL_S:  # as match() keeps the gathered frames
+            if part == 1 and d / fps >= UPPER_TRAVEL_S:  # as upper_frames keeps the gathered ones
                 keep = self.travelling(s, qa) | self.travelling(e, qb)
                 s, e = s[keep], e[keep]
         else:
@@ -1001,9 +1012,6 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         qa, qb = rt.seam_pair(ta, ia, tb, ib)
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
-        if not exhaustive and d / fps >= UPPER_TRAVEL_S:  # the upper body's from travelling motion
-            sa, sb = gathered[1]
-            gathered[1] = (sa[rt.travelling(sa, qa)], sb[rt.travelling(sb, qb)])
         # In-betweening: B's place is fixed, so the gap's displacement ranks the segments and its
         # speed says whether the character must travel (still_weight).
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
