@@ -239,9 +239,11 @@ class Retriever:
         windows of 3 s mixed walking legs with such arms on the split holding out the styles
         chimpira, musical and sad, and lost to SLERP's arms there; with this rule that split's
         L2Q at 4 s fell from 1.054x SLERP's to 0.973x, the six splits' from 0.919x to 0.898x
-        (3 s: 0.860x -> 0.848x, 2 s: 0.775x -> 0.771x; 1 and 1.5 s within 0.2%; the skate
-        unchanged). Half a second is too short for the arms to bow or wave: there it cost 0.9%
-        L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:meth:`upper_frames`).
+        (3 s: 0.860x -> 0.848x, 2 s: 0.775x -> 0.771x; 1 and 1.5 s within 0.2% on average,
+        -1.8% to +2.3% per split: the split without forward walks loses at 1.5 s, whose walkers'
+        arms the library's standing clips matched better than its sideways and backward walks;
+        the skate unchanged). Half a second is too short for the arms to bow or wave: there it
+        cost 0.9% L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:meth:`upper_frames`).
         """
         lib = self.lib
         a, b = [i for i in range(3) if i != lib.up]
