@@ -162,3 +162,60 @@ def test_offsets_near_the_float_limit_are_refused_in_one_line(sample_clips):
         assert huge.body_mismatch(sk) == "its bone offsets are too large to be lengths"
         assert sk.body_mismatch(huge, "A's") == "A's bone offsets are too large to be lengths"
         assert sk.body_mismatch(sk) is None
+
+
+def rigify_like(face: bool = False, neck_segments: int = 2) -> Skeleton:
+    """Blender Rigify's deform bones as a BVH export names them: the hands are named, the head
+    is not (``DEF-spine.006``, the top of the neck chain), breast bones beside the neck."""
+    joints = [("DEF-spine", -1, (0, 95, 0))]
+
+    def add(name, parent, offset):
+        joints.append((name, [n for n, _, _ in joints].index(parent), offset))
+
+    for side, x in (("L", 9), ("R", -9)):
+        add(f"DEF-thigh.{side}", "DEF-spine", (x, 0, 0))
+        add(f"DEF-shin.{side}", f"DEF-thigh.{side}", (0, -43, 0))
+        add(f"DEF-foot.{side}", f"DEF-shin.{side}", (0, -43, 0))
+        add(f"DEF-toe.{side}", f"DEF-foot.{side}", (0, -6, 10))
+    add("DEF-spine.001", "DEF-spine", (0, 12, 0))
+    add("DEF-spine.002", "DEF-spine.001", (0, 12, 0))
+    add("DEF-spine.003", "DEF-spine.002", (0, 12, 0))
+    for side, x in (("L", 1), ("R", -1)):
+        add(f"DEF-breast.{side}", "DEF-spine.003", (x * 9, 0, 8))
+        add(f"DEF-shoulder.{side}", "DEF-spine.003", (x * 3, 10, 0))
+        add(f"DEF-upper_arm.{side}", f"DEF-shoulder.{side}", (x * 15, 0, 0))
+        add(f"DEF-forearm.{side}", f"DEF-upper_arm.{side}", (x * 28, 0, 0))
+        add(f"DEF-hand.{side}", f"DEF-forearm.{side}", (x * 25, 0, 0))
+        add(f"DEF-f_index.01.{side}", f"DEF-hand.{side}", (x * 8, 0, 0))
+    neck = [f"DEF-spine.{4 + i:03d}" if neck_segments == 2 else f"DEF-neck.{i:03d}"
+            for i in range(neck_segments)] + ["DEF-spine.006"]
+    for parent, name in zip(["DEF-spine.003"] + neck, neck):
+        add(name, parent, (0, 8, 0))
+    if face:
+        for name in ("DEF-jaw", "DEF-eye.L", "DEF-eye.R"):
+            add(name, "DEF-spine.006", (0, 5, 6))
+    names = tuple(n for n, _, _ in joints)
+    parents = np.array([p for _, p, _ in joints])
+    offsets = np.array([o for _, _, o in joints], dtype=float)
+    channels = (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),) \
+        + (("Zrotation", "Xrotation", "Yrotation"),) * (len(names) - 1)
+    return Skeleton(names, parents, offsets, channels)
+
+
+def test_a_rig_that_does_not_name_its_head_matches_the_top_of_its_neck():
+    # Rigify's head is DEF-spine.006: the arms meet at DEF-spine.003, whose other children are
+    # the breast bones and the neck chain; the neck chain's top is the head, with or without
+    # face joints below it, however many neck segments there are.
+    for face, segments in ((False, 2), (True, 2), (False, 40)):
+        sk = rigify_like(face, segments)
+        lower, upper = key_joints(sk)
+        assert [sk.names[j] for j in upper] == ["DEF-hand.L", "DEF-hand.R", "DEF-spine.006"], (face, segments)
+        assert sorted(sk.names[j] for j in lower) == ["DEF-foot.L", "DEF-foot.R", "DEF-shin.L", "DEF-shin.R"]
+    # A named head is taken as before, and hands that do not meet (one hand only) add no head.
+    sk = rigify_like()
+    named = Skeleton(tuple("Head" if n == "DEF-spine.005" else n for n in sk.names), sk.parents, sk.offsets,
+                     sk.channels)
+    assert named.names[key_joints(named)[1][-1]] == "Head"
+    one_hand = Skeleton(tuple("DEF-palm.R" if n == "DEF-hand.R" else n for n in sk.names), sk.parents, sk.offsets,
+                        sk.channels)
+    assert [one_hand.names[j] for j in key_joints(one_hand)[1]] == ["DEF-hand.L"]

@@ -225,14 +225,47 @@ def named_hands_and_head(sk: Skeleton) -> tuple[list[int], list[int]]:
             [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)])
 
 
+def head_below(parents: np.ndarray, hand_a: int, hand_b: int, excluded: np.ndarray) -> int:
+    """The head of a rig that names its hands but not its head: from the joint where the two
+    hands' arms meet (their deepest common ancestor, the chest), down its child with the most
+    joints below it that is neither arm's first joint nor ``excluded`` (bool (J,), the legs),
+    then down single children to a leaf or to a joint that branches (a head with face joints);
+    -1 when the arms do not meet below the hands or the chest has no other child. Linear in the
+    number of joints (parents come before children)."""
+    a = ancestors(parents, hand_a) + [hand_a]
+    b = ancestors(parents, hand_b) + [hand_b]
+    k = 0
+    while k < min(len(a), len(b)) and a[k] == b[k]:
+        k += 1
+    if k == 0 or k == len(a) or k == len(b):
+        return -1
+    chest, arms = a[k - 1], {a[k], b[k]}
+    n = len(parents)
+    size = np.ones(n, dtype=np.int64)  # joints in each subtree
+    kids = [[] for _ in range(n)]
+    for j in range(n - 1, -1, -1):
+        p = int(parents[j])
+        if p >= 0:
+            size[p] += size[j]
+            kids[p].append(j)
+    options = [c for c in kids[chest] if c not in arms and not excluded[c]]
+    if not options:
+        return -1
+    j = max(options, key=lambda c: (size[c], -c))
+    while len(kids[j]) == 1:
+        j = kids[j][0]
+    return int(j)
+
+
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
     Found by name (the legs of :func:`leg_chains`; "hand"/"wrist" without a finger word, the one
     nearest the root of a chain of them, as SMPL's ``L_Wrist`` above ``L_Hand``; "head"), among
     the body's joints (below the root of :func:`posturemap.core.motion.root_index`: not the IK
-    targets a game rig keeps beside the body, as UE's ``ik_hand_root``); where a skeleton has no
-    such names, the leaves outside the legs.
+    targets a game rig keeps beside the body, as UE's ``ik_hand_root``); a rig that names its
+    hands but not its head (Rigify's ``DEF-spine.006``) gets the top of its neck chain
+    (:func:`head_below`); where a skeleton has no such names, the leaves outside the legs.
     """
     from .motion import root_index
 
@@ -246,7 +279,14 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     is_hand[hands] = True
     below_hand = _below_any(sk.parents, is_hand)
     upper = [j for j in hands if body[j] and not below_hand[j]]
-    upper += [j for j in heads if body[j]][:1]
+    head = [j for j in heads if body[j]][:1]
+    if not head and len(upper) >= 2:
+        in_legs = np.zeros(sk.num_joints, dtype=bool)
+        for c in chains:
+            in_legs |= subtree_mask(sk.parents, c[0])
+        top = head_below(sk.parents, upper[0], upper[1], in_legs)
+        head = [top] if top >= 0 and body[top] else []
+    upper += head
     if not upper:  # no names: the leaves outside the legs
         leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
         upper = leaves[:3]

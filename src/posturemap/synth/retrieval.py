@@ -112,8 +112,9 @@ class Retriever:
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
-        lower, upper = key_joints(sk)
-        self.keys = np.concatenate([lower, upper])
+        # The library's own key joints: its features were computed for them when it was built.
+        lower, upper = (library.lower, library.upper) if len(library.lower) + len(library.upper) else key_joints(sk)
+        self.keys = np.concatenate([lower, upper]).astype(np.int64)
         self.kl = len(lower)
         space = engine.model.space_
         self.space = space
