@@ -572,7 +572,11 @@ def test_a_travelling_seam_takes_the_upper_body_only_from_travelling_frames(engi
     lib, leg = rt.lib, rt.lib.leg
     speed = rt.root_speed
     a, b = [i for i in range(3) if i != lib.up]
-    np.testing.assert_allclose(speed, np.hypot(lib.root[:, a], lib.root[:, b]) / leg)
+    # The root's horizontal speed, as the path's own steps give it (inside the clips).
+    step = np.linalg.norm(np.diff(lib.gpos[:, [a, b]], axis=0), axis=1) * lib.fps / leg
+    inside = lib.clip_of[1:] == lib.clip_of[:-1]
+    moving = inside & (speed[1:] > 0.5)
+    assert np.median(np.abs(step[moving] - speed[1:][moving]) / speed[1:][moving]) < 0.05
     frames = np.arange(len(lib))
 
     def seam(v):  # a seam whose root moves at v leg lengths per second, partly sideways
@@ -614,15 +618,53 @@ def test_walking_legs_do_not_take_a_bows_arms_on_long_gaps(walks_and_bows, monke
         s, e = m.found[1][0], m.found[1][1]
         return s, e, {lib.source_frames(int(i), int(j))[0] for i, j in zip(s, e)}
 
+    def legs():
+        return retrieval.match(rt, tr, tr, a_end, b_start, length, 0.5, False).found[0]
+
     with monkeypatch.context() as m:
         m.setattr(retrieval, "UPPER_TRAVEL", 0.0)  # any frame may give the arms
         assert any(n.startswith("bow") for n in upper()[2])
+        legs_before = legs()
+    for x, y in zip(legs(), legs_before):  # the legs' search is not touched
+        np.testing.assert_array_equal(x, y)
     qa, qb = rt.seam_pair(tr, [a_end - 1, a_end], tr, [b_start, b_start + 1])
     for exhaustive in (False, True):
         s, e, names = upper(exhaustive)
         assert names == {"walk_normal_001"}, (exhaustive, names)
         # Every segment came in through a seam it travels at: its start at A's or its end at B's.
         assert np.all(rt.travelling(s, qa) | rt.travelling(e, qb))
+    with monkeypatch.context() as m:  # the numpy steps (a process without numba) as well
+        m.setattr(retrieval, "_compiled", lambda: None)
+        assert upper()[2] == {"walk_normal_001"}
+    # Both searches of both parts at once hand the rule the upper body's gathered frames, once,
+    # and never the legs'.
+    gathered = rt.gather_seams(tr.features[a_end], tr.features[b_start])
+    assert not np.array_equal(gathered[0][0], gathered[1][0])
+    rule = rt.upper_frames
+    for jit in (True, False):
+        calls = []
+        with monkeypatch.context() as m:
+            m.setattr(rt, "upper_frames", lambda sa, sb, *rest: calls.append((sa, sb)) or rule(sa, sb, *rest))
+            if not jit:
+                m.setattr(retrieval, "_compiled", lambda: None)
+            rt.search_parts(qa, qb, gathered, length + 1.0, tr.motion.fps, (0.5,), None, 8)
+        assert len(calls) == 1 and all(np.array_equal(x, y) for x, y in zip(calls[0], gathered[1])), jit
+    # Each seam's own speed decides for its own frames: with B standing, B's gathered frames are
+    # all kept and A's are thinned; the exhaustive search then keeps every segment (any end may
+    # arrive at a standing B), as if there were no rule.
+    still = retrieval.Seams(qb.pose, qb.vel, np.zeros(5))  # the upper body's rows do not read root
+    sa, sb = rt.gather_seams(tr.features[a_end], tr.features[b_start])[1]
+    fa, fb = rt.upper_frames(sa, sb, qa, still, length + 1.0, tr.motion.fps)
+    assert len(fa) < len(sa) and np.array_equal(fb, sb)
+    fb2, fa2 = rt.upper_frames(sb, sa, still, qa, length + 1.0, tr.motion.fps)
+    assert np.array_equal(fb2, sb) and np.array_equal(fa2, fa)
+    args = (1, qa, still, None, None, length + 1.0, tr.motion.fps, 0.5, None, 8)
+    got = rt.search(*args, exhaustive=True)
+    with monkeypatch.context() as m:
+        m.setattr(retrieval, "UPPER_TRAVEL", 0.0)
+        ref = rt.search(*args, exhaustive=True)
+    for x, y in zip(got, ref):
+        np.testing.assert_array_equal(x, y)
     # The rule leaves out some of the frames gathered for these seams on this gap, and none on a
     # gap shorter than UPPER_TRAVEL_S.
     gathered = rt.gather_seams(tr.features[a_end], tr.features[b_start])[1]

@@ -533,7 +533,7 @@ class Retriever:
         """:meth:`search_alphas` in numpy steps (the reference of :meth:`_search_compiled`)."""
         if exhaustive:
             s, e = self.candidates(np.arange(len(self.lib)), np.zeros(0, np.int64), d, fps)
-            if part == 1 and d / fps >= UPPER_TRAVEL_S:  # as upper_frames keeps the gathered ones
+            if part == 1 and d / fps >= UPPER_TRAVEL_S:  # upper_frames' rule, per segment: either end
                 keep = self.travelling(s, qa) | self.travelling(e, qb)
                 s, e = s[keep], e[keep]
         else:
