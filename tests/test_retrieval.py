@@ -564,7 +564,51 @@ def test_long_gaps_average_more_segments(engine):
     for length, want in ((30, retrieval.TOP_K), (45, retrieval.TOP_K_LONG)):
         engine.generate(name, name, length=length, a_end=20, b_start=20 + length + 1, align=False, method="retrieval")
         parts = engine.last["retrieval"]["parts"]
-        assert all(p["blended"] == want for p in parts.values()), (length, parts)
+        assert parts["upper"]["blended"] == want, (length, parts)
+        # The legs: all of them on a short gap, those in step with the best from 1.5 s.
+        assert parts["lower"]["blended"] == want if length == 30 else 1 <= parts["lower"]["blended"] <= want
+
+
+def test_long_gaps_average_only_the_legs_in_step_with_the_best(engine, clips, monkeypatch):
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib = rt.lib
+    name, a_end = "walk_angry_001", 15
+    tr = engine.tracks[name]
+    fps = tr.motion.fps
+
+    def legs(length):
+        return retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False).found[0]
+
+    length = 120  # 4 s: the best segments walk their middles in different phases
+    with monkeypatch.context() as m:
+        m.setattr(retrieval, "IN_STEP", 0.0)
+        every = legs(length)
+    kept = legs(length)
+    assert len(every[0]) == retrieval.segments_averaged(length, fps) > len(kept[0]) >= 1
+    # The kept ones, in rank order, are exactly those whose contacts at the gap's frames (the
+    # nearest library frame of each) agree with the best's in at least IN_STEP of frames and feet.
+    d = length + 1.0
+    t = np.arange(1, length + 1)
+
+    def contacts(s, e):
+        u = np.clip(s + t * (e - s) / d, lib.clip_start[lib.clip_of[s]], lib.clip_end[s] - 1)
+        return lib.contacts[np.floor(u + 0.5).astype(np.int64)]
+
+    best = contacts(every[0][0], every[1][0])
+    agree = [np.mean(contacts(s, e) == best) for s, e in zip(every[0], every[1])]
+    want = [i for i, a in enumerate(agree) if a >= retrieval.IN_STEP]
+    assert want[0] == 0
+    np.testing.assert_array_equal(kept[0], every[0][want])
+    np.testing.assert_array_equal(kept[1], every[1][want])
+    # Shorter gaps, and a splice's halves (matched at one seam), keep every segment.
+    assert len(legs(30)[0]) == retrieval.TOP_K
+    half = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.0, True, seam="a")
+    assert len(half.found[0][0]) == retrieval.segments_averaged(length, fps)
+    # A rig without legs has no contacts: nothing to keep in step.
+    from types import SimpleNamespace
+
+    legless = SimpleNamespace(lib=SimpleNamespace(contacts=np.zeros((len(lib), 0), dtype=bool)))
+    assert retrieval.Retriever.in_step(legless, every[0], every[1], d).all()
 
 
 def test_a_travelling_seam_takes_the_upper_body_only_from_travelling_frames(engine):
