@@ -17,7 +17,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    do not swing over walking legs). ``alpha`` weighs the two seams:
    ``2 (1 - alpha) cost_A + 2 alpha cost_B``: 0 picks motion that continues A, 1 motion that
    arrives in B;
-2. **replays** the best :data:`TOP_K` segments (:func:`segments_averaged`: more on long gaps),
+2. **replays** the best :data:`TOP_K` segments (:func:`segments_averaged`: more on long gaps,
+   where the legs keep only those in step with the best, :meth:`Retriever.in_step`),
    resampled to ``d`` frames, turned and moved to
    continue A, and averages them (per joint; the trajectory after turning each);
 3. **removes the seam errors** with smooth offsets (:func:`offset_curves`): the value offsets
