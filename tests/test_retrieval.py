@@ -579,7 +579,7 @@ def test_long_gaps_average_only_the_legs_in_step_with_the_best(engine, clips, mo
     def legs(length):
         return retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False).found[0]
 
-    length = 120  # 4 s: the best segments walk their middles in different phases
+    length = 90  # 3 s: the best segments walk their middles in different phases
     with monkeypatch.context() as m:
         m.setattr(retrieval, "IN_STEP", 0.0)
         every = legs(length)
@@ -592,15 +592,26 @@ def test_long_gaps_average_only_the_legs_in_step_with_the_best(engine, clips, mo
 
     def contacts(s, e):
         u = np.clip(s + t * (e - s) / d, lib.clip_start[lib.clip_of[s]], lib.clip_end[s] - 1)
-        return lib.contacts[np.floor(u + 0.5).astype(np.int64)]
+        return lib.contacts[np.rint(u).astype(np.int64)]  # the nearest frame, as the replay's contacts
 
     best = contacts(every[0][0], every[1][0])
     agree = [np.mean(contacts(s, e) == best) for s, e in zip(every[0], every[1])]
     want = [i for i, a in enumerate(agree) if a >= retrieval.IN_STEP]
-    assert want[0] == 0
+    assert want[0] == 0 and any(np.isclose(a, retrieval.IN_STEP) for a in agree)  # the bound is exercised
     np.testing.assert_array_equal(kept[0], every[0][want])
     np.testing.assert_array_equal(kept[1], every[1][want])
-    # Shorter gaps, and a splice's halves (matched at one seam), keep every segment.
+    # The search kept in `shared` stays whole (a splice's halves rank it again).
+    shared = {}
+    retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False, shared=shared)
+    np.testing.assert_array_equal(shared["found"][0.5][0][0], every[0])
+    # From 1.5 s of gap ((length + 1) / fps) on; shorter gaps, and a splice's halves (matched at
+    # one seam), keep every segment.
+    calls = []
+    step = rt.in_step
+    monkeypatch.setattr(rt, "in_step", lambda *a: calls.append(a) or step(*a))
+    for n in (43, 44, 45):
+        legs(n)
+    assert len(calls) == sum((n + 1) / fps >= retrieval.TOP_K_RAMP_S[1] for n in (43, 44, 45)) >= 1
     assert len(legs(30)[0]) == retrieval.TOP_K
     half = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.0, True, seam="a")
     assert len(half.found[0][0]) == retrieval.segments_averaged(length, fps)
