@@ -730,12 +730,15 @@ def test_walking_legs_do_not_take_a_bows_arms_on_long_gaps(walks_and_bows, monke
     assert short[0] is gathered[0] and short[1] is gathered[1]
 
 
-def test_the_search_matches_the_joints_the_library_was_built_for(engine, monkeypatch):
+def test_the_search_matches_the_joints_the_library_was_built_for(engine):
     # The library's matching features were computed for its key joints when it was built (a map
     # trained by an older release, whose rule for a rig's key joints may differ): the search
     # takes those, not the ones the current rule would find for the skeleton.
-    lib = engine.model.library_
-    monkeypatch.setattr(retrieval, "key_joints", lambda sk: (np.array([0]), np.array([1, 2])))
+    import copy
+
+    lib = copy.copy(engine.model.library_)  # as built by a rule that listed the upper joints the other way round
+    object.__setattr__(lib, "upper", lib.upper[::-1].copy())
+    assert not np.array_equal(lib.upper, key_joints(engine.skeleton)[1])
     rt = retrieval.Retriever(engine, lib)
     np.testing.assert_array_equal(rt.keys, np.concatenate([lib.lower, lib.upper]))
     assert rt.kl == len(lib.lower) and lib.pose.shape[1] == len(rt.keys)

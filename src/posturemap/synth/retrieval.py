@@ -50,7 +50,7 @@ import numpy as np
 
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
-from ..core.joints import key_joints, part_masks
+from ..core.joints import part_masks
 from .request import AUTO_SHORT_S
 from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
@@ -117,9 +117,8 @@ class Retriever:
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
         # The library's own key joints: its features were computed for them when it was built.
-        lower, upper = (library.lower, library.upper) if len(library.lower) + len(library.upper) else key_joints(sk)
-        self.keys = np.concatenate([lower, upper]).astype(np.int64)
-        self.kl = len(lower)
+        self.keys = np.concatenate([library.lower, library.upper]).astype(np.int64)
+        self.kl = len(library.lower)
         space = engine.model.space_
         self.space = space
         cmap = engine.model.maps_[INDEX_CLASS]
@@ -226,9 +225,7 @@ class Retriever:
     def root_speed(self) -> np.ndarray:
         """Every library frame's horizontal root speed (N,), in leg lengths per second."""
         if self._speed is None:
-            lib = self.lib
-            a, b = [i for i in range(3) if i != lib.up]
-            self._speed = np.hypot(lib.root[:, a], lib.root[:, b]) / lib.leg
+            self._speed = horizontal_speed(self.lib.root, self.lib.up) / self.lib.leg
         return self._speed
 
     def travelling(self, frames: np.ndarray, q: Seams) -> np.ndarray:
@@ -250,9 +247,7 @@ class Retriever:
         the skate unchanged). Half a second is too short for the arms to bow or wave: there it
         cost 0.9% L2Q, so it applies on gaps from :data:`UPPER_TRAVEL_S` (:meth:`upper_frames`).
         """
-        lib = self.lib
-        a, b = [i for i in range(3) if i != lib.up]
-        v = math.hypot(q.root[a], q.root[b]) / lib.leg
+        v = float(horizontal_speed(q.root, self.lib.up)) / self.lib.leg
         if v < STILL_SPEED[1]:
             return np.ones(len(frames), dtype=bool)
         ok = self.root_speed[frames] >= UPPER_TRAVEL * v
@@ -656,6 +651,12 @@ def _warp_terms(d: float, lib_fps: float, fps: float, warps: tuple, w_warp: floa
     return out
 
 
+def horizontal_speed(root: np.ndarray, up: int) -> np.ndarray:
+    """The root's horizontal speed (per second) of root feature rows ``root`` (..., 5): the
+    length of their velocity (the first three columns) without the ``up`` axis."""
+    return np.hypot(root[..., (up + 1) % 3], root[..., (up + 2) % 3])
+
+
 def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0) -> float:
     """How much the character moves: 0 when the root stands still at both seams (its horizontal
     speed at the faster seam below ``STILL_SPEED[0]`` leg lengths per second) and has nowhere to
@@ -674,8 +675,7 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0)
     glided over the floor at 27-29 cm/s (the truth's 3).
     """
     lo, hi = STILL_SPEED
-    a, b = [i for i in range(3) if i != up]
-    speed = max(max(math.sqrt(q.root[a] ** 2 + q.root[b] ** 2) for q in (qa, qb)), travel) / leg
+    speed = max(max(float(horizontal_speed(q.root, up)) for q in (qa, qb)), travel) / leg
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
