@@ -438,6 +438,32 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     np.testing.assert_array_equal(out[hi:], ref[hi:])
 
 
+@crosschecks("retrieval_numba:lift_upper")
+def test_lift_upper_matches_numpy():
+    rng = np.random.default_rng(123)
+    n_lib, j, length, k = 200, 6, 11, 3
+    lib = types.SimpleNamespace(rots=random_quats(rng, (n_lib, j)).astype(np.float32))
+    t = length + 4
+    i0 = rng.integers(0, n_lib - 1, (k, t))
+    i1, f = np.minimum(i0 + 1, n_lib - 1), rng.random((k, t))
+    a2, b2 = random_quats(rng, (2, j)), random_quats(rng, (2, j))
+    curves = retrieval.hermite_offsets(length, 4.0)
+    root, tops = 1, np.array([2, 4])
+    base = random_quats(rng, (length, j))
+    for weight, frames in ((0.5, None), (1.0, (3, 8)), (0.0, None)):
+        lo, hi = (0, length) if frames is None else frames
+        got, ref = base.copy(), base.copy()
+        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, got)
+        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, frames, ref)
+        same_rotation(got, ref, atol=1e-12)
+        # Only the top joints of the new frames in range move; none at weight 0.
+        others = [c for c in range(j) if c not in tops]
+        np.testing.assert_array_equal(got[:, others], base[:, others])
+        np.testing.assert_array_equal(got[:lo], base[:lo])
+        np.testing.assert_array_equal(got[hi:], base[hi:])
+        assert (quat.angle_between(got[lo:hi, tops], base[lo:hi, tops]) > 1e-6).all() == (weight > 0)
+
+
 @crosschecks("retrieval_numba:seam_costs")
 def test_seam_costs_match_numpy():
     rng = np.random.default_rng(118)

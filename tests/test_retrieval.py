@@ -115,6 +115,8 @@ def test_key_joints_are_found_by_name(model):
 # -- the replay -------------------------------------------------------------------------------
 def test_retrieved_frames_are_real_library_frames_up_to_the_seam_correction(engine, clips, monkeypatch):
     monkeypatch.setattr(retrieval, "WARPS", (1.0,))  # no time warp: whole library frames
+    # The upper body's top joints unturned (their lift over the legs' pelvis: the next test).
+    monkeypatch.setattr(retrieval, "UPPER_LIFT", 0.0)
     lib = engine.model.library_
     rt = retrieval.Retriever(engine, lib)
     length = 45
@@ -152,6 +154,57 @@ def test_retrieved_frames_are_real_library_frames_up_to_the_seam_correction(engi
             assert np.allclose(quat.angle_between(res.rots[middle][:, mask], expected), 0.0, atol=1e-5)
             checked_middle += len(middle)
     assert checked_middle > 0
+
+
+def _seam_corrected_middle(src, a2, b2, curves):
+    """Frames ``src`` (t = -1 .. d + 1, (T, M, 4)) turned by the seam value offsets, carried from
+    A's (a2) into B's (b2), where the velocity offsets have faded: (frames, the new frames' indices)."""
+    def rel(p, q):
+        return quat.log(quat.mul(p, quat.inv(q)))
+
+    middle = np.flatnonzero((curves[1] == 0) & (curves[3] == 0))
+    turn = curves[0, middle, None, None] * rel(a2[1], src[1]) + curves[2, middle, None, None] * rel(b2[0], src[-2])
+    return quat.mul(quat.exp(turn), src[2:-2][middle]), middle
+
+
+def test_the_upper_body_keeps_its_own_pelvis_orientation_by_the_lift(engine, clips, monkeypatch):
+    # The upper segments were recorded over their own pelvis. At UPPER_LIFT 1 the spine's top, in
+    # the heading frame (the legs' root tilt times its rotation), is the upper library frame's
+    # (its own root tilt times its spine), each seam-corrected; at 0 it hangs from the legs'
+    # pelvis as recorded; in between it turns that fraction of the way, about one axis.
+    monkeypatch.setattr(retrieval, "WARPS", (1.0,))
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib, root, tops = rt.lib, engine._root, rt.upper_tops
+    assert [engine.skeleton.names[j] for j in tops] == ["Spine"]
+    length, blend = 45, 12.0
+    d = length + 1
+    curves = retrieval.offset_curves(np.arange(1, length + 1), d, blend)
+    checked = 0
+    for name, a_end, b_start in windows(clips, length, 6, seed=3):
+        tr = engine.tracks[name]
+        res = {}
+        for lift in (0.0, 0.5, 1.0):
+            monkeypatch.setattr(retrieval, "UPPER_LIFT", lift)
+            res[lift] = retrieval.retrieve(rt, tr, tr, a_end, b_start, length, 0.5, False, top_k=1, blend=blend)
+        info = res[1.0].info["parts"]["upper"]
+        first, last = info["frames"]
+        step = -1 if info["reversed"] else 1
+        frames = lib.library_frame(info["clip"], first) + step * np.arange(-1, d + 2)
+        cols = np.concatenate([[root], tops])
+        src = quat.normalize(lib.rots[frames][:, cols].astype(float))
+        a2, b2 = tr.rots[[a_end - 1, a_end]][:, cols], tr.rots[[b_start, b_start + 1]][:, cols]
+        own, middle = _seam_corrected_middle(src, a2, b2, curves)
+        got = quat.mul(res[1.0].rots[middle][:, [root]], res[1.0].rots[middle][:, tops])
+        assert np.allclose(quat.angle_between(got, quat.mul(own[:, :1], own[:, 1:])), 0.0, atol=1e-5)
+        # The legs are the same whatever the lift; at 0.5 the top joints turn half of 1's turn.
+        np.testing.assert_array_equal(res[0.0].rots[:, rt.lower_mask], res[1.0].rots[:, rt.lower_mask])
+        full = quat.mul(res[1.0].rots[:, tops], quat.inv(res[0.0].rots[:, tops]))
+        full *= np.where(full[..., :1] < 0, -1.0, 1.0)  # the short arc, as the lift turns
+        half = quat.mul(res[0.5].rots[:, tops], quat.inv(res[0.0].rots[:, tops]))
+        np.testing.assert_allclose(quat.angle_between(quat.exp(0.5 * quat.log(full)), half), 0.0, atol=1e-6)
+        assert quat.angle_between(full, quat.identity(full.shape[:-1])).max() > 0.01  # the pelvises differ
+        checked += len(middle)
+    assert checked > 0
 
 
 def test_planted_feet_stay_within_a_centimetre(engine, clips):

@@ -219,3 +219,17 @@ def test_a_rig_that_does_not_name_its_head_matches_the_top_of_its_neck():
     one_hand = Skeleton(tuple("DEF-palm.R" if n == "DEF-hand.R" else n for n in sk.names), sk.parents, sk.offsets,
                         sk.channels)
     assert [one_hand.names[j] for j in key_joints(one_hand)[1]] == ["DEF-hand.L"]
+
+
+def test_the_upper_bodys_top_is_the_spine_not_a_hip_joint(cmu_file, sample_clips):
+    # The joints retrieval turns toward the upper segments' own pelvis (retrieval.lift_upper):
+    # CMU's LHipJoint / RHipJoint hang from the hips above the thighs, outside the legs' subtree
+    # (so in the upper mask), but turning them would move the legs.
+    from posturemap.core.joints import part_masks, upper_tops
+    for sk, expected in ((bvh.read(cmu_file).skeleton, ["LowerBack"]), (sample_clips["walk"].skeleton, ["Spine"])):
+        root = root_index(sk)
+        lower, upper = part_masks(sk, root)
+        assert [sk.names[j] for j in upper_tops(sk.parents, root, lower, upper)] == expected
+    sk = bvh.read(cmu_file).skeleton
+    lower, upper = part_masks(sk, root_index(sk))
+    assert upper[sk.index("LHipJoint")] and upper[sk.index("RHipJoint")]

@@ -308,3 +308,13 @@ def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:
     below = subtree_mask(sk.parents, root)
     lower[root] = True
     return lower & below, below & ~lower
+
+
+def upper_tops(parents: np.ndarray, root: int, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """The upper body's top joints (:func:`part_masks`' ``upper`` whose parent is ``root``: the
+    spine's first) that carry no leg: a hip joint between the root and a thigh (CMU's
+    ``LHipJoint``), in the upper body by the masks, is not one, since turning it moves the legs."""
+    parents = np.asarray(parents)
+    tops = np.flatnonzero(upper & (parents == root))
+    return np.array([t for t in tops.tolist() if not (subtree_mask(parents, t) & lower).any()], dtype=np.int64)
+

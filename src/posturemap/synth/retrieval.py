@@ -50,7 +50,7 @@ import numpy as np
 
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
-from ..core.joints import part_masks
+from ..core.joints import part_masks, upper_tops
 from .request import AUTO_SHORT_S
 from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
@@ -86,6 +86,11 @@ UPPER_TRAVEL_S = 1.0
 # as the best segment's are in at least this share of the gap's frames (see Retriever.in_step).
 IN_STEP = 0.8
 UPPER_RAMP_S = (AUTO_SHORT_S, FALLBACK_SHORT[1])  # gap seconds: see upper_weight
+# The upper body and the legs come from different segments, each with its own pelvis. The upper
+# body's top joints (the spine's first) are turned this fraction of the way from the legs'
+# pelvis to the upper segments' own, in the heading frame (see lift_upper): 0 keeps them
+# relative to the legs' pelvis, 1 keeps the chest as its own segments carried it.
+UPPER_LIFT = 0.5
 
 
 def fallback_method(length: int, fps: float) -> str:
@@ -116,6 +121,7 @@ class Retriever:
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
+        self.upper_tops = upper_tops(sk.parents, engine._root, self.lower_mask, self.upper_mask)  # see lift_upper
         # The library's own key joints: its features were computed for them when it was built.
         self.keys = np.concatenate([library.lower, library.upper]).astype(np.int64)
         self.kl = len(library.lower)
@@ -856,6 +862,35 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
     return out
 
 
+def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b2, curves, weight: float,
+               frames: tuple[int, int] | None, out: np.ndarray) -> np.ndarray:
+    """Turn the upper body's top joints ``tops`` (children of ``root``) in ``out`` (L, J, 4),
+    whose legs (the root's tilt included) are replayed, toward the upper segments' own pelvis.
+
+    The upper segments (sampled at ``(i0, i1, f)``) were recorded over their own pelvis; their
+    spine's rotation is relative to it. Over the legs' pelvis, which rocks and tilts with other
+    steps, the chest would carry both motions. Their root is replayed as their other joints are
+    (averaged, seam-corrected to A's and B's from ``a2``/``b2`` (2, J, 4)), and each top joint is
+    turned by ``weight`` of the rotation from the legs' root to it (short arc): 1 keeps the
+    chest's orientation in the heading frame as its segments carried it, 0 leaves it relative to
+    the legs' pelvis. At the seams both roots are A's and B's: nothing turns there. Only the new
+    frames of ``frames`` ``(lo, hi)`` (all if None). Returns ``out``. The numpy steps of the
+    compiled :func:`posturemap.synth.retrieval_numba.lift_upper`.
+
+    Over the six Bandai splits (see docs/retrieval.md) 0.5 gave the lowest L2Q and L2P of 0, 0.5
+    and 1 at 15, 30 and 45 frames, and lost on none (1 lost on one)."""
+    length = curves.shape[1]
+    lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
+    if hi <= lo or len(tops) == 0:
+        return out
+    own = replay_rotations(lib, i0, i1, f, np.array([root]), a2[:, [root]], b2[:, [root]], curves)[lo:hi, 0]
+    turn = quat.mul(quat.inv(out[lo:hi, root]), own)
+    turn *= np.where(turn[:, :1] < 0, -1.0, 1.0)  # short arc
+    turn = quat.exp(weight * quat.log(turn))
+    out[lo:hi, tops] = quat.normalize(quat.mul(turn[:, None], out[lo:hi, tops]))
+    return out
+
+
 def seam_costs(pm, vm, frames, vframes, p, v, rate) -> np.ndarray:
     """Seam match costs (M,): ``|pm[frames] - p|^2 + |rate * vm[vframes] - v|^2`` per row.
 
@@ -1111,18 +1146,24 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     if jit is None:
         a_rots, b_rots = ta.rots[ia], tb.rots[ib]
     gpos = heading = dtheta = shift = contacts = None
+    legs = False  # whether the legs (and the root's tilt) are in `out`: the upper body is lifted over them
     for p, (s, e, _, _, _) in enumerate(m.found):
         joints = rt.part_joints[p]
         if skip_unconfident and m.confidence[p] <= 0.0:
             out[:, joints] = (1.0, 0.0, 0.0, 0.0)
             continue
+        lift = p == 1 and legs
+        legs |= p == 0
         if jit is not None:  # the steps below in one call
-            root = _replay_part(jit, m, p, s, e, joints, curves, frames, out, up)
+            root = _replay_part(jit, m, p, s, e, joints, curves, frames, out, up,
+                                (eng._root, rt.upper_tops) if lift else None)
             if root is not None:
                 gpos, heading, dtheta, shift, contacts = root
             continue
         i0, i1, f = segment_times(lib, s, e, d)
         replay_rotations(lib, i0, i1, f, joints, a_rots, b_rots, curves, frames, out=out)
+        if lift:
+            lift_upper(lib, i0, i1, f, eng._root, rt.upper_tops, a_rots, b_rots, curves, UPPER_LIFT, frames, out)
         if p == 0:
             gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
             # The nearest recorded frame of the first segment (its samples lie inside its clip).
@@ -1130,10 +1171,14 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence)
 
 
-def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: int):
+_NO_TOPS = np.zeros(0, dtype=np.int64)
+
+
+def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: int, lift: tuple | None = None):
     """Part ``p`` of :func:`replay` in one compiled call (:func:`posturemap.synth.retrieval_numba.replay_part`:
-    segment times, replay into ``out``, and for the lower body the root path and contacts); for
-    the lower body ``(gpos, heading, dtheta, shift, contacts)``, else None."""
+    segment times, replay into ``out``, and for the lower body the root path and contacts; with
+    ``lift`` ``(root, tops)``, :func:`lift_upper` of the joints ``tops``); for the lower body
+    ``(gpos, heading, dtheta, shift, contacts)``, else None."""
     lib, ta, tb, length = m.lib, m.ta, m.tb, m.length
     d = length + 1.0
     lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
@@ -1145,7 +1190,7 @@ def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: i
     dtheta = jit.replay_part(lib.rots, lib.clip_start, lib.clip_of, lib.clip_end, s, e, d, _sample_times(d), joints,
                              joints, ta.rots, tb.rots, np.array(m.ia), np.array(m.ib), curves, lo, hi, out, p == 0,
                              lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading, tb.gpos, tb.heading, m.align,
-                             up, *root)
+                             up, *root, *((-1, _NO_TOPS) if lift is None else lift), UPPER_LIFT)
     if p != 0:
         return None
     gpos, heading, shift, contacts = root

@@ -165,6 +165,38 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
 
 
 @nb.njit(**_OPTS)
+def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out):
+    """:func:`posturemap.synth.retrieval.lift_upper`: the upper body's segments' own root
+    (``root``'s column of rots at the samples ``(i0, i1, f)``, averaged and seam-corrected as
+    :func:`replay` does, A's and B's from ``a2``/``b2`` (2, J, 4)), and the turn of ``weight``
+    of the way from the legs' root in ``out`` to it applied to the joints ``tops`` of ``out``
+    (L, J, 4), new frames ``lo <= t < hi``."""
+    n_l = curves.shape[1]
+    own = np.empty((n_l, 1, 4))
+    a_r, b_r = np.empty((2, 1, 4)), np.empty((2, 1, 4))
+    for r in range(2):
+        for c in range(4):
+            a_r[r, 0, c], b_r[r, 0, c] = a2[r, root, c], b2[r, root, c]
+    joints, cols = np.full(1, root, dtype=np.int64), np.zeros(1, dtype=np.int64)
+    replay(rots, i0, i1, f, joints, cols, a_r, b_r, curves, lo, hi, own)
+    for t in range(max(lo, 0), min(hi, n_l)):
+        # the legs' root to the upper body's own: out[t, root]^-1 own[t], short arc, scaled
+        w, x, y, z = _mul(out[t, root, 0], -out[t, root, 1], -out[t, root, 2], -out[t, root, 3],
+                          own[t, 0, 0], own[t, 0, 1], own[t, 0, 2], own[t, 0, 3])
+        if w < 0.0:
+            w, x, y, z = -w, -x, -y, -z
+        s = math.sqrt(x * x + y * y + z * z)
+        half = weight * math.atan2(s, w)
+        k = math.sin(half) / s if s > 1e-12 else weight
+        c0, c1, c2, c3 = math.cos(half), x * k, y * k, z * k
+        for m in range(tops.shape[0]):
+            j = tops[m]
+            q0, q1, q2, q3 = _mul(c0, c1, c2, c3, out[t, j, 0], out[t, j, 1], out[t, j, 2], out[t, j, 3])
+            n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+            out[t, j, 0], out[t, j, 1], out[t, j, 2], out[t, j, 3] = q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@nb.njit(**_OPTS)
 def seam_costs(pm, vm, frames, vframes, p, v, rate, out):
     """out[i] = |pm[frames[i]] - p|^2 + |rate[i] vm[vframes[i]] - v|^2 (float32 rows, float64 sums)."""
     for i in range(frames.shape[0]):
@@ -798,7 +830,7 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 @nb.njit(**_OPTS)
 def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a_rots, b_rots, ia, ib, curves, lo,
                 hi, out, root, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, align, up,
-                gpos, heading, shift, contacts):
+                gpos, heading, shift, contacts, lift_root, tops, lift):
     """One body part of :func:`posturemap.synth.retrieval.replay` in one call: the segments
     ``[s, e]`` (K,) sampled at the times ``t`` (:func:`segment_times`), averaged and
     seam-corrected into the columns ``cols`` of ``out`` (:func:`replay`; A's rows ``ia`` (2,)
@@ -806,7 +838,8 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
     (:func:`trajectory`, from the tracks' ``a_gpos``/``a_heading`` and ``b_gpos``/``b_heading``
     at the same rows, into ``gpos``, ``heading``, ``shift``; returns B's turn) and the planted
     feet of the first segment's nearest recorded frames (into ``contacts`` (L, legs)).
-    Returns 0.0 without ``root``."""
+    With ``lift_root`` >= 0 (the upper body, the legs already in ``out``), the joints ``tops``
+    turned by :func:`lift_upper` (``lift`` its weight). Returns 0.0 without ``root``."""
     n_k, n_t = s.shape[0], t.shape[0]
     i0, i1, f = np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t))
     segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f)
@@ -816,6 +849,8 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
         a2[r] = a_rots[ia[r]]
         b2[r] = b_rots[ib[r]]
     replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out)
+    if lift_root >= 0:
+        lift_upper(rots, i0, i1, f, lift_root, tops, a2, b2, curves, lo, hi, lift, out)
     if not root:
         return 0.0
     a_pos, a_head, b_pos, b_head = np.empty((2, 3)), np.empty(2), np.empty((2, 3)), np.empty(2)
@@ -911,12 +946,13 @@ def splice(a_rots, b_rots, w, g1, h1, g2, h2, a_pos, a_heading, b_pos, b_dtheta,
 @nb.njit(**_OPTS)
 def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper, d, t, joints0, joints1,
                  open_joints, a_rots, b_rots, ia, ib, curves, lo, hi, lib_gpos, lib_heading, lib_contacts, a_gpos,
-                 a_heading, b_gpos, b_heading, up, out, gpos, heading, shift, contacts):
+                 a_heading, b_gpos, b_heading, up, out, gpos, heading, shift, contacts, lift_root, tops, lift):
     """One half of a splice as :func:`posturemap.synth.retrieval.replay` makes it with
     ``skip_unconfident`` and its legs confident (B placed to continue A): the rotations of the new
     frames ``lo <= t < hi`` into ``out`` (the identity elsewhere, in the open joints and in a
     skipped upper body), the lower body's segments ``[s0, e0]`` with the root path and contacts,
-    the upper body's ``[s1, e1]``; returns B's turn."""
+    the upper body's ``[s1, e1]`` (its ``tops`` turned by :func:`lift_upper` with ``lift_root``
+    and ``lift``, as :func:`replay_part` does); returns B's turn."""
     for u in range(out.shape[0]):
         for j in range(open_joints.shape[0]):
             out[u, open_joints[j], 0] = 1.0
@@ -924,7 +960,7 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
                 out[u, open_joints[j], c] = 0.0
     dtheta = replay_part(rots, clip_start, clip_of, clip_end, s0, e0, d, t, joints0, joints0, a_rots, b_rots, ia, ib,
                          curves, lo, hi, out, True, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                         b_heading, True, up, gpos, heading, shift, contacts)
+                         b_heading, True, up, gpos, heading, shift, contacts, -1, tops, lift)
     if skip_upper:
         for u in range(out.shape[0]):
             for j in range(joints1.shape[0]):
@@ -934,19 +970,20 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
     else:
         replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
                     curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                    b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0])
+                    b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0], lift_root, tops, lift)
     return dtheta
 
 
 @nb.njit(**_OPTS)
 def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e_b0, s_b1, e_b1, skip_upper, d, t,
             joints0, joints1, open_joints, a_rots, b_rots, ia, ib, curves, frames, lib_gpos, lib_heading,
-            lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, w, out, gpos, heading, shift, contacts):
+            lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, w, out, gpos, heading, shift, contacts,
+            lift_root, tops, lift):
     """:func:`posturemap.synth.splice.spliced` after the search, in one call: both halves replayed
     (:func:`_replay_half`: the segments ``[s_a0, e_a0]`` (lower body) and ``[s_a1, e_a1]`` (upper)
     of the half continuing A, ``s_b*``, ``e_b*`` of the half arriving in B; ``skip_upper`` (2,)
     a half's upper body left out, ``frames`` (2, 2) the new frames each half shows; both halves'
-    legs are replayed), then spliced by the weights ``w`` (:func:`splice`) into ``out``
+    legs are replayed; ``lift_root``, ``tops``, ``lift`` as for :func:`replay_part`), then spliced by the weights ``w`` (:func:`splice`) into ``out``
     (L, J, 4), ``gpos``, ``heading``, ``shift`` and ``contacts``; returns B's turn."""
     n_l, n_j = out.shape[0], out.shape[1]
     rot = np.empty((2, n_l, n_j, 4))
@@ -956,11 +993,11 @@ def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e
     _replay_half(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, skip_upper[0], d, t, joints0, joints1,
                  open_joints, a_rots, b_rots, ia, ib, curves, max(frames[0, 0], 0), min(frames[0, 1], n_l), lib_gpos,
                  lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, up, rot[0], g[0], h[0],
-                 sh[0], con[0])
+                 sh[0], con[0], lift_root, tops, lift)
     turn_b = _replay_half(rots, clip_start, clip_of, clip_end, s_b0, e_b0, s_b1, e_b1, skip_upper[1], d, t, joints0,
                           joints1, open_joints, a_rots, b_rots, ia, ib, curves, max(frames[1, 0], 0),
                           min(frames[1, 1], n_l), lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                          b_heading, up, rot[1], g[1], h[1], sh[1], con[1])
+                          b_heading, up, rot[1], g[1], h[1], sh[1], con[1], lift_root, tops, lift)
     a_pos, b_pos = np.empty(3), np.empty(3)  # in float64, whatever the tracks' type (as splice() has them)
     for c in range(3):
         a_pos[c], b_pos[c] = a_gpos[ia[1], c], b_gpos[ib[0], c]
