@@ -27,6 +27,8 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    :data:`BLEND_S` seconds, so rotations, root height and trajectory meet A and B with
    continuous position and velocity; in in-betweening the root lands exactly on B; in
    transitions B takes the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
+   the upper body's top joint turns :data:`UPPER_LIFT` of the way from the legs' pelvis to
+   its own segments' (:func:`lift_upper`: each part was recorded over its own pelvis);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), the correction carried smoothly through the
    swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
