@@ -462,6 +462,22 @@ def test_lift_upper_matches_numpy():
         np.testing.assert_array_equal(got[:lo], base[:lo])
         np.testing.assert_array_equal(got[hi:], base[hi:])
         assert (quat.angle_between(got[lo:hi, tops], base[lo:hi, tops]) > 1e-6).all() == (weight > 0)
+    # Where the legs' root is exactly the upper segments' own (the turn is the identity: the
+    # division-free branch), nothing turns and nothing is NaN, whatever the weight.
+    own = np.empty((length, 1, 4))
+    RN.replay(lib.rots, i0, i1, f, np.array([root]), np.zeros(1, dtype=np.int64), a2[:, [root]], b2[:, [root]],
+              curves, 0, length, own)
+    legs = base.copy()
+    legs[:, root] = own[:, 0]
+    ref_legs = base.copy()
+    ref_legs[:, root] = retrieval.replay_rotations(lib, i0, i1, f, np.array([root]), a2[:, [root]], b2[:, [root]],
+                                                   curves)[:, 0]
+    for weight in (0.5, 1.0):
+        got, ref = legs.copy(), ref_legs.copy()
+        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, 0, length, weight, got)
+        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, None, ref)
+        np.testing.assert_allclose(got, legs, atol=1e-12)
+        np.testing.assert_allclose(ref, ref_legs, atol=1e-12)
 
 
 @crosschecks("retrieval_numba:seam_costs")

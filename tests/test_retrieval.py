@@ -1113,6 +1113,11 @@ def test_compiled_replay_of_a_match_equals_the_numpy_steps(engine, monkeypatch):
         assert quat.angle_between(got.rots, ref.rots).max() < 1e-6
         if ref.gpos is None:  # the legs unconfident: no root either way
             assert got.gpos is None and got.contacts is None
+            # and no legs' pelvis to lift the upper body over: its top joints as replayed
+            with monkeypatch.context() as mp:
+                mp.setattr(retrieval, "UPPER_LIFT", 0.0)
+                unlifted = retrieval.replay(rt, m, skip_unconfident=True, frames=frames)
+            np.testing.assert_array_equal(got.rots, unlifted.rots)
             continue
         np.testing.assert_allclose(got.gpos, ref.gpos, rtol=0, atol=1e-9)
         np.testing.assert_allclose(got.heading, ref.heading, rtol=0, atol=1e-12)

@@ -317,4 +317,3 @@ def upper_tops(parents: np.ndarray, root: int, lower: np.ndarray, upper: np.ndar
     parents = np.asarray(parents)
     tops = np.flatnonzero(upper & (parents == root))
     return np.array([t for t in tops.tolist() if not (subtree_mask(parents, t) & lower).any()], dtype=np.int64)
-

@@ -27,8 +27,10 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    :data:`BLEND_S` seconds, so rotations, root height and trajectory meet A and B with
    continuous position and velocity; in in-betweening the root lands exactly on B; in
    transitions B takes the segment's end as its place (``last["dtheta"]``, ``last["shift"]``);
-   the upper body's top joint turns :data:`UPPER_LIFT` of the way from the legs' pelvis to
-   its own segments' (:func:`lift_upper`: each part was recorded over its own pelvis);
+   where the legs are replayed, the upper body's top joint turns :data:`UPPER_LIFT` of the way
+   from the legs' pelvis to its own segments' (:func:`lift_upper`: each part was recorded over
+   its own pelvis; legs blended toward the fallback by a partial confidence are blended after
+   it, so the chest then hangs from a pelvis the lift did not see);
 4. **plants the feet** that are planted in the retrieved segment: two-bone IK holds them where
    they touch down (A's or B's spot at a seam), the correction carried smoothly through the
    swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
@@ -875,7 +877,8 @@ def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b
     (averaged, seam-corrected to A's and B's from ``a2``/``b2`` (2, J, 4)), and each top joint is
     turned by ``weight`` of the rotation from the legs' root to it (short arc): 1 keeps the
     chest's orientation in the heading frame as its segments carried it, 0 leaves it relative to
-    the legs' pelvis. At the seams both roots are A's and B's: nothing turns there. Only the new
+    the legs' pelvis. Both roots are seam-corrected to A's and B's, so the turn starts from
+    nothing at A and returns to nothing at B. Only the new
     frames of ``frames`` ``(lo, hi)`` (all if None). Returns ``out``. The numpy steps of the
     compiled :func:`posturemap.synth.retrieval_numba.lift_upper`.
 
@@ -1134,8 +1137,9 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
     """The frames of a :class:`Match`: each part's best segments replayed, seam-corrected and
     averaged, the lower body's root trajectory and planted feet (see :func:`retrieve`).
     ``frames``: ``(lo, hi)``, the rotations of the new frames ``lo <= t < hi`` only (the others
-    are the identity; the trajectory and contacts are whole). Where numba is in use, each body
-    part is one compiled call (:func:`_replay_part`)."""
+    are the identity; the trajectory and contacts are whole). Where the legs are replayed, the
+    upper body's top joints are lifted toward its own segments' pelvis (:func:`lift_upper`).
+    Where numba is in use, each body part is one compiled call (:func:`_replay_part`)."""
     lib, eng = rt.lib, rt.engine
     up = eng._up
     ta, tb, ia, ib, length = m.ta, m.tb, m.ia, m.ib, m.length

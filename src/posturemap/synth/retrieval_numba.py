@@ -172,6 +172,7 @@ def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out)
     of the way from the legs' root in ``out`` to it applied to the joints ``tops`` of ``out``
     (L, J, 4), new frames ``lo <= t < hi``."""
     n_l = curves.shape[1]
+    lo, hi = max(lo, 0), min(hi, n_l)
     own = np.empty((n_l, 1, 4))
     a_r, b_r = np.empty((2, 1, 4)), np.empty((2, 1, 4))
     for r in range(2):
@@ -179,7 +180,7 @@ def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out)
             a_r[r, 0, c], b_r[r, 0, c] = a2[r, root, c], b2[r, root, c]
     joints, cols = np.full(1, root, dtype=np.int64), np.zeros(1, dtype=np.int64)
     replay(rots, i0, i1, f, joints, cols, a_r, b_r, curves, lo, hi, own)
-    for t in range(max(lo, 0), min(hi, n_l)):
+    for t in range(lo, hi):
         # the legs' root to the upper body's own: out[t, root]^-1 own[t], short arc, scaled
         w, x, y, z = _mul(out[t, root, 0], -out[t, root, 1], -out[t, root, 2], -out[t, root, 3],
                           own[t, 0, 0], own[t, 0, 1], own[t, 0, 2], own[t, 0, 3])
@@ -970,7 +971,8 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
     else:
         replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
                     curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                    b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0], lift_root, tops, lift)
+                    b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0],
+                    lift_root, tops, lift)
     return dtheta
 
 

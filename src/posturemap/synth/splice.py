@@ -30,8 +30,8 @@ import dataclasses
 import numpy as np
 
 from ..core import kernels
-from .retrieval import (UPPER_LIFT, Result, _compiled, _hermite_offsets_cached, _sample_times, blend_frames, match,
-                        replay)
+from . import retrieval
+from .retrieval import Result, _compiled, _hermite_offsets_cached, _sample_times, blend_frames, match, replay
 from .trajectory import rotate_about_up
 
 SPLICE_WIDTH = 1.0  # the largest fraction of the gap over which A's continuation blends into B's arrival
@@ -216,5 +216,5 @@ def _spliced_compiled(jit, rt, first, second, w: np.ndarray, frames):
                          _hermite_offsets_cached(length, blend_frames(True, ta.motion.fps)),
                          np.array(frames, dtype=np.int64), lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading,
                          tb.gpos, tb.heading, rt.engine._up, w, rots, gpos, heading,
-                         shift, contacts, rt.engine._root, rt.upper_tops, UPPER_LIFT)
+                         shift, contacts, rt.engine._root, rt.upper_tops, retrieval.UPPER_LIFT)
     return rots, gpos, heading, float(dtheta), shift, contacts
