@@ -675,6 +675,59 @@ def test_long_gaps_average_only_the_legs_in_step_with_the_best(engine, clips, mo
     assert retrieval.Retriever.in_step(legless, every[0], every[1], d).all()
 
 
+def test_long_gaps_weigh_the_upper_body_in_step_with_the_legs_twice(engine, monkeypatch):
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    lib = rt.lib
+    name, a_end, length = "walk_angry_001", 30, 60
+    tr = engine.tracks[name]
+    shared = {}
+    m = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False, shared=shared)
+    legs, every = m.found[0], shared["found"][0.5][1]  # the upper body's search, whole
+    d = length + 1.0
+    t = np.arange(1, length + 1)
+
+    def contacts(s, e):
+        u = np.clip(s + t * (e - s) / d, lib.clip_start[lib.clip_of[s]], lib.clip_end[s] - 1)
+        return lib.contacts[np.rint(u).astype(np.int64)]
+
+    ref = contacts(legs[0][0], legs[1][0])
+    agree = np.array([np.mean(contacts(s, e) == ref) for s, e in zip(every[0], every[1])])
+    again = np.flatnonzero(agree >= retrieval.IN_STEP)
+    assert 0 < len(again) < len(every[0])  # some step with the legs, some do not
+    # Every segment once, in rank order, then those in step once more: the average weighs them twice.
+    for k in range(5):
+        np.testing.assert_array_equal(m.found[1][k], np.concatenate([every[k], every[k][again]]))
+    assert m.repeated == (0, len(again))
+    assert m.info["parts"]["upper"]["blended"] == len(every[0])  # the report counts segments once
+    with monkeypatch.context() as mp:  # weight 1: the search's list as it is
+        mp.setattr(retrieval, "UPPER_IN_STEP_WEIGHT", 1)
+        plain = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False)
+    np.testing.assert_array_equal(plain.found[1][0], every[0])
+    assert plain.repeated == (0, 0)
+    a, b = (retrieval.replay(rt, x).rots[:, rt.upper_mask] for x in (m, plain))
+    assert quat.angle_between(a, b).max() > 0.01  # the weights move the arms
+    # Shorter gaps weigh every segment once.
+    short = retrieval.match(rt, tr, tr, a_end, a_end + 31, 30, 0.5, False)
+    assert short.repeated == (0, 0) and len(short.found[1][0]) == retrieval.TOP_K
+    # A standing clip (feet planted throughout) agrees with walking feet only while they are
+    # planted (60% here), under the bound; a rig without legs has nothing to step with.
+    from types import SimpleNamespace
+
+    n = 200
+    walk = np.arange(100)
+    feet = np.ones((n, 2), dtype=bool)
+    feet[:100, 0], feet[:100, 1] = walk % 30 < 18, (walk + 15) % 30 < 18
+    fake = SimpleNamespace(lib=SimpleNamespace(contacts=feet, clip_start=np.array([0, n]), clip_of=np.zeros(n, int),
+                                               clip_end=np.full(n, n)))
+    fake.gap_contacts = lambda s, e, d: retrieval.Retriever.gap_contacts(fake, s, e, d)
+    walking = (np.array([0]), np.array([46]))
+    upper = (np.array([0, 15, 100]), np.array([46, 61, 146]))  # itself, half a cycle later, standing
+    step = retrieval.Retriever.upper_in_step
+    assert step(fake, walking, upper, 46.0).tolist() == [True, False, False]
+    legless = SimpleNamespace(lib=SimpleNamespace(contacts=np.zeros((n, 0), dtype=bool)))
+    assert step(legless, walking, upper, 46.0).tolist() == [False, False, False]
+
+
 def test_a_travelling_seam_takes_the_upper_body_only_from_travelling_frames(engine):
     rt = retrieval.Retriever(engine, engine.model.library_)
     lib, leg = rt.lib, rt.lib.leg
