@@ -316,7 +316,7 @@ class Retriever:
         walking feet are planted (about 60-70% of the frames), under the bound. :func:`match`
         counts these :data:`UPPER_IN_STEP_WEIGHT` times in the upper body's average on gaps from
         ``TOP_K_RAMP_S[1]`` seconds. Over the six Bandai splits (windows of 10 + L + 10 frames
-        at stride 40), L2Q over SLERP's at 1.5 / 2 s 0.717 / 0.768 -> 0.711 / 0.759, lower on
+        at stride 40), L2Q over SLERP's at 1.5 / 2 s 0.717 / 0.768 -> 0.711 / 0.760, lower on
         every split at both (the held-out styles 0.681 -> 0.669 at 1.5 s), L2P 0.674 -> 0.672;
         CMU 01_01 at 1.5 s 0.711 -> 0.715 (weighing them 3 or 5 times: Bandai 0.708 / 0.706,
         CMU 0.719 / 0.727). Keeping only these (no weight for the others) gained most on the
@@ -909,9 +909,9 @@ def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b
     turned by ``weight`` of the rotation from the legs' root to it (short arc): 1 keeps the
     chest's orientation in the heading frame as its segments carried it, 0 leaves it relative to
     the legs' pelvis. Both roots are seam-corrected to A's and B's, so the turn starts from
-    nothing at A and returns to nothing at B. Only the new
-    frames of ``frames`` ``(lo, hi)`` (all if None). Returns ``out``. The numpy steps of the
-    compiled :func:`posturemap.synth.retrieval_numba.lift_upper`.
+    nothing at A and returns to nothing at B. Only the new frames of ``frames`` ``(lo, hi)``
+    (all if None). Returns ``out``. The numpy steps of the compiled
+    :func:`posturemap.synth.retrieval_numba.lift_upper`.
 
     Over the six Bandai splits (see docs/retrieval.md) 0.5 gave the lowest L2Q and L2P of 0, 0.5
     and 1 at 15, 30 and 45 frames, and lost on none (1 lost on one)."""

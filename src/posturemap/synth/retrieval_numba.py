@@ -985,7 +985,8 @@ def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e
     (:func:`_replay_half`: the segments ``[s_a0, e_a0]`` (lower body) and ``[s_a1, e_a1]`` (upper)
     of the half continuing A, ``s_b*``, ``e_b*`` of the half arriving in B; ``skip_upper`` (2,)
     a half's upper body left out, ``frames`` (2, 2) the new frames each half shows; both halves'
-    legs are replayed; ``lift_root``, ``tops``, ``lift`` as for :func:`replay_part`), then spliced by the weights ``w`` (:func:`splice`) into ``out``
+    legs are replayed; ``lift_root``, ``tops``, ``lift`` as for :func:`replay_part`), then
+    spliced by the weights ``w`` (:func:`splice`) into ``out``
     (L, J, 4), ``gpos``, ``heading``, ``shift`` and ``contacts``; returns B's turn."""
     n_l, n_j = out.shape[0], out.shape[1]
     rot = np.empty((2, n_l, n_j, 4))
