@@ -424,12 +424,23 @@ def test_replay_matches_the_numpy_retrieval_path(k):
     expected = retrieval.offset_rotations(retrieval.average_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty((length, len(joints), 4))
-    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out, np.ones(k))
     same_rotation(out, expected, atol=1e-12)
     assert quat.angle_between(out, expected).max() < 1e-6  # float32 rounding (see _sample's test)
+    # Weighed segments: the weighted mean, as numpy makes it (equal weights of any size: the same).
+    wts = rng.uniform(0.5, 3.0, k)
+    weighted = retrieval.offset_rotations(retrieval.average_rotations(
+        retrieval.sample_rotations(lib, i0, i1, f, joints), wts)[None], a2, b2, curves)[0]
+    got = np.empty_like(out)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, got, wts)
+    same_rotation(got, weighted, atol=1e-12)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, got, np.full(k, 3.0))
+    same_rotation(got, out, atol=1e-12)
+    if k > 1:  # unequal weights move the mean
+        assert quat.angle_between(weighted, expected).max() > 1e-3
     # A range of frames: the numpy path (whole replay, the rest set to the identity) agrees.
     lo, hi = 2, length - 3
-    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, lo, hi, out)
+    RN.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, lo, hi, out, np.ones(k))
     same_rotation(out[lo:hi], expected[lo:hi], atol=1e-12)
     with kernels.numpy_backend():
         ref = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(lo, hi))
@@ -449,12 +460,13 @@ def test_lift_upper_matches_numpy():
     a2, b2 = random_quats(rng, (2, j)), random_quats(rng, (2, j))
     curves = retrieval.hermite_offsets(length, 4.0)
     root, tops = 1, np.array([2, 4])
+    wts = np.array([2.0, 1.0, 1.0])  # the segments' weights in the average
     base = random_quats(rng, (length, j))
     for weight, frames in ((0.5, None), (1.0, (3, 8)), (0.0, None)):
         lo, hi = (0, length) if frames is None else frames
         got, ref = base.copy(), base.copy()
-        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, got)
-        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, frames, ref)
+        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, got, wts)
+        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, frames, ref, wts)
         same_rotation(got, ref, atol=1e-12)
         # Only the top joints of the new frames in range move; none at weight 0.
         others = [c for c in range(j) if c not in tops]
@@ -466,16 +478,16 @@ def test_lift_upper_matches_numpy():
     # division-free branch), nothing turns and nothing is NaN, whatever the weight.
     own = np.empty((length, 1, 4))
     RN.replay(lib.rots, i0, i1, f, np.array([root]), np.zeros(1, dtype=np.int64), a2[:, [root]], b2[:, [root]],
-              curves, 0, length, own)
+              curves, 0, length, own, wts)
     legs = base.copy()
     legs[:, root] = own[:, 0]
     ref_legs = base.copy()
     ref_legs[:, root] = retrieval.replay_rotations(lib, i0, i1, f, np.array([root]), a2[:, [root]], b2[:, [root]],
-                                                   curves)[:, 0]
+                                                   curves, weights=wts)[:, 0]
     for weight in (0.5, 1.0):
         got, ref = legs.copy(), ref_legs.copy()
-        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, 0, length, weight, got)
-        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, None, ref)
+        RN.lift_upper(lib.rots, i0, i1, f, root, tops, a2, b2, curves, 0, length, weight, got, wts)
+        retrieval.lift_upper(lib, i0, i1, f, root, tops, a2, b2, curves, weight, None, ref, wts)
         np.testing.assert_allclose(got, legs, atol=1e-12)
         np.testing.assert_allclose(ref, ref_legs, atol=1e-12)
 

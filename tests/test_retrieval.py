@@ -480,12 +480,14 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     ref = retrieval.offset_rotations(retrieval.average_rotations(
         retrieval.sample_rotations(lib, i0, i1, f, joints))[None], a2, b2, curves)[0]
     out = np.empty_like(ref)
-    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 0, length, out,
+                           np.ones(len(s)))
     assert np.allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-9)
     assert quat.angle_between(out, ref).max() < 1e-6
     # Only some frames (as the splice asks of each half): those rows the same, the rest identity.
     part = np.empty_like(ref)
-    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 4, 11, part)
+    retrieval_numba.replay(lib.rots, i0, i1, f, joints, np.arange(len(joints)), a2, b2, curves, 4, 11, part,
+                           np.ones(len(s)))
     np.testing.assert_array_equal(part[4:11], out[4:11])
     assert np.all(part[:4] == (1.0, 0.0, 0.0, 0.0)) and np.all(part[11:] == (1.0, 0.0, 0.0, 0.0))
     ref_part = retrieval.replay_rotations(lib, i0, i1, f, joints, a2, b2, curves, frames=(4, 11))  # numpy steps
@@ -500,7 +502,7 @@ def test_compiled_replay_matches_the_numpy_reference(model):
     for compiled in (True, False):
         full = np.full((length, n_j, 4), 7.0)
         if compiled:
-            retrieval_numba.replay(lib.rots, i0, i1, f, joints, joints, a_all, b_all, curves, 4, 11, full)
+            retrieval_numba.replay(lib.rots, i0, i1, f, joints, joints, a_all, b_all, curves, 4, 11, full, np.ones(len(s)))
         else:
             got = retrieval.replay_rotations(lib, i0, i1, f, joints, a_all, b_all, curves, frames=(4, 11), out=full)
             assert got is full
@@ -678,37 +680,51 @@ def test_long_gaps_average_only_the_legs_in_step_with_the_best(engine, clips, mo
 def test_long_gaps_weigh_the_upper_body_in_step_with_the_legs_twice(engine, monkeypatch):
     rt = retrieval.Retriever(engine, engine.model.library_)
     lib = rt.lib
-    name, a_end, length = "walk_angry_001", 30, 60
+    name, a_end = "walk_angry_001", 30
     tr = engine.tracks[name]
-    shared = {}
-    m = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False, shared=shared)
-    legs, every = m.found[0], shared["found"][0.5][1]  # the upper body's search, whole
-    d = length + 1.0
-    t = np.arange(1, length + 1)
+    for length in (60, 30):  # 2 s; 1.03 s with the rule from 1 s (all the legs kept there)
+        monkeypatch.setattr(retrieval, "UPPER_IN_STEP_S", 1.5 if length == 60 else 1.0)
+        shared = {}
+        m = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False, shared=shared)
+        legs, every = m.found[0], shared["found"][0.5][1]  # the upper body's search, whole
+        assert len(legs[0]) < len(shared["found"][0.5][0][0]) if length == 60 else len(legs[0]) == retrieval.TOP_K
+        d = length + 1.0
+        t = np.arange(1, length + 1)
 
-    def contacts(s, e):
-        u = np.clip(s + t * (e - s) / d, lib.clip_start[lib.clip_of[s]], lib.clip_end[s] - 1)
-        return lib.contacts[np.rint(u).astype(np.int64)]
+        def contacts(s, e):
+            u = np.clip(s + t * (e - s) / d, lib.clip_start[lib.clip_of[s]], lib.clip_end[s] - 1)
+            return lib.contacts[np.rint(u).astype(np.int64)]
 
-    ref = contacts(legs[0][0], legs[1][0])
-    agree = np.array([np.mean(contacts(s, e) == ref) for s, e in zip(every[0], every[1])])
-    again = np.flatnonzero(agree >= retrieval.IN_STEP)
-    assert 0 < len(again) < len(every[0])  # some step with the legs, some do not
-    # Every segment once, in rank order, then those in step once more: the average weighs them twice.
-    for k in range(5):
-        np.testing.assert_array_equal(m.found[1][k], np.concatenate([every[k], every[k][again]]))
-    assert m.repeated == (0, len(again))
-    assert m.info["parts"]["upper"]["blended"] == len(every[0])  # the report counts segments once
-    with monkeypatch.context() as mp:  # weight 1: the search's list as it is
-        mp.setattr(retrieval, "UPPER_IN_STEP_WEIGHT", 1)
-        plain = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False)
-    np.testing.assert_array_equal(plain.found[1][0], every[0])
-    assert plain.repeated == (0, 0)
-    a, b = (retrieval.replay(rt, x).rots[:, rt.upper_mask] for x in (m, plain))
-    assert quat.angle_between(a, b).max() > 0.01  # the weights move the arms
-    # Shorter gaps weigh every segment once.
-    short = retrieval.match(rt, tr, tr, a_end, a_end + 31, 30, 0.5, False)
-    assert short.repeated == (0, 0) and len(short.found[1][0]) == retrieval.TOP_K
+        ref = contacts(legs[0][0], legs[1][0])
+        agree = np.array([np.mean(contacts(s, e) == ref) for s, e in zip(every[0], every[1])])
+        in_step = agree >= retrieval.IN_STEP
+        assert 0 < in_step.sum() < len(in_step)  # some step with the legs, some do not
+        # Every segment once, in rank order; those in step weigh twice in the average.
+        for k in range(5):
+            np.testing.assert_array_equal(m.found[1][k], every[k])
+        np.testing.assert_array_equal(m.weights[1], np.where(in_step, 2.0, 1.0))
+        assert m.weights[0] is None and m.info["parts"]["upper"]["blended"] == len(every[0])
+        # The replay averages with those weights: as the same segments with the in-step ones
+        # listed twice, and unlike equal weights.
+        twice = np.concatenate([np.arange(len(in_step)), np.flatnonzero(in_step)])
+        doubled = dataclasses.replace(m, found=[m.found[0], tuple(x[twice] for x in m.found[1])],
+                                      weights=[None, None], _info=None)
+        equal = dataclasses.replace(m, weights=[None, None], _info=None)
+        got, ref_rots, flat = (retrieval.replay(rt, x).rots[:, rt.upper_mask] for x in (m, doubled, equal))
+        assert quat.angle_between(got, ref_rots).max() < 1e-6
+        assert quat.angle_between(got, flat).max() > 0.01  # the weights move the arms
+        with monkeypatch.context() as mp:  # no compiled kernels: the numpy steps, the same frames
+            mp.setattr(retrieval, "_compiled", lambda: None)
+            assert quat.angle_between(retrieval.replay(rt, m).rots[:, rt.upper_mask], got).max() < 1e-6
+    # Shorter gaps weigh every segment alike: by default from 1.5 s ((length + 1) / fps).
+    monkeypatch.setattr(retrieval, "UPPER_IN_STEP_S", 1.5)
+    seen = set()
+    for length in (43, 44, 45):
+        weighed = (length + 1) / tr.motion.fps >= 1.5
+        m = retrieval.match(rt, tr, tr, a_end, a_end + length + 1, length, 0.5, False)
+        assert (m.weights[1] is not None) == weighed and m.weights[0] is None
+        seen.add(weighed)
+    assert seen == {False, True}
     # A standing clip (feet planted throughout) agrees with walking feet only while they are
     # planted (60% here), under the bound; a rig without legs has nothing to step with.
     from types import SimpleNamespace

@@ -88,11 +88,13 @@ STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_we
 UPPER_TRAVEL = 0.5
 UPPER_TRAVEL_S = 1.0
 # On gaps from TOP_K_RAMP_S[1] seconds the legs average only the segments whose feet are planted
-# as the best segment's are in at least this share of the gap's frames (see Retriever.in_step),
-# and the upper body's segments whose own feet step so with the legs' best count
-# UPPER_IN_STEP_WEIGHT times in its average (see Retriever.upper_in_step).
+# as the best segment's are in at least this share of the gap's frames (see Retriever.in_step);
+# on gaps from UPPER_IN_STEP_S seconds the upper body's segments whose own feet step so with the
+# legs' best weigh UPPER_IN_STEP_WEIGHT times as much as the others in its average (see
+# Retriever.upper_in_step).
 IN_STEP = 0.8
-UPPER_IN_STEP_WEIGHT = 2
+UPPER_IN_STEP_WEIGHT = 2.0
+UPPER_IN_STEP_S = 1.5  # see Retriever.upper_in_step for 1 s
 UPPER_RAMP_S = (AUTO_SHORT_S, FALLBACK_SHORT[1])  # gap seconds: see upper_weight
 # The upper body and the legs come from different segments, each with its own pelvis. The upper
 # body's top joints (the spine's first) are turned this fraction of the way from the legs'
@@ -314,14 +316,18 @@ class Retriever:
         leg), so an upper segment whose feet step as the legs' do swings its arms in the legs'
         phase; a standing clip's feet, planted throughout, agree with a walk's only while the
         walking feet are planted (about 60-70% of the frames), under the bound. :func:`match`
-        counts these :data:`UPPER_IN_STEP_WEIGHT` times in the upper body's average on gaps from
-        ``TOP_K_RAMP_S[1]`` seconds. Over the six Bandai splits (windows of 10 + L + 10 frames
-        at stride 40), L2Q over SLERP's at 1.5 / 2 s 0.717 / 0.768 -> 0.711 / 0.760, lower on
-        every split at both (the held-out styles 0.681 -> 0.669 at 1.5 s), L2P 0.674 -> 0.672;
-        CMU 01_01 at 1.5 s 0.711 -> 0.715 (weighing them 3 or 5 times: Bandai 0.708 / 0.706,
-        CMU 0.719 / 0.727). Keeping only these (no weight for the others) gained most on the
-        held-out styles (0.629) but averaged two or three segments where few were in step, and
-        lost up to 0.97 L2Q in a window (CMU 0.753)."""
+        weighs these :data:`UPPER_IN_STEP_WEIGHT` times as much as the others in the upper
+        body's average on gaps from :data:`UPPER_IN_STEP_S` seconds. Over the six Bandai splits
+        (windows of 10 + L + 10 frames at stride 40), L2Q over SLERP's at 1.5 / 2 s 0.717 /
+        0.768 -> 0.711 / 0.760, lower on every split at both (the held-out styles 0.681 -> 0.669
+        at 1.5 s), L2P 0.674 -> 0.672; CMU 01_01 at 1.5 s 0.711 -> 0.715 (weighing them 3 or 5
+        times: Bandai 0.708 / 0.706, CMU 0.719 / 0.727). From 1 s: at 1.0 and 1.37 s every
+        Bandai split and CMU lower too (the six splits' mean 0.641 -> 0.638 and 0.691 -> 0.687),
+        but a 30-frame transition took 772 instead of 681 us (median, 400 seeded draws between
+        two clips, alternated), half of it this check (about 45 us); from 0.5 s, CMU at 0.76 s
+        lost 1.1%. Keeping only these (no weight for the others) gained most on the
+        held-out styles (0.629 at 1.5 s) but averaged two or three segments where few were in
+        step, and lost up to 0.97 L2Q in a window (CMU 0.753)."""
         if len(upper[0]) == 0 or self.lib.contacts.shape[1] == 0:
             return np.zeros(len(upper[0]), dtype=bool)
         ref = self.gap_contacts(legs[0][:1], legs[1][:1], d)
@@ -870,7 +876,8 @@ def sample_rotations(lib: MotionLibrary, i0, i1, f, joints: np.ndarray) -> np.nd
 
 
 def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
-                     frames: tuple[int, int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
+                     frames: tuple[int, int] | None = None, out: np.ndarray | None = None,
+                     weights: np.ndarray | None = None) -> np.ndarray:
     """The new frames' rotations (L, M, 4) of ``joints``: the segments sampled and averaged
     (:func:`average_rotations`), the average's seams corrected (:func:`offset_rotations`).
     ``frames``: ``(lo, hi)``, only the new frames ``lo <= t < hi``; the others are the identity.
@@ -890,25 +897,25 @@ def replay_rotations(lib: MotionLibrary, i0, i1, f, joints, a2, b2, curves,
     cols = np.arange(len(joints)) if out is None else joints
     if out is None:
         out = np.empty((length, len(joints), 4))
-    part = offset_rotations(average_rotations(sample_rotations(lib, i0, i1, f, joints))[None], a2[:, cols],
-                            b2[:, cols], curves)[0]
+    part = offset_rotations(average_rotations(sample_rotations(lib, i0, i1, f, joints), weights)[None],
+                            a2[:, cols], b2[:, cols], curves)[0]
     part[:lo] = part[max(hi, lo):] = (1.0, 0.0, 0.0, 0.0)
     out[:, cols] = part
     return out
 
 
 def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b2, curves, weight: float,
-               frames: tuple[int, int] | None, out: np.ndarray) -> np.ndarray:
+               frames: tuple[int, int] | None, out: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Turn the upper body's top joints ``tops`` (children of ``root``) in ``out`` (L, J, 4),
     whose legs (the root's tilt included) are replayed, toward the upper segments' own pelvis.
 
     The upper segments (sampled at ``(i0, i1, f)``) were recorded over their own pelvis; their
     spine's rotation is relative to it. Over the legs' pelvis, which rocks and tilts with other
     steps, the chest would carry both motions. Their root is replayed as their other joints are
-    (averaged, seam-corrected to A's and B's from ``a2``/``b2`` (2, J, 4)), and each top joint is
-    turned by ``weight`` of the rotation from the legs' root to it (short arc): 1 keeps the
-    chest's orientation in the heading frame as its segments carried it, 0 leaves it relative to
-    the legs' pelvis. Both roots are seam-corrected to A's and B's, so the turn starts from
+    (averaged with the segments' ``weights``, seam-corrected to A's and B's from ``a2``/``b2``
+    (2, J, 4)), and each top joint is turned by ``weight`` of the rotation from the legs' root
+    to it (short arc): 1 keeps the chest's orientation in the heading frame as its segments
+    carried it, 0 leaves it relative to the legs' pelvis. Both roots are seam-corrected to A's and B's, so the turn starts from
     nothing at A and returns to nothing at B. Only the new frames of ``frames`` ``(lo, hi)``
     (all if None). Returns ``out``. The numpy steps of the compiled
     :func:`posturemap.synth.retrieval_numba.lift_upper`.
@@ -919,7 +926,8 @@ def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b
     lo, hi = (0, length) if frames is None else (max(int(frames[0]), 0), min(int(frames[1]), length))
     if hi <= lo or len(tops) == 0:
         return out
-    own = replay_rotations(lib, i0, i1, f, np.array([root]), a2[:, [root]], b2[:, [root]], curves)[lo:hi, 0]
+    own = replay_rotations(lib, i0, i1, f, np.array([root]), a2[:, [root]], b2[:, [root]], curves,
+                           weights=weights)[lo:hi, 0]
     turn = quat.mul(quat.inv(out[lo:hi, root]), own)
     turn *= np.where(turn[:, :1] < 0, -1.0, 1.0)  # short arc
     turn = quat.exp(weight * quat.log(turn))
@@ -987,12 +995,14 @@ def offset_values(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.nd
     return src[:, 2:-2] + c[0] * r_a[:, None] + c[1] * v_a[:, None] + c[2] * r_b[:, None] + c[3] * v_b[:, None]
 
 
-def average_rotations(q: np.ndarray) -> np.ndarray:
-    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum;
-    the rotations need not be unit length)."""
+def average_rotations(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum,
+    each weighed by ``weights`` (K,) if given; the rotations need not be unit length)."""
     if len(q) == 1:
         return quat.normalize(q[0])
     sign = np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    if weights is not None:
+        sign = sign * np.asarray(weights, dtype=float).reshape((len(q),) + (1,) * (q.ndim - 1))
     return quat.normalize(np.sum(q * sign, axis=0))
 
 
@@ -1050,8 +1060,8 @@ class Match:
     """What the search found for one transition, before anything is replayed: per body part
     the best segments ``found[p] = (s, e, total, cost_a, cost_b)``, the match distance (degrees)
     and ``confidence`` (:func:`confidences`), and the transition it was made for; :attr:`info` is
-    the report. ``repeated[p]``: how many of the part's last segments repeat earlier ones, so
-    that the average weighs those more (:meth:`Retriever.upper_in_step`)."""
+    the report. ``weights[p]``: each segment's weight in the part's average (K,), or None for
+    equal weights (:meth:`Retriever.upper_in_step`)."""
 
     ta: object
     tb: object
@@ -1063,7 +1073,7 @@ class Match:
     distance: list
     confidence: list
     lib: MotionLibrary
-    repeated: tuple = (0, 0)
+    weights: list = field(default_factory=lambda: [None, None])
     _info: dict | None = field(default=None, repr=False)
 
     @property
@@ -1083,7 +1093,7 @@ class Match:
                     "warp": round((e0 - s0) / float(lib.fps) / seconds, 3),
                     "cost": round(total.item(0), 4), "cost_a": round(ca.item(0), 4), "cost_b": round(cb.item(0), 4),
                     "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
-                    "blended": len(s) - self.repeated[p]}
+                    "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
         return self._info
 
@@ -1140,14 +1150,14 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     found = searched[float(alpha)]
     if found[0] is None or found[1] is None:
         return None
-    repeated = (0, 0)
-    if seam == "both" and (length + 1) / fps >= TOP_K_RAMP_S[1]:  # a new list: `shared` keeps the search's
+    weights = [None, None]
+    if seam == "both" and (length + 1) / fps >= UPPER_IN_STEP_S:
         legs, upper = found
-        keep = rt.in_step(legs[0], legs[1], d)
-        legs = tuple(x[keep] for x in legs)
-        again = np.flatnonzero(rt.upper_in_step(legs, upper, d))  # repeated at the end: weighed more
-        upper = tuple(np.concatenate([x] + [x[again]] * (UPPER_IN_STEP_WEIGHT - 1)) for x in upper)
-        found, repeated = [legs, upper], (0, len(again) * (UPPER_IN_STEP_WEIGHT - 1))
+        if (length + 1) / fps >= TOP_K_RAMP_S[1]:  # a new tuple: `shared` keeps the search's
+            keep = rt.in_step(legs[0], legs[1], d)
+            legs = tuple(x[keep] for x in legs)
+        weights[1] = np.where(rt.upper_in_step(legs, upper, d), UPPER_IN_STEP_WEIGHT, 1.0)
+        found = [legs, upper]
     if seam == "a":  # the segment's start against A's end on both sides of the measure
         dist = rt.seam_distances([(p, found[p][0][0], found[p][0][0]) for p in (0, 1)], xa, xa)
     elif seam == "b":
@@ -1155,7 +1165,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
     conf = confidences(dist, still, upper_weight(length, fps), seam == "both")
-    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, repeated)
+    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights)
 
 
 def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:
@@ -1204,9 +1214,10 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
                 gpos, heading, dtheta, shift, contacts = root
             continue
         i0, i1, f = segment_times(lib, s, e, d)
-        replay_rotations(lib, i0, i1, f, joints, a_rots, b_rots, curves, frames, out=out)
+        replay_rotations(lib, i0, i1, f, joints, a_rots, b_rots, curves, frames, out=out, weights=m.weights[p])
         if lift:
-            lift_upper(lib, i0, i1, f, eng._root, rt.upper_tops, a_rots, b_rots, curves, UPPER_LIFT, frames, out)
+            lift_upper(lib, i0, i1, f, eng._root, rt.upper_tops, a_rots, b_rots, curves, UPPER_LIFT, frames, out,
+                       m.weights[p])
         if p == 0:
             gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
             # The nearest recorded frame of the first segment (its samples lie inside its clip).
@@ -1233,7 +1244,8 @@ def _replay_part(jit, m: Match, p: int, s, e, joints, curves, frames, out, up: i
     dtheta = jit.replay_part(lib.rots, lib.clip_start, lib.clip_of, lib.clip_end, s, e, d, _sample_times(d), joints,
                              joints, ta.rots, tb.rots, np.array(m.ia), np.array(m.ib), curves, lo, hi, out, p == 0,
                              lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading, tb.gpos, tb.heading, m.align,
-                             up, *root, *((-1, _NO_TOPS) if lift is None else lift), UPPER_LIFT)
+                             up, *root, *((-1, _NO_TOPS) if lift is None else lift), UPPER_LIFT,
+                             np.ones(len(s)) if m.weights[p] is None else m.weights[p])
     if p != 0:
         return None
     gpos, heading, shift, contacts = root

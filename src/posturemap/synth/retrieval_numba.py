@@ -91,23 +91,23 @@ def _row(a):
 
 
 @nb.njit(**_OPTS)
-def _mean_samples(rots, i0, i1, f, joints, u, ref, out):
+def _mean_samples(rots, i0, i1, f, joints, u, ref, out, wts):
     """The segments' mean rotation of each joint of ``joints`` (M,) at sample ``u``, into out (M, 4):
     the normalised sum of the K samples ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``, each
-    sign-aligned to the first segment's (kept in ``ref`` (M, 4)). Segment by segment, so that
-    each library frame is read once for all the joints."""
+    weighed by ``wts[k]`` and sign-aligned to the first segment's (kept in ``ref`` (M, 4)).
+    Segment by segment, so that each library frame is read once for all the joints."""
     n_m = joints.shape[0]
     for k in range(i0.shape[0]):
-        a, b, w = i0[k, u], i1[k, u], f[k, u]
+        a, b, w, g = i0[k, u], i1[k, u], f[k, u], wts[k]
         for m in range(n_m):
             q0, q1, q2, q3 = _sample(rots, a, b, w, joints[m])
             if k == 0:
                 ref[m, 0], ref[m, 1], ref[m, 2], ref[m, 3] = q0, q1, q2, q3
-                out[m, 0], out[m, 1], out[m, 2], out[m, 3] = q0, q1, q2, q3
+                out[m, 0], out[m, 1], out[m, 2], out[m, 3] = g * q0, g * q1, g * q2, g * q3
                 continue
-            if q0 * ref[m, 0] + q1 * ref[m, 1] + q2 * ref[m, 2] + q3 * ref[m, 3] < 0.0:
-                q0, q1, q2, q3 = -q0, -q1, -q2, -q3
-            out[m, 0], out[m, 1], out[m, 2], out[m, 3] = out[m, 0] + q0, out[m, 1] + q1, out[m, 2] + q2, out[m, 3] + q3
+            h = -g if q0 * ref[m, 0] + q1 * ref[m, 1] + q2 * ref[m, 2] + q3 * ref[m, 3] < 0.0 else g
+            out[m, 0], out[m, 1], out[m, 2], out[m, 3] = (out[m, 0] + h * q0, out[m, 1] + h * q1,
+                                                          out[m, 2] + h * q2, out[m, 3] + h * q3)
     for m in range(n_m):
         a0, a1, a2, a3 = out[m, 0], out[m, 1], out[m, 2], out[m, 3]
         n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
@@ -115,10 +115,10 @@ def _mean_samples(rots, i0, i1, f, joints, u, ref, out):
 
 
 @nb.njit(**_OPTS)
-def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
-    """Segments sampled at (i0, i1, f) (K, T), averaged, and the average seam-corrected into
-    the columns ``cols`` (M,) of out (L, C, 4), for the new frames ``lo <= t < hi`` (the others
-    are set to the identity).
+def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out, wts):
+    """Segments sampled at (i0, i1, f) (K, T), averaged (each weighed by ``wts`` (K,)), and the
+    average seam-corrected into the columns ``cols`` (M,) of out (L, C, 4), for the new frames
+    ``lo <= t < hi`` (the others are set to the identity).
 
     rots (N, J, 4) library rotations, of which the joints ``joints`` (M,) are replayed; a2/b2
     (2, C, 4) A at a_end-1, a_end and B at b_start, b_start+1, read at ``cols``; curves (4, L)
@@ -135,7 +135,7 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
     ref = np.empty((n_m, 4))
     seam = np.empty((4, n_m, 4))  # the mean at t = -1, 0, d, d + 1
     for r, u in enumerate((0, 1, n_t - 2, n_t - 1)):
-        _mean_samples(rots, i0, i1, f, joints, u, ref, seam[r])
+        _mean_samples(rots, i0, i1, f, joints, u, ref, seam[r], wts)
     # Per joint, the seam offsets: A's value and velocity, B's value and velocity.
     off = np.empty((n_m, 4, 3))
     for m in range(n_m):
@@ -151,7 +151,7 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
             off[m, 2, c], off[m, 3, c] = rb[c], vb1[c] - vb2[c]
     mean = np.empty((n_m, 4))
     for t in range(lo, hi):
-        _mean_samples(rots, i0, i1, f, joints, t + 2, ref, mean)
+        _mean_samples(rots, i0, i1, f, joints, t + 2, ref, mean, wts)
         c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
         for m in range(n_m):
             ox = c0 * off[m, 0, 0] + c1 * off[m, 1, 0] + c2 * off[m, 2, 0] + c3 * off[m, 3, 0]
@@ -165,12 +165,12 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out):
 
 
 @nb.njit(**_OPTS)
-def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out):
+def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out, wts):
     """:func:`posturemap.synth.retrieval.lift_upper`: the upper body's segments' own root
-    (``root``'s column of rots at the samples ``(i0, i1, f)``, averaged and seam-corrected as
-    :func:`replay` does, A's and B's from ``a2``/``b2`` (2, J, 4)), and the turn of ``weight``
-    of the way from the legs' root in ``out`` to it applied to the joints ``tops`` of ``out``
-    (L, J, 4), new frames ``lo <= t < hi``."""
+    (``root``'s column of rots at the samples ``(i0, i1, f)``, averaged (weighed by ``wts``) and
+    seam-corrected as :func:`replay` does, A's and B's from ``a2``/``b2`` (2, J, 4)), and the
+    turn of ``weight`` of the way from the legs' root in ``out`` to it applied to the joints
+    ``tops`` of ``out`` (L, J, 4), new frames ``lo <= t < hi``."""
     n_l = curves.shape[1]
     lo, hi = max(lo, 0), min(hi, n_l)
     own = np.empty((n_l, 1, 4))
@@ -179,7 +179,7 @@ def lift_upper(rots, i0, i1, f, root, tops, a2, b2, curves, lo, hi, weight, out)
         for c in range(4):
             a_r[r, 0, c], b_r[r, 0, c] = a2[r, root, c], b2[r, root, c]
     joints, cols = np.full(1, root, dtype=np.int64), np.zeros(1, dtype=np.int64)
-    replay(rots, i0, i1, f, joints, cols, a_r, b_r, curves, lo, hi, own)
+    replay(rots, i0, i1, f, joints, cols, a_r, b_r, curves, lo, hi, own, wts)
     for t in range(lo, hi):
         # the legs' root to the upper body's own: out[t, root]^-1 own[t], short arc, scaled
         w, x, y, z = _mul(out[t, root, 0], -out[t, root, 1], -out[t, root, 2], -out[t, root, 3],
@@ -831,7 +831,7 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 @nb.njit(**_OPTS)
 def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a_rots, b_rots, ia, ib, curves, lo,
                 hi, out, root, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, align, up,
-                gpos, heading, shift, contacts, lift_root, tops, lift):
+                gpos, heading, shift, contacts, lift_root, tops, lift, wts):
     """One body part of :func:`posturemap.synth.retrieval.replay` in one call: the segments
     ``[s, e]`` (K,) sampled at the times ``t`` (:func:`segment_times`), averaged and
     seam-corrected into the columns ``cols`` of ``out`` (:func:`replay`; A's rows ``ia`` (2,)
@@ -840,7 +840,8 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
     at the same rows, into ``gpos``, ``heading``, ``shift``; returns B's turn) and the planted
     feet of the first segment's nearest recorded frames (into ``contacts`` (L, legs)).
     With ``lift_root`` >= 0 (the upper body, the legs already in ``out``), the joints ``tops``
-    turned by :func:`lift_upper` (``lift`` its weight). Returns 0.0 without ``root``."""
+    turned by :func:`lift_upper` (``lift`` its weight). ``wts`` (K,): each segment's weight in
+    the average. Returns 0.0 without ``root``."""
     n_k, n_t = s.shape[0], t.shape[0]
     i0, i1, f = np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t))
     segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f)
@@ -849,9 +850,9 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
     for r in range(2):
         a2[r] = a_rots[ia[r]]
         b2[r] = b_rots[ib[r]]
-    replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out)
+    replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out, wts)
     if lift_root >= 0:
-        lift_upper(rots, i0, i1, f, lift_root, tops, a2, b2, curves, lo, hi, lift, out)
+        lift_upper(rots, i0, i1, f, lift_root, tops, a2, b2, curves, lo, hi, lift, out, wts)
     if not root:
         return 0.0
     a_pos, a_head, b_pos, b_head = np.empty((2, 3)), np.empty(2), np.empty((2, 3)), np.empty(2)
@@ -961,7 +962,7 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
                 out[u, open_joints[j], c] = 0.0
     dtheta = replay_part(rots, clip_start, clip_of, clip_end, s0, e0, d, t, joints0, joints0, a_rots, b_rots, ia, ib,
                          curves, lo, hi, out, True, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                         b_heading, True, up, gpos, heading, shift, contacts, -1, tops, lift)
+                         b_heading, True, up, gpos, heading, shift, contacts, -1, tops, lift, np.ones(s0.shape[0]))
     if skip_upper:
         for u in range(out.shape[0]):
             for j in range(joints1.shape[0]):
@@ -972,7 +973,7 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
         replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
                     curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
                     b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0],
-                    lift_root, tops, lift)
+                    lift_root, tops, lift, np.ones(s1.shape[0]))
     return dtheta
 
 
