@@ -915,10 +915,10 @@ def lift_upper(lib: MotionLibrary, i0, i1, f, root: int, tops: np.ndarray, a2, b
     (averaged with the segments' ``weights``, seam-corrected to A's and B's from ``a2``/``b2``
     (2, J, 4)), and each top joint is turned by ``weight`` of the rotation from the legs' root
     to it (short arc): 1 keeps the chest's orientation in the heading frame as its segments
-    carried it, 0 leaves it relative to the legs' pelvis. Both roots are seam-corrected to A's and B's, so the turn starts from
-    nothing at A and returns to nothing at B. Only the new frames of ``frames`` ``(lo, hi)``
-    (all if None). Returns ``out``. The numpy steps of the compiled
-    :func:`posturemap.synth.retrieval_numba.lift_upper`.
+    carried it, 0 leaves it relative to the legs' pelvis. Both roots are seam-corrected to A's
+    and B's, so the turn starts from nothing at A and returns to nothing at B. Only the new
+    frames of ``frames`` ``(lo, hi)`` (all if None). Returns ``out``. The numpy steps of the
+    compiled :func:`posturemap.synth.retrieval_numba.lift_upper`.
 
     Over the six Bandai splits (see docs/retrieval.md) 0.5 gave the lowest L2Q and L2P of 0, 0.5
     and 1 at 15, 30 and 45 frames, and lost on none (1 lost on one)."""
