@@ -22,7 +22,8 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis
+from posturemap.synth.bases import (damped_basis, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
+                                   linear_basis)
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
 from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
@@ -932,6 +933,44 @@ def test_linear_basis_goes_straight(length):
     p_a, p_b = -3.0, 11.0
     t = np.arange(1, length + 1) / (length + 1.0)
     np.testing.assert_allclose(linear_basis(length) @ [p_a, p_b], p_a + (p_b - p_a) * t, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_damped_basis_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
+    # A long gap and a slow fade, so that frame differences are close to derivatives.
+    length, tau = 599, 20.0
+    d = length + 1.0
+    rng = np.random.default_rng(seed)
+    p_a, v_a, p_b, v_b = rng.normal(size=4) * [10, 1, 10, 1]
+    slope = (p_b - p_a) / d
+    basis = damped_basis(length, tau)
+    assert basis.shape == (length, 4) and not basis.flags.writeable
+    y = np.concatenate([[p_a], basis @ [p_a, v_a, p_b, v_b], [p_b]])
+    step = np.diff(y)
+    # Each seam keeps its own velocity, without a kink: the velocity changes over the first
+    # frames by far less than the residual velocity per tau (what t * exp(-t / tau) would
+    # change it by: 2 (v - slope) / tau).
+    assert step[0] == pytest.approx(v_a, abs=0.01 * abs(v_a - slope))
+    assert step[-1] == pytest.approx(v_b, abs=0.01 * abs(v_b - slope))
+    assert abs(step[1] - step[0]) < 0.25 * 2 * abs(v_a - slope) / tau
+    assert abs(step[-1] - step[-2]) < 0.25 * 2 * abs(v_b - slope) / tau
+    # Away from the seams it is the straight line (within 1e-3 of the residual velocity's reach).
+    t = np.arange(1, length + 1)
+    mid = (t > 12 * tau) & (t < d - 12 * tau)
+    line = linear_basis(length) @ [p_a, p_b]
+    reach = tau * max(abs(v_a - slope), abs(v_b - slope))
+    assert np.abs((basis @ [p_a, v_a, p_b, v_b] - line)[mid]).max() < 1e-3 * reach
+    # Near them it is not: the seam velocity carries the curve off the line.
+    assert np.abs((basis @ [p_a, v_a, p_b, v_b] - line)[t < 3 * tau]).max() > 0.5 * tau * abs(v_a - slope)
+
+
+@pytest.mark.parametrize("length", [1, 7, 20, 45])
+def test_damped_basis_keeps_a_steady_motion_on_the_line(length):
+    # Seam velocities equal to the line's slope (a root walking at a steady speed): the line itself.
+    p_a, p_b = -3.0, 11.0
+    v = (p_b - p_a) / (length + 1.0)
+    np.testing.assert_allclose(damped_basis(length, 3.0) @ [p_a, v, p_b, v], linear_basis(length) @ [p_a, p_b],
+                               atol=1e-12)
 
 
 # -- euler features -----------------------------------------------------------------------------

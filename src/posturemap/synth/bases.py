@@ -11,6 +11,9 @@ from functools import lru_cache
 
 import numpy as np
 
+VELOCITY_HORIZON_S = 0.1  # upm-valid: time constant (s) over which a seam velocity fades from the keys
+DAMPED_TAU_S = 0.05  # damped: the seam velocities' time constant (s; see damped_basis)
+
 
 def key_spline_basis(length: int, key_at: int) -> np.ndarray:
     """Clamped cubic B-spline through (0: pA, vA), (key_at: key), (length+1: pB, vB).
@@ -79,6 +82,30 @@ def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, n
     if tau <= 0:
         return np.zeros_like(times), np.zeros_like(times)
     return times * np.exp(-times / tau), (d - times) * np.exp(-(d - times) / tau)
+
+
+@lru_cache(maxsize=256)
+def damped_basis(length: int, tau: float) -> np.ndarray:
+    """The straight line from pA to pB plus each seam's velocity beyond it, fading: (length, 4).
+
+    Maps ``[pA, vA, pB, vB]``. With ``w = t / d`` (``d = length + 1``) and the line's slope
+    ``s = (pB - pA) / d``, the frame at ``t`` is ``pA + w (pB - pA) + (1 - w) g(t) (vA - s) -
+    w g(d - t) (vB - s)``, ``g(t) = t (1 + t / tau) exp(-t / tau)``. ``g`` has slope 1 and no
+    curvature at 0, so each seam keeps its velocity and has no kink of acceleration (to
+    ``exp(-d / tau)``); its slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
+    straight line (SLERP/LERP) by ``8 tau``. A motion that turns back (a wave) is not carried on
+    past its seam, one that keeps going (a raised arm) for a few frames, and one at a steady
+    speed (a walking root) stays on the line.
+    """
+    d = length + 1.0
+    t = np.arange(1, length + 1, dtype=float)
+    w = t / d
+    u = d - t
+    near_a = (1 - w) * t * (1 + t / tau) * np.exp(-t / tau)
+    near_b = w * u * (1 + u / tau) * np.exp(-u / tau)
+    out = np.stack([1 - w + (near_a - near_b) / d, near_a, w - (near_a - near_b) / d, -near_b], axis=1)
+    out.setflags(write=False)
+    return out
 
 
 @lru_cache(maxsize=256)

@@ -16,7 +16,7 @@ frames; retrieval replays real motion:
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back by
-    confidence to ``upm-valid`` (``spline`` on gaps under 0.6 s, where the upper body fades into
+    confidence to ``damped`` (``spline`` on gaps under 0.6 s, where the upper body fades into
     it; :mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
     end (0: continue A's motion) against the match at B's start (1: arrive in B's motion).
 ``upm`` (paper)
@@ -34,6 +34,10 @@ frames; retrieval replays real motion:
     The same cubic (Hermite) spline without a key: matches values and velocities at both ends.
 ``slerp``
     SLERP of every rotation and LERP of the root, from A's end to B's start (no velocities).
+``damped``
+    The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried near its
+    seam and gone after about 0.1 s (:func:`posturemap.synth.bases.damped_basis`): the
+    retrieval's fallback on gaps from 0.6 s, where the cubic overshoots.
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
@@ -55,11 +59,11 @@ from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
-from .bases import (damped_reach, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
-                    linear_basis)
+from .bases import (DAMPED_TAU_S, VELOCITY_HORIZON_S, damped_basis, damped_reach, hermite_basis,
+                    inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis)
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
-from .keys import VELOCITY_HORIZON_S, MapKeys
+from .keys import MapKeys
 from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest, describe
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
@@ -332,6 +336,10 @@ def _spline_frames(eng, seam, inputs, ref, req, fps, keys):
     return hermite_basis(req.length) @ inputs[:4]
 
 
+def _damped_frames(eng, seam, inputs, ref, req, fps, keys):
+    return damped_basis(req.length, DAMPED_TAU_S * fps) @ inputs[:4]
+
+
 def _key_frames(eng, seam, inputs, ref, req, fps, keys):
     """One clamped B-spline through the key for every column: keyed columns (feature joints'
     rotations, 0 about the key, and the root height) take the key's value, the others the
@@ -466,7 +474,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
 
 _KEYS = {"upm": _paper_key, "upm-path": _path_key, "upm-valid": _valid_key}
 _FRAMES = {"upm": _key_frames, "upm-path": _key_frames, "upm-valid": _valid_frames, "spline": _spline_frames,
-           "slerp": _slerp_frames, "inertialize": _inertialize_frames}
+           "damped": _damped_frames, "slerp": _slerp_frames, "inertialize": _inertialize_frames}
 _RUN = {"auto": _auto, "retrieval": _retrieval, **{m: _interpolated for m in _FRAMES}}
 assert set(_RUN) == set(METHODS), "every method of the request's catalogue has one implementation"
 

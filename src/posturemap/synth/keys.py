@@ -14,12 +14,11 @@ import numpy as np
 
 from ..core import kernels
 from ..learn.features import TWO_PI
-from .bases import damped_reach
+from .bases import VELOCITY_HORIZON_S, damped_reach
 from .trajectory import Track
 
 # upm-valid (see MapKeys.valid_keys and the README's evaluation section):
 KEY_SPACING_S = 0.2  # at most this many seconds between keys
-VELOCITY_HORIZON_S = 0.1  # time constant (s) over which the seam velocities fade from the keys
 ACCEPT = 1.5  # estimates within ACCEPT * R of a neuron count as valid, others are pulled onto
 #              that sphere. On bandai1, 99% of unseen real postures lie within 2.8 R of a map trained
 #              without them, most within 1.5 R; 1.5 is the benchmark's trade-off: larger keeps more

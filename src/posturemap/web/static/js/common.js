@@ -9,7 +9,8 @@ export const COLOR = {
 const METHOD_NAMES = {
   upm: 'UPM key (paper)', 'upm-path': 'UPM key on map path', 'upm-valid': 'UPM key, validated',
   retrieval: 'Retrieved real motion', auto: 'Auto (by gap and match)',
-  spline: 'Spline, no key', slerp: 'SLERP / LERP', inertialize: 'Inertialization',
+  spline: 'Spline, no key', slerp: 'SLERP / LERP', damped: 'SLERP + fading seam velocities',
+  inertialize: 'Inertialization',
 };
 export const methodName = (m) => METHOD_NAMES[m] || m;
 export const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
