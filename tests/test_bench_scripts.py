@@ -70,3 +70,22 @@ def test_the_transition_speed_script_drives_the_engine_and_the_functional_api(ba
     assert set(out) == set(methods) and all(out[m]["median_us"] > 0 for m in methods)
     out = mod.bench_functional(model, clips, lengths, methods, 2, rng, None)
     assert set(out) == set(methods) and all(out[m]["median_us"] > 0 for m in methods)
+
+
+def test_the_other_dataset_sample_takes_the_same_number_from_every_cell(tmp_path):
+    mod = _module("other_dataset")
+    for content, style, count in (("walk", "active", 5), ("walk", "elderly", 1), ("wave-left-hand", "active", 4)):
+        for i in range(1, count + 1):
+            (tmp_path / f"dataset-2_{content}_{style}_{i:03d}.bvh").write_text("")
+    (tmp_path / "dataset-1_walk_normal_001.bvh").write_text("")  # another dataset's name: ignored
+    (tmp_path / "dataset-2_walk_active_001.json").write_text("")  # not a BVH file: ignored
+    picked = mod.sample_files(tmp_path, 2, seed=0)
+    cells = [(c, s) for _, c, s in picked]
+    assert cells.count(("walk", "active")) == 2 and cells.count(("wave-left-hand", "active")) == 2
+    assert cells.count(("walk", "elderly")) == 1  # a cell smaller than asked gives what it has
+    assert all(p.name.startswith("dataset-2_") and p.suffix == ".bvh" for p, _, _ in picked)
+    assert all(p.stem.split("_")[1] == c and p.stem.split("_")[2] == s for p, c, s in picked)
+    # Seeded: the same seed draws the same files; over seeds the draws differ.
+    assert mod.sample_files(tmp_path, 2, seed=0) == picked
+    draws = {tuple(p.name for p, _, _ in mod.sample_files(tmp_path, 2, seed=s)) for s in range(8)}
+    assert len(draws) > 1

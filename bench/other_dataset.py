@@ -1,0 +1,182 @@
+"""Generalisation: a library of all of bandai1, gaps in clips of Bandai's second dataset.
+
+The independent evaluation runs posturemap on clips it never saw, of other contents and
+styles. The bench's hold-outs split one dataset; this script takes a second one. Bandai Namco
+Research's Motiondataset-2 (2,902 clips, the same 22-joint skeleton at 30 fps, CC BY-NC 4.0,
+https://github.com/BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset) has ten
+contents: walk, walk-turn-left, walk-turn-right, run, wave-both-hands, wave-left-hand,
+wave-right-hand, raise-up-both-hands, raise-up-left-hand, raise-up-right-hand. bandai1 has
+walks and runs but no walking turns, waves in its own way (byebye, bye) and no raised hands.
+Its seven styles are active, elderly, exhausted, feminine, masculine, normal and youthful.
+
+The map and its motion library are trained on every clip of bandai1 (the bench's settings and
+seed). The test clips are drawn with the seed from a directory of dataset-2's BVH files, the
+same number from each (content, style) cell (``--per-cell``, 2 by default: 140 clips), and
+in-betweened as the bench does (10 past and 10 future frames of context, windows every 40
+frames, the gap's length 5 to 45 frames). Printed next to each other: L2Q, L2P, NPSS and MPJPE
+of SLERP, the spline, inertialization, ``damped``, the paper's ``upm``, the previous default
+(``upm-valid`` + foot lock) and the default (``auto`` + foot lock), the default's and SLERP's
+foot skate with the truth's, and the default per content.
+
+Nothing is copied: the clips are read where they are (Bandai's licence).
+
+Usage::
+
+    python bench/other_dataset.py --other DIR [--data DIR] [--per-cell N] [--doc PATH] [--json PATH] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from transition_speed import default_data_dir, machine  # noqa: E402
+
+METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", "auto+feet")
+DEFAULT = "auto+feet"
+LENGTHS = (5, 15, 30, 45)
+PER_CONTENT = (30, 45)  # lengths of the per-content table
+NAME = re.compile(r"^dataset-2_(?P<content>.+)_(?P<style>[a-z]+)_(?P<id>\d+)$")
+
+
+def sample_files(directory: Path, per_cell: int, seed: int) -> list[tuple[Path, str, str]]:
+    """``per_cell`` files of each (content, style) cell of ``directory``, drawn with ``seed``:
+    ``(path, content, style)`` sorted by name. Files not named as dataset-2's are ignored."""
+    cells: dict[tuple[str, str], list[Path]] = {}
+    for f in sorted(Path(directory).glob("*.bvh")):
+        m = NAME.match(f.stem)
+        if m:
+            cells.setdefault((m["content"], m["style"]), []).append(f)
+    rng = np.random.default_rng(seed)
+    out = []
+    for (content, style), files in sorted(cells.items()):
+        pick = rng.choice(len(files), size=min(per_cell, len(files)), replace=False)
+        out += [(files[i], content, style) for i in sorted(pick)]
+    return sorted(out)
+
+
+def load(data_dir: Path, other: Path, per_cell: int, seed: int):
+    """The split: training = every clip of bandai1, test = :func:`sample_files` of ``other``."""
+    from posturemap.evaluate.protocol import Split, unit_cm
+    from posturemap.io import bvh
+
+    train_f = sorted((Path(data_dir) / "bandai1").glob("*.bvh"))
+    if not train_f:
+        raise FileNotFoundError(str(Path(data_dir) / "bandai1"))
+    picked = sample_files(other, per_cell, seed)
+    if not picked:
+        raise FileNotFoundError(f"{other}: no dataset-2_<content>_<style>_<id>.bvh file")
+    train = [bvh.read(f) for f in train_f]
+    test = [bvh.read(f) for f, _, _ in picked]
+    cm, unit = unit_cm(test[0])
+    return Split("dataset-2", f"training = every clip of bandai1; test = {per_cell} clips per content and style of "
+                 f"{Path(other).name}", train, [f.name for f in train_f], test, [f.name for f, _, _ in picked],
+                 [c for _, c, _ in picked], LENGTHS, cm, unit, len(train_f))
+
+
+def run(data_dir: Path, other: Path, per_cell: int = 2, seed: int = 0, log=print) -> dict:
+    from posturemap.core import kernels
+    from posturemap.evaluate import protocol, runner, scoring
+
+    kernels.compiled()
+    settings = dataclasses.replace(protocol.Settings.full(), som_epochs=0.25)
+    split = load(data_dir, other, per_cell, seed)
+    t0 = time.perf_counter()
+    state = runner.prepare(split, settings, seed, log=lambda *a: None)
+    windows = protocol.make_windows(state, settings, seed)
+    ctx, test = state["ctx"], state["test"]
+    engines = runner.empty_engines(state)
+    kinds = np.array([split.contents[c] for c, _ in windows])
+    result = {"date": datetime.date.today().isoformat(), "machine": machine(), "seed": seed,
+              "per_cell": per_cell, "clips": len(test), "train_clips": len(split.train), "windows": len(windows),
+              "contents": {k: int((kinds == k).sum()) for k in sorted(set(kinds))}, "lengths": {}}
+    for length in LENGTHS:
+        truth_r, truth_p, preds = runner.predict_windows(engines, METHODS, test, windows, length)
+        tg = scoring.truth_globals(ctx, truth_r, truth_p)
+        row = {"truth_skate": scoring.score_truth(ctx, truth_r, truth_p, length)["skate"]}
+        for m in METHODS:
+            sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
+            row[m] = {k: sc[k] for k in ("l2q", "l2p", "npss", "mpjpe_cm", "skate")}
+        if length in PER_CONTENT:
+            row["per_content"] = {}
+            for k in sorted(set(kinds)):
+                ix = np.flatnonzero(kinds == k)
+                tk = tuple(x[ix] for x in tg)
+                cell = {m: scoring.score_inbetween(ctx, truth_r[ix], truth_p[ix], preds[m][0][ix], preds[m][1][ix],
+                                                   length, accuracy_only=True, truth_g=tk)
+                        for m in ("slerp", "spline", "damped", DEFAULT)}
+                cell["truth_skate"] = scoring.score_truth(ctx, truth_r[ix], truth_p[ix], length)["skate"]
+                row["per_content"][k] = cell
+        result["lengths"][str(length)] = row
+    log(f"dataset-2: {len(test)} clips, {len(windows)} windows in {time.perf_counter() - t0:.0f} s")
+    return result
+
+
+def markdown(result: dict, command: str) -> str:
+    lines = [f"{result['clips']} test clips ({result['per_cell']} per content and style, seed {result['seed']}), "
+             f"{result['windows']} windows; library: the {result['train_clips']} clips of bandai1. "
+             "Ratios to SLERP (lower is better); SLERP's own value in its column.", ""]
+    for key, label in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE (cm)")):
+        lines += [f"**{label}**", "", "| frames | " + " | ".join(METHODS) + " |",
+                  "| ---: | " + " | ".join("---:" for _ in METHODS) + " |"]
+        for length, row in result["lengths"].items():
+            sl = row["slerp"][key]
+            cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in METHODS[1:]]
+            lines.append(f"| {length} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["**Foot skate** (cm/s, height-weighted foot speed over every frame, no contact detection)", "",
+              "| frames | " + " | ".join(METHODS) + " | truth |", "| ---: | " + " | ".join("---:" for _ in METHODS)
+              + " | ---: |"]
+    for length, row in result["lengths"].items():
+        lines.append(f"| {length} | " + " | ".join(f"{row[m]['skate']:.2f}" for m in METHODS)
+                     + f" | {row['truth_skate']:.2f} |")
+    lines.append("")
+    for length, row in result["lengths"].items():
+        if "per_content" not in row:
+            continue
+        lines += [f"**Per content at {length} frames** (L2Q / L2P as ratios to SLERP; skate in cm/s)", "",
+                  "| content | windows | SLERP L2Q | spline | damped | default | default skate / truth |",
+                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+        for k, cell in row["per_content"].items():
+            sl = cell["slerp"]
+            ratio = [f"{cell[m]['l2q'] / sl['l2q']:.2f}x / {cell[m]['l2p'] / sl['l2p']:.2f}x"
+                     for m in ("spline", "damped", DEFAULT)]
+            lines.append(f"| {k} | {result['contents'][k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
+                         + f" | {cell[DEFAULT]['skate']:.2f} / {cell['truth_skate']:.2f} |")
+        lines.append("")
+    m = result["machine"]
+    lines.append(f"Machine: {m['cpu']}, {m['cpus']} CPUs, Python {m['python']}; `{command}` ({result['date']}).")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--other", required=True, help="directory of Motiondataset-2's BVH files")
+    p.add_argument("--data", default=None, help="the data directory holding bandai1/")
+    p.add_argument("--per-cell", type=int, default=2)
+    p.add_argument("--json", default=None)
+    p.add_argument("--doc", default=None)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    result = run(Path(args.data) if args.data else default_data_dir(), Path(args.other), args.per_cell, args.seed)
+    md = markdown(result, f"python bench/other_dataset.py --other DIR --per-cell {args.per_cell} --seed {args.seed}")
+    print(md)
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+    if args.doc:
+        Path(args.doc).write_text("# Another dataset: bandai1's library, Motiondataset-2's gaps\n\n"
+                                  + __doc__.split("\n\n", 1)[1].split("Usage::")[0] + md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
