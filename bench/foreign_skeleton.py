@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -39,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine  # noqa: E402
+from transition_speed import default_data_dir, machine, save_outputs  # noqa: E402
 
 HOLDOUTS = ("style", "content")
 METHODS = ("slerp", "spline", "inertialize", "auto+feet")
@@ -167,11 +166,7 @@ def main(argv=None) -> int:
     result = run(Path(args.data) if args.data else default_data_dir(), args.seed)
     md = markdown(result, "python bench/foreign_skeleton.py")
     print(md)
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    if args.doc:
-        Path(args.doc).write_text("# Another rig: the hold-outs rewritten\n\n"
-                                  + __doc__.split("\n\n", 1)[1].split("Usage::")[0] + md)
+    save_outputs(result, md, args.json, args.doc, "Another rig: the hold-outs rewritten", __doc__)
     return 0
 
 

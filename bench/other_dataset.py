@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import re
 import sys
 import time
@@ -39,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine  # noqa: E402
+from transition_speed import default_data_dir, machine, save_outputs  # noqa: E402
 
 METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", "auto+feet")
 DEFAULT = "auto+feet"
@@ -170,11 +169,8 @@ def main(argv=None) -> int:
     result = run(Path(args.data) if args.data else default_data_dir(), Path(args.other), args.per_cell, args.seed)
     md = markdown(result, f"python bench/other_dataset.py --other DIR --per-cell {args.per_cell} --seed {args.seed}")
     print(md)
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    if args.doc:
-        Path(args.doc).write_text("# Another dataset: bandai1's library, Motiondataset-2's gaps\n\n"
-                                  + __doc__.split("\n\n", 1)[1].split("Usage::")[0] + md)
+    save_outputs(result, md, args.json, args.doc, "Another dataset: bandai1's library, Motiondataset-2's gaps",
+                 __doc__)
     return 0
 
 

@@ -36,7 +36,6 @@ import argparse
 import copy
 import datetime
 import gc
-import json
 import sys
 import time
 from pathlib import Path
@@ -44,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import _draws, _stats, default_data_dir, machine  # noqa: E402
+from transition_speed import _draws, _stats, default_data_dir, machine, save_outputs  # noqa: E402
 
 LENGTH = 30
 COPIES = 10
@@ -261,10 +260,7 @@ def main(argv=None) -> int:
     result = run(Path(args.data) if args.data else default_data_dir(), args.quick, args.seed)
     md = markdown(result, "python bench/retrieval_speed.py" + (" --quick" if args.quick else ""))
     print(md)
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    if args.doc:
-        Path(args.doc).write_text("# Retrieval speed\n\n" + (__doc__.split("\n\n", 1)[1].split("Usage::")[0]) + md)
+    save_outputs(result, md, args.json, args.doc, "Retrieval speed", __doc__)
     return 0
 
 

@@ -328,6 +328,15 @@ def markdown(result: dict, command: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def save_outputs(result: dict, md: str, json_path, doc_path, title: str, doc: str) -> None:
+    """A bench script's ``--json`` (the result) and ``--doc`` (``# title``, the script's docstring up
+    to its usage, then the report ``md``), each when asked for."""
+    if json_path:
+        Path(json_path).write_text(json.dumps(result, indent=1) + "\n")
+    if doc_path:
+        Path(doc_path).write_text(f"# {title}\n\n" + doc.split("\n\n", 1)[1].split("Usage::")[0] + md)
+
+
 def write_doc(path: Path, result: dict, command: str) -> None:
     text = ("# Transition speed\n\n"
             "Latency of one transition (`bench/transition_speed.py`; the method is described in its "
