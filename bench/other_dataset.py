@@ -44,7 +44,7 @@ METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", 
 DEFAULT = "auto+feet"
 LENGTHS = (5, 15, 30, 45)
 PER_CONTENT = (30, 45)  # lengths of the per-content table
-NAME = re.compile(r"^dataset-2_(?P<content>.+)_(?P<style>[a-z]+)_(?P<id>\d+)$")
+NAME = re.compile(r"^dataset-2_(?P<content>[^_]+)_(?P<style>[^_]+)_(?P<id>\d+)$")
 
 
 def sample_files(directory: Path, per_cell: int, seed: int) -> list[tuple[Path, str, str]]:
@@ -121,8 +121,9 @@ def run(data_dir: Path, other: Path, per_cell: int = 2, seed: int = 0, log=print
 
 
 def markdown(result: dict, command: str) -> str:
-    lines = [f"{result['clips']} test clips ({result['per_cell']} per content and style, seed {result['seed']}), "
-             f"{result['windows']} windows; library: the {result['train_clips']} clips of bandai1. "
+    lines = [f"{result['clips']} test clips ({result['per_cell']} per content and style, seed {result['seed']}; a clip "
+             f"shorter than a window gives none), {result['windows']} windows; library: the {result['train_clips']} "
+             "clips of bandai1. "
              "Ratios to SLERP (lower is better); SLERP's own value in its column.", ""]
     for key, label in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE (cm)")):
         lines += [f"**{label}**", "", "| frames | " + " | ".join(METHODS) + " |",
@@ -132,7 +133,7 @@ def markdown(result: dict, command: str) -> str:
             cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in METHODS[1:]]
             lines.append(f"| {length} | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["**Foot skate** (cm/s, height-weighted foot speed over every frame, no contact detection)", "",
+    lines += ["**Foot skate** (cm/s, height-weighted foot speed over the gap, no contact detection)", "",
               "| frames | " + " | ".join(METHODS) + " | truth |", "| ---: | " + " | ".join("---:" for _ in METHODS)
               + " | ---: |"]
     for length, row in result["lengths"].items():

@@ -964,6 +964,21 @@ def test_damped_basis_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
     assert np.abs((basis @ [p_a, v_a, p_b, v_b] - line)[t < 3 * tau]).max() > 0.5 * tau * abs(v_a - slope)
 
 
+@pytest.mark.parametrize("length", [2, 4, 7])
+def test_damped_basis_lets_go_of_a_seams_velocity_before_the_other_seam(length):
+    # The engine's tau at 30 fps (1.5 frames), short gaps: what A's velocity adds is weighed by
+    # 1 - t/d, so it is gone at B's start however short the gap; B's side likewise at A's end.
+    tau, d = 1.5, length + 1.0
+    t = np.arange(1, length + 1)
+    g = t * (1 + t / tau) * np.exp(-t / tau)
+    from_a = damped_basis(length, tau) @ [0.0, 1.0, 0.0, 0.0]  # A's velocity alone, pA = pB = 0
+    np.testing.assert_allclose(from_a, (1 - t / d) * g, atol=1e-12)
+    from_b = damped_basis(length, tau) @ [0.0, 0.0, 0.0, 1.0]
+    np.testing.assert_allclose(from_b, -(t / d) * g[::-1], atol=1e-12)
+    # The last frame carries less of A's velocity than one frame's worth of it over the gap.
+    assert from_a[-1] <= g.max() / d + 1e-12
+
+
 @pytest.mark.parametrize("length", [1, 7, 20, 45])
 def test_damped_basis_keeps_a_steady_motion_on_the_line(length):
     # Seam velocities equal to the line's slope (a root walking at a steady speed): the line itself.

@@ -91,11 +91,14 @@ def damped_basis(length: int, tau: float) -> np.ndarray:
     Maps ``[pA, vA, pB, vB]``. With ``w = t / d`` (``d = length + 1``) and the line's slope
     ``s = (pB - pA) / d``, the frame at ``t`` is ``pA + w (pB - pA) + (1 - w) g(t) (vA - s) -
     w g(d - t) (vB - s)``, ``g(t) = t (1 + t / tau) exp(-t / tau)``. ``g`` has slope 1 and no
-    curvature at 0, so each seam keeps its velocity and has no kink of acceleration (to
-    ``exp(-d / tau)``); its slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
+    curvature at 0, so each seam keeps its own velocity (the other seam's term reaches it only
+    by ``(1 + d / tau) exp(-d / tau)``) and its acceleration there is only that of the weights
+    ``1 - w`` and ``w`` (``2 (v - s) / d``), which bring the far seam's term to 0 at each seam on
+    short gaps too. ``g``'s slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
     straight line (SLERP/LERP) by ``8 tau``. A motion that turns back (a wave) is not carried on
     past its seam, one that keeps going (a raised arm) for a few frames, and one at a steady
-    speed (a walking root) stays on the line.
+    speed (a walking root) stays on the line. At 30 fps the engine's ``tau`` (0.05 s) is 1.5
+    frames: the first new frame carries about 0.8 of a seam's residual velocity, the next 0.3.
     """
     d = length + 1.0
     t = np.arange(1, length + 1, dtype=float)

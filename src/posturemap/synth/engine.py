@@ -35,9 +35,10 @@ frames; retrieval replays real motion:
 ``slerp``
     SLERP of every rotation and LERP of the root, from A's end to B's start (no velocities).
 ``damped``
-    The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried near its
-    seam and gone after about 0.1 s (:func:`posturemap.synth.bases.damped_basis`): the
-    retrieval's fallback on gaps from 0.6 s, where the cubic overshoots.
+    The straight line (SLERP/LERP) plus what each seam's velocity adds to it: carried on for
+    about 0.08 s past its seam, then let go, the offset back on the line by about 0.4 s
+    (:func:`posturemap.synth.bases.damped_basis`): the retrieval's fallback on gaps from 0.6 s,
+    where the cubic overshoots.
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
