@@ -1128,6 +1128,62 @@ def test_searching_both_parts_at_once_equals_each_alone(engine):
         rt.search_parts(qa, qb, gathered, 31.0, 30.0, (0.5,), None, 0)
 
 
+def _straight_path(length: int) -> np.ndarray:
+    """One segment walking straight along the first horizontal axis at one unit a frame, heading
+    0, sampled at t = -1 .. length + 2 (as :func:`retrieval.segment_times` samples)."""
+    t = np.arange(-1, length + 3, dtype=float)
+    return np.stack([t, np.zeros_like(t), np.zeros_like(t)], axis=1)[None].copy()
+
+
+@pytest.mark.parametrize("length", [20, 45])
+def test_a_straight_path_bends_into_a_gap_that_turns(length):
+    d = length + 1.0
+    traj = _straight_path(length)
+    a2 = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    # B a quarter circle on (arc length d), facing and walking a quarter turn to the left.
+    r = 2 * d / np.pi
+    b2 = np.array([[r, r, np.pi / 2], [r, r + 1.0, np.pi / 2]])
+    before = np.hypot(*(traj[0, -2, :2] - b2[0, :2]))
+    curves = retrieval.hermite_offsets(length, 20.0)
+    retrieval.bend_paths(traj, a2, b2, curves)
+    after = np.hypot(*(traj[0, -2, :2] - b2[0, :2]))
+    assert after < 0.25 * before
+    # It starts where A is, with A's direction, and turns to the left all the way.
+    np.testing.assert_allclose(traj[0, 1, :2], [0.0, 0.0], atol=1e-12)
+    steps = np.diff(traj[0, 1:-1, :2], axis=0)
+    angles = np.unwrap(np.arctan2(steps[:, 1], steps[:, 0]))
+    assert abs(angles[0]) < 0.05 and np.all(np.diff(angles) > -1e-9) and angles[-1] > 1.2
+    np.testing.assert_allclose(traj[0, :, 2], 0.0)  # the heading column is left to the offsets
+
+
+def test_a_path_is_not_bent_away_from_b():
+    # B ahead and a little to the right, but facing 45 degrees to the left (hips held turned, not
+    # a turn of the walk): bending to the left would take the end away from B, so nothing moves.
+    length = 30
+    traj = _straight_path(length)
+    before = traj.copy()
+    a2 = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    b2 = np.array([[length + 1.0, -2.0, np.pi / 4], [length + 2.0, -2.0, np.pi / 4]])
+    retrieval.bend_paths(traj, a2, b2, retrieval.hermite_offsets(length, 20.0))
+    np.testing.assert_array_equal(traj, before)
+
+
+def test_a_bend_that_mends_little_of_the_miss_is_not_taken(monkeypatch):
+    # B a quarter turn to the left but ahead of the straight path's end and a little to the left:
+    # the best fraction of the bend (about 1%) would mend almost none of the miss (the gate's
+    # lower end is 30%), so the path stays; with the gate open, it moves.
+    length = 30
+    a2 = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    b2 = np.array([[length + 4.0, 2.0, np.pi / 2], [length + 4.0, 3.0, np.pi / 2]])
+    curves = retrieval.hermite_offsets(length, 20.0)
+    traj = _straight_path(length)
+    retrieval.bend_paths(traj, a2, b2, curves)
+    np.testing.assert_array_equal(traj, _straight_path(length))
+    monkeypatch.setattr(retrieval, "BEND_GATE", (-1.0, 0.0))
+    retrieval.bend_paths(traj, a2, b2, curves)
+    assert 1e-3 < np.abs(traj - _straight_path(length)).max() < 1.0
+
+
 def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
     from posturemap.synth import retrieval_numba
 
@@ -1150,7 +1206,7 @@ def test_compiled_root_trajectory_matches_the_numpy_steps(engine):
         gpos, heading, shift = np.empty((length, 3)), np.empty(length), np.empty(3)
         dtheta = retrieval_numba.trajectory(rt.lib.gpos, rt.lib.heading, i0, i1, f, ta.gpos[ia], ta.heading[ia],
                                             tb.gpos[ib], tb.heading[ib], align, UP, curves, gpos, heading,
-                                            shift)
+                                            shift, *retrieval.BEND_GATE)
         got = gpos, heading, dtheta, shift
         ref = retrieval.root_trajectory(rt.lib, i0, i1, f, ta, tb, ia, ib, align, UP, curves)
         for g, r in zip(got, ref):  # positions, headings, B's turn and shift

@@ -721,15 +721,57 @@ def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
 
 
 @nb.njit(**_OPTS)
+def _bend_paths(traj, a_h0, a_h1, b_a, b_b, b_h0, b_h1, curves, gate_lo, gate_hi):
+    """:func:`posturemap.synth.retrieval.bend_paths` on traj (K, T, 4: a, b, heading, height) in place:
+    A's headings ``a_h0, a_h1``, B's place ``b_a, b_b`` and headings ``b_h0, b_h1``, the gate
+    ``BEND_GATE`` as ``gate_lo, gate_hi``."""
+    n_k, n_t = traj.shape[0], traj.shape[1]
+    n_l = curves.shape[1]
+    dh = np.empty(n_t)
+    bent = np.empty((n_t, 2))
+    for k in range(n_k):
+        r_a = a_h1 - traj[k, 1, 2]
+        v_a = (a_h1 - a_h0) - (traj[k, 1, 2] - traj[k, 0, 2])
+        r_b = b_h0 - traj[k, n_l + 2, 2]
+        v_b = (b_h1 - b_h0) - (traj[k, n_l + 3, 2] - traj[k, n_l + 2, 2])
+        for t in range(n_l):
+            dh[t + 2] = curves[0, t] * r_a + curves[1, t] * v_a + curves[2, t] * r_b + curves[3, t] * v_b
+        dh[0] = dh[1] = r_a
+        dh[n_t - 2] = dh[n_t - 1] = r_b
+        bent[1, 0], bent[1, 1] = traj[k, 1, 0], traj[k, 1, 1]
+        for t in range(n_t - 1):
+            turn = 0.5 * (dh[t + 1] + dh[t])
+            c, s = math.cos(turn), math.sin(turn)
+            sa = traj[k, t + 1, 0] - traj[k, t, 0]
+            sb = traj[k, t + 1, 1] - traj[k, t, 1]
+            ra, rb = c * sa - s * sb, s * sa + c * sb
+            if t == 0:
+                bent[0, 0], bent[0, 1] = traj[k, 1, 0] - ra, traj[k, 1, 1] - rb
+            else:
+                bent[t + 1, 0], bent[t + 1, 1] = bent[t, 0] + ra, bent[t, 1] + rb
+        p0a, p0b = traj[k, n_t - 2, 0], traj[k, n_t - 2, 1]
+        da, db = bent[n_t - 2, 0] - p0a, bent[n_t - 2, 1] - p0b
+        ma, mb = b_a - p0a, b_b - p0b
+        lam = (ma * da + mb * db) / max(da * da + db * db, 1e-12)
+        lam = min(max(lam, 0.0), 1.0)
+        mended = 1.0 - math.hypot(ma - lam * da, mb - lam * db) / max(math.hypot(ma, mb), 1e-12)
+        lam *= min(max((mended - gate_lo) / (gate_hi - gate_lo), 0.0), 1.0)
+        for t in range(n_t):
+            traj[k, t, 0] += lam * (bent[t, 0] - traj[k, t, 0])
+            traj[k, t, 1] += lam * (bent[t, 1] - traj[k, t, 1])
+
+
+@nb.njit(**_OPTS)
 def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head_in, align, up, curves, gpos,
-               heading, shift):
+               heading, shift, gate_lo, gate_hi):
     """The root trajectory of the lower body's segments (see :func:`posturemap.synth.retrieval.retrieve`):
     each segment's root path sampled at (i0, i1, f) (K, T), turned and moved to continue A
     (``a_pos`` (2, 3), ``a_head`` (2,): A at a_end-1, a_end), its seams corrected towards A and B
     (B at b_start, b_start+1 moved by the returned turn and ``shift``, when ``align`` to where
     the segments end), averaged. Writes ``gpos`` (L, 3), ``heading`` (L,) and ``shift`` (3,);
     returns B's turn ``dtheta``. ``curves`` (4, L) are the seam offsets (their value rows span the
-    gap, so the horizontal path lands on B in in-betweening)."""
+    gap, so the horizontal path lands on B in in-betweening, where each path is first bent by
+    :func:`_bend_paths` with the gate ``gate_lo, gate_hi``)."""
     n_k, n_t = i0.shape
     n_l = curves.shape[1]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -771,6 +813,9 @@ def trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos_in, b_head
     turns = np.rint((end[2] - b_head[0]) / (2 * math.pi))
     for i in range(2):
         b_head[i] += 2 * math.pi * turns
+    if not align:
+        _bend_paths(traj, a_head[0], a_head[1], b_pos[0, a_], b_pos[0, b_], b_head[0], b_head[1], curves, gate_lo,
+                    gate_hi)
     out = np.empty(n_l)
     _offset_mean(traj, a_pos[0, a_], a_pos[1, a_], b_pos[0, a_], b_pos[1, a_], curves, out, 0)
     gpos[:, a_] = out
@@ -831,7 +876,7 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
 @nb.njit(**_OPTS)
 def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a_rots, b_rots, ia, ib, curves, lo,
                 hi, out, root, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos, b_heading, align, up,
-                gpos, heading, shift, contacts, lift_root, tops, lift, wts):
+                gpos, heading, shift, contacts, lift_root, tops, lift, wts, gate_lo, gate_hi):
     """One body part of :func:`posturemap.synth.retrieval.replay` in one call: the segments
     ``[s, e]`` (K,) sampled at the times ``t`` (:func:`segment_times`), averaged and
     seam-corrected into the columns ``cols`` of ``out`` (:func:`replay`; A's rows ``ia`` (2,)
@@ -841,7 +886,8 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
     feet of the first segment's nearest recorded frames (into ``contacts`` (L, legs)).
     With ``lift_root`` >= 0 (the upper body, the legs already in ``out``), the joints ``tops``
     turned by :func:`lift_upper` (``lift`` its weight). ``wts`` (K,): each segment's weight in
-    the average. Returns 0.0 without ``root``."""
+    the average; ``gate_lo, gate_hi``: the path's bend (:func:`trajectory`). Returns 0.0 without
+    ``root``."""
     n_k, n_t = s.shape[0], t.shape[0]
     i0, i1, f = np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t), dtype=np.int64), np.empty((n_k, n_t))
     segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f)
@@ -862,7 +908,7 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
         a_head[r] = a_heading[ia[r]]
         b_head[r] = b_heading[ib[r]]
     dtheta = trajectory(lib_gpos, lib_heading, i0, i1, f, a_pos, a_head, b_pos, b_head, align, up, curves, gpos,
-                        heading, shift)
+                        heading, shift, gate_lo, gate_hi)
     for u in range(contacts.shape[0]):
         contacts[u] = lib_contacts[np.int64(np.rint(i0[0, u + 2] + f[0, u + 2]))]
     return dtheta
@@ -962,7 +1008,8 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
                 out[u, open_joints[j], c] = 0.0
     dtheta = replay_part(rots, clip_start, clip_of, clip_end, s0, e0, d, t, joints0, joints0, a_rots, b_rots, ia, ib,
                          curves, lo, hi, out, True, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
-                         b_heading, True, up, gpos, heading, shift, contacts, -1, tops, lift, np.ones(s0.shape[0]))
+                         b_heading, True, up, gpos, heading, shift, contacts, -1, tops, lift, np.ones(s0.shape[0]),
+                         0.0, 1.0)  # B placed where the legs end: no path to bend (the gate is unused)
     if skip_upper:
         for u in range(out.shape[0]):
             for j in range(joints1.shape[0]):
@@ -973,7 +1020,7 @@ def _replay_half(rots, clip_start, clip_of, clip_end, s0, e0, s1, e1, skip_upper
         replay_part(rots, clip_start, clip_of, clip_end, s1, e1, d, t, joints1, joints1, a_rots, b_rots, ia, ib,
                     curves, lo, hi, out, False, lib_gpos, lib_heading, lib_contacts, a_gpos, a_heading, b_gpos,
                     b_heading, True, up, gpos[:0], heading[:0], shift, contacts[:0],
-                    lift_root, tops, lift, np.ones(s1.shape[0]))
+                    lift_root, tops, lift, np.ones(s1.shape[0]), 0.0, 1.0)
     return dtheta
 
 
