@@ -700,6 +700,18 @@ def seam_rows(parents, a_rots, a_pos, b_rots, b_pos, ia, ib, a_gpos, a_heading, 
 
 
 @nb.njit(**_OPTS)
+def _seam_misses(src, k, ch, a0, a1, b0, b1, n_l):
+    """Segment ``k``'s misses in channel ``ch`` of src (K, T, C) sampled at t = -1 .. d + 1 against
+    A's values ``a0, a1`` and B's ``b0, b1``: value and velocity at A, value and velocity at B
+    (:func:`posturemap.synth.retrieval.offset_values`'s ``r_a, v_a, r_b, v_b``)."""
+    r_a = a1 - src[k, 1, ch]
+    v_a = (a1 - a0) - (src[k, 1, ch] - src[k, 0, ch])
+    r_b = b0 - src[k, n_l + 2, ch]
+    v_b = (b1 - b0) - (src[k, n_l + 3, ch] - src[k, n_l + 2, ch])
+    return r_a, v_a, r_b, v_b
+
+
+@nb.njit(**_OPTS)
 def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
     """Channel ``ch`` of :func:`posturemap.synth.retrieval.offset_values` averaged over the segments:
     src (K, T, C) sampled at t = -1 .. d + 1, seam values a0, a1 (A) and b0, b1 (B) (K-independent),
@@ -709,10 +721,7 @@ def _offset_mean(src, a0, a1, b0, b1, curves, out, ch):
     for t in range(n_l):
         out[t] = 0.0
     for k in range(n_k):
-        r_a = a1 - src[k, 1, ch]
-        v_a = (a1 - a0) - (src[k, 1, ch] - src[k, 0, ch])
-        r_b = b0 - src[k, n_l + 2, ch]
-        v_b = (b1 - b0) - (src[k, n_l + 3, ch] - src[k, n_l + 2, ch])
+        r_a, v_a, r_b, v_b = _seam_misses(src, k, ch, a0, a1, b0, b1, n_l)
         for t in range(n_l):
             out[t] += (src[k, t + 2, ch] + curves[0, t] * r_a + curves[1, t] * v_a + curves[2, t] * r_b
                        + curves[3, t] * v_b)
@@ -730,10 +739,7 @@ def _bend_paths(traj, a_h0, a_h1, b_a, b_b, b_h0, b_h1, curves, gate_lo, gate_hi
     dh = np.empty(n_t)
     bent = np.empty((n_t, 2))
     for k in range(n_k):
-        r_a = a_h1 - traj[k, 1, 2]
-        v_a = (a_h1 - a_h0) - (traj[k, 1, 2] - traj[k, 0, 2])
-        r_b = b_h0 - traj[k, n_l + 2, 2]
-        v_b = (b_h1 - b_h0) - (traj[k, n_l + 3, 2] - traj[k, n_l + 2, 2])
+        r_a, v_a, r_b, v_b = _seam_misses(traj, k, 2, a_h0, a_h1, b_h0, b_h1, n_l)
         for t in range(n_l):
             dh[t + 2] = curves[0, t] * r_a + curves[1, t] * v_a + curves[2, t] * r_b + curves[3, t] * v_b
         dh[0] = dh[1] = r_a
