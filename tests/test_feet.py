@@ -252,9 +252,21 @@ def test_lock_targets_from_a_and_b_and_nothing_in_the_air():
     # In the air: no weight, the foot's own position (swing_offsets carries the corrections there).
     assert not w[5:10].any() and not w[12:15].any()
     np.testing.assert_array_equal(target[5:10], horiz[5:10])
-    # Not planted at A's end: the first run gets its own spot.
+    # Not planted at A's end: the run at A's end is not held (a spot of its own would jump at
+    # A's seam); the others are as before.
     w2, t2, _ = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, floor=0.0, height_tol=1.0)
-    np.testing.assert_array_equal(t2[:5], np.tile(horiz[2], (5, 1)))
+    assert not w2[:5].any() and np.all(w2[10:12] == 1) and np.all(w2[15:] == 1)
+    np.testing.assert_array_equal(t2[:5], horiz[:5])
+    # Low all through, planted at B's start but not at A's end: not held on B's spot from A's
+    # first new frame (which jumped the foot there); likewise planted at A's end only.
+    low = np.full(length, 0.5)
+    for a_on, b_on in ((False, True), (True, False)):
+        w4, t4, _ = lock_weights_and_targets(low, horiz, a_on, a_spot, b_on, b_spot, floor=0.0, height_tol=1.0)
+        assert not w4.any()
+        np.testing.assert_array_equal(t4, horiz)
+    # The retrieved segment's contacts are held so too.
+    w5, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, 0.0, 1.0, on=np.ones(length, bool))
+    assert not w5.any()
     # A fast low foot is swinging, not planted.
     w3, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
                                         speed=np.full(length, 5.0), speed_tol=1.0)

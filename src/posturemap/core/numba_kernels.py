@@ -530,17 +530,6 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         if contacts.shape[0] > 0:
             for t in range(n_l):
                 on[t] = contacts[t, leg]
-            # A run at a seam where that clip's foot is not planted would jump.
-            first_stop = 0
-            while first_stop < n_l and on[first_stop]:
-                first_stop += 1
-            last_start = n_l
-            while last_start > 0 and on[last_start - 1]:
-                last_start -= 1
-            if first_stop > 0 and not a_on:
-                on[:first_stop] = False
-            if last_start < n_l and not b_on:
-                on[last_start:] = False
         else:
             pa, pb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             for t in range(n_l):
@@ -548,6 +537,17 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 speed = math.sqrt((ha - pa) ** 2 + (hb - pb) ** 2)
                 on[t] = gpos[t, ankle, up] < floor + height_tol and speed < speed_tol
                 pa, pb = ha, hb
+        # A run at a seam where that clip's foot is not planted would jump.
+        first_stop = 0
+        while first_stop < n_l and on[first_stop]:
+            first_stop += 1
+        last_start = n_l
+        while last_start > 0 and on[last_start - 1]:
+            last_start -= 1
+        if first_stop > 0 and not a_on:
+            on[:first_stop] = False
+        if last_start < n_l and not b_on:
+            on[last_start:] = False
         # Lock weights and targets (posturemap.synth.feet.lock_weights_and_targets).
         for t in range(n_l):
             weight[t] = 0.0

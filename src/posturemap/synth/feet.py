@@ -181,7 +181,9 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     of ground frames the weight is 1 and the target the run's spot; elsewhere the weight is 0 and
     the target the foot's own position (:func:`swing_offsets` carries the runs' corrections
     through the frames between them). ``on`` (L,) bool, when given, says which frames are planted
-    instead (e.g. the contacts of a retrieved real segment).
+    instead (e.g. the contacts of a retrieved real segment). A run that begins at A's end where
+    A's foot is not planted (or ends at B's start where B's is not) is not held: its spot would
+    jump there.
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
@@ -193,6 +195,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         on = h < floor + height_tol
         if speed is not None:
             on &= speed < speed_tol
+    else:
+        on = np.array(on, dtype=bool)
+    # A run at a seam where that clip's foot is not planted would jump there (to B's spot from
+    # A's first new frame): it is not held.
+    runs = contact_runs(on)
+    if runs and runs[0][0] == 0 and not a_on:
+        on[: runs[0][1]] = False
+    if runs and runs[-1][1] == length and not b_on:
+        on[runs[-1][0]:] = False
     weight = np.zeros(length)
     raised = np.zeros(length)
     target = horiz.copy()
@@ -309,14 +320,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                 and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
         horiz = gpos[:, ankle] * flat
         speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
-        on = None
-        if contacts is not None:  # a run at a seam where that clip's foot is not planted would jump
-            on = contacts[:, leg].copy()
-            runs = contact_runs(on)
-            if runs and runs[0][0] == 0 and not a_on:
-                on[: runs[0][1]] = False
-            if runs and runs[-1][1] == len(on) and not b_on:
-                on[runs[-1][0]:] = False
+        on = None if contacts is None else contacts[:, leg]
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
                                                           on, round(STEP_S * fps), STEP_LIFT * body)
