@@ -22,7 +22,7 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import (damped_basis, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
+from posturemap.synth.bases import (DAMPED_SAMPLES, damped_basis, damped_frames, damped_time_scales, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis)
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
@@ -966,17 +966,85 @@ def test_damped_basis_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
 
 @pytest.mark.parametrize("length", [2, 4, 7])
 def test_damped_basis_lets_go_of_a_seams_velocity_before_the_other_seam(length):
-    # The engine's tau at 30 fps (1.5 frames), short gaps: what A's velocity adds is weighed by
-    # 1 - t/d, so it is gone at B's start however short the gap; B's side likewise at A's end.
+    # The engine's shortest tau at 30 fps (1.5 frames), short gaps: what A's velocity adds is
+    # weighed by 1 - smoothstep(t/d), so it is gone at B's start, with no slope there, however
+    # short the gap; B's side likewise at A's end.
     tau, d = 1.5, length + 1.0
     t = np.arange(1, length + 1)
     g = t * (1 + t / tau) * np.exp(-t / tau)
+    to_b = (t / d) ** 2 * (3 - 2 * t / d)
     from_a = damped_basis(length, tau) @ [0.0, 1.0, 0.0, 0.0]  # A's velocity alone, pA = pB = 0
-    np.testing.assert_allclose(from_a, (1 - t / d) * g, atol=1e-12)
+    np.testing.assert_allclose(from_a, (1 - to_b) * g, atol=1e-12)
     from_b = damped_basis(length, tau) @ [0.0, 0.0, 0.0, 1.0]
-    np.testing.assert_allclose(from_b, -(t / d) * g[::-1], atol=1e-12)
+    np.testing.assert_allclose(from_b, -to_b * g[::-1], atol=1e-12)
     # The last frame carries less of A's velocity than one frame's worth of it over the gap.
     assert from_a[-1] <= g.max() / d + 1e-12
+
+
+@pytest.mark.parametrize("phase", [0.0, 1.0, 2.5])
+def test_damped_time_scales_measure_one_over_the_frequency(phase):
+    # Ten samples a frame apart: a wave whose period fits in them (omega = 0.7 / frame) gets
+    # 1 / omega whatever its phase (the finite differences' 1 / (2 sin(omega / 2)), within 6%:
+    # nine steps are not a whole number of periods);
+    # a still column 0; a steady drift inf; constant acceleration |v| / |a| (RMS).
+    k = np.arange(DAMPED_SAMPLES, dtype=float)
+    omega = 0.7
+    wave = np.stack([np.sin(omega * k + phase), 2 * np.cos(omega * k + phase), 0 * k], axis=1)
+    rows = np.concatenate([wave, np.ones((len(k), 1)), np.stack([3 * k], axis=1), np.stack([k * k], axis=1)], axis=1)
+    starts = np.array([0, 3, 4, 5])
+    scales = damped_time_scales(rows, 1, starts)
+    assert scales.shape == (6,)
+    np.testing.assert_allclose(scales[:3], 1 / (2 * np.sin(omega / 2)), rtol=0.06)
+    assert scales[3] == 0.0 and scales[4] == np.inf
+    v = np.diff(k * k)
+    assert scales[5] == pytest.approx(np.sqrt(np.mean(v * v)) / 2.0)
+    # Samples `step` frames apart measure in frames, not in samples.
+    np.testing.assert_allclose(damped_time_scales(rows, 4, starts)[:3], 4 * scales[:3])
+    assert not damped_time_scales(rows[:2], 1, starts).any()
+
+
+@pytest.mark.parametrize("length", [3, 20, 45])
+def test_damped_frames_with_one_time_scale_are_the_basis(length):
+    rng = np.random.default_rng(length)
+    inputs = rng.normal(size=(4, 7))
+    tau = 2.5
+    expected = damped_basis(length, tau) @ inputs
+    np.testing.assert_allclose(damped_frames(inputs, length, np.full(7, tau), np.full(7, tau), 1.0, 5.0),
+                               expected, atol=1e-12)
+    # Time scales outside [tau_min, tau_max] are held at its ends.
+    np.testing.assert_allclose(damped_frames(inputs, length, np.zeros(7), np.full(7, np.inf), 2.5, 2.5), expected,
+                               atol=1e-12)
+
+
+def test_damped_carries_a_slow_swing_further_than_a_fast_one(clips):
+    # One elbow swings about a fixed axis, passing A's end with the same angular velocity, once
+    # slowly (period 2 s) and once fast (0.4 s, a wave); the rest of the body is the walk's. The
+    # slow swing's velocity is carried for its own time scale (the 0.33 s cap), the wave's for
+    # about 0.06 s: four frames into the gap, the slow one is much further along and near its
+    # truth, the wave short of its velocity's reach.
+    m = clips[WALK]
+    j = m.skeleton.names.index("LowerArm_R")
+    a_end, length = 40, 20
+    fps = m.fps
+    tau_s = (np.arange(len(m)) - a_end) / fps
+    axis = np.array([1.0, 0.0, 0.0])
+    speed = 3.0  # rad / s at A's end
+    eng = TransitionEngine()
+    angles = {}
+    for name, period in (("slow", 2.0), ("fast", 0.4)):
+        omega = 2 * np.pi / period
+        theta = speed / omega * np.sin(omega * tau_s)
+        rots = m.rotations.copy()
+        rots[:, j] = quat.from_axis_angle(axis, theta)
+        eng.add(name, Motion(m.skeleton, rots, m.positions.copy(), fps))
+        r, _ = eng.generate(name, name, length=length, a_end=a_end, b_start=a_end + length + 1, align=False,
+                            method="damped", foot_lock=False)
+        angles[name] = 2 * np.arctan2(r[:, j, 1:] @ axis, r[:, j, 0]), theta[a_end + 1: a_end + length + 1]
+    reach = speed * 4 / fps  # the velocity carried four frames unchanged
+    slow, truth_slow = angles["slow"][0][3], angles["slow"][1][3]
+    fast = angles["fast"][0][3]
+    assert slow > 0.8 * reach and abs(slow - truth_slow) < 0.2 * reach
+    assert fast < 0.6 * reach and slow > 1.5 * fast
 
 
 @pytest.mark.parametrize("length", [1, 7, 20, 45])

@@ -12,7 +12,10 @@ from functools import lru_cache
 import numpy as np
 
 VELOCITY_HORIZON_S = 0.1  # upm-valid: time constant (s) over which a seam velocity fades from the keys
-DAMPED_TAU_S = 0.05  # damped: the seam velocities' time constant (s; see damped_basis)
+DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; see damped_basis) ...
+DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales)
+DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
+DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s)
 
 
 def key_spline_basis(length: int, key_at: int) -> np.ndarray:
@@ -84,6 +87,19 @@ def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, n
     return times * np.exp(-times / tau), (d - times) * np.exp(-(d - times) / tau)
 
 
+def damped_weights(length: int, tau_a, tau_b) -> tuple[np.ndarray, np.ndarray]:
+    """How much of A's and B's residual seam velocity each frame carries: (length, C) each, for
+    time constants ``tau_a``, ``tau_b`` (C,) in frames (see :func:`damped_basis`)."""
+    d = length + 1.0
+    t = np.arange(1, length + 1, dtype=float)[:, None]
+    w = t / d
+    u = d - t
+    to_b = w * w * (3 - 2 * w)  # smoothstep: 0 and 1 with no slope at the seams
+    near_a = (1 - to_b) * t * (1 + t / tau_a) * np.exp(-t / tau_a)
+    near_b = to_b * u * (1 + u / tau_b) * np.exp(-u / tau_b)
+    return near_a, near_b
+
+
 @lru_cache(maxsize=256)
 def damped_basis(length: int, tau: float) -> np.ndarray:
     """The straight line from pA to pB plus each seam's velocity beyond it, fading: (length, 4).
@@ -97,18 +113,52 @@ def damped_basis(length: int, tau: float) -> np.ndarray:
     short gaps too. ``g``'s slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
     straight line (SLERP/LERP) by ``8 tau``. A motion that turns back (a wave) is not carried on
     past its seam, one that keeps going (a raised arm) for a few frames, and one at a steady
-    speed (a walking root) stays on the line. At 30 fps the engine's ``tau`` (0.05 s) is 1.5
-    frames: the first new frame carries about 0.8 of a seam's residual velocity, the next 0.3.
+    speed (a walking root) stays on the line. The engine takes ``tau`` per column and seam from
+    the motion there (:func:`damped_time_scales`, :func:`damped_frames`).
     """
+    near_a, near_b = damped_weights(length, np.array([float(tau)]), np.array([float(tau)]))
+    near_a, near_b = near_a[:, 0], near_b[:, 0]
+    w = np.arange(1, length + 1) / (length + 1.0)
     d = length + 1.0
-    t = np.arange(1, length + 1, dtype=float)
-    w = t / d
-    u = d - t
-    near_a = (1 - w) * t * (1 + t / tau) * np.exp(-t / tau)
-    near_b = w * u * (1 + u / tau) * np.exp(-u / tau)
     out = np.stack([1 - w + (near_a - near_b) / d, near_a, w - (near_a - near_b) / d, -near_b], axis=1)
     out.setflags(write=False)
     return out
+
+
+def damped_frames(inputs: np.ndarray, length: int, scale_a: np.ndarray, scale_b: np.ndarray, tau_min: float,
+                  tau_max: float) -> np.ndarray:
+    """:func:`damped_basis`'s frames (length, C) from the rows ``pA, vA, pB, vB`` of ``inputs``
+    (4, C), with each column's ``tau`` at A and at B its motion's time scale there (frames,
+    :func:`damped_time_scales`) held within ``[tau_min, tau_max]``."""
+    p_a, v_a, p_b, v_b = inputs[:4]
+    near_a, near_b = damped_weights(length, np.clip(scale_a, tau_min, tau_max), np.clip(scale_b, tau_min, tau_max))
+    d = length + 1.0
+    slope = (p_b - p_a) / d
+    w = (np.arange(1, length + 1) / d)[:, None]
+    return p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
+
+
+def damped_time_scales(rows: np.ndarray, step: int, starts: np.ndarray) -> np.ndarray:
+    """The time scale (frames) of the motion in ``rows`` (n, C): samples in time order,
+    ``step`` frames apart; per group of columns (each begins at ``starts``, as
+    ``np.add.reduceat`` reads them) ``sqrt(mean |v|^2 / mean |a|^2)`` of the samples' velocity
+    and acceleration, repeated over the group's columns.
+
+    For a sinusoid of angular frequency ``omega`` this is ``1 / omega`` whatever its phase: the
+    time a velocity keeps pointing one way (a quarter period is ``1.57 / omega``), which is
+    when :func:`damped_basis`'s offset peaks (``1.6 tau``). A group that does not move gets 0,
+    one that moves without accelerating ``inf``; with fewer than 3 samples, every column 0.
+    """
+    out = np.zeros(rows.shape[1])
+    if len(rows) < 3:
+        return out
+    v = np.diff(rows, axis=0) / step
+    a = np.diff(v, axis=0) / step
+    ev = np.add.reduceat(np.mean(v * v, axis=0), starts)
+    ea = np.add.reduceat(np.mean(a * a, axis=0), starts)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(ea > 0, np.sqrt(ev / ea), np.where(ev > 0, np.inf, 0.0))
+    return np.repeat(scale, np.diff(np.append(starts, rows.shape[1])))
 
 
 @lru_cache(maxsize=256)

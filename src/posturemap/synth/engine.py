@@ -52,6 +52,7 @@ methods: :mod:`posturemap.synth.bases`; the key postures: :mod:`posturemap.synth
 from __future__ import annotations
 
 import copy
+from functools import lru_cache
 
 import numpy as np
 
@@ -60,7 +61,8 @@ from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
-from .bases import (DAMPED_TAU_S, VELOCITY_HORIZON_S, damped_basis, damped_reach, hermite_basis,
+from .bases import (DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_MAX_S, DAMPED_TAU_S, VELOCITY_HORIZON_S,
+                    damped_frames, damped_reach, damped_time_scales, hermite_basis,
                     inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis)
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
@@ -262,38 +264,35 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
         dtheta, shift = eng.alignment(ta, tb, a_end, b_start, length)
     else:
         dtheta, shift = 0.0, np.zeros(3)
-    b_head = tb.heading[ib] + dtheta
-    b_head += TWO_PI * round((ta.heading[a_end] - b_head[0]) / TWO_PI)
-    b_pos = rotate_about_up(tb.gpos[ib], dtheta, up) + shift
-
-    rots_a, rots_b = ta.rots[ia], tb.rots[ib]
-    j_count = eng.skeleton.num_joints
+    rots_b = tb.rots[ib]
     # The keys, if any; the reference rotation per joint is the key's for keyed joints,
     # otherwise B's first frame.
     ref = rots_b[0].copy()
     keys = _KEYS[req.method](eng, ta, tb, req) if req.method in _KEYS else None
     if keys is not None:
         ref[eng.model.space_.joints] = keys["key"][0]
-    # Seam values as one row each: rotation vectors about ref, then root position,
-    # heading and local translations. Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1].
-    seam = np.empty((5, 3 * j_count + 4 + 3 * j_count))
-    kernels.log_relative(np.concatenate([rots_a, rots_b]), ref, seam[:, : 3 * j_count].reshape(5, j_count, 3))
-    s0 = 3 * j_count
-    seam[:3, s0: s0 + 3] = ta.gpos[ia]
-    seam[:3, s0 + 3] = ta.heading[ia]
-    seam[:3, s0 + 4:] = ta.motion.positions[ia].reshape(3, -1)
-    seam[3:, s0: s0 + 3] = b_pos
-    seam[3:, s0 + 3] = b_head
-    seam[3:, s0 + 4:] = tb.motion.positions[ib].reshape(2, -1)
+
+    def context(count: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """Up to ``count`` rows of A's frames every ``step`` up to ``a_end`` and of B's from
+        ``b_start`` (as far as the clips go), in time order."""
+        ca = a_end - step * np.arange(min(count, a_end // step + 1))[::-1]
+        cb = b_start + step * np.arange(min(count, (len(tb.gpos) - 1 - b_start) // step + 1))
+        both = _seam_rows(eng, ta, tb, ca, cb, a_end, ref, dtheta, shift)
+        return both[: len(ca)], both[len(ca):]
+
+    # Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1].
+    seam = _seam_rows(eng, ta, tb, ia, ib, a_end, ref, dtheta, shift)
+    s0 = 3 * eng.skeleton.num_joints
     # Inputs of the bases: pA, vA, pB, vB, and the fifth row (aA or a key) per method.
     inputs = np.empty((5, seam.shape[1]))
     inputs[0] = seam[2]
     np.subtract(seam[2], seam[1], out=inputs[1])
     inputs[2] = seam[3]
     np.subtract(seam[4], seam[3], out=inputs[3])
-    frames = _FRAMES[req.method](eng, seam, inputs, ref, req, ta.motion.fps, keys)
+    frames = _FRAMES[req.method](eng, seam, inputs, ref, req, ta.motion.fps, keys, context)
 
     out_r, out_p = eng._out(length)
+    j_count = eng.skeleton.num_joints
     kernels.exp_relative(frames[:, :s0].reshape(length, j_count, 3), ref, out_r)
     out_p[:] = frames[:, s0 + 4:].reshape(length, j_count, 3)
     kernels.compose_root(eng._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
@@ -302,6 +301,39 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift)
     return out_r, out_p
+
+
+def _seam_rows(eng: TransitionEngine, ta: Track, tb: Track, ia, ib, a_end: int, ref: np.ndarray, dtheta: float,
+               shift: np.ndarray) -> np.ndarray:
+    """Frames ``ia`` of A and ``ib`` of B as rows of the interpolating methods' columns:
+    rotation vectors about ``ref`` (J x 3), the root's position (3; B's turned by ``dtheta`` and
+    moved by ``shift``), its heading (1; B's unwrapped to A's at ``a_end``) and the local
+    translations (J x 3)."""
+    j_count, up = eng.skeleton.num_joints, eng._up
+    n_a = len(ia)
+    b_head = tb.heading[ib] + dtheta
+    b_head += TWO_PI * round((ta.heading[a_end] - tb.heading[ib[0]] - dtheta) / TWO_PI)
+    out = np.empty((n_a + len(ib), 3 * j_count + 4 + 3 * j_count))
+    kernels.log_relative(np.concatenate([ta.rots[ia], tb.rots[ib]]), ref,
+                         out[:, : 3 * j_count].reshape(len(out), j_count, 3))
+    s0 = 3 * j_count
+    out[:n_a, s0: s0 + 3] = ta.gpos[ia]
+    out[:n_a, s0 + 3] = ta.heading[ia]
+    out[:n_a, s0 + 4:] = ta.motion.positions[ia].reshape(n_a, -1)
+    out[n_a:, s0: s0 + 3] = rotate_about_up(tb.gpos[ib], dtheta, up) + shift
+    out[n_a:, s0 + 3] = b_head
+    out[n_a:, s0 + 4:] = tb.motion.positions[ib].reshape(len(ib), -1)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _column_groups(j_count: int) -> np.ndarray:
+    """Where each quantity of :func:`_seam_rows` begins: a joint's rotation vector, each
+    coordinate of the root's position, its heading, a joint's translation (as
+    ``np.add.reduceat`` takes them)."""
+    s0 = 3 * j_count
+    return np.concatenate([np.arange(0, s0, 3), [s0, s0 + 1, s0 + 2, s0 + 3],
+                           np.arange(s0 + 4, 2 * s0 + 4, 3)]).astype(np.intp)
 
 
 # Keys of the key-posture methods: the key (rotations of the feature joints, root height), the
@@ -324,24 +356,36 @@ def _valid_key(eng, ta, tb, req):
 
 
 # The frames (length, columns) of each interpolating method from the seam rows and its inputs.
-def _slerp_frames(eng, seam, inputs, ref, req, fps, keys):
+def _slerp_frames(eng, seam, inputs, ref, req, fps, keys, context):
     return linear_basis(req.length) @ inputs[[0, 2]]
 
 
-def _inertialize_frames(eng, seam, inputs, ref, req, fps, keys):
+def _inertialize_frames(eng, seam, inputs, ref, req, fps, keys, context):
     inputs[4] = seam[2] - 2.0 * seam[1] + seam[0]
     return inertialize_basis(req.length) @ inputs
 
 
-def _spline_frames(eng, seam, inputs, ref, req, fps, keys):
+def _spline_frames(eng, seam, inputs, ref, req, fps, keys, context):
     return hermite_basis(req.length) @ inputs[:4]
 
 
-def _damped_frames(eng, seam, inputs, ref, req, fps, keys):
-    return damped_basis(req.length, DAMPED_TAU_S * fps) @ inputs[:4]
+def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
+    """Each column's seam velocities carried for its motion's own time scale at that seam
+    (:func:`posturemap.synth.bases.damped_time_scales` of A's last and B's first
+    ``DAMPED_SAMPLES`` frames, ``DAMPED_STEP_S`` apart), except the root's position, whose
+    velocity is let go as soon as possible (``DAMPED_TAU_S``): carried longer, a root
+    travelling at a seam (a run slowing down, a step) moves off the line to B's place and must
+    come back (over the six splits of ``docs/retrieval.md``, adapting it too cost 1-2% L2P)."""
+    step = max(1, round(fps * DAMPED_STEP_S))
+    s0 = 3 * eng.skeleton.num_joints
+    scales = [damped_time_scales(rows, step, _column_groups(eng.skeleton.num_joints))
+              for rows in context(DAMPED_SAMPLES, step)]
+    for scale in scales:
+        scale[s0: s0 + 3] = np.where(np.arange(3) == eng._up, scale[s0: s0 + 3], 0.0)
+    return damped_frames(inputs, req.length, scales[0], scales[1], DAMPED_TAU_S * fps, DAMPED_TAU_MAX_S * fps)
 
 
-def _key_frames(eng, seam, inputs, ref, req, fps, keys):
+def _key_frames(eng, seam, inputs, ref, req, fps, keys, context):
     """One clamped B-spline through the key for every column: keyed columns (feature joints'
     rotations, 0 about the key, and the root height) take the key's value, the others the
     Hermite curve's own value there, which leaves them on that curve."""
@@ -352,7 +396,7 @@ def _key_frames(eng, seam, inputs, ref, req, fps, keys):
     return key_spline_basis(req.length, req.key_at) @ inputs
 
 
-def _valid_frames(eng, seam, inputs, ref, req, fps, keys):
+def _valid_frames(eng, seam, inputs, ref, req, fps, keys, context):
     """Keys at several times: keyed columns take the keys' values (rotation vectors about the
     main key); the free columns (trajectory, joints outside the map) take the same kind of
     estimate: the straight line plus the damped seam velocities."""
