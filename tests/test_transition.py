@@ -22,7 +22,7 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import (DAMPED_SAMPLES, damped_basis, damped_frames, damped_time_scales, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
+from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_basis, damped_frames, damped_time_scales, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis)
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
@@ -1045,6 +1045,28 @@ def test_damped_carries_a_slow_swing_further_than_a_fast_one(clips):
     fast = angles["fast"][0][3]
     assert slow > 0.8 * reach and abs(slow - truth_slow) < 0.2 * reach
     assert fast < 0.6 * reach and slow > 1.5 * fast
+
+
+def test_damped_lets_the_roots_travel_go_at_once_and_keeps_its_height_with_the_legs(clips):
+    # A run slowing into a walk-back, in-betweened (B fixed): the root's horizontal position is
+    # the fixed-tau curve (DAMPED_TAU_S: a travelling root's velocity carried longer leaves the
+    # line to B's place), its height not (it takes the motion's time scale, as the legs do).
+    a, b = clips[RUN], clips[BACK]
+    eng = TransitionEngine()
+    eng.add("a", a)
+    eng.add("b", b)
+    a_end, b_start, length = 20, 2, 30
+    r, p = eng.generate("a", "b", length=length, a_end=a_end, b_start=b_start, align=False, method="damped",
+                        foot_lock=False)
+    root = root_index(a)
+    got = fk(a.skeleton.parents, r, p)[1][:, root]
+    ga, gb = fk(a.skeleton.parents, a.rotations, a.positions)[1][:, root], \
+        fk(b.skeleton.parents, b.rotations, b.positions)[1][:, root]
+    inputs = np.stack([ga[a_end], ga[a_end] - ga[a_end - 1], gb[b_start], gb[b_start + 1] - gb[b_start]])
+    fixed = damped_basis(length, DAMPED_TAU_S * a.fps) @ inputs
+    flat = [k for k in range(3) if k != UP]
+    np.testing.assert_allclose(got[:, flat], fixed[:, flat], atol=1e-6 * np.abs(fixed).max())
+    assert np.abs(got[:, UP] - fixed[:, UP]).max() > 0.1  # cm: the height's own time scale
 
 
 @pytest.mark.parametrize("length", [1, 7, 20, 45])

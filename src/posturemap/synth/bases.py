@@ -1,8 +1,10 @@
-"""Bases of the interpolating methods: the in-between frames as fixed linear maps of the seam values.
+"""Bases of the interpolating methods: the in-between frames as linear maps of the seam values.
 
-Every function returns a read-only matrix (cached per length) that maps rows of seam values
-(``pA, vA, pB, vB`` and, per basis, a key or A's acceleration) to the ``length`` new frames at
-times ``1..length``; A's end is at time 0 and B's start at ``length + 1``.
+Every ``*_basis`` function returns a read-only matrix (cached per length) that maps rows of seam
+values (``pA, vA, pB, vB`` and, per basis, a key or A's acceleration) to the ``length`` new
+frames at times ``1..length``; A's end is at time 0 and B's start at ``length + 1``. ``damped``
+is such a map per column once its time constants are known; the engine takes them from the
+clips' motion at each seam (:func:`damped_time_scales`, :func:`damped_frames`).
 """
 
 from __future__ import annotations

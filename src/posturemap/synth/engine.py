@@ -7,8 +7,9 @@ Every frame is split into a *trajectory* (root horizontal position, heading abou
 axis) and a *posture* (root height, root tilt, local rotations). Rotations are handled as
 rotation vectors ``log(ref^-1 q)`` relative to a per-joint reference rotation (the key's,
 or B's first), a space without sign flips or seams for the short arcs of a transition.
-The interpolating methods are each a fixed linear map from the seam values to the in-between
-frames; retrieval replays real motion:
+The interpolating methods are each a linear map from the seam values to the in-between frames
+(``damped``'s weighs each column by its motion's time scale at the seams); retrieval replays
+real motion:
 
 ``auto`` (default)
     ``spline`` for gaps shorter than ``AUTO_SHORT_S`` seconds (too short for a step, where
@@ -35,10 +36,12 @@ frames; retrieval replays real motion:
 ``slerp``
     SLERP of every rotation and LERP of the root, from A's end to B's start (no velocities).
 ``damped``
-    The straight line (SLERP/LERP) plus what each seam's velocity adds to it: carried on for
-    about 0.08 s past its seam, then let go, the offset back on the line by about 0.4 s
-    (:func:`posturemap.synth.bases.damped_basis`): the retrieval's fallback on gaps from 0.6 s,
-    where the cubic overshoots.
+    The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried on past
+    its seam for as long as that motion keeps a velocity (its time scale over the clip's last or
+    first 0.3 s: ``1 / omega`` of a wave, held within 0.05-0.33 s; the root's horizontal
+    position 0.05 s), then let go (:func:`posturemap.synth.bases.damped_basis`,
+    :func:`_damped_frames`): the retrieval's fallback on gaps from 0.6 s, where the cubic
+    overshoots.
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
@@ -332,8 +335,10 @@ def _column_groups(j_count: int) -> np.ndarray:
     coordinate of the root's position, its heading, a joint's translation (as
     ``np.add.reduceat`` takes them)."""
     s0 = 3 * j_count
-    return np.concatenate([np.arange(0, s0, 3), [s0, s0 + 1, s0 + 2, s0 + 3],
-                           np.arange(s0 + 4, 2 * s0 + 4, 3)]).astype(np.intp)
+    out = np.concatenate([np.arange(0, s0, 3), [s0, s0 + 1, s0 + 2, s0 + 3],
+                          np.arange(s0 + 4, 2 * s0 + 4, 3)]).astype(np.intp)
+    out.setflags(write=False)
+    return out
 
 
 # Keys of the key-posture methods: the key (rotations of the feature joints, root height), the
@@ -372,10 +377,11 @@ def _spline_frames(eng, seam, inputs, ref, req, fps, keys, context):
 def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     """Each column's seam velocities carried for its motion's own time scale at that seam
     (:func:`posturemap.synth.bases.damped_time_scales` of A's last and B's first
-    ``DAMPED_SAMPLES`` frames, ``DAMPED_STEP_S`` apart), except the root's position, whose
-    velocity is let go as soon as possible (``DAMPED_TAU_S``): carried longer, a root
+    ``DAMPED_SAMPLES`` frames, ``DAMPED_STEP_S`` apart), except the root's horizontal position,
+    whose velocity is let go as soon as possible (``DAMPED_TAU_S``): carried longer, a root
     travelling at a seam (a run slowing down, a step) moves off the line to B's place and must
-    come back (over the six splits of ``docs/retrieval.md``, adapting it too cost 1-2% L2P)."""
+    come back (over the six splits of ``docs/retrieval.md``, adapting it too cost about 2% L2P).
+    The root's height keeps its own, with the legs that carry it."""
     step = max(1, round(fps * DAMPED_STEP_S))
     s0 = 3 * eng.skeleton.num_joints
     scales = [damped_time_scales(rows, step, _column_groups(eng.skeleton.num_joints))

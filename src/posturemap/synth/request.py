@@ -45,7 +45,8 @@ METHOD_INFO = {
     "upm-valid": Method("several keys, each projected into the map's valid region", keyed=True, key_at=True),
     "spline": Method("cubic Hermite spline matching values and velocities at both seams"),
     "slerp": Method("SLERP of every rotation, LERP of the root"),
-    "damped": Method("SLERP/LERP plus each seam's velocity, carried for about 0.08 s, then let go"),
+    "damped": Method("SLERP/LERP plus each seam's velocity, carried for its motion's own time scale "
+                     "(0.05-0.33 s), then let go"),
     "inertialize": Method("B's start plus a decaying offset from A's end (Bollo 2016)"),
 }
 METHODS = tuple(METHOD_INFO)

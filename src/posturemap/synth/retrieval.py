@@ -108,17 +108,18 @@ BEND_GATE = (0.3, 0.7)
 
 def fallback_method(length: int, fps: float) -> str:
     """The interpolating method a part falls back to: on gaps under ``FALLBACK_SHORT[1]`` seconds
-    the seam velocities matter most (``spline``); on longer ones they are carried for about
-    0.08 s and let go (``damped``), where the cubic would carry a wave or a step on past its seam.
+    the seam velocities matter most (``spline``); on longer ones they are carried for as long as
+    the motion at each seam keeps its velocity and let go (``damped``), where the cubic would
+    carry a wave or a step on past its seam.
 
     ``damped`` replaced ``upm-valid`` (whose keys, real postures from the map, are no better a
     guess of a motion the library lacks than the straight line): on data the library never saw
     (a seeded sample of Bandai's second dataset, 140 clips, with a library of all of bandai1;
     windows sized per length) the default's L2Q went from 0.627 / 0.716x SLERP's to 0.621 / 0.712x
-    at 30 / 45 frames, waving hands from 0.95-1.03x to 0.95-0.98x and raised hands from 0.91-1.07x
-    to 0.93-0.97x (on the bench's windows, raised hands with both arms still lose at 45 frames,
-    1.03x: ``docs/other-dataset.md``); over the bench's six Bandai splits (the bench's own run)
-    from 0.642 / 0.711x to 0.630 / 0.701x (see ``docs/retrieval.md``)."""
+    at 30 / 45 frames with a fixed 0.05 s time constant, and to 0.583 / 0.700x once each seam's
+    came from its motion (raised hands 0.93-0.97x -> 0.69-0.82x, waves at 45 frames
+    0.96-0.98x -> 0.94-1.02x); over the bench's six Bandai splits from 0.642 / 0.711x to 0.630 /
+    0.701x, then 0.613 / 0.693x (see ``docs/retrieval.md``, "Confidence and fallback")."""
     return FALLBACK_SHORT[0] if (length + 1) / fps < FALLBACK_SHORT[1] else FALLBACK
 
 
