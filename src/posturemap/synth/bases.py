@@ -15,7 +15,8 @@ import numpy as np
 
 VELOCITY_HORIZON_S = 0.1  # upm-valid: time constant (s) over which a seam velocity fades from the keys
 DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; see damped_basis) ...
-DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales)
+DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
+DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
 DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s)
 

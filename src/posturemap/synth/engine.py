@@ -64,7 +64,7 @@ from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
-from .bases import (DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_MAX_S, DAMPED_TAU_S, VELOCITY_HORIZON_S,
+from .bases import (DAMPED_GAP_SHARE, DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_MAX_S, DAMPED_TAU_S, VELOCITY_HORIZON_S,
                     damped_frames, damped_reach, damped_time_scales, hermite_basis,
                     inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis)
 from . import retrieval
@@ -381,14 +381,17 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     whose velocity is let go as soon as possible (``DAMPED_TAU_S``): carried longer, a root
     travelling at a seam (a run slowing down, a step) moves off the line to B's place and must
     come back (over the six splits of ``docs/retrieval.md``, adapting it too cost about 2% L2P).
-    The root's height keeps its own, with the legs that carry it."""
+    The root's height keeps its own, with the legs that carry it. No time constant exceeds
+    ``DAMPED_GAP_SHARE`` of the gap, so that each seam's carried velocity turns (at 1.6 tau)
+    before the gap's middle."""
     step = max(1, round(fps * DAMPED_STEP_S))
     s0 = 3 * eng.skeleton.num_joints
     scales = [damped_time_scales(rows, step, _column_groups(eng.skeleton.num_joints))
               for rows in context(DAMPED_SAMPLES, step)]
     for scale in scales:
         scale[s0: s0 + 3] = np.where(np.arange(3) == eng._up, scale[s0: s0 + 3], 0.0)
-    return damped_frames(inputs, req.length, scales[0], scales[1], DAMPED_TAU_S * fps, DAMPED_TAU_MAX_S * fps)
+    longest = max(DAMPED_TAU_S * fps, min(DAMPED_TAU_MAX_S * fps, DAMPED_GAP_SHARE * (req.length + 1)))
+    return damped_frames(inputs, req.length, scales[0], scales[1], DAMPED_TAU_S * fps, longest)
 
 
 def _key_frames(eng, seam, inputs, ref, req, fps, keys, context):
