@@ -107,13 +107,13 @@ def damped_weights(length: int, tau_a, tau_b) -> tuple[np.ndarray, np.ndarray]:
 def damped_basis(length: int, tau: float) -> np.ndarray:
     """The straight line from pA to pB plus each seam's velocity beyond it, fading: (length, 4).
 
-    Maps ``[pA, vA, pB, vB]``. With ``w = t / d`` (``d = length + 1``) and the line's slope
-    ``s = (pB - pA) / d``, the frame at ``t`` is ``pA + w (pB - pA) + (1 - w) g(t) (vA - s) -
-    w g(d - t) (vB - s)``, ``g(t) = t (1 + t / tau) exp(-t / tau)``. ``g`` has slope 1 and no
-    curvature at 0, so each seam keeps its own velocity (the other seam's term reaches it only
-    by ``(1 + d / tau) exp(-d / tau)``) and its acceleration there is only that of the weights
-    ``1 - w`` and ``w`` (``2 (v - s) / d``), which bring the far seam's term to 0 at each seam on
-    short gaps too. ``g``'s slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
+    Maps ``[pA, vA, pB, vB]``. With ``w = t / d`` (``d = length + 1``), the line's slope
+    ``s = (pB - pA) / d`` and the smoothstep ``S(w) = w^2 (3 - 2 w)``, the frame at ``t`` is
+    ``pA + w (pB - pA) + (1 - S(w)) g(t) (vA - s) - S(w) g(d - t) (vB - s)``, ``g(t) = t (1 +
+    t / tau) exp(-t / tau)``. ``g`` has slope 1 and no curvature at 0, so each seam keeps its own
+    velocity; ``S`` is 0 and 1 with no slope at the seams, so neither seam's term reaches the
+    other seam's value or velocity, on short gaps too, and the weights add no acceleration at
+    the seams. ``g``'s slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
     straight line (SLERP/LERP) by ``8 tau``. A motion that turns back (a wave) is not carried on
     past its seam, one that keeps going (a raised arm) for a few frames, and one at a steady
     speed (a walking root) stays on the line. The engine takes ``tau`` per column and seam from
@@ -121,8 +121,8 @@ def damped_basis(length: int, tau: float) -> np.ndarray:
     """
     near_a, near_b = damped_weights(length, np.array([float(tau)]), np.array([float(tau)]))
     near_a, near_b = near_a[:, 0], near_b[:, 0]
-    w = np.arange(1, length + 1) / (length + 1.0)
     d = length + 1.0
+    w = np.arange(1, length + 1) / d
     out = np.stack([1 - w + (near_a - near_b) / d, near_a, w - (near_a - near_b) / d, -near_b], axis=1)
     out.setflags(write=False)
     return out
@@ -147,10 +147,12 @@ def damped_time_scales(rows: np.ndarray, step: int, starts: np.ndarray) -> np.nd
     ``np.add.reduceat`` reads them) ``sqrt(mean |v|^2 / mean |a|^2)`` of the samples' velocity
     and acceleration, repeated over the group's columns.
 
-    For a sinusoid of angular frequency ``omega`` this is ``1 / omega`` whatever its phase: the
-    time a velocity keeps pointing one way (a quarter period is ``1.57 / omega``), which is
-    when :func:`damped_basis`'s offset peaks (``1.6 tau``). A group that does not move gets 0,
-    one that moves without accelerating ``inf``; with fewer than 3 samples, every column 0.
+    For a sinusoid of angular frequency ``omega`` sampled over its period this is ``1 / omega``
+    whatever its phase: the time a velocity keeps pointing one way (a quarter period is
+    ``1.57 / omega``), which is when :func:`damped_basis`'s offset peaks (``1.6 tau``). Over
+    less than a period it is how long the velocity there would last at its acceleration there
+    (long where the motion is at full speed, short where it turns). A group that does not move
+    gets 0, one that moves without accelerating ``inf``; with fewer than 3 samples, every column 0.
     """
     out = np.zeros(rows.shape[1])
     if len(rows) < 3:
