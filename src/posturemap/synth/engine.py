@@ -275,16 +275,14 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     if keys is not None:
         ref[eng.model.space_.joints] = keys["key"][0]
 
-    def context(count: int, step: int) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``count`` rows of A's frames every ``step`` up to ``a_end`` and of B's from
-        ``b_start`` (as far as the clips go), in time order."""
-        ca = a_end - step * np.arange(min(count, a_end // step + 1))[::-1]
-        cb = b_start + step * np.arange(min(count, (len(tb.gpos) - 1 - b_start) // step + 1))
-        both = _seam_rows(eng, ta, tb, ca, cb, a_end, ref, dtheta, shift)
-        return both[: len(ca)], both[len(ca):]
-
-    # Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1].
-    seam = _seam_rows(eng, ta, tb, ia, ib, a_end, ref, dtheta, shift)
+    # Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1], then the context samples a method
+    # asks for (damped: A's last and B's first frames every DAMPED_STEP_S seconds).
+    step = max(1, round(ta.motion.fps * DAMPED_STEP_S))
+    ca, cb = _context_frames(a_end, b_start, len(tb.gpos), step) if req.method in _CONTEXT else (_NONE, _NONE)
+    rows = _seam_rows(eng, ta, tb, np.concatenate([ia, ca]), np.concatenate([ib, cb]), a_end, ref, dtheta, shift)
+    n_a = len(ia) + len(ca)
+    seam = rows if n_a == len(ia) else rows[[0, 1, 2, n_a, n_a + 1]]
+    context = (rows[len(ia): n_a], rows[n_a + len(ib):], step)
     s0 = 3 * eng.skeleton.num_joints
     # Inputs of the bases: pA, vA, pB, vB, and the fifth row (aA or a key) per method.
     inputs = np.empty((5, seam.shape[1]))
@@ -304,6 +302,18 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift)
     return out_r, out_p
+
+
+_NONE = np.zeros(0, dtype=np.int64)
+_CONTEXT = ("damped",)  # the methods that read more of the clips than the seams
+
+
+def _context_frames(a_end: int, b_start: int, b_len: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``DAMPED_SAMPLES`` of A's frames every ``step`` up to ``a_end`` and of B's from
+    ``b_start`` (as far as the clips go), in time order."""
+    ca = a_end - step * np.arange(min(DAMPED_SAMPLES, a_end // step + 1))[::-1]
+    cb = b_start + step * np.arange(min(DAMPED_SAMPLES, (b_len - 1 - b_start) // step + 1))
+    return ca, cb
 
 
 def _seam_rows(eng: TransitionEngine, ta: Track, tb: Track, ia, ib, a_end: int, ref: np.ndarray, dtheta: float,
@@ -384,14 +394,27 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     The root's height keeps its own, with the legs that carry it. No time constant exceeds
     ``DAMPED_GAP_SHARE`` of the gap, so that each seam's carried velocity turns (at 1.6 tau)
     before the gap's middle."""
-    step = max(1, round(fps * DAMPED_STEP_S))
-    s0 = 3 * eng.skeleton.num_joints
-    scales = [damped_time_scales(rows, step, _column_groups(eng.skeleton.num_joints))
-              for rows in context(DAMPED_SAMPLES, step)]
-    for scale in scales:
-        scale[s0: s0 + 3] = np.where(np.arange(3) == eng._up, scale[s0: s0 + 3], 0.0)
+    rows_a, rows_b, step = context
+    j_count = eng.skeleton.num_joints
+    starts, fixed = _column_groups(j_count), _fixed_columns(j_count, eng._up)
     longest = max(DAMPED_TAU_S * fps, min(DAMPED_TAU_MAX_S * fps, DAMPED_GAP_SHARE * (req.length + 1)))
+    if kernels.backend() == "numba":  # the same steps compiled (a few hundred numpy calls otherwise)
+        out = np.empty((req.length, inputs.shape[1]))
+        kernels.compiled().damped_columns(inputs, req.length, rows_a, rows_b, float(step), starts, fixed,
+                                          DAMPED_TAU_S * fps, longest, out)
+        return out
+    scales = [np.where(fixed, 0.0, damped_time_scales(rows, step, starts)) for rows in (rows_a, rows_b)]
     return damped_frames(inputs, req.length, scales[0], scales[1], DAMPED_TAU_S * fps, longest)
+
+
+@lru_cache(maxsize=16)
+def _fixed_columns(j_count: int, up: int) -> np.ndarray:
+    """The columns of :func:`_seam_rows` whose ``damped`` time constant stays the shortest: the
+    root's horizontal position."""
+    out = np.zeros(6 * j_count + 4, dtype=bool)
+    out[3 * j_count: 3 * j_count + 3] = np.arange(3) != up
+    out.setflags(write=False)
+    return out
 
 
 def _key_frames(eng, seam, inputs, ref, req, fps, keys, context):
