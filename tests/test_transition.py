@@ -22,7 +22,8 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_basis, damped_frames, damped_time_scales, hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
+from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_basis, damped_frames, damped_time_scales,
+                                   hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis)
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT

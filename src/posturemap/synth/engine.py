@@ -267,10 +267,9 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
         dtheta, shift = eng.alignment(ta, tb, a_end, b_start, length)
     else:
         dtheta, shift = 0.0, np.zeros(3)
-    rots_b = tb.rots[ib]
     # The keys, if any; the reference rotation per joint is the key's for keyed joints,
     # otherwise B's first frame.
-    ref = rots_b[0].copy()
+    ref = tb.rots[b_start].copy()
     keys = _KEYS[req.method](eng, ta, tb, req) if req.method in _KEYS else None
     if keys is not None:
         ref[eng.model.space_.joints] = keys["key"][0]
