@@ -116,10 +116,10 @@ def fallback_method(length: int, fps: float) -> str:
     guess of a motion the library lacks than the straight line): on data the library never saw
     (a seeded sample of Bandai's second dataset, 140 clips, with a library of all of bandai1;
     windows sized per length) the default's L2Q went from 0.627 / 0.716x SLERP's to 0.621 / 0.712x
-    at 30 / 45 frames with a fixed 0.05 s time constant, and to 0.583 / 0.700x once each seam's
-    came from its motion (raised hands 0.93-0.97x -> 0.69-0.82x, waves at 45 frames
+    at 30 / 45 frames with a fixed 0.05 s time constant, and to 0.584 / 0.700x once each seam's
+    came from its motion (raised hands 0.93-0.97x -> 0.68-0.82x, waves at 45 frames
     0.96-0.98x -> 0.94-1.02x); over the bench's six Bandai splits from 0.642 / 0.711x to 0.630 /
-    0.701x, then 0.613 / 0.693x (see ``docs/retrieval.md``, "Confidence and fallback")."""
+    0.701x, then 0.614 / 0.693x (see ``docs/retrieval.md``, "Confidence and fallback")."""
     return FALLBACK_SHORT[0] if (length + 1) / fps < FALLBACK_SHORT[1] else FALLBACK
 
 
