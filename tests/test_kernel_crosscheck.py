@@ -524,11 +524,11 @@ def _format_number(rng) -> str:
     return ("+" if rng.random() < 0.5 else "-") + f"{abs(x):.4f}e{int(rng.integers(-40, 40))}"
 
 
-@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_scale")
+@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),
     # groups of 3 and 1 columns, some columns fixed to the shortest time constant; samples
-    # 1 or 4 frames apart; also a context of two samples (no time scale).
+    # 1 or 4 frames apart; also a context of two samples (no time scale from that side).
     from posturemap.synth.bases import damped_frames, damped_time_scales
 
     rng = np.random.default_rng(112)
@@ -536,24 +536,30 @@ def test_damped_columns_are_the_bases_damped_frames():
     n_c = 13
     fixed = np.zeros(n_c, dtype=bool)
     fixed[[3, 5]] = True
-    for step, n_a, n_b, length in ((1, 10, 10, 30), (4, 10, 7, 45), (1, 2, 10, 5), (2, 10, 10, 1)):
+    for step, n_a, n_b, length in ((1, 10, 10, 30), (4, 10, 7, 45), (1, 2, 10, 5), (2, 10, 10, 1), (1, 2, 2, 8)):
         inputs = rng.normal(size=(5, n_c))
         rows = [rng.normal(scale=0.05, size=(n, n_c)) for n in (n_a, n_b)]
         k = np.arange(n_a)
         rows[0][:, 0:3] = np.sin(0.7 * k)[:, None] * [1.0, 2.0, -0.5]
-        rows[0][:, 6] = 0.0  # still: time scale 0
-        rows[1][:, 6] = 3.0 * np.arange(n_b)  # steady drift: inf, held at tau_max
+        rows[0][:, 6] = 0.0  # still at A
+        rows[1][:, 6] = 3.0 * np.arange(n_b)  # a steady drift at B: inf, held at tau_max
         tau_min = 1.5
         tau_max = max(tau_min, 0.25 * (length + 1))  # as the engine holds it
         out = np.empty((length, n_c))
         NK.damped_columns(inputs, length, rows[0], rows[1], float(step), starts, fixed, tau_min, tau_max, out)
-        scales = [np.where(fixed, 0.0, damped_time_scales(r, step, starts)) for r in rows]
-        expected = damped_frames(inputs, length, scales[0], scales[1], tau_min, tau_max)
+        scale = np.where(fixed, 0.0, damped_time_scales(rows, step, starts))
+        expected = damped_frames(inputs, length, scale, scale, tau_min, tau_max)
         np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
         for g, c0 in enumerate(starts):
             c1 = starts[g + 1] if g + 1 < len(starts) else n_c
-            assert NK._group_scale(rows[0], c0, c1, float(step)) == pytest.approx(
-                damped_time_scales(rows[0], step, starts)[c0], rel=1e-12)
+            ev, ea = NK._group_energy(rows[0], c0, c1, float(step))
+            if n_a < 3:
+                assert (ev, ea) == (0.0, 0.0)
+            else:
+                v = np.diff(rows[0][:, c0:c1], axis=0) / step
+                a = np.diff(v, axis=0) / step
+                assert ev == pytest.approx(np.mean(v * v, axis=0).sum(), rel=1e-12)
+                assert ea == pytest.approx(np.mean(a * a, axis=0).sum(), rel=1e-12)
 
 
 @crosschecks("bvh:parse_frames")

@@ -993,15 +993,22 @@ def test_damped_time_scales_measure_one_over_the_frequency(phase):
     wave = np.stack([np.sin(omega * k + phase), 2 * np.cos(omega * k + phase), 0 * k], axis=1)
     rows = np.concatenate([wave, np.ones((len(k), 1)), np.stack([3 * k], axis=1), np.stack([k * k], axis=1)], axis=1)
     starts = np.array([0, 3, 4, 5])
-    scales = damped_time_scales(rows, 1, starts)
+    scales = damped_time_scales([rows], 1, starts)
     assert scales.shape == (6,)
     np.testing.assert_allclose(scales[:3], 1 / (2 * np.sin(omega / 2)), rtol=0.06)
     assert scales[3] == 0.0 and scales[4] == np.inf
     v = np.diff(k * k)
     assert scales[5] == pytest.approx(np.sqrt(np.mean(v * v)) / 2.0)
     # Samples `step` frames apart measure in frames, not in samples.
-    np.testing.assert_allclose(damped_time_scales(rows, 4, starts)[:3], 4 * scales[:3])
-    assert not damped_time_scales(rows[:2], 1, starts).any()
+    np.testing.assert_allclose(damped_time_scales([rows], 4, starts)[:3], 4 * scales[:3])
+    assert not damped_time_scales([rows[:2]], 1, starts).any()
+    # Two seams' samples together: their energies add (a still seam leaves the other's scale;
+    # a seam of two samples adds nothing).
+    still = np.zeros_like(rows)
+    np.testing.assert_allclose(damped_time_scales([rows, still], 1, starts), scales)
+    np.testing.assert_allclose(damped_time_scales([rows[:2], rows], 1, starts), scales)
+    twice = damped_time_scales([rows, 2 * rows], 1, starts)
+    np.testing.assert_allclose(twice, scales)  # a scaled copy: the same ratio
 
 
 @pytest.mark.parametrize("length", [3, 20, 45])

@@ -695,12 +695,13 @@ def slerp(a, b, t, out):
 
 
 @nb.njit(**_OPTS)
-def _group_scale(rows, c0, c1, step):
-    """:func:`posturemap.synth.bases.damped_time_scales` of the columns ``c0:c1`` of ``rows``."""
+def _group_energy(rows, c0, c1, step):
+    """The mean squared velocity and acceleration of the columns ``c0:c1`` of ``rows`` (summed
+    over the columns; 0, 0 with fewer than 3 samples): :func:`posturemap.synth.bases.damped_time_scales`'s."""
     n = rows.shape[0]
-    if n < 3:
-        return 0.0
     ev, ea = 0.0, 0.0
+    if n < 3:
+        return ev, ea
     for c in range(c0, c1):
         sv, sa = 0.0, 0.0
         for k in range(n - 1):
@@ -711,41 +712,43 @@ def _group_scale(rows, c0, c1, step):
             sa += a * a
         ev += sv / (n - 1)
         ea += sa / (n - 2)
-    if ea > 0.0:
-        return math.sqrt(ev / ea)
-    return math.inf if ev > 0.0 else 0.0
+    return ev, ea
 
 
 @nb.njit(**_OPTS)
 def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min, tau_max, out):
     """``damped``'s frames (length, C) into ``out``: :func:`posturemap.synth.bases.damped_frames`
-    of ``inputs`` (rows pA, vA, pB, vB) with each column's time scales at A and at B from
-    :func:`posturemap.synth.bases.damped_time_scales` of ``rows_a`` / ``rows_b`` (samples
-    ``step`` frames apart, column groups beginning at ``starts``), 0 where ``fixed``, held within
-    ``[tau_min, tau_max]``."""
+    of ``inputs`` (rows pA, vA, pB, vB), each column's time constant at both seams from
+    :func:`posturemap.synth.bases.damped_time_scales` of ``rows_a`` and ``rows_b`` together
+    (samples ``step`` frames apart, column groups beginning at ``starts``), 0 where ``fixed``,
+    held within ``[tau_min, tau_max]``."""
     n_c = inputs.shape[1]
-    tau = np.empty((2, n_c))
-    for side in range(2):
-        rows = rows_a if side == 0 else rows_b
-        for g in range(starts.shape[0]):
-            c0 = starts[g]
-            c1 = starts[g + 1] if g + 1 < starts.shape[0] else n_c
-            scale = _group_scale(rows, c0, c1, step)
-            for c in range(c0, c1):
-                s = 0.0 if fixed[c] else scale
-                tau[side, c] = min(max(s, tau_min), tau_max)
+    tau = np.empty(n_c)
+    for g in range(starts.shape[0]):
+        c0 = starts[g]
+        c1 = starts[g + 1] if g + 1 < starts.shape[0] else n_c
+        ev_a, ea_a = _group_energy(rows_a, c0, c1, step)
+        ev_b, ea_b = _group_energy(rows_b, c0, c1, step)
+        ev, ea = ev_a + ev_b, ea_a + ea_b
+        if ea > 0.0:
+            scale = math.sqrt(ev / ea)
+        else:
+            scale = math.inf if ev > 0.0 else 0.0
+        for c in range(c0, c1):
+            s = 0.0 if fixed[c] else scale
+            tau[c] = min(max(s, tau_min), tau_max)
     d = length + 1.0
     for i in range(length):
         t = i + 1.0
         w = t / d
         u = d - t
         to_b = w * w * (3.0 - 2.0 * w)
-        ta, tb, near_a, near_b = -1.0, -1.0, 0.0, 0.0
+        tc, near_a, near_b = -1.0, 0.0, 0.0
         for c in range(n_c):
-            if tau[0, c] != ta or tau[1, c] != tb:  # a group's columns share their weights
-                ta, tb = tau[0, c], tau[1, c]
-                near_a = (1.0 - to_b) * t * (1.0 + t / ta) * math.exp(-t / ta)
-                near_b = to_b * u * (1.0 + u / tb) * math.exp(-u / tb)
+            if tau[c] != tc:  # a group's columns share their weights
+                tc = tau[c]
+                near_a = (1.0 - to_b) * t * (1.0 + t / tc) * math.exp(-t / tc)
+                near_b = to_b * u * (1.0 + u / tc) * math.exp(-u / tc)
             p_a, v_a, p_b, v_b = inputs[0, c], inputs[1, c], inputs[2, c], inputs[3, c]
             slope = (p_b - p_a) / d
             out[i, c] = p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)

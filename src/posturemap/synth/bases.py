@@ -18,7 +18,7 @@ DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; s
 DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
 DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
-DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s)
+DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s each, both seams together)
 
 
 def key_spline_basis(length: int, key_at: int) -> np.ndarray:
@@ -141,29 +141,33 @@ def damped_frames(inputs: np.ndarray, length: int, scale_a: np.ndarray, scale_b:
     return p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
 
 
-def damped_time_scales(rows: np.ndarray, step: int, starts: np.ndarray) -> np.ndarray:
-    """The time scale (frames) of the motion in ``rows`` (n, C): samples in time order,
-    ``step`` frames apart; per group of columns (each begins at ``starts``, as
-    ``np.add.reduceat`` reads them) ``sqrt(mean |v|^2 / mean |a|^2)`` of the samples' velocity
-    and acceleration, repeated over the group's columns.
+def damped_time_scales(samples, step: int, starts: np.ndarray) -> np.ndarray:
+    """The time scale (frames) of the motion in ``samples``: a sequence of arrays (n, C), each
+    in time order, ``step`` frames apart (the engine gives A's last and B's first); per group of
+    columns (each begins at ``starts``, as ``np.add.reduceat`` reads them) ``sqrt(mean |v|^2 /
+    mean |a|^2)`` of their velocity and acceleration, each array's means added, repeated over
+    the group's columns.
 
     For a sinusoid of angular frequency ``omega`` sampled over its period this is ``1 / omega``
     whatever its phase: the time a velocity keeps pointing one way (a quarter period is
     ``1.57 / omega``), which is when :func:`damped_basis`'s offset peaks (``1.6 tau``). Over
     less than a period it is how long the velocity there would last at its acceleration there
-    (long where the motion is at full speed, short where it turns). A group that does not move
-    gets 0, one that moves without accelerating ``inf``; with fewer than 3 samples, every column 0.
+    (long where the motion is at full speed, short where it turns): the two seams' samples
+    together see more of it than either. A group that does not move gets 0, one that moves
+    without accelerating ``inf``; an array of fewer than 3 samples adds nothing.
     """
-    out = np.zeros(rows.shape[1])
-    if len(rows) < 3:
-        return out
-    v = np.diff(rows, axis=0) / step
-    a = np.diff(v, axis=0) / step
-    ev = np.add.reduceat(np.mean(v * v, axis=0), starts)
-    ea = np.add.reduceat(np.mean(a * a, axis=0), starts)
+    n_c = samples[0].shape[1]
+    ev, ea = np.zeros(len(starts)), np.zeros(len(starts))
+    for rows in samples:
+        if len(rows) < 3:
+            continue
+        v = np.diff(rows, axis=0) / step
+        a = np.diff(v, axis=0) / step
+        ev += np.add.reduceat(np.mean(v * v, axis=0), starts)
+        ea += np.add.reduceat(np.mean(a * a, axis=0), starts)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(ea > 0, np.sqrt(ev / ea), np.where(ev > 0, np.inf, 0.0))
-    return np.repeat(scale, np.diff(np.append(starts, rows.shape[1])))
+    return np.repeat(scale, np.diff(np.append(starts, n_c)))
 
 
 @lru_cache(maxsize=256)
