@@ -37,7 +37,7 @@ real motion:
     SLERP of every rotation and LERP of the root, from A's end to B's start (no velocities).
 ``damped``
     The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried on past
-    its seam for as long as that motion keeps a velocity (its time scale over the clip's last or
+    its seam for as long as that motion keeps a velocity (its time scale over A's last and B's
     first 0.3 s: ``1 / omega`` of a wave, held within 0.05-0.33 s; the root's horizontal
     position 0.05 s), then let go (:func:`posturemap.synth.bases.damped_basis`,
     :func:`_damped_frames`): the retrieval's fallback on gaps from 0.6 s, where the cubic
