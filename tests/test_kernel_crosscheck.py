@@ -548,7 +548,7 @@ def test_damped_columns_are_the_bases_damped_frames():
         out = np.empty((length, n_c))
         NK.damped_columns(inputs, length, rows[0], rows[1], float(step), starts, fixed, tau_min, tau_max, out)
         scale = np.where(fixed, 0.0, damped_time_scales(rows, step, starts))
-        expected = damped_frames(inputs, length, scale, scale, tau_min, tau_max)
+        expected = damped_frames(inputs, length, scale, tau_min, tau_max)
         np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
         for g, c0 in enumerate(starts):
             c1 = starts[g + 1] if g + 1 < len(starts) else n_c

@@ -22,7 +22,7 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_basis, damped_frames, damped_time_scales,
+from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis)
 from posturemap.synth.engine import TransitionEngine, transition
@@ -936,17 +936,23 @@ def test_linear_basis_goes_straight(length):
     np.testing.assert_allclose(linear_basis(length) @ [p_a, p_b], p_a + (p_b - p_a) * t, atol=1e-12)
 
 
+def damped_curve(length: int, tau: float, seams) -> np.ndarray:
+    """``damped``'s frames (length,) of one column with seams ``[pA, vA, pB, vB]`` and time
+    constant ``tau`` (frames)."""
+    return damped_frames(np.asarray(seams, dtype=float).reshape(4, 1), length, np.array([tau]), tau, tau)[:, 0]
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_damped_basis_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
+def test_damped_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
     # A long gap and a slow fade, so that frame differences are close to derivatives.
     length, tau = 599, 20.0
     d = length + 1.0
     rng = np.random.default_rng(seed)
     p_a, v_a, p_b, v_b = rng.normal(size=4) * [10, 1, 10, 1]
     slope = (p_b - p_a) / d
-    basis = damped_basis(length, tau)
-    assert basis.shape == (length, 4) and not basis.flags.writeable
-    y = np.concatenate([[p_a], basis @ [p_a, v_a, p_b, v_b], [p_b]])
+    curve = damped_curve(length, tau, [p_a, v_a, p_b, v_b])
+    assert curve.shape == (length,)
+    y = np.concatenate([[p_a], curve, [p_b]])
     step = np.diff(y)
     # Each seam keeps its own velocity, without a kink: the velocity changes over the first
     # frames by far less than the residual velocity per tau (what t * exp(-t / tau) would
@@ -960,13 +966,13 @@ def test_damped_basis_keeps_the_seam_velocities_and_fades_onto_the_line(seed):
     mid = (t > 12 * tau) & (t < d - 12 * tau)
     line = linear_basis(length) @ [p_a, p_b]
     reach = tau * max(abs(v_a - slope), abs(v_b - slope))
-    assert np.abs((basis @ [p_a, v_a, p_b, v_b] - line)[mid]).max() < 1e-3 * reach
+    assert np.abs((curve - line)[mid]).max() < 1e-3 * reach
     # Near them it is not: the seam velocity carries the curve off the line.
-    assert np.abs((basis @ [p_a, v_a, p_b, v_b] - line)[t < 3 * tau]).max() > 0.5 * tau * abs(v_a - slope)
+    assert np.abs((curve - line)[t < 3 * tau]).max() > 0.5 * tau * abs(v_a - slope)
 
 
 @pytest.mark.parametrize("length", [2, 4, 7])
-def test_damped_basis_lets_go_of_a_seams_velocity_before_the_other_seam(length):
+def test_damped_lets_go_of_a_seams_velocity_before_the_other_seam(length):
     # The engine's shortest tau at 30 fps (1.5 frames), short gaps: what A's velocity adds is
     # weighed by 1 - smoothstep(t/d), so it is gone at B's start, with no slope there, however
     # short the gap; B's side likewise at A's end.
@@ -974,9 +980,9 @@ def test_damped_basis_lets_go_of_a_seams_velocity_before_the_other_seam(length):
     t = np.arange(1, length + 1)
     g = t * (1 + t / tau) * np.exp(-t / tau)
     to_b = (t / d) ** 2 * (3 - 2 * t / d)
-    from_a = damped_basis(length, tau) @ [0.0, 1.0, 0.0, 0.0]  # A's velocity alone, pA = pB = 0
+    from_a = damped_curve(length, tau, [0.0, 1.0, 0.0, 0.0])  # A's velocity alone, pA = pB = 0
     np.testing.assert_allclose(from_a, (1 - to_b) * g, atol=1e-12)
-    from_b = damped_basis(length, tau) @ [0.0, 0.0, 0.0, 1.0]
+    from_b = damped_curve(length, tau, [0.0, 0.0, 0.0, 1.0])
     np.testing.assert_allclose(from_b, -to_b * g[::-1], atol=1e-12)
     # The last frame carries less of A's velocity than one frame's worth of it over the gap.
     assert from_a[-1] <= g.max() / d + 1e-12
@@ -1012,16 +1018,25 @@ def test_damped_time_scales_measure_one_over_the_frequency(phase):
 
 
 @pytest.mark.parametrize("length", [3, 20, 45])
-def test_damped_frames_with_one_time_scale_are_the_basis(length):
+def test_damped_frames_are_the_formula_per_column(length):
+    # Each column its own time constant; the formula of the docstring written out here.
     rng = np.random.default_rng(length)
     inputs = rng.normal(size=(4, 7))
-    tau = 2.5
-    expected = damped_basis(length, tau) @ inputs
-    np.testing.assert_allclose(damped_frames(inputs, length, np.full(7, tau), np.full(7, tau), 1.0, 5.0),
-                               expected, atol=1e-12)
+    tau = np.linspace(1.0, 5.0, 7)
+    d = length + 1.0
+    t = np.arange(1, length + 1)[:, None]
+    w = t / d
+    smooth = w * w * (3 - 2 * w)
+    g = lambda x: x * (1 + x / tau) * np.exp(-x / tau)  # noqa: E731
+    p_a, v_a, p_b, v_b = inputs
+    slope = (p_b - p_a) / d
+    expected = p_a + w * (p_b - p_a) + (1 - smooth) * g(t) * (v_a - slope) - smooth * g(d - t) * (v_b - slope)
+    np.testing.assert_allclose(damped_frames(inputs, length, tau, 1.0, 5.0), expected, atol=1e-12)
     # Time scales outside [tau_min, tau_max] are held at its ends.
-    np.testing.assert_allclose(damped_frames(inputs, length, np.zeros(7), np.full(7, np.inf), 2.5, 2.5), expected,
-                               atol=1e-12)
+    np.testing.assert_allclose(damped_frames(inputs, length, np.zeros(7), 2.5, 2.5),
+                               damped_frames(inputs, length, np.full(7, np.inf), 2.5, 2.5), atol=1e-12)
+    np.testing.assert_allclose(damped_frames(inputs, length, np.full(7, 9.0), 1.0, 5.0),
+                               damped_frames(inputs, length, np.full(7, 5.0), 1.0, 5.0), atol=1e-12)
 
 
 def test_damped_carries_a_slow_swing_further_than_a_fast_one(clips):
@@ -1071,18 +1086,19 @@ def test_damped_lets_the_roots_travel_go_at_once_and_keeps_its_height_with_the_l
     ga, gb = fk(a.skeleton.parents, a.rotations, a.positions)[1][:, root], \
         fk(b.skeleton.parents, b.rotations, b.positions)[1][:, root]
     inputs = np.stack([ga[a_end], ga[a_end] - ga[a_end - 1], gb[b_start], gb[b_start + 1] - gb[b_start]])
-    fixed = damped_basis(length, DAMPED_TAU_S * a.fps) @ inputs
+    tau = DAMPED_TAU_S * a.fps
+    fixed = damped_frames(inputs, length, np.zeros(3), tau, tau)
     flat = [k for k in range(3) if k != UP]
     np.testing.assert_allclose(got[:, flat], fixed[:, flat], atol=1e-6 * np.abs(fixed).max())
     assert np.abs(got[:, UP] - fixed[:, UP]).max() > 0.1  # cm: the height's own time scale
 
 
 @pytest.mark.parametrize("length", [1, 7, 20, 45])
-def test_damped_basis_keeps_a_steady_motion_on_the_line(length):
+def test_damped_keeps_a_steady_motion_on_the_line(length):
     # Seam velocities equal to the line's slope (a root walking at a steady speed): the line itself.
     p_a, p_b = -3.0, 11.0
     v = (p_b - p_a) / (length + 1.0)
-    np.testing.assert_allclose(damped_basis(length, 3.0) @ [p_a, v, p_b, v], linear_basis(length) @ [p_a, p_b],
+    np.testing.assert_allclose(damped_curve(length, 3.0, [p_a, v, p_b, v]), linear_basis(length) @ [p_a, p_b],
                                atol=1e-12)
 
 

@@ -3,8 +3,8 @@
 Every ``*_basis`` function returns a read-only matrix (cached per length) that maps rows of seam
 values (``pA, vA, pB, vB`` and, per basis, a key or A's acceleration) to the ``length`` new
 frames at times ``1..length``; A's end is at time 0 and B's start at ``length + 1``. ``damped``
-is such a map per column once its time constants are known; the engine takes them from the
-clips' motion at each seam (:func:`damped_time_scales`, :func:`damped_frames`).
+is such a map per column once its time constants are known: :func:`damped_frames` applies it,
+the time constants taken from the clips' motion at the seams (:func:`damped_time_scales`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 VELOCITY_HORIZON_S = 0.1  # upm-valid: time constant (s) over which a seam velocity fades from the keys
-DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; see damped_basis) ...
+DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; see damped_frames) ...
 DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
 DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
@@ -90,51 +90,38 @@ def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, n
     return times * np.exp(-times / tau), (d - times) * np.exp(-(d - times) / tau)
 
 
-def damped_weights(length: int, tau_a, tau_b) -> tuple[np.ndarray, np.ndarray]:
+def damped_weights(length: int, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """How much of A's and B's residual seam velocity each frame carries: (length, C) each, for
-    time constants ``tau_a``, ``tau_b`` (C,) in frames (see :func:`damped_basis`)."""
+    time constants ``tau`` (C,) in frames (see :func:`damped_frames`)."""
     d = length + 1.0
     t = np.arange(1, length + 1, dtype=float)[:, None]
     w = t / d
     u = d - t
     to_b = w * w * (3 - 2 * w)  # smoothstep: 0 and 1 with no slope at the seams
-    near_a = (1 - to_b) * t * (1 + t / tau_a) * np.exp(-t / tau_a)
-    near_b = to_b * u * (1 + u / tau_b) * np.exp(-u / tau_b)
+    near_a = (1 - to_b) * t * (1 + t / tau) * np.exp(-t / tau)
+    near_b = to_b * u * (1 + u / tau) * np.exp(-u / tau)
     return near_a, near_b
 
 
-@lru_cache(maxsize=256)
-def damped_basis(length: int, tau: float) -> np.ndarray:
-    """The straight line from pA to pB plus each seam's velocity beyond it, fading: (length, 4).
+def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: float, tau_max: float) -> np.ndarray:
+    """The straight line from pA to pB plus each seam's velocity beyond it, fading: the frames
+    (length, C) from the rows ``pA, vA, pB, vB`` of ``inputs`` (4 or more, C), each column's
+    time constant ``tau`` its ``scale`` (frames, :func:`damped_time_scales`) held within
+    ``[tau_min, tau_max]``.
 
-    Maps ``[pA, vA, pB, vB]``. With ``w = t / d`` (``d = length + 1``), the line's slope
-    ``s = (pB - pA) / d`` and the smoothstep ``S(w) = w^2 (3 - 2 w)``, the frame at ``t`` is
-    ``pA + w (pB - pA) + (1 - S(w)) g(t) (vA - s) - S(w) g(d - t) (vB - s)``, ``g(t) = t (1 +
-    t / tau) exp(-t / tau)``. ``g`` has slope 1 and no curvature at 0, so each seam keeps its own
-    velocity; ``S`` is 0 and 1 with no slope at the seams, so neither seam's term reaches the
-    other seam's value or velocity, on short gaps too, and the weights add no acceleration at
-    the seams. ``g``'s slope is 0 at ``1.6 tau`` frames, and the offset fades back onto the
-    straight line (SLERP/LERP) by ``8 tau``. A motion that turns back (a wave) is not carried on
-    past its seam, one that keeps going (a raised arm) for a few frames, and one at a steady
-    speed (a walking root) stays on the line. The engine takes ``tau`` per column and seam from
-    the motion there (:func:`damped_time_scales`, :func:`damped_frames`).
+    With ``w = t / d`` (``d = length + 1``), the line's slope ``s = (pB - pA) / d`` and the
+    smoothstep ``S(w) = w^2 (3 - 2 w)``, the frame at ``t`` is ``pA + w (pB - pA) + (1 - S(w))
+    g(t) (vA - s) - S(w) g(d - t) (vB - s)``, ``g(t) = t (1 + t / tau) exp(-t / tau)``. ``g`` has
+    slope 1 and no curvature at 0, so each seam keeps its own velocity; ``S`` is 0 and 1 with no
+    slope at the seams, so neither seam's term reaches the other seam's value or velocity, on
+    short gaps too, and the weights add no acceleration at the seams. ``g``'s slope is 0 at
+    ``1.6 tau`` frames, and the offset fades back onto the straight line (SLERP/LERP) by
+    ``8 tau``. A motion that turns back (a wave) is not carried on past its seam, one that keeps
+    going (a raised arm) for as long as its time scale says, and one at a steady speed (a
+    walking root) stays on the line.
     """
-    near_a, near_b = damped_weights(length, np.array([float(tau)]), np.array([float(tau)]))
-    near_a, near_b = near_a[:, 0], near_b[:, 0]
-    d = length + 1.0
-    w = np.arange(1, length + 1) / d
-    out = np.stack([1 - w + (near_a - near_b) / d, near_a, w - (near_a - near_b) / d, -near_b], axis=1)
-    out.setflags(write=False)
-    return out
-
-
-def damped_frames(inputs: np.ndarray, length: int, scale_a: np.ndarray, scale_b: np.ndarray, tau_min: float,
-                  tau_max: float) -> np.ndarray:
-    """:func:`damped_basis`'s frames (length, C) from the rows ``pA, vA, pB, vB`` of ``inputs``
-    (4, C), with each column's ``tau`` at A and at B its motion's time scale there (frames,
-    :func:`damped_time_scales`) held within ``[tau_min, tau_max]``."""
     p_a, v_a, p_b, v_b = inputs[:4]
-    near_a, near_b = damped_weights(length, np.clip(scale_a, tau_min, tau_max), np.clip(scale_b, tau_min, tau_max))
+    near_a, near_b = damped_weights(length, np.clip(scale, tau_min, tau_max))
     d = length + 1.0
     slope = (p_b - p_a) / d
     w = (np.arange(1, length + 1) / d)[:, None]
@@ -150,7 +137,7 @@ def damped_time_scales(samples, step: int, starts: np.ndarray) -> np.ndarray:
 
     For a sinusoid of angular frequency ``omega`` sampled over its period this is ``1 / omega``
     whatever its phase: the time a velocity keeps pointing one way (a quarter period is
-    ``1.57 / omega``), which is when :func:`damped_basis`'s offset peaks (``1.6 tau``). Over
+    ``1.57 / omega``), which is when :func:`damped_frames`'s offset peaks (``1.6 tau``). Over
     less than a period it is how long the velocity there would last at its acceleration there
     (long where the motion is at full speed, short where it turns): the two seams' samples
     together see more of it than either. A group that does not move gets 0, one that moves

@@ -39,7 +39,7 @@ real motion:
     The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried on past
     its seam for as long as that motion keeps a velocity (its time scale over A's last and B's
     first 0.3 s: ``1 / omega`` of a wave, held within 0.05-0.33 s; the root's horizontal
-    position 0.05 s), then let go (:func:`posturemap.synth.bases.damped_basis`,
+    position 0.05 s), then let go (:func:`posturemap.synth.bases.damped_frames`,
     :func:`_damped_frames`): the retrieval's fallback on gaps from 0.6 s, where the cubic
     overshoots.
 ``inertialize``
@@ -405,7 +405,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
                                           DAMPED_TAU_S * fps, longest, out)
         return out
     scale = np.where(fixed, 0.0, damped_time_scales((rows_a, rows_b), step, starts))
-    return damped_frames(inputs, req.length, scale, scale, DAMPED_TAU_S * fps, longest)
+    return damped_frames(inputs, req.length, scale, DAMPED_TAU_S * fps, longest)
 
 
 @lru_cache(maxsize=16)
