@@ -524,6 +524,73 @@ def _format_number(rng) -> str:
     return ("+" if rng.random() < 0.5 else "-") + f"{abs(x):.4f}e{int(rng.integers(-40, 40))}"
 
 
+def swing_cases(rng):
+    """Seam samples of groups of 3 and 1 columns: a wave (two periods), a raised arm (straight
+    on at both seams), a group still at B, a column swinging at a rhythm of its own, noise, a
+    still group; samples 1 or 4 frames apart."""
+    starts = np.array([0, 3, 6, 9, 10, 13], dtype=np.intp)
+    for step, n_a, n_b, length in ((1, 10, 10, 30), (4, 10, 8, 180), (1, 6, 10, 45), (2, 10, 10, 12)):
+        d = length + 1.0
+        times = np.concatenate([-step * np.arange(n_a - 1, -1, -1.0), d + step * np.arange(n_b, dtype=float)])
+        rows = rng.normal(scale=0.01, size=(len(times), 16))
+        for c, phase in zip(range(3), (0.3, 1.9, 4.0)):
+            rows[:, c] += 0.4 * np.sin(2 * np.pi * times / (9.0 * step) + phase)
+        rows[:, 3:6] += np.where(times <= 0, -times, times - d)[:, None] * [0.05, -0.02, 0.01]
+        rows[:, 6:9] += np.where(times <= 0, 0.3 * np.sin(times), 0.0)[:, None]
+        rows[:, 9] += 0.3 * np.sin(2 * np.pi * times / (16.0 * step))
+        rows[:, 13:16] = 0.5
+        yield rows, times, rng.normal(size=(5, 16)), length, starts
+
+
+@crosschecks("numba_kernels:swing_columns", "numba_kernels:_ramp", "numba_kernels:_swing_design",
+             "numba_kernels:_solve4", "numba_kernels:_swing_explained", "numba_kernels:_swing_peak",
+             "numba_kernels:_own_residuals", "numba_kernels:_cholesky4")
+def test_swing_columns_are_the_numpy_continued_swing():
+    from posturemap.synth import periodic
+
+    rng = np.random.default_rng(113)
+    fps, tau = 30.0, 1.5
+    seen, vetoed = set(), 0
+    for rows, times, inputs, length, starts in swing_cases(rng):
+        with kernels.numpy_backend():
+            expected, w_expected = periodic.continued(rows, times, inputs, length, fps, starts, tau)
+        frames, weights = np.empty((length, 16)), np.empty(16)
+        found = NK.swing_columns(rows, times, inputs, length, periodic.frequencies(float(np.ptp(times)), fps), starts,
+                                 tau, periodic.PERIODIC_GATE, periodic.PERIODIC_TURN, periodic.PERIODIC_BALANCE,
+                                 periodic.PERIODIC_PEAKS, periodic.PERIODIC_OWN, frames, weights)
+        assert found == (expected is not None)
+        np.testing.assert_allclose(weights, w_expected, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(frames, expected, rtol=1e-9, atol=1e-9)
+        seen.update(np.round(weights[[0, 3, 6, 13]], 6))
+        saved, periodic.PERIODIC_OWN = periodic.PERIODIC_OWN, 1e9  # every joint at the shared frequency
+        try:
+            with kernels.numpy_backend():
+                free = periodic.continued(rows, times, inputs, length, fps, starts, tau)[1]
+        finally:
+            periodic.PERIODIC_OWN = saved
+        vetoed += np.any((weights == 0.0) & (free > 0.0))
+    assert {0.0, 1.0} <= seen  # both gates' ends met
+    assert vetoed  # a group out of rhythm with the shared frequency: continued only without that check
+    a = rng.normal(size=(4, 4))
+    a = a @ a.T + 0.1 * np.eye(4)
+    b = rng.normal(size=(4, 7))
+    np.testing.assert_allclose(NK._solve4(a, b), np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+    assert [NK._ramp(x, 0.2, 0.6) for x in (0.0, 0.4, 1.0)] == pytest.approx([0.0, 0.5, 1.0])
+    assert [NK._ramp(x, 0.6, 0.2) for x in (0.0, 0.4, 1.0)] == pytest.approx([1.0, 0.5, 0.0])
+    x = np.empty((3, 4))
+    NK._swing_design(np.array([0.0, 2.0, 5.0]), 0.7, 10.0, x)
+    np.testing.assert_allclose(x, periodic._design(np.array([0.0, 2.0, 5.0]), 0.7, 10.0)[0], atol=1e-15)
+    rows, times, _, length, _ = next(swing_cases(rng))
+    omegas = periodic.frequencies(float(np.ptp(times)), fps)
+    d = length + 1.0
+    explained = np.array([periodic._explained(rows, times, om, d) for om in omegas])
+    np.testing.assert_allclose([NK._swing_explained(rows @ rows.T, times, om, d) for om in omegas[::7]],
+                               explained[::7], rtol=1e-10)
+    for peaks in (0, 1, 3):
+        assert NK._swing_peak(omegas, explained, rows @ rows.T, times, d, peaks) == pytest.approx(
+            periodic._peak(omegas, explained, lambda om: periodic._explained(rows, times, om, d), peaks), rel=1e-12)
+
+
 @crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),

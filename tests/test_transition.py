@@ -25,6 +25,7 @@ from posturemap.core.skeleton import fk
 from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis)
+from posturemap.synth import periodic
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
 from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
@@ -1100,6 +1101,105 @@ def test_damped_keeps_a_steady_motion_on_the_line(length):
     v = (p_b - p_a) / (length + 1.0)
     np.testing.assert_allclose(damped_curve(length, 3.0, [p_a, v, p_b, v]), linear_basis(length) @ [p_a, p_b],
                                atol=1e-12)
+
+
+# -- waves continued through the gap (periodic) -------------------------------------------------
+def seam_samples(curve, length: int, step: int = 1, n: int = DAMPED_SAMPLES):
+    """``curve(t)`` (t in frames, (T,) -> (T, C)) sampled as the engine samples the clips for
+    ``damped`` (``n`` of A up to its seam at 0, ``n`` of B from its seam at ``length + 1``,
+    ``step`` apart), the seam rows ``pA, vA, pB, vB`` and the truth of the gap's frames."""
+    d = length + 1.0
+    times = np.concatenate([-step * np.arange(n - 1, -1, -1.0), d + step * np.arange(n, dtype=float)])
+    inputs = np.stack([curve(np.array([0.0]))[0], (curve(np.array([0.0])) - curve(np.array([-1.0])))[0],
+                       curve(np.array([d]))[0], (curve(np.array([d + 1.0])) - curve(np.array([d])))[0]])
+    return curve(times), times, inputs, curve(np.arange(1.0, length + 1.0))
+
+
+def wave(period: float, amplitude: float = 0.5):
+    """Three columns (one joint) swinging with ``period`` frames, each in its own phase, over a
+    slow drift."""
+    phases = np.array([0.4, 2.0, 3.5])
+    return lambda t: amplitude * np.sin(2 * np.pi * t[:, None] / period + phases) + 0.002 * t[:, None]
+
+
+@pytest.mark.parametrize("length, period", [(30, 15.0), (45, 18.0), (45, 10.0), (90, 12.0)])
+def test_a_wave_is_continued_in_phase_through_the_gap(length, period):
+    # A hand waving at both seams (periods 0.33-0.6 s at 30 fps: it turns back within each
+    # seam's 0.3 s) is played on through the gap in phase with both: within 5% of its amplitude,
+    # where the damped curve alone (the motion's own time scale, back to the line between the
+    # seams) misses by a third of it and more. On the 3 s gap, the frequencies that put both
+    # seams in phase with one swing more or less lie close: only the fit's peaks judged between
+    # the grid's frequencies tell them apart.
+    rows, times, inputs, truth = seam_samples(wave(period), length)
+    starts = np.array([0])
+    tau = DAMPED_TAU_S * 30.0
+    frames, weights = periodic.continued(rows, times, inputs, length, 30.0, starts, tau)
+    np.testing.assert_allclose(weights, 1.0)
+    assert np.abs(frames - truth).max() < 0.05 * 0.5
+    scale = damped_time_scales([rows[:DAMPED_SAMPLES], rows[DAMPED_SAMPLES:]], 1, starts)
+    alone = damped_frames(inputs, length, scale, tau, 0.25 * (length + 1))
+    assert np.sqrt(np.mean((alone - truth) ** 2)) > 0.33 * 0.5
+
+
+def test_smooth_or_stopping_motions_are_not_continued():
+    # A cosine fits half a swing to an arm raised at A's seam and lowered at B's (straight on at
+    # both), to a bow's smooth dip, and to a wave at A's seam that has stopped at B's: none of
+    # them is continued, so ``damped`` stays what it was for them.
+    length, starts = 30, np.array([0])
+    d = length + 1.0
+    raised = lambda t: np.where(t <= 0, -0.08 * t, 0.08 * (t - d))[:, None] * [1.0, 0.5, -0.2]
+    bow = lambda t: (0.6 * np.exp(-((t - d / 2) / 12.0) ** 2))[:, None] * [1.0, -0.3, 0.1]
+    stops = lambda t: np.where(t <= 0, 0.4 * np.sin(2 * np.pi * t / 12.0), 0.1)[:, None] * [1.0, 0.7, 0.2]
+    for name, curve in (("raised", raised), ("bow", bow), ("stops", stops)):
+        rows, times, inputs, _ = seam_samples(curve, length)
+        swing = periodic.swinging(rows[times <= 0], rows[times > 0], starts)
+        frames, weights = periodic.continued(rows, times, inputs, length, 30.0, starts, 1.5)
+        assert frames is None and not weights.any() and swing[0] == 0.0, name
+    # The same gates pass a motion that turns back at one seam and keeps moving at the other.
+    turns = lambda t: np.where(t <= 0, 0.4 * np.sin(2 * np.pi * t / 12.0), 0.15 * (t - d))[:, None] * [1.0, 0.7, 0.2]
+    rows, times, _, _ = seam_samples(turns, length)
+    assert periodic.swinging(rows[times <= 0], rows[times > 0], starts)[0] == 1.0
+
+
+def elbow_wave_errors(m: Motion, length: int, a_end: int = 40) -> dict:
+    """RMS error (radians) of the right elbow's angle in ``damped`` and ``slerp`` in-betweens of
+    ``m`` with that elbow waving (period 0.5 s) over its own frames."""
+    j = m.skeleton.names.index("LowerArm_R")
+    axis = np.array([1.0, 0.0, 0.0])
+    theta = 0.6 * np.sin(2 * np.pi * (np.arange(len(m)) - a_end) / (0.5 * m.fps) + 0.7)
+    rots = m.rotations.copy()
+    rots[:, j] = quat.from_axis_angle(axis, theta)
+    eng = TransitionEngine()
+    eng.add("wave", Motion(m.skeleton, rots, m.positions.copy(), m.fps))
+    truth = theta[a_end + 1: a_end + length + 1]
+    err = {}
+    for method in ("damped", "slerp"):
+        r, _ = eng.generate("wave", "wave", length=length, a_end=a_end, b_start=a_end + length + 1, align=False,
+                            method=method, foot_lock=False)
+        got = 2 * np.arctan2(r[:, j, 1:] @ axis, r[:, j, 0])
+        err[method] = np.sqrt(np.mean((got - truth) ** 2))
+    return err
+
+
+def test_damped_waves_an_elbow_on_through_the_gap(clips):
+    # Standing still (the walk's first frame held) with one elbow waving, in-betweened within
+    # the clip over 1.5 s: damped's elbow follows the wave, its error a fifth of SLERP's (which
+    # holds the line between the seams).
+    m = clips[WALK]
+    still = Motion(m.skeleton, np.repeat(m.rotations[:1], 150, axis=0), np.repeat(m.positions[:1], 150, axis=0), m.fps)
+    err = elbow_wave_errors(still, 45)
+    assert err["damped"] < 0.2 * err["slerp"], err
+
+
+def test_damped_leaves_a_joint_out_of_rhythm_with_the_rest(clips, monkeypatch):
+    # The same elbow waving over the walk: the legs and arms swing at the walk's pace, which the
+    # shared frequency follows; the elbow's own rhythm is far from it, so it is not continued at
+    # the walk's (at that frequency its error is 1.16x SLERP's) and keeps damped's curve (1.05x:
+    # a seam velocity carried briefly, then the line).
+    err = elbow_wave_errors(clips[WALK], 45)
+    monkeypatch.setattr(periodic, "PERIODIC_OWN", 1e9)  # every joint at the shared frequency
+    shared = elbow_wave_errors(clips[WALK], 45)
+    assert err["damped"] < 0.95 * shared["damped"] and err["damped"] < 1.1 * err["slerp"], (err, shared)
 
 
 # -- euler features -----------------------------------------------------------------------------

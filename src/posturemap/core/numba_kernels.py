@@ -752,3 +752,323 @@ def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min,
             p_a, v_a, p_b, v_b = inputs[0, c], inputs[1, c], inputs[2, c], inputs[3, c]
             slope = (p_b - p_a) / d
             out[i, c] = p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
+
+
+@nb.njit(**_OPTS)
+def _ramp(x, lo, hi):
+    """0 at ``lo``, 1 at ``hi``, linear in between (either way round)."""
+    return min(max((x - lo) / (hi - lo), 0.0), 1.0)
+
+
+@nb.njit(**_OPTS)
+def _cholesky4(a):
+    """The lower Cholesky factor of a symmetric positive definite 4 x 4 ``a``."""
+    low = np.zeros((4, 4))
+    for i in range(4):
+        for j in range(i + 1):
+            s = a[i, j]
+            for k in range(j):
+                s -= low[i, k] * low[j, k]
+            if i == j:
+                low[i, i] = math.sqrt(max(s, 1e-300))
+            else:
+                low[i, j] = s / low[j, j]
+    return low
+
+
+@nb.njit(**_OPTS)
+def _solve4(a, b):
+    """``a^-1 b`` for a symmetric positive definite 4 x 4 ``a`` and ``b`` (4, C), by Cholesky."""
+    low = _cholesky4(a)
+    out = np.empty_like(b)
+    y = np.empty(4)
+    for c in range(b.shape[1]):
+        for i in range(4):
+            s = b[i, c]
+            for k in range(i):
+                s -= low[i, k] * y[k]
+            y[i] = s / low[i, i]
+        for i in range(3, -1, -1):
+            s = y[i]
+            for k in range(i + 1, 4):
+                s -= low[k, i] * out[k, c]
+            out[i, c] = s / low[i, i]
+    return out
+
+
+@nb.njit(**_OPTS)
+def _swing_design(times, omega, d, out):
+    """``[1, t / d, cos(w t), sin(w t)]`` at ``times`` into ``out`` (n, 4)."""
+    for k in range(times.shape[0]):
+        out[k, 0] = 1.0
+        out[k, 1] = times[k] / d
+        out[k, 2] = math.cos(omega * times[k])
+        out[k, 3] = math.sin(omega * times[k])
+
+
+@nb.njit(**_OPTS)
+def _swing_explained(gram, times, omega, d):
+    """How much of the rows whose Gram matrix is ``gram`` the fit at ``omega`` explains."""
+    n = times.shape[0]
+    x = np.empty((n, 4))
+    _swing_design(times, omega, d, x)
+    gx = gram @ x
+    xtx = x.T @ x
+    for i in range(4):
+        xtx[i, i] += 1e-9
+    sol = _solve4(xtx, x.T @ gx)
+    return sol[0, 0] + sol[1, 1] + sol[2, 2] + sol[3, 3]
+
+
+@nb.njit(**_OPTS)
+def _swing_peak(omegas, explained, gram, times, d, peaks):
+    """:func:`posturemap.synth.periodic._peak`: the grid's best, or the best of its ``peaks``
+    highest local maxima moved to their parabolas' vertices."""
+    w_count = omegas.shape[0]
+    top = 0
+    for w in range(1, w_count):
+        if explained[w] > explained[top]:
+            top = w
+    best, best_val = omegas[top], explained[top]
+    inner = np.empty(w_count, dtype=np.int64)
+    height = np.empty(w_count)
+    shift = np.empty(w_count)
+    m = 0
+    for w in range(1, w_count - 1):
+        y0, y1, y2 = explained[w - 1], explained[w], explained[w + 1]
+        if y1 >= y0 and y1 >= y2:
+            curve = y0 - 2.0 * y1 + y2
+            sh = 0.5 * (y0 - y2) / curve if curve < 0.0 else 0.0
+            inner[m] = w
+            shift[m] = sh
+            height[m] = y1 - 0.25 * (y0 - y2) * sh
+            m += 1
+    if m == 0:
+        return best
+    order = np.argsort(-height[:m], kind="mergesort")
+    step = omegas[1] - omegas[0]
+    for r in range(min(peaks, m)):
+        i = order[r]
+        om = omegas[inner[i]] + shift[i] * step
+        val = _swing_explained(gram, times, om, d)
+        if val > best_val:
+            best, best_val = om, val
+    return best
+
+
+@nb.njit(**_OPTS)
+def _own_residuals(rows, times, omegas, d, starts, candidate):
+    """Per joint (groups at ``starts``) where ``candidate``, its least residual over the
+    frequency grid (the sinusoid fitted to its columns alone); 0 elsewhere."""
+    n, n_c = rows.shape
+    n_g = starts.shape[0]
+    best = np.zeros(n_g)
+    energy = np.zeros(n_g)
+    for g in range(n_g):
+        if candidate[g]:
+            for c in range(starts[g], starts[g + 1] if g + 1 < n_g else n_c):
+                for k in range(n):
+                    energy[g] += rows[k, c] * rows[k, c]
+    x = np.empty((n, 4))
+    xtx = np.empty((4, 4))
+    xty = np.empty((4, 1))
+    for w in range(omegas.shape[0]):
+        _swing_design(times, omegas[w], d, x)
+        for a in range(4):
+            for b in range(4):
+                s = 0.0
+                for k in range(n):
+                    s += x[k, a] * x[k, b]
+                xtx[a, b] = s + (1e-9 if a == b else 0.0)
+        low = _cholesky4(xtx)
+        for g in range(n_g):
+            if not candidate[g]:
+                continue
+            explained = 0.0
+            for c in range(starts[g], starts[g + 1] if g + 1 < n_g else n_c):
+                for a in range(4):
+                    s = 0.0
+                    for k in range(n):
+                        s += x[k, a] * rows[k, c]
+                    xty[a, 0] = s
+                # x'y' inv(X'X) x'y = |L^-1 x'y|^2
+                for i in range(4):
+                    s = xty[i, 0]
+                    for k in range(i):
+                        s -= low[i, k] * xty[k, 0]
+                    xty[i, 0] = s / low[i, i]
+                    explained += xty[i, 0] * xty[i, 0]
+            best[g] = max(best[g], explained)
+    out = np.zeros(n_g)
+    for g in range(n_g):
+        if candidate[g]:
+            out[g] = max(energy[g] - best[g], 0.0)
+    return out
+
+
+@nb.njit(**_OPTS)
+def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, balance, peaks, own, frames,
+                  weights):
+    """:func:`posturemap.synth.periodic.continued` into ``frames`` (length, C) and ``weights``
+    (C,); returns False (and leaves ``frames`` alone) where no joint swings."""
+    n, n_c = rows.shape
+    n_a = 0
+    for k in range(n):
+        if times[k] <= 0.0:
+            n_a += 1
+    n_g = starts.shape[0]
+    swing = np.zeros(n_g)
+    any_swing = False
+    for g in range(n_g):
+        c0 = starts[g]
+        c1 = starts[g + 1] if g + 1 < n_g else n_c
+        straight = 1.0
+        energy = np.zeros(2)
+        for side in range(2):
+            k0, k1 = (0, n_a) if side == 0 else (n_a, n)
+            path = 0.0
+            for k in range(k0, k1 - 1):
+                s = 0.0
+                for c in range(c0, c1):
+                    dv = rows[k + 1, c] - rows[k, c]
+                    s += dv * dv
+                path += math.sqrt(s)
+                energy[side] += s
+            if k1 - k0 > 1:
+                energy[side] /= k1 - k0 - 1
+            net = 0.0
+            for c in range(c0, c1):
+                dv = rows[k1 - 1, c] - rows[k0, c]
+                net += dv * dv
+            net = math.sqrt(net)
+            straight = min(straight, net / path if path > 1e-12 else 1.0)
+        quiet, busy = min(energy[0], energy[1]), max(energy[0], energy[1])
+        share = quiet / busy if busy > 1e-12 else 0.0
+        swing[g] = _ramp(straight, turn[1], turn[0]) * _ramp(share, balance[0], balance[1])
+        if swing[g] > 0.0:
+            any_swing = True
+    for c in range(n_c):
+        weights[c] = 0.0
+    if not any_swing:
+        return False
+    d = length + 1.0
+    # The frequency that explains the most over all columns: trace(inv(X'X) X'G X), G = Y Y'.
+    gram = np.zeros((n, n))  # of the swinging joints' columns
+    for k in range(n):
+        for m in range(k, n):
+            s = 0.0
+            for g in range(n_g):
+                if swing[g] > 0.0:
+                    for c in range(starts[g], starts[g + 1] if g + 1 < n_g else n_c):
+                        s += rows[k, c] * rows[m, c]
+            gram[k, m] = s
+            gram[m, k] = s
+    x = np.empty((n, 4))
+    _swing_design(times, 0.0, d, x)  # the columns 1 and t / d do not depend on the frequency
+    gx = np.zeros((n, 4))
+    for k in range(n):
+        for m in range(n):
+            gx[k, 0] += gram[k, m] * x[m, 0]
+            gx[k, 1] += gram[k, m] * x[m, 1]
+    xtx = np.zeros((4, 4))
+    xgx = np.zeros((4, 4))
+    for a in range(2):
+        for b in range(2):
+            for k in range(n):
+                xtx[a, b] += x[k, a] * x[k, b]
+                xgx[a, b] += x[k, a] * gx[k, b]
+    xtx[0, 0] += 1e-9
+    xtx[1, 1] += 1e-9
+    explained = np.empty(omegas.shape[0])
+    for w in range(omegas.shape[0]):
+        for k in range(n):
+            x[k, 2] = math.cos(omegas[w] * times[k])
+            x[k, 3] = math.sin(omegas[w] * times[k])
+        for k in range(n):
+            s2, s3 = 0.0, 0.0
+            for m in range(n):
+                s2 += gram[k, m] * x[m, 2]
+                s3 += gram[k, m] * x[m, 3]
+            gx[k, 2] = s2
+            gx[k, 3] = s3
+        for a in range(4):
+            for b in range(2, 4):
+                s, t = 0.0, 0.0
+                for k in range(n):
+                    s += x[k, a] * x[k, b]
+                    t += x[k, a] * gx[k, b]
+                xtx[a, b] = s
+                xtx[b, a] = s
+                xgx[a, b] = t
+                xgx[b, a] = t
+        xtx[2, 2] += 1e-9
+        xtx[3, 3] += 1e-9
+        sol = _solve4(xtx, xgx)
+        explained[w] = sol[0, 0] + sol[1, 1] + sol[2, 2] + sol[3, 3]
+    omega = _swing_peak(omegas, explained, gram, times, d, peaks)
+    _swing_design(times, omega, d, x)
+    xtx = x.T @ x
+    for i in range(4):
+        xtx[i, i] += 1e-9
+    xty = x.T @ rows
+    coef = _solve4(xtx, xty)
+    cubic = np.empty((n, 4))
+    for k in range(n):
+        s = (times[k] - 0.5 * d) / d
+        cubic[k, 0], cubic[k, 1], cubic[k, 2], cubic[k, 3] = 1.0, s, s * s, s * s * s
+    cty = cubic.T @ rows
+    ccoef = _solve4(cubic.T @ cubic, cty)
+    shared_res = np.zeros(n_g)
+    for g in range(n_g):
+        c0 = starts[g]
+        c1 = starts[g + 1] if g + 1 < n_g else n_c
+        res_wave, res_cubic = 0.0, 0.0
+        for c in range(c0, c1):
+            for k in range(n):
+                fw, fc = 0.0, 0.0
+                for a in range(4):
+                    fw += x[k, a] * coef[a, c]
+                    fc += cubic[k, a] * ccoef[a, c]
+                res_wave += (rows[k, c] - fw) ** 2
+                res_cubic += (rows[k, c] - fc) ** 2
+        wgt = 0.0
+        if res_cubic > 1e-12:
+            wgt = _ramp(res_wave / res_cubic, gate[1], gate[0]) * swing[g]
+        shared_res[g] = res_wave
+        for c in range(c0, c1):
+            weights[c] = wgt
+    # A joint whose own best frequency fits it far better keeps its own rhythm: not continued.
+    candidate = np.zeros(n_g, dtype=np.bool_)
+    for g in range(n_g):
+        candidate[g] = weights[starts[g]] > 0.0
+    own_res = _own_residuals(rows, times, omegas, d, starts, candidate)
+    for g in range(n_g):
+        if candidate[g] and shared_res[g] > own * max(own_res[g], 1e-300):
+            for c in range(starts[g], starts[g + 1] if g + 1 < n_g else n_c):
+                weights[c] = 0.0
+    # The fit through the gap, its seam residuals (value and slope) let go over ``tau``.
+    # The fit at A's last two frames and B's first two, as the seam rows measure the clips.
+    ends = np.array([-1.0, 0.0, d, d + 1.0])
+    at = np.empty((4, 4))
+    _swing_design(ends, omega, d, at)
+    fit = at @ coef
+    res = np.empty((4, n_c))
+    for c in range(n_c):
+        res[0, c] = inputs[0, c] - fit[1, c]
+        res[1, c] = inputs[1, c] - (fit[1, c] - fit[0, c])
+        res[2, c] = inputs[2, c] - fit[2, c]
+        res[3, c] = inputs[3, c] - (fit[3, c] - fit[2, c])
+    for i in range(length):
+        t = i + 1.0
+        wv = t / d
+        u = d - t
+        to_b = wv * wv * (3.0 - 2.0 * wv)
+        near_a = (1.0 - to_b) * t * (1.0 + t / tau) * math.exp(-t / tau)
+        near_b = to_b * u * (1.0 + u / tau) * math.exp(-u / tau)
+        ct, st = math.cos(omega * t), math.sin(omega * t)
+        for c in range(n_c):
+            p_a, p_b = res[0, c], res[2, c]
+            slope = (p_b - p_a) / d
+            curve = coef[0, c] + coef[1, c] * wv + coef[2, c] * ct + coef[3, c] * st
+            frames[i, c] = curve + p_a + wv * (p_b - p_a) + near_a * (res[1, c] - slope) - near_b * (res[3, c] - slope)
+    return True
