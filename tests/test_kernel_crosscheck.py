@@ -557,7 +557,8 @@ def test_swing_columns_are_the_numpy_continued_swing():
         frames, weights = np.empty((length, 16)), np.empty(16)
         found = NK.swing_columns(rows, times, inputs, length, periodic.frequencies(float(np.ptp(times)), fps), starts,
                                  tau, periodic.PERIODIC_GATE, periodic.PERIODIC_TURN, periodic.PERIODIC_BALANCE,
-                                 periodic.PERIODIC_PEAKS, periodic.PERIODIC_OWN, frames, weights)
+                                 periodic.PERIODIC_PEAKS, periodic.PERIODIC_OWN, periodic.PERIODIC_MIN_RMS, frames,
+                                 weights)
         assert found == (expected is not None)
         np.testing.assert_allclose(weights, w_expected, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(frames, expected, rtol=1e-9, atol=1e-9)

@@ -907,8 +907,8 @@ def _own_residuals(rows, times, omegas, d, starts, candidate):
 
 
 @nb.njit(**_OPTS)
-def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, balance, peaks, own, frames,
-                  weights):
+def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, balance, peaks, own, min_rms,
+                  frames, weights):
     """:func:`posturemap.synth.periodic.continued` into ``frames`` (length, C) and ``weights``
     (C,); returns False (and leaves ``frames`` alone) where no joint swings."""
     n, n_c = rows.shape
@@ -952,8 +952,35 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
     if not any_swing:
         return False
     d = length + 1.0
-    # The frequency that explains the most over all columns: trace(inv(X'X) X'G X), G = Y Y'.
-    gram = np.zeros((n, n))  # of the swinging joints' columns
+    # A cubic through each joint's samples: a joint it fits within ``min_rms`` has no swing worth
+    # continuing; the others are judged against it below.
+    cubic = np.empty((n, 4))
+    for k in range(n):
+        s = (times[k] - 0.5 * d) / d
+        cubic[k, 0], cubic[k, 1], cubic[k, 2], cubic[k, 3] = 1.0, s, s * s, s * s * s
+    cty = cubic.T @ rows
+    ccoef = _solve4(cubic.T @ cubic, cty)
+    res_cubic = np.zeros(n_g)
+    any_swing = False
+    for g in range(n_g):
+        if swing[g] <= 0.0:
+            continue
+        c0 = starts[g]
+        c1 = starts[g + 1] if g + 1 < n_g else n_c
+        for c in range(c0, c1):
+            for k in range(n):
+                fc = 0.0
+                for a in range(4):
+                    fc += cubic[k, a] * ccoef[a, c]
+                res_cubic[g] += (rows[k, c] - fc) ** 2
+        if res_cubic[g] <= n * (c1 - c0) * min_rms * min_rms:
+            swing[g] = 0.0
+        else:
+            any_swing = True
+    if not any_swing:
+        return False
+    # The frequency that explains the most of the swinging joints: trace(inv(X'X) X'G X), G = Y Y'.
+    gram = np.zeros((n, n))
     for k in range(n):
         for m in range(k, n):
             s = 0.0
@@ -1012,28 +1039,20 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
         xtx[i, i] += 1e-9
     xty = x.T @ rows
     coef = _solve4(xtx, xty)
-    cubic = np.empty((n, 4))
-    for k in range(n):
-        s = (times[k] - 0.5 * d) / d
-        cubic[k, 0], cubic[k, 1], cubic[k, 2], cubic[k, 3] = 1.0, s, s * s, s * s * s
-    cty = cubic.T @ rows
-    ccoef = _solve4(cubic.T @ cubic, cty)
     shared_res = np.zeros(n_g)
     for g in range(n_g):
+        if swing[g] <= 0.0:
+            continue
         c0 = starts[g]
         c1 = starts[g + 1] if g + 1 < n_g else n_c
-        res_wave, res_cubic = 0.0, 0.0
+        res_wave = 0.0
         for c in range(c0, c1):
             for k in range(n):
-                fw, fc = 0.0, 0.0
+                fw = 0.0
                 for a in range(4):
                     fw += x[k, a] * coef[a, c]
-                    fc += cubic[k, a] * ccoef[a, c]
                 res_wave += (rows[k, c] - fw) ** 2
-                res_cubic += (rows[k, c] - fc) ** 2
-        wgt = 0.0
-        if res_cubic > 1e-12:
-            wgt = _ramp(res_wave / res_cubic, gate[1], gate[0]) * swing[g]
+        wgt = _ramp(res_wave / res_cubic[g], gate[1], gate[0]) * swing[g]
         shared_res[g] = res_wave
         for c in range(c0, c1):
             weights[c] = wgt
@@ -1046,8 +1065,8 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
         if candidate[g] and shared_res[g] > own * max(own_res[g], 1e-300):
             for c in range(starts[g], starts[g + 1] if g + 1 < n_g else n_c):
                 weights[c] = 0.0
-    # The fit through the gap, its seam residuals (value and slope) let go over ``tau``.
-    # The fit at A's last two frames and B's first two, as the seam rows measure the clips.
+    # The fit through the gap; its residuals at A's last two frames and B's first two (as the
+    # seam rows measure the clips: value and step) let go over ``tau``.
     ends = np.array([-1.0, 0.0, d, d + 1.0])
     at = np.empty((4, 4))
     _swing_design(ends, omega, d, at)

@@ -421,13 +421,20 @@ def _continue_swings(out, inputs, rows_a, rows_b, step, length, fps, j_count):
     0.90 to 0.79x SLERP's L2Q at 30 frames (0.96 to 0.84x at 45); bows, pointing arms and
     raised hands moved by under 0.01."""
     cols = 3 * j_count
-    d = length + 1.0
-    times = np.concatenate([-step * np.arange(len(rows_a) - 1, -1, -1.0), d + step * np.arange(len(rows_b), dtype=float)])
     rows = np.concatenate([rows_a[:, :cols], rows_b[:, :cols]])
-    frames, weights = continued(rows, times, inputs[:4, :cols], length, fps, _column_groups(j_count)[:j_count],
-                                DAMPED_TAU_S * fps)
+    frames, weights = continued(rows, _sample_times(len(rows_a), len(rows_b), step, length), inputs[:4, :cols], length,
+                                fps, _column_groups(j_count)[:j_count], DAMPED_TAU_S * fps)
     if frames is not None:
         out[:, :cols] += weights * (frames - out[:, :cols])
+
+
+@lru_cache(maxsize=64)
+def _sample_times(n_a: int, n_b: int, step: int, length: int) -> np.ndarray:
+    """The times (frames; A's seam at 0, B's at ``length + 1``) of ``n_a`` samples of A up to its
+    seam and ``n_b`` of B from its seam, ``step`` apart (:func:`_context_frames`)."""
+    out = np.concatenate([-step * np.arange(n_a - 1, -1, -1.0), length + 1.0 + step * np.arange(n_b, dtype=float)])
+    out.setflags(write=False)
+    return out
 
 
 @lru_cache(maxsize=16)

@@ -21,6 +21,8 @@ keeps ``damped``'s too, rather than the walk's rhythm.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..core import kernels
@@ -28,12 +30,13 @@ from .bases import damped_frames
 
 PERIODIC_MIN_S = 0.3  # the shortest period (s) looked for ...
 PERIODIC_MAX_S = 1.5  # ... and the longest
-PERIODIC_GRID = 8  # frequency steps per 1 / (the time the samples span): finer than the fit can tell apart
+PERIODIC_GRID = 8  # frequency steps per 1 / (the time the samples span): an eighth of a cycle of drift over the samples
 PERIODIC_GATE = (0.25, 0.5)  # a joint's residual, sinusoid over cubic: continued in full under the first, not above the second
 PERIODIC_TURN = (0.6, 0.9)  # a joint's net travel over its path at a seam: turning back under the first, straight on above the second
 PERIODIC_BALANCE = (0.05, 0.2)  # the quieter seam's speed^2 over the busier one's: none under the first, full above the second
 PERIODIC_PEAKS = 3  # the highest peaks of the frequency grid's fit refined
 PERIODIC_OWN = 2.0  # a joint whose own best frequency leaves a residual this many times smaller keeps its own rhythm: not continued
+PERIODIC_MIN_RMS = np.radians(1.0)  # a joint a cubic fits within this (RMS, radians) has no swing worth continuing
 PERIODIC_MIN_SAMPLES = 6  # each seam's samples needed (fewer cannot show a swing)
 
 
@@ -42,9 +45,15 @@ def frequencies(span: float, fps: float) -> np.ndarray:
     periods from :data:`PERIODIC_MIN_S` to :data:`PERIODIC_MAX_S`, evenly spaced in frequency
     by ``1 / (PERIODIC_GRID * span)`` cycles per frame (two fits that far apart in frequency
     drift by an eighth of a cycle over the samples)."""
-    lo, hi = 1.0 / (PERIODIC_MAX_S * fps), 1.0 / (PERIODIC_MIN_S * fps)
-    count = int(np.ceil((hi - lo) * PERIODIC_GRID * span)) + 1
-    return 2 * np.pi * np.linspace(lo, hi, max(count, 2))
+    return _grid(float(span), float(fps), PERIODIC_GRID, PERIODIC_MIN_S, PERIODIC_MAX_S)
+
+
+@lru_cache(maxsize=64)
+def _grid(span: float, fps: float, steps: int, shortest: float, longest: float) -> np.ndarray:
+    lo, hi = 1.0 / (longest * fps), 1.0 / (shortest * fps)
+    out = 2 * np.pi * np.linspace(lo, hi, max(int(np.ceil((hi - lo) * steps * span)) + 1, 2))
+    out.setflags(write=False)
+    return out
 
 
 def _design(times: np.ndarray, omega, d: float) -> np.ndarray:
@@ -142,19 +151,29 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
         omegas = frequencies(float(times.max() - times.min()), fps)
         found = kernels.compiled().swing_columns(rows, times, inputs, length, omegas, starts, float(tau),
                                                  PERIODIC_GATE, PERIODIC_TURN, PERIODIC_BALANCE, PERIODIC_PEAKS,
-                                                 PERIODIC_OWN, frames, weights)
+                                                 PERIODIC_OWN, PERIODIC_MIN_RMS, frames, weights)
         return (frames if found else None), weights
     swing = swinging(rows[times <= 0], rows[times > 0], starts)
     if not swing.any():
         return None, np.zeros(rows.shape[1])
     d = length + 1.0
     n = len(times)
+    sizes = np.diff(np.append(starts, rows.shape[1]))
+    # A cubic through each joint's samples: a joint it fits within PERIODIC_MIN_RMS has no swing
+    # worth continuing; the others are judged against it below.
+    s = (times - 0.5 * d) / d
+    cubic = np.stack([np.ones(n), s, s * s, s * s * s], axis=1)
+    fit = cubic @ np.linalg.lstsq(cubic, rows, rcond=None)[0]
+    res_cubic_j = np.add.reduceat(np.sum((rows - fit) ** 2, axis=0), starts)
+    swing = np.where(res_cubic_j > n * sizes * PERIODIC_MIN_RMS ** 2, swing, 0.0)
+    if not swing.any():
+        return None, np.zeros(rows.shape[1])
     omegas = frequencies(float(times.max() - times.min()), fps)
     x = _design(times, omegas, d)  # (W, n, 4)
     xt = x.transpose(0, 2, 1)
     xtx = xt @ x + 1e-9 * np.eye(4)
     # The frequency that explains the most of the swinging joints: trace(inv(X'X) X'G X), G = Y Y'.
-    swung = rows[:, np.repeat(swing > 0, np.diff(np.append(starts, rows.shape[1])))]
+    swung = rows[:, np.repeat(swing > 0, sizes)]
     xgx = xt @ (swung @ (swung.T @ x))
     explained = np.trace(np.linalg.solve(xtx, xgx), axis1=1, axis2=2)
     omega = _peak(omegas, explained, lambda om: _explained(swung, times, om, d), PERIODIC_PEAKS)
@@ -162,14 +181,9 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
     xty = xb.T @ rows  # (4, C)
     coef = np.linalg.solve(xb.T @ xb + 1e-9 * np.eye(4), xty)
     res_wave = np.sum((rows - xb @ coef) ** 2, axis=0)
-    s = (times - 0.5 * d) / d
-    cubic = np.stack([np.ones(n), s, s * s, s * s * s], axis=1)
-    fit = cubic @ np.linalg.lstsq(cubic, rows, rcond=None)[0]
-    res_cubic = np.sum((rows - fit) ** 2, axis=0)
     res_wave_j = np.add.reduceat(res_wave, starts)
-    res_cubic_j = np.add.reduceat(res_cubic, starts)
     lo, hi = PERIODIC_GATE
-    moving = res_cubic_j > 1e-12
+    moving = swing > 0  # (and so res_cubic_j > 0)
     ratio = np.where(moving, res_wave_j / np.where(moving, res_cubic_j, 1.0), np.inf)
     # Each joint's own best frequency on the grid: one whose swing that frequency fits far
     # better than the shared one keeps another rhythm (an elbow waving over walking legs).
@@ -179,7 +193,7 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
                          - np.add.reduceat(own, starts, axis=1).max(axis=0), 0.0)
     in_rhythm = res_wave_j <= PERIODIC_OWN * np.maximum(own_res, 1e-300)
     weight = _ramp(ratio, hi, lo) * swing * in_rhythm
-    weights = np.repeat(weight, np.diff(np.append(starts, rows.shape[1])))
+    weights = np.repeat(weight, sizes)
 
     t = np.arange(1, length + 1, dtype=float)
     frames = _design(t, omega, d)[0] @ coef
