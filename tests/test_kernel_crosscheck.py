@@ -578,9 +578,10 @@ def test_swing_columns_are_the_numpy_continued_swing():
     np.testing.assert_allclose(NK._solve4(a, b), np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
     assert [NK._ramp(x, 0.2, 0.6) for x in (0.0, 0.4, 1.0)] == pytest.approx([0.0, 0.5, 1.0])
     assert [NK._ramp(x, 0.6, 0.2) for x in (0.0, 0.4, 1.0)] == pytest.approx([1.0, 0.5, 0.0])
-    x = np.empty((3, 4))
-    NK._swing_design(np.array([0.0, 2.0, 5.0]), 0.7, 10.0, x)
-    np.testing.assert_allclose(x, periodic._design(np.array([0.0, 2.0, 5.0]), 0.7, 10.0)[0], atol=1e-15)
+    t = np.concatenate([-4.0 * np.arange(9, -1, -1), 50.0 + 4.0 * np.arange(9), [90.0, 91.5, 93.0]])  # even runs
+    x = np.empty((len(t), 4))
+    NK._swing_design(t, 0.07, 50.0, x)
+    np.testing.assert_allclose(x, periodic._design(t, 0.07, 50.0)[0], rtol=0, atol=1e-13)
     rows, times, _, length, _ = next(swing_cases(rng))
     omegas = periodic.frequencies(float(np.ptp(times)), fps)
     d = length + 1.0

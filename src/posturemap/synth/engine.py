@@ -259,8 +259,12 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
     return out
 
 
-def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):
-    """The interpolating methods: seam values (and keys) through the method's basis."""
+def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,
+                  swing_joints: np.ndarray | None = None):
+    """The interpolating methods: seam values (and keys) through the method's basis.
+
+    ``swing_joints``: for ``damped``, the joints (indices) whose swings may be continued (all
+    by default; retrieval's fallback passes the parts it falls back for)."""
     up, root, length, a_end, b_start = eng._up, eng._root, req.length, req.a_end, req.b_start
     # Seam frames: A at a_end-2..a_end, B at b_start..b_start+1 (clamped inside the clips).
     ia = [max(a_end - 2, 0), max(a_end - 1, 0), a_end]
@@ -283,7 +287,7 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     rows = _seam_rows(eng, ta, tb, np.concatenate([ia, ca]), np.concatenate([ib, cb]), a_end, ref, dtheta, shift)
     n_a = len(ia) + len(ca)
     seam = rows if n_a == len(ia) else rows[[0, 1, 2, n_a, n_a + 1]]
-    context = (rows[len(ia): n_a], rows[n_a + len(ib):], step)
+    context = (rows[len(ia): n_a], rows[n_a + len(ib):], step, swing_joints)
     s0 = 3 * eng.skeleton.num_joints
     # Inputs of the bases: pA, vA, pB, vB, and the fifth row (aA or a key) per method.
     inputs = np.empty((5, seam.shape[1]))
@@ -397,7 +401,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     The root's height keeps its own, with the legs that carry it. No time constant exceeds
     ``DAMPED_GAP_SHARE`` of the gap, so that each seam's carried velocity turns (at 1.6 tau)
     before the gap's middle."""
-    rows_a, rows_b, step = context
+    rows_a, rows_b, step, swing_joints = context
     j_count = eng.skeleton.num_joints
     starts, fixed = _column_groups(j_count), _fixed_columns(j_count, eng._up)
     longest = max(DAMPED_TAU_S * fps, min(DAMPED_TAU_MAX_S * fps, DAMPED_GAP_SHARE * (req.length + 1)))
@@ -409,23 +413,30 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
         scale = np.where(fixed, 0.0, damped_time_scales((rows_a, rows_b), step, starts))
         out = damped_frames(inputs, req.length, scale, DAMPED_TAU_S * fps, longest)
     if min(len(rows_a), len(rows_b)) >= PERIODIC_MIN_SAMPLES:
-        _continue_swings(out, inputs, rows_a, rows_b, step, req.length, fps, j_count)
+        _continue_swings(out, inputs, rows_a, rows_b, step, req.length, fps, j_count, swing_joints)
     return out
 
 
-def _continue_swings(out, inputs, rows_a, rows_b, step, length, fps, j_count):
-    """Blend into ``out`` (in place) the joints' rotations that swing back and forth at both
-    seams, continued in phase through the gap (:func:`posturemap.synth.periodic.continued`;
-    rotations only: the root's travel and the translations keep ``damped``'s). Over the six
-    splits of ``docs/retrieval.md`` and Bandai's dataset-2 this took the default's waves from
-    0.90 to 0.79x SLERP's L2Q at 30 frames (0.96 to 0.84x at 45); bows, pointing arms and
-    raised hands moved by under 0.01."""
-    cols = 3 * j_count
-    rows = np.concatenate([rows_a[:, :cols], rows_b[:, :cols]])
-    frames, weights = continued(rows, _sample_times(len(rows_a), len(rows_b), step, length), inputs[:4, :cols], length,
-                                fps, _column_groups(j_count)[:j_count], DAMPED_TAU_S * fps)
+def _continue_swings(out, inputs, rows_a, rows_b, step, length, fps, j_count, joints=None):
+    """Blend into ``out`` (in place) the rotations of ``joints`` (indices; all by default) that
+    swing back and forth at both seams, continued in phase through the gap
+    (:func:`posturemap.synth.periodic.continued`; rotations only: the root's travel and the
+    translations keep ``damped``'s). Over the six splits of ``docs/retrieval.md`` and Bandai's
+    dataset-2 this took the default's waves from 0.90 to 0.79x SLERP's L2Q at 30 frames (0.96
+    to 0.84x at 45); bows, pointing arms and raised hands moved by under 0.01."""
+    if joints is None:
+        cols = slice(0, 3 * j_count)
+        count = j_count
+    else:
+        cols = (3 * np.asarray(joints)[:, None] + np.arange(3)).ravel()
+        count = len(joints)
+        if not count:
+            return
+    rows = np.concatenate([rows_a[:, cols], rows_b[:, cols]])
+    frames, weights = continued(rows, _sample_times(len(rows_a), len(rows_b), step, length), inputs[:4, cols], length,
+                                fps, _column_groups(count)[:count], DAMPED_TAU_S * fps)
     if frames is not None:
-        out[:, :cols] += weights * (frames - out[:, :cols])
+        out[:, cols] += weights * (frames - out[:, cols])
 
 
 @lru_cache(maxsize=64)
@@ -530,6 +541,15 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # overwritten), without running the whole method.
         rots_fb, pos_fb = _open_columns(eng, ta, tb, a_end, b_start, length)
         fb_last = None  # B's place and the report come from the retrieval alone
+    elif fallback == "damped":  # the swings continued only in the parts it falls back for
+        swing = None  # (and the joints above the root, which always come from the fallback)
+        if res is not None and max(res.confidence) >= 1.0 > min(res.confidence):
+            rt = eng._retriever
+            swing = np.concatenate([rt.open_joints] + [j for c, j in zip(res.confidence, rt.part_joints) if c < 1.0])
+        rots_fb, pos_fb = _interpolated(eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False),
+                                        swing_joints=swing)
+        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
+        fb_last = eng.last
     else:
         rots_fb, pos_fb = _RUN[fallback](eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False))
         rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
