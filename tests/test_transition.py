@@ -1191,6 +1191,29 @@ def test_damped_waves_an_elbow_on_through_the_gap(clips):
     assert err["damped"] < 0.2 * err["slerp"], err
 
 
+def test_damped_continues_only_the_joints_it_is_given(clips):
+    # Retrieval's fallback passes the joints of the parts it falls back for: a waving elbow left
+    # out keeps damped's curve; given (or all joints by default), it swings on.
+    from posturemap.synth import engine as E
+
+    m = clips[WALK]
+    j = m.skeleton.names.index("LowerArm_R")
+    theta = 0.6 * np.sin(2 * np.pi * (np.arange(150) - 40) / (0.5 * m.fps) + 0.7)
+    rots = np.repeat(m.rotations[:1], 150, axis=0)
+    rots[:, j] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), theta)
+    eng = TransitionEngine()
+    track = eng.add("wave", Motion(m.skeleton, rots, np.repeat(m.positions[:1], 150, axis=0), m.fps))
+    req = TransitionRequest(method="damped", length=45, a_end=40, b_start=86, align=False,
+                            foot_lock=False).resolved(150, 150)
+    out = {}
+    for name, joints in (("all", None), ("with", np.array([0, j])), ("without", np.array([0, j - 1]))):
+        out[name] = E._interpolated(eng, track, track, "wave", "wave", req, swing_joints=joints)[0][:, j].copy()
+    np.testing.assert_allclose(out["with"], out["all"], atol=1e-12)
+    truth = rots[41:86, j]
+    assert quat.angle_between(out["with"], truth).max() < 0.05
+    assert quat.angle_between(out["without"], truth).max() > 0.3
+
+
 def test_damped_leaves_a_joint_out_of_rhythm_with_the_rest(clips, monkeypatch):
     # The same elbow waving over the walk: the legs and arms swing at the walk's pace, which the
     # shared frequency follows; the elbow's own rhythm is far from it, so it is not continued at

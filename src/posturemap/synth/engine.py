@@ -541,17 +541,16 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # overwritten), without running the whole method.
         rots_fb, pos_fb = _open_columns(eng, ta, tb, a_end, b_start, length)
         fb_last = None  # B's place and the report come from the retrieval alone
-    elif fallback == "damped":  # the swings continued only in the parts it falls back for
-        swing = None  # (and the joints above the root, which always come from the fallback)
-        if res is not None and max(res.confidence) >= 1.0 > min(res.confidence):
+    else:
+        # damped continues the swings of the parts it falls back for only (and of the joints
+        # above the root, which always come from it): where the legs are replayed, the arms'
+        # rhythm is not to be taken from legs the replay replaces.
+        swing = None
+        if fallback == "damped" and res is not None and max(res.confidence) >= 1.0 > min(res.confidence):
             rt = eng._retriever
             swing = np.concatenate([rt.open_joints] + [j for c, j in zip(res.confidence, rt.part_joints) if c < 1.0])
         rots_fb, pos_fb = _interpolated(eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False),
                                         swing_joints=swing)
-        rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
-        fb_last = eng.last
-    else:
-        rots_fb, pos_fb = _RUN[fallback](eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False))
         rots_fb, pos_fb = rots_fb.copy(), pos_fb.copy()
         fb_last = eng.last
     out_r, out_p = eng._out(length)
