@@ -144,7 +144,8 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
     Each joint's weight is :func:`swinging`'s, times how much better the sinusoid fits its
     samples than a cubic does (:data:`PERIODIC_GATE`), and 0 where its own best frequency on
     the grid leaves a residual :data:`PERIODIC_OWN` times smaller than the shared one's, or
-    where it does not move.
+    where a cubic fits its samples within :data:`PERIODIC_MIN_RMS` (nothing to gain; when no
+    joint is left, the frequency search is skipped).
     """
     if kernels.backend() == "numba":  # the same steps compiled (some fifty numpy calls otherwise)
         frames, weights = np.empty((length, rows.shape[1])), np.empty(rows.shape[1])
