@@ -593,7 +593,7 @@ def test_swing_columns_are_the_numpy_continued_swing():
             periodic._peak(omegas, explained, lambda om: periodic._explained(rows, times, om, d), peaks), rel=1e-12)
 
 
-@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy")
+@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),
     # groups of 3 and 1 columns, some columns fixed to the shortest time constant; samples

@@ -1155,6 +1155,11 @@ def test_smooth_or_stopping_motions_are_not_continued():
         swing = periodic.swinging(rows[times <= 0], rows[times > 0], starts)
         frames, weights = periodic.continued(rows, times, inputs, length, 30.0, starts, 1.5)
         assert frames is None and not weights.any() and swing[0] == 0.0, name
+    # A wave seen in fewer than PERIODIC_MIN_SAMPLES samples of one clip is not continued either.
+    rows, times, inputs, _ = seam_samples(wave(12.0), length, n=periodic.PERIODIC_MIN_SAMPLES - 1)
+    assert periodic.continued(rows, times, inputs, length, 30.0, starts, 1.5)[0] is None
+    rows, times, inputs, _ = seam_samples(wave(12.0), length, n=periodic.PERIODIC_MIN_SAMPLES)
+    assert periodic.continued(rows, times, inputs, length, 30.0, starts, 1.5)[0] is not None
     # The same gates pass a motion that turns back at one seam and keeps moving at the other.
     turns = lambda t: np.where(t <= 0, 0.4 * np.sin(2 * np.pi * t / 12.0), 0.15 * (t - d))[:, None] * [1.0, 0.7, 0.2]
     rows, times, _, _ = seam_samples(turns, length)

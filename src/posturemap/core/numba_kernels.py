@@ -737,6 +737,15 @@ def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min,
         for c in range(c0, c1):
             s = 0.0 if fixed[c] else scale
             tau[c] = min(max(s, tau_min), tau_max)
+    _damped_apply(inputs, length, tau, out)
+
+
+@nb.njit(**_OPTS)
+def _damped_apply(inputs, length, tau, out):
+    """:func:`posturemap.synth.bases.damped_frames` of ``inputs`` (rows pA, vA, pB, vB) with
+    each column's time constant ``tau`` (C,; frames, already held within its bounds) into ``out``
+    (length, C)."""
+    n_c = inputs.shape[1]
     d = length + 1.0
     for i in range(length):
         t = i + 1.0
@@ -1085,17 +1094,10 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
         res[1, c] = inputs[1, c] - (fit[1, c] - fit[0, c])
         res[2, c] = inputs[2, c] - fit[2, c]
         res[3, c] = inputs[3, c] - (fit[3, c] - fit[2, c])
+    _damped_apply(res, length, np.full(n_c, tau), frames)
     for i in range(length):
         t = i + 1.0
-        wv = t / d
-        u = d - t
-        to_b = wv * wv * (3.0 - 2.0 * wv)
-        near_a = (1.0 - to_b) * t * (1.0 + t / tau) * math.exp(-t / tau)
-        near_b = to_b * u * (1.0 + u / tau) * math.exp(-u / tau)
         ct, st = math.cos(omega * t), math.sin(omega * t)
         for c in range(n_c):
-            p_a, p_b = res[0, c], res[2, c]
-            slope = (p_b - p_a) / d
-            curve = coef[0, c] + coef[1, c] * wv + coef[2, c] * ct + coef[3, c] * st
-            frames[i, c] = curve + p_a + wv * (p_b - p_a) + near_a * (res[1, c] - slope) - near_b * (res[3, c] - slope)
+            frames[i, c] += coef[0, c] + coef[1, c] * (t / d) + coef[2, c] * ct + coef[3, c] * st
     return True

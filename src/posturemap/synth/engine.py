@@ -71,7 +71,7 @@ from .bases import (DAMPED_GAP_SHARE, DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
-from .periodic import PERIODIC_MIN_SAMPLES, continued
+from .periodic import continued
 from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest, describe
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
@@ -412,8 +412,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     else:
         scale = np.where(fixed, 0.0, damped_time_scales((rows_a, rows_b), step, starts))
         out = damped_frames(inputs, req.length, scale, DAMPED_TAU_S * fps, longest)
-    if min(len(rows_a), len(rows_b)) >= PERIODIC_MIN_SAMPLES:
-        _continue_swings(out, inputs, rows_a, rows_b, step, req.length, fps, j_count, swing_joints)
+    _continue_swings(out, inputs, rows_a, rows_b, step, req.length, fps, j_count, swing_joints)
     return out
 
 

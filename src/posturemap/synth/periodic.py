@@ -128,7 +128,8 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
               tau: float) -> tuple[np.ndarray, np.ndarray]:
     """The swing of the columns of ``rows`` continued through a gap of ``length`` frames, and
     how much of it to take per column: ``(frames (length, C), weights (C,))``, the frames None
-    where no joint swings (:func:`swinging`).
+    where no joint swings (:func:`swinging`) or either clip gives fewer than
+    :data:`PERIODIC_MIN_SAMPLES` samples.
 
     ``rows`` (n, C) are samples at ``times`` (n,; frames, A's seam at 0 and B's at ``length +
     1``) of both clips; ``inputs`` the seam rows ``pA, vA, pB, vB`` (4 or more, C) as for
@@ -147,6 +148,8 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
     where a cubic fits its samples within :data:`PERIODIC_MIN_RMS` (nothing to gain; when no
     joint is left, the frequency search is skipped).
     """
+    if min(np.count_nonzero(times <= 0), np.count_nonzero(times > 0)) < PERIODIC_MIN_SAMPLES:
+        return None, np.zeros(rows.shape[1])
     if kernels.backend() == "numba":  # the same steps compiled (some fifty numpy calls otherwise)
         frames, weights = np.empty((length, rows.shape[1])), np.empty(rows.shape[1])
         omegas = frequencies(float(times.max() - times.min()), fps)
