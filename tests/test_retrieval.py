@@ -444,6 +444,33 @@ def test_a_clip_at_another_frame_rate_replays_the_library_at_its_speed(model, cl
     assert all(min(retrieval.WARPS) - 0.01 <= w <= max(retrieval.WARPS) + 0.01 for w in warps)
 
 
+def test_the_search_holds_as_many_moments_at_any_frame_rate(model, clips):
+    # A library recorded at 60 fps holds each moment of motion in two frames. The frames gathered
+    # per seam and the segments averaged grow with its rate (Retriever.budget, segments_averaged),
+    # so they hold as many moments (1/30 s apart) as the 30 fps library's: the same one-second
+    # in-between at 60 fps searches as much motion. At 1,536 frames and 16 segments, as at 30 fps,
+    # they held about half as many.
+    fast = model._build_library([resample(clips[n], 2) for n in LIBRARY], list(LIBRARY))
+    name, a_end, length = HELD_OUT[0], 40, 29  # one second at 30 fps
+    counts = {}
+    for factor, lib in ((1, model.library_), (2, fast)):
+        eng = TransitionEngine(model)
+        track = eng.add(name, resample(clips[name], factor) if factor > 1 else clips[name])
+        rt = retrieval.Retriever(eng, lib)
+        a, n = factor * a_end, factor * (length + 1) - 1
+        b = a + n + 1
+
+        def moments(frames):  # (clip, time in 30ths of a second)
+            return len({(int(lib.clip_of[f]), round((f - int(lib.clip_start[lib.clip_of[f]])) * 30 / lib.fps))
+                        for f in np.asarray(frames).tolist()})
+
+        gathered = rt.gather_seams(track.features[a], track.features[b])
+        found = retrieval.match(rt, track, track, a, b, n, 0.5, align=False).found
+        assert len(found[1][0]) == factor * retrieval.TOP_K  # the upper body: all it kept
+        counts[factor] = [moments(x) for pair in gathered for x in pair] + [moments(found[1][0])]
+    assert all(fast >= 0.8 * slow for slow, fast in zip(counts[1], counts[2])), counts
+
+
 def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_path, capsys):
     map_path = tmp_path / "map.npz"
     model.save(map_path)
@@ -615,6 +642,8 @@ def test_long_gaps_average_more_segments(engine):
     counts = [avg(n, 30.0) for n in range(1, 60)]
     assert all(b >= a for a, b in zip(counts, counts[1:])) and retrieval.TOP_K < avg(39, 30.0) < retrieval.TOP_K_LONG
     assert avg(4 * 39 + 3, 120.0) == avg(39, 30.0)  # the same duration at 120 fps
+    # A library at 60 fps: twice as many (segments a frame apart are near copies there).
+    assert avg(59, 60.0, 60.0) == 2 * retrieval.TOP_K and avg(89, 60.0, 60.0) == 2 * retrieval.TOP_K_LONG
     name = HELD_OUT[0]
     for length, want in ((30, retrieval.TOP_K), (45, retrieval.TOP_K_LONG)):
         engine.generate(name, name, length=length, a_end=20, b_start=20 + length + 1, align=False, method="retrieval")
@@ -870,8 +899,8 @@ def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
     from types import SimpleNamespace
 
     keep = retrieval.Retriever.keep.fget
-    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=retrieval.PREFILTER_FPS))) == retrieval.PREFILTER
-    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=4 * retrieval.PREFILTER_FPS))) == 4 * retrieval.PREFILTER
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=retrieval.LIBRARY_FPS))) == retrieval.PREFILTER
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=4 * retrieval.LIBRARY_FPS))) == 4 * retrieval.PREFILTER
     assert keep(SimpleNamespace(lib=SimpleNamespace(fps=0.001))) == 1
 
 
@@ -1017,7 +1046,8 @@ def test_compiled_gather_matches_the_numpy_steps(engine, monkeypatch, circular, 
     ptr = np.zeros(win.max() + 2, dtype=np.int64)
     np.add.at(ptr, win + 1, 1)
     rt.cmap = SimpleNamespace(weights_=weights, period_=period)
-    rt.lib = SimpleNamespace(index_ptr=np.cumsum(ptr), index_frames=np.argsort(win, kind="stable").astype(np.int64))
+    rt.lib = SimpleNamespace(index_ptr=np.cumsum(ptr), index_frames=np.argsort(win, kind="stable").astype(np.int64),
+                             fps=retrieval.LIBRARY_FPS)
     monkeypatch.setattr(retrieval, "BUDGET", budget)
     sizes = []
     for _ in range(10):

@@ -67,10 +67,12 @@ TOP_K_RAMP_S = (1.1, 1.5)
 # Seconds over which a seam's velocity offset fades (value offsets span the gap): in in-betweening
 # (B fixed) and in transitions (B placed to continue A); see blend_frames.
 BLEND_S = {False: 0.33, True: 0.67}
-BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture)
+BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture), ...
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
-PREFILTER = 32  # of those, the best matches at natural speed that become segment ends, per ...
-PREFILTER_FPS = 30.0  # ... this library frame rate (see Retriever.keep)
+PREFILTER = 32  # of those, the best matches at natural speed that become segment ends, ...
+# ... and TOP_K, TOP_K_LONG: each counts frames or segments of a library at this frame rate and
+# grows with the library's rate (see Retriever.budget, Retriever.keep, segments_averaged).
+LIBRARY_FPS = 30.0
 CONF_RANGE = (12.0, 24.0)  # the legs' match distance (RMS degrees per joint): full confidence below, none above
 UPPER_CONF_RANGE = (24.0, 48.0)  # the upper body's, likewise (see confidences)
 UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
@@ -358,7 +360,7 @@ class Retriever:
     def gather(self, x: np.ndarray, part: int | None = None) -> np.ndarray:
         """Library frames whose index neuron is among those nearest the posture ``x`` (D,).
 
-        Neurons are visited nearest first until :data:`BUDGET` frames are gathered; with
+        Neurons are visited nearest first until :attr:`budget` frames are gathered; with
         ``part``, nearness counts only the index map's dimensions of that body part's joints
         (the thighs for the legs, the clavicles and upper arms for the upper body).
         """
@@ -366,7 +368,8 @@ class Retriever:
         if _compiled() is not None:
             cols = self.index_cols[part] if part is not None else np.arange(cmap.weights_.shape[1])
             return _compiled().gather(cmap.weights_, cols, x[self.space.class_dims[INDEX_CLASS][cols]],
-                                      cmap.period_[cols], lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
+                                      cmap.period_[cols], lib.index_ptr, lib.index_frames, GATHER_NEURONS,
+                                      self.budget)
         cols = self.index_cols[part] if part is not None else slice(None)
         q = x[self.space.class_dims[INDEX_CLASS]][cols]
         w = cmap.weights_[:, cols]
@@ -383,7 +386,7 @@ class Retriever:
         start = lib.index_ptr[near]
         count = lib.index_ptr[near + 1] - start
         cum = np.cumsum(count)
-        stop = min(int(np.searchsorted(cum, BUDGET)) + 1, len(near))
+        stop = min(int(np.searchsorted(cum, self.budget)) + 1, len(near))
         if stop == 0 or cum[stop - 1] == 0:
             return np.zeros(0, dtype=np.int64)
         start, count, total = start[:stop], count[:stop], int(cum[stop - 1])
@@ -404,7 +407,7 @@ class Retriever:
                                                       cmap.period_[c]) for c in self.index_cols)
         (w0, d0, period0), (w1, d1, period1) = self._index_w[1:]
         a0, b0, a1, b1 = _compiled().gather_seams(w0, w1, xa[d0], xa[d1], xb[d0], xb[d1], period0, period1,
-                                                  lib.index_ptr, lib.index_frames, GATHER_NEURONS, BUDGET)
+                                                  lib.index_ptr, lib.index_frames, GATHER_NEURONS, self.budget)
         return [(a0, b0), (a1, b1)]
 
     def candidates(self, sa: np.ndarray, sb: np.ndarray, d: float, fps: float):
@@ -564,12 +567,22 @@ class Retriever:
         return ((dx - disp[0]) ** 2 + (dz - disp[1]) ** 2) / scale**2 + (turn - disp[2]) ** 2 / 0.25**2
 
     @property
+    def budget(self) -> int:
+        """How many frames :meth:`gather` collects per seam: :data:`BUDGET` at
+        :data:`LIBRARY_FPS`, in proportion to the library's frame rate, so that they hold as
+        many moments of motion at any rate. With 1,536 at 60 fps (half the moments), bandai1's
+        hold-outs rewritten at 60 fps (docs/another-rig.md) scored L2Q 0.644 / 0.729x SLERP's
+        on held-out styles at 1 / 1.5 s where Bandai's own 30 fps scored 0.56 / 0.64x; with
+        3,072 (and :func:`segments_averaged` in proportion too) 0.561 / 0.632x."""
+        return max(1, round(BUDGET * self.lib.fps / LIBRARY_FPS))
+
+    @property
     def keep(self) -> int:
         """How many gathered frames per seam the prefilter keeps: :data:`PREFILTER` at
-        :data:`PREFILTER_FPS`, in proportion to the library's frame rate (neighbouring frames
+        :data:`LIBRARY_FPS`, in proportion to the library's frame rate (neighbouring frames
         at a higher rate are near copies of each other: at 120 fps, 96 frames held a quarter
         of the moments, and CMU's 1.5 s gaps lost 4-5% L2Q against 128 to 384)."""
-        return max(1, round(PREFILTER * self.lib.fps / PREFILTER_FPS))
+        return max(1, round(PREFILTER * self.lib.fps / LIBRARY_FPS))
 
     def prefilter(self, part: int, frames: np.ndarray, q: Seams, end: bool, keep: int) -> np.ndarray:
         """The ``keep`` frames of ``frames`` that best match the seam ``q`` at natural speed.
@@ -666,10 +679,12 @@ class Retriever:
                 W_DISP)
 
 
-def segments_averaged(length: int, fps: float) -> int:
+def segments_averaged(length: int, fps: float, lib_fps: float = LIBRARY_FPS) -> int:
     """How many best segments each body part averages on a gap of ``length`` frames:
     :data:`TOP_K` up to ``TOP_K_RAMP_S[0]`` seconds (from A's last kept frame to B's first,
-    ``(length + 1) / fps``), :data:`TOP_K_LONG` from ``TOP_K_RAMP_S[1]`` on, linear in between.
+    ``(length + 1) / fps``), :data:`TOP_K_LONG` from ``TOP_K_RAMP_S[1]`` on, linear in between;
+    for a library at ``lib_fps``, in proportion to ``lib_fps / LIBRARY_FPS`` (segments that
+    start a frame apart at 60 fps are near copies: as many of them hold half the moments).
 
     The longer the gap, the less its seams decide its middle, and there the mean of more real
     segments is the better estimate (a smaller expected error, as for any average of
@@ -682,7 +697,7 @@ def segments_averaged(length: int, fps: float) -> int:
     """
     lo, hi = TOP_K_RAMP_S
     u = min(max(((length + 1) / float(fps) - lo) / (hi - lo), 0.0), 1.0)
-    return int(round(TOP_K + u * (TOP_K_LONG - TOP_K)))
+    return max(1, int(round((TOP_K + u * (TOP_K_LONG - TOP_K)) * float(lib_fps) / LIBRARY_FPS)))
 
 
 def _top_k(k: int | None) -> int:
@@ -1183,7 +1198,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     lib = rt.lib
     fps = float(ta.motion.fps)
     d = length + 1.0
-    top_k = segments_averaged(length, fps) if top_k is None else top_k
+    top_k = segments_averaged(length, fps, lib.fps) if top_k is None else top_k
     ia = [max(a_end - 1, 0), a_end]
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
     xa, xb = ta.features[a_end], tb.features[b_start]
