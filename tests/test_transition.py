@@ -1196,6 +1196,30 @@ def test_damped_waves_an_elbow_on_through_the_gap(clips):
     assert err["damped"] < 0.2 * err["slerp"], err
 
 
+def test_damped_waves_on_at_60_fps_from_ten_context_frames(clips):
+    # The protocol's 10 context frames each side at 60 fps: 5 samples each at damped's step of
+    # 1/30 s, fewer than the swing's fit needs; it takes every frame instead (engine._swing_step),
+    # and the elbow waving over a still body follows the wave through a 1 s gap (SLERP's error
+    # and more where it was not continued).
+    m = clips[WALK]
+    fps, length, a_end, period = 60.0, 59, 9, 0.5
+    n = a_end + 1 + length + 10
+    j = m.skeleton.names.index("LowerArm_R")
+    axis = np.array([1.0, 0.0, 0.0])
+    theta = 0.6 * np.sin(2 * np.pi * (np.arange(n) - a_end) / (period * fps) + 0.7)
+    rots = np.repeat(m.rotations[:1], n, axis=0)
+    rots[:, j] = quat.from_axis_angle(axis, theta)
+    eng = TransitionEngine()
+    eng.add("wave", Motion(m.skeleton, rots, np.repeat(m.positions[:1], n, axis=0), fps))
+    err = {}
+    for method in ("damped", "slerp"):
+        r, _ = eng.generate("wave", "wave", length=length, a_end=a_end, b_start=a_end + length + 1, align=False,
+                            method=method, foot_lock=False)
+        got = 2 * np.arctan2(r[:, j, 1:] @ axis, r[:, j, 0])
+        err[method] = np.sqrt(np.mean((got - theta[a_end + 1: a_end + length + 1]) ** 2))
+    assert err["damped"] < 0.2 * err["slerp"], err
+
+
 def test_damped_continues_only_the_joints_it_is_given(clips):
     # Retrieval's fallback passes the joints of the parts it falls back for: a waving elbow left
     # out keeps damped's curve; given (or all joints by default), it swings on.

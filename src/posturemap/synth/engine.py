@@ -71,7 +71,7 @@ from .bases import (DAMPED_GAP_SHARE, DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
-from .periodic import continued
+from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest, describe
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
@@ -281,13 +281,23 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
         ref[eng.model.space_.joints] = keys["key"][0]
 
     # Rows: A[a_end-2], A[a_end-1], A[a_end], B[b0], B[b0+1], then the context samples a method
-    # asks for (damped: A's last and B's first frames every DAMPED_STEP_S seconds).
+    # asks for (damped: A's last and B's first frames every DAMPED_STEP_S seconds, and where
+    # the clips are too short for the swing's fit at that step, its own closer samples).
     step = max(1, round(ta.motion.fps * DAMPED_STEP_S))
-    ca, cb = _context_frames(a_end, b_start, len(tb.gpos), step) if req.method in _CONTEXT else (_NONE, _NONE)
-    rows = _seam_rows(eng, ta, tb, np.concatenate([ia, ca]), np.concatenate([ib, cb]), a_end, ref, dtheta, shift)
-    n_a = len(ia) + len(ca)
+    ca, cb, fa, fb, fine = _NONE, _NONE, _NONE, _NONE, step
+    if req.method in _CONTEXT:
+        ca, cb = _context_frames(a_end, b_start, len(tb.gpos), step)
+        fine = _swing_step(a_end, b_start, len(tb.gpos), step)
+        if fine != step:
+            fa, fb = _context_frames(a_end, b_start, len(tb.gpos), fine, DAMPED_SAMPLES * step // fine)
+    rows = _seam_rows(eng, ta, tb, np.concatenate([ia, ca, fa]), np.concatenate([ib, cb, fb]), a_end, ref, dtheta,
+                      shift)
+    n_a = len(ia) + len(ca) + len(fa)
     seam = rows if n_a == len(ia) else rows[[0, 1, 2, n_a, n_a + 1]]
-    context = (rows[len(ia): n_a], rows[n_a + len(ib):], step, swing_joints)
+    rows_a, rows_b = rows[len(ia): len(ia) + len(ca)], rows[n_a + len(ib): n_a + len(ib) + len(cb)]
+    swing_rows = (rows_a, rows_b, step) if fine == step else (rows[n_a - len(fa): n_a], rows[len(rows) - len(fb):],
+                                                              fine)
+    context = (rows_a, rows_b, step, swing_joints, swing_rows)
     s0 = 3 * eng.skeleton.num_joints
     # Inputs of the bases: pA, vA, pB, vB, and the fifth row (aA or a key) per method.
     inputs = np.empty((5, seam.shape[1]))
@@ -313,12 +323,23 @@ _NONE = np.zeros(0, dtype=np.int64)
 _CONTEXT = ("damped",)  # the methods that read more of the clips than the seams
 
 
-def _context_frames(a_end: int, b_start: int, b_len: int, step: int) -> tuple[np.ndarray, np.ndarray]:
-    """Up to ``DAMPED_SAMPLES`` of A's frames every ``step`` up to ``a_end`` and of B's from
+def _context_frames(a_end: int, b_start: int, b_len: int, step: int,
+                    count: int = DAMPED_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``count`` of A's frames every ``step`` up to ``a_end`` and of B's from
     ``b_start`` (as far as the clips go), in time order."""
-    ca = a_end - step * np.arange(min(DAMPED_SAMPLES, a_end // step + 1))[::-1]
-    cb = b_start + step * np.arange(min(DAMPED_SAMPLES, (b_len - 1 - b_start) // step + 1))
+    ca = a_end - step * np.arange(min(count, a_end // step + 1))[::-1]
+    cb = b_start + step * np.arange(min(count, (b_len - 1 - b_start) // step + 1))
     return ca, cb
+
+
+def _swing_step(a_end: int, b_start: int, b_len: int, step: int) -> int:
+    """The step (frames) between the samples the swing's fit reads (:func:`_continue_swings`):
+    ``damped``'s ``step`` where each clip gives :data:`PERIODIC_MIN_SAMPLES` samples at it,
+    otherwise the longest that does, down to every frame (``step`` itself where not even that
+    does). At 60 fps and above, ``step`` is 2 frames and more, and a context of 10 frames each
+    side (the protocol's) gives 5 samples or fewer at it."""
+    room = min(a_end, b_len - 1 - b_start) // (PERIODIC_MIN_SAMPLES - 1)
+    return step if room < 1 else min(step, room)
 
 
 def _seam_rows(eng: TransitionEngine, ta: Track, tb: Track, ia, ib, a_end: int, ref: np.ndarray, dtheta: float,
@@ -401,7 +422,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     The root's height keeps its own, with the legs that carry it. No time constant exceeds
     ``DAMPED_GAP_SHARE`` of the gap, so that each seam's carried velocity turns (at 1.6 tau)
     before the gap's middle."""
-    rows_a, rows_b, step, swing_joints = context
+    rows_a, rows_b, step, swing_joints, swing_rows = context
     j_count = eng.skeleton.num_joints
     starts, fixed = _column_groups(j_count), _fixed_columns(j_count, eng._up)
     longest = max(DAMPED_TAU_S * fps, min(DAMPED_TAU_MAX_S * fps, DAMPED_GAP_SHARE * (req.length + 1)))
@@ -412,7 +433,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     else:
         scale = np.where(fixed, 0.0, damped_time_scales((rows_a, rows_b), step, starts))
         out = damped_frames(inputs, req.length, scale, DAMPED_TAU_S * fps, longest)
-    _continue_swings(out, inputs, rows_a, rows_b, step, req.length, fps, j_count, swing_joints)
+    _continue_swings(out, inputs, *swing_rows, req.length, fps, j_count, swing_joints)
     return out
 
 
