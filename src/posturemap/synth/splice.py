@@ -147,14 +147,16 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
 def halves(rt, ta, tb, a_end: int, b_start: int, length: int, shared: dict | None = None):
     """The two halves of a splice as :class:`~posturemap.synth.retrieval.Match` es: the best
     segments continuing A (matched at A's end, ``alpha`` 0) and arriving in B (at B's start,
-    ``alpha`` 1), :data:`HALF_TOP_K` of each; None for a half that finds no segment.
-    ``shared``: as for :func:`~posturemap.synth.retrieval.match`."""
+    ``alpha`` 1), :data:`HALF_TOP_K` of each (per :data:`~posturemap.synth.retrieval.LIBRARY_FPS`
+    of the library's frame rate, as :func:`~posturemap.synth.retrieval.segments_averaged`); None
+    for a half that finds no segment. ``shared``: as for :func:`~posturemap.synth.retrieval.match`."""
     shared = {} if shared is None else shared
+    keep = max(1, round(HALF_TOP_K * rt.lib.fps / retrieval.LIBRARY_FPS))
     out = []
     for alpha, seam in ((0.0, "a"), (1.0, "b")):
         m = match(rt, ta, tb, a_end, b_start, length, alpha, True, seam=seam, shared=shared)
         if m is not None:  # a new list: the search's own stays whole in `shared`
-            m = dataclasses.replace(m, found=[tuple(x[:HALF_TOP_K] for x in f) for f in m.found], _info=None)
+            m = dataclasses.replace(m, found=[tuple(x[:keep] for x in f) for f in m.found], _info=None)
         out.append(m)
     return out[0], out[1]
 
