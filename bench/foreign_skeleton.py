@@ -28,7 +28,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import sys
@@ -38,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine, save_outputs  # noqa: E402
+from transition_speed import default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
 
 HOLDOUTS = ("style", "content")
 METHODS = ("slerp", "spline", "inertialize", "auto+feet")
@@ -151,18 +150,12 @@ def markdown(result: dict, command: str) -> str:
                              + f" | {sl['l2q']:.3f} / {sl['l2p']:.3f} | {row['auto+feet']['skate']:.2f} / "
                              f"{row['truth_skate']:.2f} |")
         lines.append("")
-    m = result["machine"]
-    lines.append(f"Machine: {m['cpu']}, {m['cpus']} CPUs, Python {m['python']}; `{command}` ({result['date']}).")
+    lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--data", default=None)
-    p.add_argument("--json", default=None)
-    p.add_argument("--doc", default=None)
-    p.add_argument("--seed", type=int, default=0)
-    args = p.parse_args(argv)
+    args = report_parser(__doc__.split("\n")[0]).parse_args(argv)
     result = run(Path(args.data) if args.data else default_data_dir(), args.seed)
     md = markdown(result, "python bench/foreign_skeleton.py")
     print(md)

@@ -27,7 +27,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import re
@@ -38,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine, save_outputs  # noqa: E402
+from transition_speed import default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
 
 METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", "auto+feet")
 DEFAULT = "auto+feet"
@@ -153,19 +152,14 @@ def markdown(result: dict, command: str) -> str:
             lines.append(f"| {k} | {result['contents'][k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
                          + f" | {cell[DEFAULT]['skate']:.2f} / {cell['truth_skate']:.2f} |")
         lines.append("")
-    m = result["machine"]
-    lines.append(f"Machine: {m['cpu']}, {m['cpus']} CPUs, Python {m['python']}; `{command}` ({result['date']}).")
+    lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p = report_parser(__doc__.split("\n")[0])
     p.add_argument("--other", required=True, help="directory of Motiondataset-2's BVH files")
-    p.add_argument("--data", default=None, help="the data directory holding bandai1/")
     p.add_argument("--per-cell", type=int, default=2)
-    p.add_argument("--json", default=None)
-    p.add_argument("--doc", default=None)
-    p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
     result = run(Path(args.data) if args.data else default_data_dir(), Path(args.other), args.per_cell, args.seed)
     md = markdown(result, f"python bench/other_dataset.py --other DIR --per-cell {args.per_cell} --seed {args.seed}")

@@ -328,23 +328,51 @@ def markdown(result: dict, command: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def report_parser(description: str) -> argparse.ArgumentParser:
+    """The options of the quality reports (``foreign_skeleton.py``, ``other_dataset.py``):
+    ``--data``, ``--json``, ``--doc`` and ``--seed``; a script adds its own."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--data", default=None, help="data folder holding bandai1/ (default: $POSTUREMAP_DATA or "
+                                                "../shared/data)")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write the result as JSON")
+    p.add_argument("--doc", default=None, metavar="PATH", help="Markdown file to write")
+    p.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    return p
+
+
+def machine_line(result: dict, command: str) -> str:
+    """The report's last line: the machine (``result["machine"]``, :func:`machine`), the command
+    and the date."""
+    m = result["machine"]
+    return f"Machine: {m['cpu']}, {m['cpus']} CPUs, Python {m['python']}; `{command}` ({result['date']})."
+
+
+def write_text(path, text: str) -> None:
+    """``text`` into ``path``, whole or not at all: a temporary file beside it, flushed to disk,
+    then renamed over it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
 def save_outputs(result: dict, md: str, json_path, doc_path, title: str, doc: str) -> None:
     """A bench script's ``--json`` (the result) and ``--doc`` (``# title``, the script's docstring up
     to its usage, then the report ``md``), each when asked for."""
     if json_path:
-        Path(json_path).write_text(json.dumps(result, indent=1) + "\n")
+        write_text(json_path, json.dumps(result, indent=1) + "\n")
     if doc_path:
-        Path(doc_path).write_text(f"# {title}\n\n" + doc.split("\n\n", 1)[1].split("Usage::")[0] + md)
+        write_text(doc_path, f"# {title}\n\n" + doc.split("\n\n", 1)[1].split("Usage::")[0] + md)
 
 
 def write_doc(path: Path, result: dict, command: str) -> None:
-    text = ("# Transition speed\n\n"
-            "Latency of one transition (`bench/transition_speed.py`; the method is described in its "
-            "docstring).\n\n" + markdown(result, command))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    write_text(path, "# Transition speed\n\n"
+               "Latency of one transition (`bench/transition_speed.py`; the method is described in its "
+               "docstring).\n\n" + markdown(result, command))
 
 
 def main(argv=None) -> int:
