@@ -353,11 +353,15 @@ def write_text(path, text: str) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def save_outputs(result: dict, md: str, json_path, doc_path, title: str, doc: str) -> None:
@@ -391,7 +395,7 @@ def main(argv=None) -> int:
                                                     if (argv if argv is not None else sys.argv[1:]) else "")
     print(markdown(result, command))
     if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=2), encoding="utf-8")
+        write_text(args.json, json.dumps(result, indent=2))
     doc = args.doc or (None if args.quick else str(REPO / "docs" / "transition-benchmarks.md"))
     if doc:
         write_doc(Path(doc), result, command)

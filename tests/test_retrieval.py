@@ -446,14 +446,16 @@ def test_a_clip_at_another_frame_rate_replays_the_library_at_its_speed(model, cl
 
 def test_the_search_holds_as_many_moments_at_any_frame_rate(model, clips):
     # A library recorded at 60 fps holds each moment of motion in two frames. The frames gathered
-    # per seam and the segments averaged grow with its rate (Retriever.budget, segments_averaged),
-    # so they hold as many moments (1/30 s apart) as the 30 fps library's: the same one-second
-    # in-between at 60 fps searches as much motion. At 1,536 frames and 16 segments, as at 30 fps,
-    # they held about half as many.
-    fast = model._build_library([resample(clips[n], 2) for n in LIBRARY], list(LIBRARY))
+    # per seam and the segments averaged grow with its rate (Retriever.budget, segments_averaged;
+    # a splice's halves too), so they hold as many moments (1/30 s apart) as the 30 fps library's:
+    # the same one-second in-between at 60 fps searches as much motion. At 1,536 frames and 16
+    # segments, as at 30 fps, they held about half as many.
+    from posturemap.synth import splice
+
+    fast_lib = model._build_library([resample(clips[n], 2) for n in LIBRARY], list(LIBRARY))
     name, a_end, length = HELD_OUT[0], 40, 29  # one second at 30 fps
     counts = {}
-    for factor, lib in ((1, model.library_), (2, fast)):
+    for factor, lib in ((1, model.library_), (2, fast_lib)):
         eng = TransitionEngine(model)
         track = eng.add(name, resample(clips[name], factor) if factor > 1 else clips[name])
         rt = retrieval.Retriever(eng, lib)
@@ -467,6 +469,8 @@ def test_the_search_holds_as_many_moments_at_any_frame_rate(model, clips):
         gathered = rt.gather_seams(track.features[a], track.features[b])
         found = retrieval.match(rt, track, track, a, b, n, 0.5, align=False).found
         assert len(found[1][0]) == factor * retrieval.TOP_K  # the upper body: all it kept
+        halves = splice.halves(rt, track, track, a, b, n)
+        assert all(len(h.found[p][0]) == factor * splice.HALF_TOP_K for h in halves for p in (0, 1))
         counts[factor] = [moments(x) for pair in gathered for x in pair] + [moments(found[1][0])]
     assert all(fast >= 0.8 * slow for slow, fast in zip(counts[1], counts[2])), counts
 

@@ -1199,8 +1199,8 @@ def test_damped_waves_an_elbow_on_through_the_gap(clips):
 def test_damped_waves_on_at_60_fps_from_ten_context_frames(clips):
     # The protocol's 10 context frames each side at 60 fps: 5 samples each at damped's step of
     # 1/30 s, fewer than the swing's fit needs; it takes every frame instead (engine._swing_step),
-    # and the elbow waving over a still body follows the wave through a 1 s gap (SLERP's error
-    # and more where it was not continued).
+    # and the elbow waving over a still body follows the wave through a 1 s gap (about SLERP's
+    # error where it was not continued).
     m = clips[WALK]
     fps, length, a_end, period = 60.0, 59, 9, 0.5
     n = a_end + 1 + length + 10

@@ -70,8 +70,9 @@ BLEND_S = {False: 0.33, True: 0.67}
 BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest the seam posture), ...
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
 PREFILTER = 32  # of those, the best matches at natural speed that become segment ends, ...
-# ... and TOP_K, TOP_K_LONG: each counts frames or segments of a library at this frame rate and
-# grows with the library's rate (see Retriever.budget, Retriever.keep, segments_averaged).
+# ... and TOP_K, TOP_K_LONG where match takes them (segments_averaged): each counts frames or
+# segments of a library at this frame rate and grows with the library's rate (see
+# Retriever.budget, Retriever.keep, segments_averaged; a search called with no k keeps TOP_K).
 LIBRARY_FPS = 30.0
 CONF_RANGE = (12.0, 24.0)  # the legs' match distance (RMS degrees per joint): full confidence below, none above
 UPPER_CONF_RANGE = (24.0, 48.0)  # the upper body's, likewise (see confidences)
