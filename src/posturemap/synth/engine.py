@@ -311,7 +311,10 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     j_count = eng.skeleton.num_joints
     kernels.exp_relative(frames[:, :s0].reshape(length, j_count, 3), ref, out_r)
     out_p[:] = frames[:, s0 + 4:].reshape(length, j_count, 3)
-    kernels.compose_root(eng._chain, root, up, out_r, out_p, frames[:, s0: s0 + 3], frames[:, s0 + 3])
+    # Contiguous copies: a compiled kernel given another memory layout than its other callers
+    # compiles (or loads) a second version on that call, a hitch of 10-40 ms.
+    kernels.compose_root(eng._chain, root, up, out_r, out_p, np.ascontiguousarray(frames[:, s0: s0 + 3]),
+                         np.ascontiguousarray(frames[:, s0 + 3]))
     eng.last = {"key": None if keys is None else keys["key"], "neurons": None if keys is None else keys["neurons"],
                 "dtheta": dtheta, "shift": shift}
     if req.foot_lock and eng._legs:

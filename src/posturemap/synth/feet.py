@@ -300,10 +300,12 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
-        planted = np.zeros((0, len(chains)), dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
-        jit.lock_legs(sk.parents, legs, rots, grot, gpos, up,
-                      np.asarray(a_feet, dtype=float), np.asarray(b_feet, dtype=float), body, height_tol,
-                      speed_tol, planted, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, round(STEP_S * fps),
+        # Contiguous arrays always: another memory layout makes the kernel compile (or load) a
+        # second version on that call, a hitch of 10-40 ms.
+        planted = (np.zeros((0, len(chains)), dtype=bool) if contacts is None
+                   else np.ascontiguousarray(contacts, dtype=bool))
+        jit.lock_legs(sk.parents, legs, rots, grot, gpos, up, np.ascontiguousarray(a_feet, dtype=float),
+                      np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), weights)
         return weights

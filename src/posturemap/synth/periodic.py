@@ -153,6 +153,9 @@ def continued(rows: np.ndarray, times: np.ndarray, inputs: np.ndarray, length: i
     if kernels.backend() == "numba":  # the same steps compiled (some fifty numpy calls otherwise)
         frames, weights = np.empty((length, rows.shape[1])), np.empty(rows.shape[1])
         omegas = frequencies(float(times.max() - times.min()), fps)
+        # C order always: one compiled version (a fancy-indexed selection of columns comes in
+        # Fortran order, and a second version costs a 10-40 ms load on its first call).
+        rows, inputs = np.ascontiguousarray(rows), np.ascontiguousarray(inputs)
         found = kernels.compiled().swing_columns(rows, times, inputs, length, omegas, starts, float(tau),
                                                  PERIODIC_GATE, PERIODIC_TURN, PERIODIC_BALANCE, PERIODIC_PEAKS,
                                                  PERIODIC_OWN, PERIODIC_MIN_RMS, frames, weights)
