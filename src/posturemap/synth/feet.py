@@ -305,7 +305,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         planted = (np.zeros((0, len(chains)), dtype=bool) if contacts is None
                    else np.ascontiguousarray(contacts, dtype=bool))
         jit.lock_legs(sk.parents, legs, rots, grot, gpos, up, np.ascontiguousarray(a_feet, dtype=float),
-                      np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted, MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, round(STEP_S * fps),
+                      np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
+                      MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), weights)
         return weights
