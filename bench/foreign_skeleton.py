@@ -17,7 +17,9 @@ windows are in-betweened, at the same durations (15, 30, 45 frames at 30 fps are
 60 fps; the 10 context frames on each side and the 40-frame stride of the protocol are frames,
 so they cover half the time and give about twice the windows). Printed next to each other:
 L2Q, L2P and foot skate of SLERP, the spline, inertialization and the default (``auto`` + foot
-lock), each as a ratio to SLERP, and the truth's skate.
+lock), each as a ratio to SLERP, and the truth's skate; and the default's time for one
+in-between of 1 s in each format (median and p99 over the windows, in-process, after one
+untimed call per window: at 60 fps the gap and the library hold twice the frames).
 
 Nothing is written to disk but the report (Bandai's licence: the data stays where it is).
 
@@ -42,6 +44,8 @@ from transition_speed import default_data_dir, machine, machine_line, report_par
 HOLDOUTS = ("style", "content")
 METHODS = ("slerp", "spline", "inertialize", "auto+feet")
 FPS_FACTOR = 2
+TIMED_S = 1.0  # the gap (seconds, (length + 1) / fps) whose in-between is timed
+TIMED_WINDOWS = 200  # at most this many windows timed per format
 MIXAMO = {"joint_Root": "Reference", "Hips": "Hips", "Spine": "Spine", "Chest": "Spine2", "Neck": "Neck",
           "Head": "Head", "Shoulder_L": "LeftShoulder", "UpperArm_L": "LeftArm", "LowerArm_L": "LeftForeArm",
           "Hand_L": "LeftHand", "Shoulder_R": "RightShoulder", "UpperArm_R": "RightArm",
@@ -110,9 +114,35 @@ def inbetween(split, settings, seed: int, lengths, log=print) -> dict:
             sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
             row[m] = {k: sc[k] for k in ("l2q", "l2p", "skate")}
         out["lengths"][str(length)] = row
+    out["time"] = time_default(engines, test, windows, round(TIMED_S * out["fps"]) - 1)
     log(f"  {split.name} at {out['fps']:.4g} fps ({split.unit}): {len(windows)} windows in "
         f"{time.perf_counter() - t0:.0f} s")
     return out
+
+
+def time_default(engines, test, windows, length: int) -> dict:
+    """Median and p99 (ms) of one default in-between (``auto`` + foot lock) of ``length``
+    frames from the protocol's context of up to :data:`TIMED_WINDOWS` windows, each timed on its
+    second call (the first loads what it needs)."""
+    from posturemap.evaluate import runner
+    from posturemap.evaluate.protocol import N_FUTURE, N_PAST
+
+    eng, base, feet = runner.engine_call(engines, "auto+feet")
+    span = N_PAST + length + N_FUTURE
+    times = []
+    for c, s in windows[:TIMED_WINDOWS]:
+        if s + span > len(test[c]):
+            continue
+        past, future = test[c][s: s + N_PAST], test[c][s + N_PAST + length: s + span]
+        with runner.clips_in(engines, {"_past": past, "_future": future}):
+            for timed in (False, True):
+                t0 = time.perf_counter_ns()
+                eng.generate("_past", "_future", length=length, a_end=len(past) - 1, b_start=0, align=False,
+                             method=base, foot_lock=feet)
+                if timed:
+                    times.append((time.perf_counter_ns() - t0) / 1e6)
+    return {"length": length, "calls": len(times), "median_ms": float(np.median(times)),
+            "p99_ms": float(np.percentile(times, 99))}
 
 
 def run(data_dir: Path, seed: int = 0, log=print) -> dict:
@@ -150,6 +180,11 @@ def markdown(result: dict, command: str) -> str:
                              + f" | {sl['l2q']:.3f} / {sl['l2p']:.3f} | {row['auto+feet']['skate']:.2f} / "
                              f"{row['truth_skate']:.2f} |")
         lines.append("")
+        tb, tr = b["time"], r["time"]
+        lines += [f"Time of one default in-between of {(tb['length'] + 1) / b['fps']:.2f} s (in-process, median / "
+                  f"p99 over {tb['calls']} and {tr['calls']} windows): Bandai's format ({tb['length']} frames) "
+                  f"{tb['median_ms']:.2f} / {tb['p99_ms']:.2f} ms, rewritten ({tr['length']} frames) "
+                  f"{tr['median_ms']:.2f} / {tr['p99_ms']:.2f} ms.", ""]
     lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 
