@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
+from transition_speed import _stats, default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
 
 HOLDOUTS = ("style", "content")
 METHODS = ("slerp", "spline", "inertialize", "auto+feet")
@@ -121,7 +121,7 @@ def inbetween(split, settings, seed: int, lengths, log=print) -> dict:
 
 
 def time_default(engines, test, windows, length: int) -> dict:
-    """Median and p99 (ms) of one default in-between (``auto`` + foot lock) of ``length``
+    """Median and p99 (us, :func:`transition_speed._stats`) of one default in-between (``auto`` + foot lock) of ``length``
     frames from the protocol's context of up to :data:`TIMED_WINDOWS` windows, each timed on its
     second call (the first loads what it needs)."""
     from posturemap.evaluate import runner
@@ -140,9 +140,8 @@ def time_default(engines, test, windows, length: int) -> dict:
                 eng.generate("_past", "_future", length=length, a_end=len(past) - 1, b_start=0, align=False,
                              method=base, foot_lock=feet)
                 if timed:
-                    times.append((time.perf_counter_ns() - t0) / 1e6)
-    return {"length": length, "calls": len(times), "median_ms": float(np.median(times)),
-            "p99_ms": float(np.percentile(times, 99))}
+                    times.append(time.perf_counter_ns() - t0)
+    return {"length": length, **_stats(times)}
 
 
 def run(data_dir: Path, seed: int = 0, log=print) -> dict:
@@ -183,8 +182,8 @@ def markdown(result: dict, command: str) -> str:
         tb, tr = b["time"], r["time"]
         lines += [f"Time of one default in-between of {(tb['length'] + 1) / b['fps']:.2f} s (in-process, median / "
                   f"p99 over {tb['calls']} and {tr['calls']} windows): Bandai's format ({tb['length']} frames) "
-                  f"{tb['median_ms']:.2f} / {tb['p99_ms']:.2f} ms, rewritten ({tr['length']} frames) "
-                  f"{tr['median_ms']:.2f} / {tr['p99_ms']:.2f} ms.", ""]
+                  f"{tb['median_us'] / 1e3:.2f} / {tb['p99_us'] / 1e3:.2f} ms, rewritten ({tr['length']} frames) "
+                  f"{tr['median_us'] / 1e3:.2f} / {tr['p99_us'] / 1e3:.2f} ms.", ""]
     lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 
