@@ -449,30 +449,40 @@ def test_the_search_holds_as_many_moments_at_any_frame_rate(model, clips):
     # per seam and the segments averaged grow with its rate (Retriever.budget, segments_averaged;
     # a splice's halves too), so they hold as many moments (1/30 s apart) as the 30 fps library's:
     # the same one-second in-between at 60 fps searches as much motion. At 1,536 frames and 16
-    # segments, as at 30 fps, they held about half as many.
+    # segments, as at 30 fps, they held about half as many. A library at 15 fps keeps the 30 fps
+    # counts (retrieval.moments_scale).
     from posturemap.synth import splice
 
+    def halved(m):
+        return Motion(m.skeleton, m.rotations[::2], m.positions[::2], m.fps / 2)
+
     fast_lib = model._build_library([resample(clips[n], 2) for n in LIBRARY], list(LIBRARY))
+    slow_lib = model._build_library([halved(clips[n]) for n in LIBRARY], list(LIBRARY))
     name, a_end, length = HELD_OUT[0], 40, 29  # one second at 30 fps
     counts = {}
-    for factor, lib in ((1, model.library_), (2, fast_lib)):
+    for factor, lib, clip in ((1, model.library_, clips[name]), (2, fast_lib, resample(clips[name], 2)),
+                              (0.5, slow_lib, halved(clips[name]))):
         eng = TransitionEngine(model)
-        track = eng.add(name, resample(clips[name], factor) if factor > 1 else clips[name])
+        track = eng.add(name, clip)
         rt = retrieval.Retriever(eng, lib)
-        a, n = factor * a_end, factor * (length + 1) - 1
+        a, n = round(factor * a_end), round(factor * (length + 1)) - 1
         b = a + n + 1
+        scale = max(factor, 1)
 
         def moments(frames):  # (clip, time in 30ths of a second)
             return len({(int(lib.clip_of[f]), round((f - int(lib.clip_start[lib.clip_of[f]])) * 30 / lib.fps))
                         for f in np.asarray(frames).tolist()})
 
         gathered = rt.gather_seams(track.features[a], track.features[b])
+        assert rt.budget == scale * retrieval.BUDGET and rt.keep == scale * retrieval.PREFILTER
         found = retrieval.match(rt, track, track, a, b, n, 0.5, align=False).found
-        assert len(found[1][0]) == factor * retrieval.TOP_K  # the upper body: all it kept
+        assert len(found[1][0]) == scale * retrieval.TOP_K  # the upper body: all it kept
         halves = splice.halves(rt, track, track, a, b, n)
-        assert all(len(h.found[p][0]) == factor * splice.HALF_TOP_K for h in halves for p in (0, 1))
+        assert all(len(h.found[p][0]) == scale * splice.HALF_TOP_K for h in halves for p in (0, 1))
         counts[factor] = [moments(x) for pair in gathered for x in pair] + [moments(found[1][0])]
     assert all(fast >= 0.8 * slow for slow, fast in zip(counts[1], counts[2])), counts
+    # The slow library is smaller than a seam's gather (every frame once each way is gathered).
+    assert counts[0.5][:4] == [min(retrieval.BUDGET, len(slow_lib))] * 4, counts
 
 
 def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_path, capsys):
@@ -905,7 +915,7 @@ def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
     keep = retrieval.Retriever.keep.fget
     assert keep(SimpleNamespace(lib=SimpleNamespace(fps=retrieval.LIBRARY_FPS))) == retrieval.PREFILTER
     assert keep(SimpleNamespace(lib=SimpleNamespace(fps=4 * retrieval.LIBRARY_FPS))) == 4 * retrieval.PREFILTER
-    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=0.001))) == 1
+    assert keep(SimpleNamespace(lib=SimpleNamespace(fps=0.001))) == retrieval.PREFILTER  # never fewer than at 30
 
 
 def test_the_upper_body_fades_into_the_spline_on_short_gaps():

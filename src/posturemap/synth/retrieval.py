@@ -71,8 +71,8 @@ BUDGET = 1536  # frames gathered per seam from the index (the neurons nearest th
 GATHER_NEURONS = 256  # at most this many of the nearest neurons are visited
 PREFILTER = 32  # of those, the best matches at natural speed that become segment ends, ...
 # ... and TOP_K, TOP_K_LONG where match takes them (segments_averaged): each counts frames or
-# segments of a library at this frame rate and grows with the library's rate (see
-# Retriever.budget, Retriever.keep, segments_averaged; a search called with no k keeps TOP_K).
+# segments of a library at this frame rate and grows with a faster library's rate
+# (moments_scale; a search called with no k keeps TOP_K).
 LIBRARY_FPS = 30.0
 CONF_RANGE = (12.0, 24.0)  # the legs' match distance (RMS degrees per joint): full confidence below, none above
 UPPER_CONF_RANGE = (24.0, 48.0)  # the upper body's, likewise (see confidences)
@@ -574,16 +574,18 @@ class Retriever:
         many moments of motion at any rate. With 1,536 at 60 fps (half the moments), bandai1's
         hold-outs rewritten at 60 fps (docs/another-rig.md) scored L2Q 0.644 / 0.729x SLERP's
         on held-out styles at 1 / 1.5 s where Bandai's own 30 fps scored 0.56 / 0.64x; with
-        3,072 (and :func:`segments_averaged` in proportion too) 0.561 / 0.632x."""
-        return max(1, round(BUDGET * self.lib.fps / LIBRARY_FPS))
+        3,072 (and :func:`segments_averaged` in proportion too) 0.561 / 0.632x. A slower
+        library keeps 1,536 (:func:`moments_scale`)."""
+        return max(1, round(BUDGET * moments_scale(self.lib.fps)))
 
     @property
     def keep(self) -> int:
         """How many gathered frames per seam the prefilter keeps: :data:`PREFILTER` at
-        :data:`LIBRARY_FPS`, in proportion to the library's frame rate (neighbouring frames
-        at a higher rate are near copies of each other: at 120 fps, 96 frames held a quarter
-        of the moments, and CMU's 1.5 s gaps lost 4-5% L2Q against 128 to 384)."""
-        return max(1, round(PREFILTER * self.lib.fps / LIBRARY_FPS))
+        :data:`LIBRARY_FPS`, in proportion to a faster library's frame rate (neighbouring
+        frames at a higher rate are near copies of each other: at 120 fps, 96 frames held a
+        quarter of the moments, and CMU's 1.5 s gaps lost 4-5% L2Q against 128 to 384;
+        :func:`moments_scale`)."""
+        return max(1, round(PREFILTER * moments_scale(self.lib.fps)))
 
     def prefilter(self, part: int, frames: np.ndarray, q: Seams, end: bool, keep: int) -> np.ndarray:
         """The ``keep`` frames of ``frames`` that best match the seam ``q`` at natural speed.
@@ -684,8 +686,9 @@ def segments_averaged(length: int, fps: float, lib_fps: float = LIBRARY_FPS) -> 
     """How many best segments each body part averages on a gap of ``length`` frames:
     :data:`TOP_K` up to ``TOP_K_RAMP_S[0]`` seconds (from A's last kept frame to B's first,
     ``(length + 1) / fps``), :data:`TOP_K_LONG` from ``TOP_K_RAMP_S[1]`` on, linear in between;
-    for a library at ``lib_fps``, in proportion to ``lib_fps / LIBRARY_FPS`` (segments that
-    start a frame apart at 60 fps are near copies: as many of them hold half the moments).
+    for a library faster than :data:`LIBRARY_FPS`, in proportion to its rate (segments that
+    start a frame apart at 60 fps are near copies: as many of them hold half the moments;
+    :func:`moments_scale`).
 
     The longer the gap, the less its seams decide its middle, and there the mean of more real
     segments is the better estimate (a smaller expected error, as for any average of
@@ -698,7 +701,19 @@ def segments_averaged(length: int, fps: float, lib_fps: float = LIBRARY_FPS) -> 
     """
     lo, hi = TOP_K_RAMP_S
     u = min(max(((length + 1) / float(fps) - lo) / (hi - lo), 0.0), 1.0)
-    return max(1, int(round((TOP_K + u * (TOP_K_LONG - TOP_K)) * float(lib_fps) / LIBRARY_FPS)))
+    return max(1, int(round((TOP_K + u * (TOP_K_LONG - TOP_K)) * moments_scale(lib_fps))))
+
+
+def moments_scale(lib_fps: float) -> float:
+    """The factor on the search's counts of frames and segments (:data:`BUDGET`,
+    :data:`PREFILTER`, :data:`TOP_K`, :data:`TOP_K_LONG`, the splice's halves) for a library
+    at ``lib_fps``: its rate over :data:`LIBRARY_FPS`, so that a faster library's counts hold
+    as many moments of motion, and never under 1, so that a slower one's hold more (at the
+    cost of a 30 fps search). Bandai's hold-outs resampled to 24 fps (library and clips), L2Q
+    against SLERP's at 1 / 1.5 s: held-out styles 0.558 / 0.652x with the counts in proportion,
+    0.545 / 0.638x with 30 fps's; held-out contents 0.641 / 0.715x and 0.639 / 0.703x (L2P
+    0.532 / 0.617x -> 0.521 / 0.604x and 0.660 / 0.724x -> 0.661 / 0.715x)."""
+    return max(float(lib_fps), LIBRARY_FPS) / LIBRARY_FPS
 
 
 def _top_k(k: int | None) -> int:

@@ -147,11 +147,11 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
 def halves(rt, ta, tb, a_end: int, b_start: int, length: int, shared: dict | None = None):
     """The two halves of a splice as :class:`~posturemap.synth.retrieval.Match` es: the best
     segments continuing A (matched at A's end, ``alpha`` 0) and arriving in B (at B's start,
-    ``alpha`` 1), :data:`HALF_TOP_K` of each (per :data:`~posturemap.synth.retrieval.LIBRARY_FPS`
-    of the library's frame rate, as :func:`~posturemap.synth.retrieval.segments_averaged`); None
+    ``alpha`` 1), :data:`HALF_TOP_K` of each (times
+    :func:`~posturemap.synth.retrieval.moments_scale` of the library's frame rate); None
     for a half that finds no segment. ``shared``: as for :func:`~posturemap.synth.retrieval.match`."""
     shared = {} if shared is None else shared
-    keep = max(1, round(HALF_TOP_K * rt.lib.fps / retrieval.LIBRARY_FPS))
+    keep = max(1, round(HALF_TOP_K * retrieval.moments_scale(rt.lib.fps)))
     out = []
     for alpha, seam in ((0.0, "a"), (1.0, "b")):
         m = match(rt, ta, tb, a_end, b_start, length, alpha, True, seam=seam, shared=shared)
