@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -24,6 +27,7 @@ from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion
 from posturemap.core.skeleton import fk
 from posturemap.synth.engine import TransitionEngine, transition
+from posturemap.synth.request import RequestError
 
 LIBRARY = ("walk_normal_001", "walk_happy_001", "walk_tired_001", "run_normal_001", "run_happy_001",
            "walk-left_normal_001", "walk-right_normal_001", "dash_normal_001")
@@ -339,6 +343,65 @@ def test_a_map_without_library_uses_the_fallback(clips):
     assert eng.last["retrieval"] is None
     fb, _ = eng.generate("w", "w", length=20, a_end=30, b_start=51, method=retrieval.fallback_method(20, 30.0))
     assert np.array_equal(r, fb)
+
+
+_LOADS_PROBE = """
+import json, sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from posturemap.core import kernels
+from posturemap.io import bvh
+from posturemap.learn.model import PostureMap
+from posturemap.synth import retrieval
+from posturemap.synth.engine import TransitionEngine
+kernels.compiled(), retrieval._compiled()
+import posturemap.core.numba_kernels as nk, posturemap.synth.retrieval_numba as rn
+kernels_ = {f"{m.__name__}.{k}": v for m in (nk, rn) for k, v in vars(m).items() if isinstance(v, CPUDispatcher)}
+map_path, warm, *paths = sys.argv[1:]
+eng = TransitionEngine(PostureMap.load(map_path))
+for i, p in enumerate(paths):
+    eng.add(str(i), bvh.read(p))
+if warm == "1":
+    eng.warm_up()
+before = {k: len(d.signatures) for k, d in kernels_.items()}
+rng = np.random.default_rng(0)
+for _ in range(40):
+    a, b = (str(int(i)) for i in rng.integers(len(paths), size=2))
+    na, nb = len(eng.tracks[a].gpos), len(eng.tracks[b].gpos)
+    eng.generate(a, b, length=int(rng.integers(3, 61)), alpha=float(rng.random()), a_end=int(rng.integers(na)),
+                 b_start=int(rng.integers(nb)), align=bool(rng.integers(2)))
+print(json.dumps(sorted(k for k, d in kernels_.items() if len(d.signatures) != before[k])))
+"""
+
+
+def test_warm_up_loads_every_kernel_the_default_calls(model, bandai_paths, tmp_path):
+    """After ``warm_up``, 40 seeded default transitions (any length up to 2 s, seams, alpha, placed
+    or in-betweening) of a fresh process load no compiled kernel (each load is a 10-500 ms
+    hitch); without it they load several, so the probe sees them."""
+    map_path = tmp_path / "lib.npz"
+    model.save(map_path)
+    paths = [str(p) for p in bandai_paths(HELD_OUT).values()]
+
+    def loaded(warm: str) -> list:
+        proc = subprocess.run([sys.executable, "-c", _LOADS_PROBE, str(map_path), warm, *paths],
+                              capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    assert loaded("1") == []
+    cold = loaded("0")
+    assert {"posturemap.synth.retrieval_numba.search_parts", "posturemap.synth.retrieval_numba.spliced",
+            "posturemap.synth.retrieval_numba.open_columns", "posturemap.core.numba_kernels.lock_legs"} <= set(cold)
+
+
+def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):
+    with pytest.raises(RequestError, match="add one first"):
+        TransitionEngine(model).warm_up()
+    name = HELD_OUT[0]
+    engine.generate(name, name, length=20, a_end=30, b_start=51, align=False, method="retrieval")
+    last = engine.last
+    assert engine.warm_up(methods=("auto", "slerp")) == 2 * 3 * 2 * 2  # methods x gaps x seams x placings
+    assert engine.last is last
 
 
 # -- control ----------------------------------------------------------------------------------

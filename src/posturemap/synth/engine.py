@@ -72,10 +72,13 @@ from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
-from .request import AUTO_SHORT_S, METHODS, RequestError, TransitionRequest, describe
+from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
 
+# TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
+# upper body from travelling frames), and long (the legs in step).
+WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
 
 
 class TransitionEngine:
@@ -176,6 +179,49 @@ class TransitionEngine:
         turn = self.last["dtheta"] if turn is None else turn
         shift = self.last["shift"] if shift is None else shift
         return aligned(track, b_start, turn, shift, self._chain, self._root, self._up)
+
+    def warm_up(self, methods=("auto",)) -> int:
+        """Prepare for a game loop: switch to the compiled kernels (:func:`posturemap.core.kernels.compiled`;
+        numba's, loaded from its disk cache, or compiled on a fresh install) and run now what a
+        process's first transitions would pay for (each kernel's first call, the bases of common
+        lengths). Call it once after :meth:`add`, in a loading screen. Without it transitions run
+        the numpy kernels (unless something else switched), several times slower; and after
+        ``kernels.compiled()`` alone the first few calls take 10-500 ms each instead of about one.
+
+        ``methods``: the methods the caller will ask for (those needing a map are skipped
+        without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
+        transitions run between the first and the last clip added, from their ends and their
+        middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
+        B where it is, so that a library's every path runs: a full match, a partial one blended
+        with its fallback, and a splice. Returns the number of transitions run; :attr:`last` is
+        left as it was. Raises :class:`RequestError` when no clip has been added."""
+        if not self.tracks:
+            raise RequestError("a", "no clips to warm up with (add one first)")
+        kernels.compiled()
+        names = list(self.tracks)
+        a, b = names[0], names[-1]
+        na, nb = len(self.tracks[a].gpos), len(self.tracks[b].gpos)
+        fps = self.tracks[a].motion.fps
+        runnable = [m for m in methods if self.model is not None or m not in KEYED]
+        seams = sorted({(na - 1, 0), (na // 2, nb // 2)})
+        last, count = self.last, 0
+        for method in runnable:
+            for gap in WARM_UP_GAPS_S:
+                for a_end, b_start in seams:
+                    for align in (True, False):
+                        self.generate(a, b, method=method, length=max(1, round(gap * fps) - 1), a_end=a_end,
+                                      b_start=b_start, align=align)
+                        count += 1
+        if self._retriever is not None:
+            # What runs only at one confidence, whichever the schedule's matches had: every
+            # part retrieved (the open columns) and a splice (when both halves fit at all).
+            ta, tb = self.tracks[a], self.tracks[b]
+            for gap in WARM_UP_GAPS_S:
+                length = max(1, round(gap * fps) - 1)
+                _open_columns(self, ta, tb, na - 1, 0, length)
+                spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
+        self.last = last
+        return count
 
     def _track(self, field: str, name: str) -> Track:
         """The prepared clip ``name``; a :class:`RequestError` on ``field`` if there is none."""

@@ -120,12 +120,10 @@ class Studio:
         engine = TransitionEngine(model, None if model is not None else self.skeleton)
         for name, m in self.clips.items():
             engine.add(name, m)
-        name = next(iter(self.clips))
-        # Compile (or load) the kernels now rather than on the first request; with a motion
-        # library, also the retrieval's, and its matrices, which the pool's engines share.
-        engine.generate(name, name, length=2, method="upm-valid" if model is not None else "spline")
-        if getattr(model, "library_", None) is not None and len(model.library_):
-            engine.generate(name, name, length=min(30, len(self.clips[name])), method="retrieval")
+        # Load the kernels of every method the page offers now rather than on the first
+        # requests; with a motion library, also the retrieval's matrices, which the pool's
+        # engines share.
+        engine.warm_up(METHODS)
         return engine
 
     @staticmethod
