@@ -12,11 +12,13 @@ import pytest
 
 from posturemap import evaluate
 from posturemap.core import joints
+from posturemap.core.motion import resample
 from posturemap.core.skeleton import fk
 from posturemap.learn.features import root_global
 from posturemap.synth.engine import TransitionEngine
 from posturemap.synth.trajectory import rotate_about_up
 from posturemap.evaluate import report
+from posturemap.evaluate.scoring import skate_scores
 from posturemap.evaluate import LENGTHS, METHODS, N_FUTURE, N_PAST, VARIANTS, Settings
 
 TINY = Settings(quick=True, holdouts=("cmu",), max_windows=3, pairs=0, som_epochs=0.1, latency_calls=5,
@@ -360,6 +362,28 @@ def tiny_state(data_dir, bandai_files):
     state = evaluate.prepare(split, TINY_STYLE, 0, log=lambda m: None)
     state["engines"] = evaluate.make_engines(state)  # the diagnostics read whole clips
     return state
+
+
+def test_the_scores_take_the_test_clips_frame_rate(data_dir, tiny_state):
+    # The same held-out motion at 60 fps, scored with the map of 30 fps clips: its skate is in
+    # centimetres per second of its own rate (it was halved when the scores took the map's).
+    split = evaluate.load_split("style", data_dir, TINY_STYLE)
+    fast = dataclasses.replace(split, test=[resample(m, 2 * m.fps) for m in split.test])
+    state = evaluate.prepare(fast, TINY_STYLE, 0, log=lambda m: None, full=False)
+    slow_ctx, ctx = tiny_state["ctx"], state["ctx"]
+    assert ctx.fps == 2 * slow_ctx.fps == 2 * tiny_state["test"][0].fps
+    length = 15
+    skates = []
+    for c, factor in ((slow_ctx, 1), (ctx, 2)):
+        # The same stretch of motion: the gap's first frame at the same time at both rates.
+        span = N_PAST + factor * (length + 1) - 1 + N_FUTURE
+        starts = [(i, factor * 20 + (factor - 1) * N_PAST) for i in range(len(split.test))]
+        clips = tiny_state["test"] if factor == 1 else state["test"]
+        tr = np.stack([clips[i].rotations[s: s + span] for i, s in starts])
+        tp = np.stack([clips[i].positions[s: s + span] for i, s in starts])
+        _, g_p = evaluate.global_windows(tr, tp, c.skeleton.parents)
+        skates.append(skate_scores(c, g_p, slice(N_PAST, N_PAST + factor * (length + 1) - 1))[0].mean())
+    assert skates[1] == pytest.approx(skates[0], rel=0.1) and skates[0] > 0.5
 
 
 def test_truth_as_prediction_scores_zero_error(tiny_state):

@@ -53,7 +53,9 @@ def prepare(split: Split, settings: Settings, seed: int, log=_log, full: bool = 
         som, som_info = som_model(model, space.split(x_train), settings.som_epochs, seed, log)
 
     sk = model.skeleton_
-    root, up, fps = space.root, space.up, float(train[0].fps)
+    # Every score is of the test clips (speeds, jerk, the naturalness' reference windows), whose
+    # rate may differ from the map's: a map serves clips at another rate.
+    root, up, fps = space.root, space.up, float(test[0].fps)
     feet = foot_joints(sk.names)
     # L2P statistics: training windows of 50 frames every 20, in the window frame (LaFAN1).
     wins_r, wins_p = [], []
