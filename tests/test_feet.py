@@ -21,6 +21,12 @@ from posturemap.synth.engine import TransitionEngine
 from posturemap.synth.trajectory import rotate_about_up
 
 
+# The compiled foot lock against the numpy one, rotations: the IK's angles are arc cosines,
+# which turn rounding differences of 1e-16 in a nearly straight leg (a spot out of reach, the
+# second bend of two_bone_ik) into about 1e-8.
+IK_ATOL = 3e-8
+
+
 def lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, *args, **kw):
     """``feet.lock_feet`` on a copy of ``rots`` with the numpy code and with the compiled kernel:
     ``{"numpy": (rots, weights), "numba": (rots, weights)}``."""
@@ -226,6 +232,34 @@ def test_two_bone_ik_reaches_reachable_targets():
     np.testing.assert_allclose(gpos2[:, 2], target, atol=1e-6)
     # Bone lengths are kept (rotations only).
     np.testing.assert_allclose(np.linalg.norm(gpos2[:, 1] - gpos2[:, 0], axis=-1), 1.0, atol=1e-9)
+
+
+def test_a_straight_knee_bends_about_the_legs_hinge_not_its_noise():
+    # Hip -> knee -> ankle along -Y, bones of length 1: four frames with the knee bent forward
+    # (+Z, 20 degrees at the hip), one straight but for a knee 0.1 mm to the side (+X). The
+    # lock asks each ankle 0.4 closer to the hip. Bent about its own plane (hinge 0) the straight
+    # leg's knee goes sideways; with the hinge, forward as in the other frames.
+    parents = np.array([-1, 0, 1])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    bend = np.tile(quat.identity(), (5, 3, 1))
+    bend[:4, 0] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), -0.35)  # thigh forward
+    bend[:4, 1] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), 0.7)  # shin back under the hip
+    bend[4, 0] = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), 1e-4)  # knee a hair to +X
+    bend[4, 1] = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), -2e-4)
+    pos = np.broadcast_to(offsets, (5, 3, 3)).copy()
+    grot, gpos = fk(parents, bend, pos)
+    target = gpos[:, 2] + 0.4 * (gpos[:, 0] - gpos[:, 2]) / np.linalg.norm(gpos[:, 0] - gpos[:, 2], axis=-1)[:, None]
+    knees = {}
+    for hinge in (0.0, 0.2):
+        a_lr, b_lr = two_bone_ik(gpos[:, 0], gpos[:, 1], gpos[:, 2], target, grot[:, 0], grot[:, 1],
+                                 bend[:, 0], bend[:, 1], hinge=hinge)
+        new = bend.copy()
+        new[:, 0], new[:, 1] = a_lr, b_lr
+        _, moved = fk(parents, new, pos)
+        np.testing.assert_allclose(moved[:, 2], target, atol=1e-6)  # the ankle reaches either way
+        knees[hinge] = moved[4, 1]
+    assert abs(knees[0.0][0]) > 0.3 and abs(knees[0.0][2]) < 0.01  # sideways
+    assert knees[0.2][2] > 0.3 and abs(knees[0.2][0]) < 0.01  # forward, as the bent frames' knees
 
 
 def test_contact_runs():
@@ -530,7 +564,7 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
             out.append((r, w))
         (r_np, w_np), (r_nb, w_nb) = out
         np.testing.assert_allclose(w_nb, w_np, atol=1e-12)
-        np.testing.assert_allclose(r_nb, r_np, atol=1e-10)
+        np.testing.assert_allclose(r_nb, r_np, atol=IK_ATOL)
         weights_seen.append(w_np)
         thighs = [c[0] for c in chains]
         moved_in_air.append((np.abs(r_np[:, thighs] - rots[:, thighs]).max(axis=-1) > 1e-9) & (w_np == 0))
@@ -623,7 +657,7 @@ def test_held_toes_under_the_floor_are_lifted_in_gaps_of_one_to_three_frames(sam
         a_feet = b_feet = np.repeat(g0[:1, ankles], 2, axis=0)
         contacts = np.ones((length, 2), dtype=bool)
         results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, toe_floor=floor, toes=toes)
-        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
         lifted = fk(sk.parents, results["numpy"][0], pos)[1][:, toes, up]
         assert np.all(lifted > g0[:, toes, up] + 1e-3), length
 
@@ -651,7 +685,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
     results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor, toes=toes)
     assert not results["numpy"][1].any() and not results["numba"][1].any()
-    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
     r = results["numpy"][0]
     grot1, gpos1 = fk(sk.parents, r, pos)
     u = min(1.0, (2.5 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]))
@@ -677,7 +711,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     ankle_floor = gpos0[:, ankles[0], up].min() + 0.0125 * body
     results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=ankle_floor,
                         toes=np.array(ankles))
-    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
     g1 = fk(sk.parents, results["numpy"][0], pos)[1]
     assert np.all(gpos0[:, ankles[0], up] < ankle_floor - 0.01 * body)
     assert np.all(g1[mid, ankles[0], up] >= ankle_floor - 1e-6)
@@ -687,7 +721,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # lifted out of it, to the clearance above the floor. Nothing is held, so the context decides.
     raised_floor = floor + 0.0125 * body
     results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=raised_floor, toes=toes)
-    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
     lifted = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up]
     assert np.all(lifted - raised_floor >= TOE_CLEAR * body * u * (1 - 1e-6))
     # A held foot (the right, in the middle frames) whose toe is under the context's floor (here
@@ -700,7 +734,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     for given, ground in ((held_floor, held_floor), (None, right_toe)):
         results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, body=body, toe_floor=given,
                             toes=toes)
-        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=1e-10)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
         assert results["numpy"][1][5:25, 1].min() > 0 and not results["numpy"][1][:, 0].any()
         g1 = fk(sk.parents, results["numpy"][0], pos)[1]
         assert np.all(g1[mid, toes[0], up] - ground >= TOE_CLEAR * body * u * (1 - 1e-6))

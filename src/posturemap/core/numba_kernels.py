@@ -400,13 +400,64 @@ def _soft_limit(x, start, limit):
 
 
 @nb.njit(**_OPTS)
-def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft):
-    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` as there): returns the
-    thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that keeps
-    the foot's global rotation)."""
+def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft, hinge, hx, hy, hz):
+    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` and ``hinge`` as
+    there; (hx, hy, hz) the leg's unit hinge in the thigh's frame, :func:`_knee_hinge`): returns
+    the thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that
+    keeps the foot's global rotation)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
     bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
     cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
+    a_gr = (grot[f, thigh, 0], grot[f, thigh, 1], grot[f, thigh, 2], grot[f, thigh, 3])
+    b_gr = (grot[f, shin, 0], grot[f, shin, 1], grot[f, shin, 2], grot[f, shin, 3])
+    a_lr = (rots[f, thigh, 0], rots[f, thigh, 1], rots[f, thigh, 2], rots[f, thigh, 3])
+    b_lr = (rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
+    ux, uy, uz = cx - ax, cy - ay, cz - az
+    vx, vy, vz = bx - ax, by - ay, bz - az
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    if hinge <= 0.0:
+        nx, ny, nz = _unit(nx, ny, nz)
+        return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft,
+                           nx, ny, nz)
+    lab = math.sqrt(vx * vx + vy * vy + vz * vz)
+    lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
+    lac = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if soft > 0.0:  # the target where it will be reached, for both bends
+        lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
+        k = _soft_limit(lat, max(lac, (1.0 - soft) * (lab + lcb)), lab + lcb) / max(lat, 1e-300)
+        tx, ty, tz = ax + (tx - ax) * k, ay + (ty - ay) * k, az + (tz - az) * k
+    # The normal in the thigh's frame plus the hinge weighed by the leg's size, back in the world.
+    lx, ly, lz = _rotate(a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3], nx, ny, nz)
+    w = hinge * lac * lab
+    nx, ny, nz = _rotate(a_gr[0], a_gr[1], a_gr[2], a_gr[3], lx + w * hx, ly + w * hy, lz + w * hz)
+    nx, ny, nz = _unit(nx, ny, nz)
+    th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
+                         nx, ny, nz)
+    # The leg after the first bend (joints between thigh and shin keep their locals).
+    pa = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
+    pa = _mul(pa[0], pa[1], pa[2], pa[3], th[0], th[1], th[2], th[3])
+    turn = _mul(pa[0], pa[1], pa[2], pa[3], a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3])
+    ga = _mul(turn[0], turn[1], turn[2], turn[3], a_gr[0], a_gr[1], a_gr[2], a_gr[3])
+    gb = _mul(turn[0], turn[1], turn[2], turn[3], b_gr[0], b_gr[1], b_gr[2], b_gr[3])
+    rel = _mul(b_lr[0], -b_lr[1], -b_lr[2], -b_lr[3], sh[0], sh[1], sh[2], sh[3])
+    gb = _mul(gb[0], gb[1], gb[2], gb[3], rel[0], rel[1], rel[2], rel[3])
+    dx, dy, dz = _rotate(turn[0], turn[1], turn[2], turn[3], vx, vy, vz)
+    bx, by, bz = ax + dx, ay + dy, az + dz
+    dq = _mul(gb[0], gb[1], gb[2], gb[3], b_gr[0], -b_gr[1], -b_gr[2], -b_gr[3])
+    dx, dy, dz = _rotate(dq[0], dq[1], dq[2], dq[3], cx - gpos[f, shin, 0], cy - gpos[f, shin, 1],
+                         cz - gpos[f, shin, 2])
+    cx, cy, cz = bx + dx, by + dy, bz + dz
+    ux, uy, uz = cx - ax, cy - ay, cz - az
+    vx, vy, vz = bx - ax, by - ay, bz - az
+    nx, ny, nz = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz)
+
+
+@nb.njit(**_OPTS)
+def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz):
+    """:func:`posturemap.synth.feet._bend` of one frame: the knee bent about the unit normal
+    (nx, ny, nz) to the target's distance, the hip-ankle line turned onto it; the thigh's and
+    shin's new local rotations."""
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
@@ -421,19 +472,34 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
     ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
     ux, uy, uz = cx - ax, cy - ay, cz - az
-    vx, vy, vz = bx - ax, by - ay, bz - az
-    x0, y0, z0 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
     vx, vy, vz = tx - ax, ty - ay, tz - az
     x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    a_gr, b_gr = grot[f, thigh], grot[f, shin]
-    r0 = _axis_angle_in(a_gr, x0, y0, z0, ac_ab_1 - ac_ab_0)
-    r1 = _axis_angle_in(b_gr, x0, y0, z0, ba_bc_1 - ba_bc_0)
+    r0 = _axis_angle_in(a_gr, nx, ny, nz, ac_ab_1 - ac_ab_0)
+    r1 = _axis_angle_in(b_gr, nx, ny, nz, ba_bc_1 - ba_bc_0)
     r2 = _axis_angle_in(a_gr, x1, y1, z1, ac_at_0)
     r20 = _mul(r2[0], r2[1], r2[2], r2[3], r0[0], r0[1], r0[2], r0[3])
-    th = _mul(rots[f, thigh, 0], rots[f, thigh, 1], rots[f, thigh, 2], rots[f, thigh, 3],
-              r20[0], r20[1], r20[2], r20[3])
-    sh = _mul(rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3], r1[0], r1[1], r1[2], r1[3])
+    th = _mul(a_lr[0], a_lr[1], a_lr[2], a_lr[3], r20[0], r20[1], r20[2], r20[3])
+    sh = _mul(b_lr[0], b_lr[1], b_lr[2], b_lr[3], r1[0], r1[1], r1[2], r1[3])
     return th, sh
+
+
+@nb.njit(**_OPTS)
+def _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised):
+    """The leg's hinge in the thigh's frame (unit; 0 where the legs are straight): the knee's
+    plane normals of the frames the lock moves summed there, as
+    :func:`posturemap.synth.feet.two_bone_ik` sums them."""
+    sx, sy, sz = 0.0, 0.0, 0.0
+    for t in range(gpos.shape[0]):
+        if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
+            continue
+        ux, uy, uz = gpos[t, ankle, 0] - gpos[t, thigh, 0], gpos[t, ankle, 1] - gpos[t, thigh, 1], \
+            gpos[t, ankle, 2] - gpos[t, thigh, 2]
+        vx, vy, vz = gpos[t, shin, 0] - gpos[t, thigh, 0], gpos[t, shin, 1] - gpos[t, thigh, 1], \
+            gpos[t, shin, 2] - gpos[t, thigh, 2]
+        q = grot[t, thigh]
+        x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+        sx, sy, sz = sx + x, sy + y, sz + z
+    return _unit(sx, sy, sz)
 
 
 @nb.njit(**_OPTS)
@@ -491,15 +557,16 @@ def _carried(g, grot, t, top, joint):
 
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
-              drift_lo, drift_hi, eps, soft, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
+              drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
               weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
     grot/gpos (L, J, 4/3) their global rotations and positions; a_feet/b_feet (2, n, 3) ankle
     positions in A's last two and B's first two frames; contacts (L, n) planted frames, or an
-    array with no rows to detect them from height and speed; drift_lo/drift_hi, eps and soft:
-    ``MAX_DRIFT``, ``IK_EPS`` and ``SOFT_REACH`` of :mod:`posturemap.synth.feet`; step (frames)
+    array with no rows to detect them from height and speed; drift_lo/drift_hi, eps, soft and
+    hinge: ``MAX_DRIFT``, ``IK_EPS``, ``SOFT_REACH`` and ``KNEE_HINGE`` of
+    :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step of a foot planted all through from A's spot to B's;
     toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
     (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
@@ -649,13 +716,15 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         # A foot without a toe joint: its ankle kept out of the floor, no clearance above it.
         _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear if toes[leg] != ankle else 0.0, clear_lo,
                   clear_hi, clear_r, deficit, widest)
+        hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised)
         for t in range(n_l):
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
                 continue
             goal[a_] = gpos[t, ankle, a_] + offset[t, 0]
             goal[b_] = gpos[t, ankle, b_] + offset[t, 1]
             goal[up] = gpos[t, ankle, up] + raised[t]
-            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps, soft)
+            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps, soft,
+                                       hinge, hx, hy, hz)
             # Keep the foot's global orientation: its parent chain turned (twist joints between
             # keep their local rotations and turn with the joint above).
             p = parents[thigh]
