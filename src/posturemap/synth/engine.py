@@ -192,9 +192,10 @@ class TransitionEngine:
         without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
         transitions run between the first and the last clip added, from their ends and their
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
-        B where it is, so that a library's every path runs: a full match, a partial one blended
-        with its fallback, and a splice. Returns the number of transitions run; :attr:`last` is
-        left as it was. Raises :class:`RequestError` when no clip has been added."""
+        B where it is (matches of every confidence, as these clips give them); then, with a
+        motion library, what runs at one confidence only (every part retrieved; a splice), run
+        directly. Returns the number of transitions run; :attr:`last` is left as it was. Raises
+        :class:`RequestError` when no clip has been added."""
         if not self.tracks:
             raise RequestError("a", "no clips to warm up with (add one first)")
         kernels.compiled()
