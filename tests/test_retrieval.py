@@ -394,6 +394,22 @@ def test_warm_up_loads_every_kernel_the_default_calls(model, bandai_paths, tmp_p
             "posturemap.synth.retrieval_numba.open_columns", "posturemap.core.numba_kernels.lock_legs"} <= set(cold)
 
 
+def test_engines_of_one_library_share_its_search_rows(model, clips):
+    # Each transition() call makes an engine; the rows of the library's frames (18 MB for
+    # bandai1, about 50 ms to build) are built once per library, not per engine.
+    name = HELD_OUT[0]
+    engines = [TransitionEngine(model) for _ in range(2)]
+    for eng in engines:
+        eng.add(name, clips[name])
+        eng.generate(name, name, length=20, a_end=30, b_start=51, align=False, method="retrieval")
+    first, second = (eng._retriever.lists for eng in engines)
+    assert first is second and first[0][0][0].shape == (len(model.library_), first[0][0][0].shape[1])
+    # Another library (what partial_fit makes) has its own.
+    other = model._build_library([clips[n] for n in LIBRARY[:2]], list(LIBRARY[:2]))
+    rt = retrieval.Retriever(engines[0], other)
+    assert rt.lists is not first and len(rt.lists[1]) == len(other)
+
+
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):
     with pytest.raises(RequestError, match="add one first"):
         TransitionEngine(model).warm_up()

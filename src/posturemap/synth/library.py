@@ -136,8 +136,10 @@ class MotionLibrary:
     scale: np.ndarray = field(init=False)
     index_ptr: np.ndarray = field(init=False)
     index_frames: np.ndarray = field(init=False)
+    _derived: dict = field(init=False, repr=False)  # see derived
 
     def __post_init__(self):
+        object.__setattr__(self, "_derived", {})
         object.__setattr__(self, "recorded", len(self.rots))
         if self.reverse and len(self.rots):
             self._add_reversed()
@@ -172,6 +174,18 @@ class MotionLibrary:
 
     def __len__(self) -> int:
         return len(self.rots)
+
+    def derived(self, key, build):
+        """A value computed from this library's arrays alone, once per library: ``build()`` on the
+        first call with ``key``, the same object after. The search's rows of every frame
+        (:attr:`posturemap.synth.retrieval.Retriever.lists`) are one: every engine serving this
+        library shares them, so that a new engine (each :func:`posturemap.synth.engine.transition`
+        call makes one) does not rebuild them (about 50 ms for bandai1). Threads that ask at once
+        may both build; one result is kept."""
+        value = self._derived.get(key)
+        if value is None:
+            value = self._derived.setdefault(key, build())
+        return value
 
     @property
     def num_clips(self) -> int:

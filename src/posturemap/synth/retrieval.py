@@ -437,22 +437,26 @@ class Retriever:
         the frames gathered from a neuron are one stretch of memory, not scattered rows (its
         prefilter 91 -> 55 us a body part, the whole transition about 35 us faster, paired).
         They replace :attr:`matrices` there (built only for the numpy steps): 288 bytes a frame
-        instead of 188 (Bandai)."""
+        instead of 188 (Bandai). They depend on the library alone and are kept with it
+        (:meth:`~posturemap.synth.library.MotionLibrary.derived`): every engine serving it shares
+        them."""
         if self._lists is None:
-            lib = self.lib
-            order = lib.index_frames  # a permutation of the frames (argsort of their neurons)
-            nxt = np.minimum(np.arange(len(lib)) + 1, lib.clip_end - 1)[order]
-            pos_of = np.empty(len(lib), dtype=np.int64)
-            pos_of[order] = np.arange(len(lib))
-            rows = []
-            for part in (0, 1):
-                P, V = self.matrices[part] if self._mats is not None else self.rows(part, lib.pose, lib.vel,
-                                                                                     lib.root)
-                rows.append(tuple(np.ascontiguousarray(x) for x in (P[order], V[order], V[nxt])))
-                for x in rows[-1]:
-                    x.setflags(write=False)
-            self._lists = (rows, pos_of)
+            self._lists = self.lib.derived(("search lists", W_VEL, W_ROOT), self._build_lists)
         return self._lists
+
+    def _build_lists(self):
+        lib = self.lib
+        order = lib.index_frames  # a permutation of the frames (argsort of their neurons)
+        nxt = np.minimum(np.arange(len(lib)) + 1, lib.clip_end - 1)[order]
+        pos_of = np.empty(len(lib), dtype=np.int64)
+        pos_of[order] = np.arange(len(lib))
+        rows = []
+        for part in (0, 1):
+            P, V = self.matrices[part] if self._mats is not None else self.rows(part, lib.pose, lib.vel, lib.root)
+            rows.append(tuple(np.ascontiguousarray(x) for x in (P[order], V[order], V[nxt])))
+            for x in rows[-1]:
+                x.setflags(write=False)
+        return rows, pos_of
 
     @property
     def matrices(self):
