@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 
 import numpy as np
 import pytest
@@ -43,6 +44,24 @@ def lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, *args, **kw):
                                *args, **kw)
         out[backend] = (r, w)
     return out
+
+
+def test_leg_chains_are_found_once_per_hierarchy(sample_clips):
+    # An engine asks for each clip it prepares (transition() prepares two per call): the chains
+    # of one hierarchy come from one search, and a caller that changes its list changes no
+    # other caller's.
+    from posturemap.core import joints
+
+    sk = sample_clips["walk"].skeleton
+    same = dataclasses.replace(sk, offsets=sk.offsets * 2.0)  # another skeleton object, the same joints
+    first = leg_chains(sk)
+    searches = joints._leg_chains_of.cache_info().misses
+    first.append((0, 0, 0))
+    assert leg_chains(same) == leg_chains(sk) == first[:2] and len(first[0]) == 3
+    assert joints._leg_chains_of.cache_info().misses == searches
+    renamed = dataclasses.replace(sk, names=tuple(n.replace("Foot", "Paw") for n in sk.names))
+    assert leg_chains(renamed) == []  # another hierarchy is searched again: no ankle by name there
+    assert joints._leg_chains_of.cache_info().misses == searches + 1
 
 
 def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):

@@ -9,6 +9,8 @@ are matched case-insensitively after any ``namespace:`` prefix.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -95,7 +97,16 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     foot.L``, Rigify's ``DEF-thigh.L > DEF-thigh.L.001 > DEF-shin.L > DEF-shin.L.001``): they
     keep their rotations and stay inside the thigh or the shin. Where that would leave no
     distinct thigh (every joint numbered alike, or thigh and shin named alike but for a number,
-    so that two legs would share the hips as their thigh), the plain parent and grandparent."""
+    so that two legs would share the hips as their thigh), the plain parent and grandparent.
+
+    Found once per hierarchy (names and parents): an engine asks for each clip it prepares,
+    and :func:`posturemap.synth.engine.transition` prepares two per call."""
+    return list(_leg_chains_of(tuple(sk.names), np.asarray(sk.parents, dtype=np.int64).tobytes()))
+
+
+@lru_cache(maxsize=32)
+def _leg_chains_of(names: tuple[str, ...], parents: bytes) -> tuple[tuple[int, int, int], ...]:
+    sk = SimpleNamespace(names=names, parents=np.frombuffer(parents, dtype=np.int64), num_joints=len(names))
     chains = _leg_chains(sk, segments=True)
     # Bones told apart by number only (L_Leg1 > L_Leg2 > L_Foot) would run into the hips: a thigh
     # shared by two legs, or above another leg's, is no thigh. Then no segments are merged.
@@ -104,7 +115,7 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     is_thigh[thighs] = True
     if len(set(thighs)) < len(thighs) or _below_any(sk.parents, is_thigh)[thighs].any():
         chains = _leg_chains(sk, segments=False)
-    return chains
+    return tuple(chains)
 
 
 def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
