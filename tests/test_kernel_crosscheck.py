@@ -593,6 +593,25 @@ def test_swing_columns_are_the_numpy_continued_swing():
             periodic._peak(omegas, explained, lambda om: periodic._explained(rows, times, om, d), peaks), rel=1e-12)
 
 
+@crosschecks("numba_kernels:seam_rows")
+def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
+    # Two clips' seam and context frames as the interpolating methods' rows, B turned and moved
+    # (a turn of more than a half circle, so the heading's unwrapping counts), both backends.
+    from posturemap.synth import engine as E
+
+    eng = E.TransitionEngine(None, sample_clips["walk"].skeleton)
+    ta, tb = eng.add("a", sample_clips["walk"]), eng.add("b", sample_clips["run"])
+    ia, ib = np.array([40, 41, 42, 30, 33, 36, 39]), np.array([5, 6, 5, 8, 11])
+    ref = tb.rots[5].copy()
+    for dtheta, shift in ((0.3, np.array([10.0, 0.0, -4.0])), (-2.9, np.zeros(3)), (3.5, np.array([0.0, 2.0, 1.0]))):
+        fast = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
+        with kernels.numpy_backend():
+            slow = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
+        np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
+        s0 = 3 * eng.skeleton.num_joints
+        assert abs(fast[len(ia), s0 + 3] - ta.heading[42]) < np.pi  # B's heading unwrapped to A's
+
+
 @crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),

@@ -785,6 +785,47 @@ def _group_energy(rows, c0, c1, step):
 
 
 @nb.njit(**_OPTS)
+def seam_rows(a_rots, a_pos, a_gpos, a_heading, ia, b_rots, b_pos, b_gpos, b_heading, ib, ref, dtheta, shift,
+              turns, up, out):
+    """:func:`posturemap.synth.engine._seam_rows` in one call: frames ``ia`` of A, then ``ib`` of
+    B, as rows of ``out`` (N, 6J + 4): rotation vectors about ``ref`` (J, 4), the root's global
+    position (B's turned by ``dtheta`` about axis ``up`` and moved by ``shift``), its heading
+    (B's plus ``dtheta``, plus the whole ``turns`` that unwrap it to A's) and the local
+    translations."""
+    n_a, n_j = ia.shape[0], ref.shape[0]
+    s0 = 3 * n_j
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    c, s = math.cos(dtheta), math.sin(dtheta)
+    for r in range(out.shape[0]):
+        on_a = r < n_a
+        f = ia[r] if on_a else ib[r - n_a]
+        rots = a_rots if on_a else b_rots
+        pos = a_pos if on_a else b_pos
+        for j in range(n_j):
+            w, x, y, z = _mul(ref[j, 0], -ref[j, 1], -ref[j, 2], -ref[j, 3],
+                              rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
+            if w < 0.0:
+                w, x, y, z = -w, -x, -y, -z
+            n = math.sqrt(x * x + y * y + z * z)
+            k = 2.0 * math.atan2(n, w) / n if n > 1e-8 else 2.0 + n * n / 3.0
+            out[r, 3 * j] = x * k
+            out[r, 3 * j + 1] = y * k
+            out[r, 3 * j + 2] = z * k
+            for d in range(3):
+                out[r, s0 + 4 + 3 * j + d] = pos[f, j, d]
+        if on_a:
+            for d in range(3):
+                out[r, s0 + d] = a_gpos[f, d]
+            out[r, s0 + 3] = a_heading[f]
+        else:
+            va, vb = b_gpos[f, a_], b_gpos[f, b_]
+            out[r, s0 + up] = b_gpos[f, up] + shift[up]
+            out[r, s0 + a_] = c * va - s * vb + shift[a_]
+            out[r, s0 + b_] = s * va + c * vb + shift[b_]
+            out[r, s0 + 3] = (b_heading[f] + dtheta) + turns
+
+
+@nb.njit(**_OPTS)
 def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min, tau_max, out):
     """``damped``'s frames (length, C) into ``out``: :func:`posturemap.synth.bases.damped_frames`
     of ``inputs`` (rows pA, vA, pB, vB), each column's time constant at both seams from

@@ -400,9 +400,15 @@ def _seam_rows(eng: TransitionEngine, ta: Track, tb: Track, ia, ib, a_end: int, 
     translations (J x 3)."""
     j_count, up = eng.skeleton.num_joints, eng._up
     n_a = len(ia)
-    b_head = tb.heading[ib] + dtheta
-    b_head += TWO_PI * round((ta.heading[a_end] - tb.heading[ib[0]] - dtheta) / TWO_PI)
+    turns = TWO_PI * round((ta.heading[a_end] - tb.heading[ib[0]] - dtheta) / TWO_PI)
     out = np.empty((n_a + len(ib), 3 * j_count + 4 + 3 * j_count))
+    if kernels.backend() == "numba":  # the steps below in one call (some twenty numpy calls otherwise)
+        kernels.compiled().seam_rows(ta.rots, ta.motion.positions, ta.gpos, ta.heading, np.asarray(ia, np.int64),
+                                     tb.rots, tb.motion.positions, tb.gpos, tb.heading, np.asarray(ib, np.int64), ref,
+                                     float(dtheta), np.asarray(shift, dtype=float), float(turns), up, out)
+        return out
+    b_head = tb.heading[ib] + dtheta
+    b_head += turns
     kernels.log_relative(np.concatenate([ta.rots[ia], tb.rots[ib]]), ref,
                          out[:, : 3 * j_count].reshape(len(out), j_count, 3))
     s0 = 3 * j_count
