@@ -205,20 +205,19 @@ class TransitionEngine:
         fps = self.tracks[a].motion.fps
         runnable = [m for m in methods if self.model is not None or m not in KEYED]
         seams = sorted({(na - 1, 0), (na // 2, nb // 2)})
+        lengths = [max(1, round(gap * fps) - 1) for gap in WARM_UP_GAPS_S]
         last, count = self.last, 0
         for method in runnable:
-            for gap in WARM_UP_GAPS_S:
+            for length in lengths:
                 for a_end, b_start in seams:
                     for align in (True, False):
-                        self.generate(a, b, method=method, length=max(1, round(gap * fps) - 1), a_end=a_end,
-                                      b_start=b_start, align=align)
+                        self.generate(a, b, method=method, length=length, a_end=a_end, b_start=b_start, align=align)
                         count += 1
         if self._retriever is not None:
             # What runs only at one confidence, whichever the schedule's matches had: every
             # part retrieved (the open columns) and a splice (when both halves fit at all).
             ta, tb = self.tracks[a], self.tracks[b]
-            for gap in WARM_UP_GAPS_S:
-                length = max(1, round(gap * fps) - 1)
+            for length in lengths:
                 _open_columns(self, ta, tb, na - 1, 0, length)
                 spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
         self.last = last

@@ -574,8 +574,8 @@ class Retriever:
     @property
     def budget(self) -> int:
         """How many frames :meth:`gather` collects per seam: :data:`BUDGET` at
-        :data:`LIBRARY_FPS`, in proportion to the library's frame rate, so that they hold as
-        many moments of motion at any rate. With 1,536 at 60 fps (half the moments), bandai1's
+        :data:`LIBRARY_FPS`, in proportion to a faster library's frame rate, so that they hold
+        as many moments of motion. With 1,536 at 60 fps (half the moments), bandai1's
         hold-outs rewritten at 60 fps (docs/another-rig.md) scored L2Q 0.644 / 0.729x SLERP's
         on held-out styles at 1 / 1.5 s where Bandai's own 30 fps scored 0.56 / 0.64x; with
         3,072 (and :func:`segments_averaged` in proportion too) 0.561 / 0.632x. A slower
