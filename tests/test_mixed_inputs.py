@@ -15,6 +15,7 @@ import pytest
 
 from clikit import assert_refused, run
 from posturemap import cli
+from posturemap.errors import UserError
 from posturemap.io import bvh
 from posturemap.learn.model import PostureMap
 from posturemap.synth.engine import TransitionEngine, transition
@@ -101,6 +102,55 @@ def test_the_engine_and_the_map_name_what_is_missing(sample_clips, walk_map):
     assert not os.path.exists("never.npz")
     with pytest.raises(TypeError, match="Motion objects"):
         PostureMap().fit(["walk.bvh"])
+
+
+def test_a_clip_of_no_frames_or_with_nan_is_refused_by_name(sample_clips, walk_map, tmp_path):
+    # A clip of no frames crashed deep inside (a reshape, an index out of range); a NaN at a seam
+    # ran through every new frame of the transition, silently.
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    rots = walk.rotations.copy()
+    rots[-1, 2, 1] = np.nan
+    broken = dataclasses.replace(walk, rotations=rots)
+    for clip, words in ((walk[:0], "the clip has no frames"), (broken, r"NaN or infinite rotation \(frame")):
+        with pytest.raises(UserError, match=f"^a: {words}"):
+            transition(clip, run_, walk_map)
+        with pytest.raises(UserError, match=f"^b: {words}"):
+            transition(run_, clip, method="spline")
+        with pytest.raises(UserError, match=f"^odd: {words}"):
+            PostureMap(seed=0, library=False).fit([run_, clip], ["run", "odd"])
+        with pytest.raises(UserError, match=f"^odd: {words}"):
+            PostureMap(seed=0, library=False).fit([run_], ["run"]).partial_fit([clip], ["odd"])
+        for use in (walk_map.predict, walk_map.score):
+            with pytest.raises(UserError, match=f"^motion: {words}"):
+                use(clip)
+    with pytest.raises(bvh.BVHError, match="no frames; nothing written"):
+        bvh.write(tmp_path / "empty.bvh", walk[:0])
+    assert not (tmp_path / "empty.bvh").exists()
+
+
+def test_the_api_checks_what_it_is_given(sample_clips, walk_map, tmp_path):
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    with pytest.raises(TypeError, match="request must be a TransitionRequest, got dict"):
+        transition(walk, run_, walk_map, {"length": 5})
+    eng = TransitionEngine(walk_map)
+    eng.add("walk", walk)
+    eng.add("run", run_)
+    eng.generate("walk", "run", length=10)
+    for frame in (len(run_), -1):  # a slice would give no frames, or the last one
+        with pytest.raises(RequestError, match=f"frame {frame} is outside clip B 'run'"):
+            eng.continuation("run", frame)
+        with pytest.raises(RequestError, match="outside clip B"):
+            eng.continuation("run", frame, align=False)
+    # The frames a call returned stay as they were through a warm-up (it runs transitions of
+    # the same lengths into buffers of its own), and one method may be named alone.
+    rots, pos = eng.generate("walk", "run", length=29, method="spline")
+    kept = rots.copy(), pos.copy()
+    assert eng.warm_up("spline") == 3 * 2 * 2
+    assert np.array_equal(rots, kept[0]) and np.array_equal(pos, kept[1])
+    # A map written into a missing folder: one error naming the file, nothing left.
+    with pytest.raises(UserError, match=r"map\.npz: cannot write file"):
+        walk_map.save(str(tmp_path / "missing" / "map.npz"))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_reader_that_stops_early_is_no_error(walk_map, tmp_path, monkeypatch, capsys):

@@ -239,9 +239,9 @@ def test_save_is_atomic(fitted, saved, tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(os, "replace", fail)
-    with pytest.raises(OSError):
+    with pytest.raises(UserError, match=r"map\.npz: cannot write file \(No space left on device\)"):
         fitted.save(str(saved))
-    with pytest.raises(OSError):
+    with pytest.raises(UserError, match=r"new\.npz: cannot write file"):
         fitted.save(str(tmp_path / "new.npz"))
     monkeypatch.undo()
     assert saved.read_bytes() == before  # the old map is untouched

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import UserError
 from . import quat
 from .skeleton import Skeleton, fk
 
@@ -46,6 +47,17 @@ class Motion:
             raise ValueError(f"fps must be positive, got {self.fps}")
         if self.source is not None and (self.source.ndim != 2 or len(self.source) != len(self.rotations)):
             raise ValueError(f"source must be (F, C) with F = {len(self.rotations)}, got {self.source.shape}")
+
+    def check_usable(self, where: str) -> None:
+        """Raise :class:`~posturemap.errors.UserError` on ``where`` unless the clip has frames and
+        every rotation and translation is finite (what a map or a transition can read: a NaN at a
+        seam would run through every new frame)."""
+        if not len(self):
+            raise UserError(where, "the clip has no frames")
+        for name, a in (("rotation", self.rotations), ("translation", self.positions)):
+            if not np.isfinite(a).all():
+                f, j = (int(k) for k in np.argwhere(~np.isfinite(a))[0][:2])
+                raise UserError(where, f"NaN or infinite {name} (frame {f}, joint {self.skeleton.names[j]!r})")
 
     @property
     def num_frames(self) -> int:

@@ -762,7 +762,10 @@ def continuous_euler(euler: np.ndarray, order: str) -> np.ndarray:
 
 
 def check_finite(motion: Motion, where: str = "output") -> None:
-    """Raise :class:`BVHError` when ``motion`` has a NaN or infinite value (nothing to write)."""
+    """Raise :class:`BVHError` when ``motion`` has no frames or a NaN or infinite value (nothing
+    to write: the reader refuses a file of no frames)."""
+    if not len(motion):
+        raise BVHError(where, None, "refusing to write a motion with no frames; nothing written")
     if not np.isfinite(motion.fps) or motion.fps <= 0:
         raise BVHError(where, None, f"refusing to write a motion with frame rate {motion.fps!r}")
     for name, a in (("rotation", motion.rotations), ("translation", motion.positions)):

@@ -84,6 +84,7 @@ class PostureMap:
         names = names or [f"clip {i}" for i in range(len(motions))]
         first = motions[0].skeleton
         for name, m in zip(names, motions):
+            m.check_usable(name)
             if not m.skeleton.same_as(first):
                 raise UserError(name, f"skeleton differs from {names[0]} (a map needs one skeleton)")
             why = m.skeleton.body_mismatch(first, f"{names[0]}'s")
@@ -156,6 +157,10 @@ class PostureMap:
         lib = getattr(self, "library_", None)
         fps = float(info.get("fps") or (lib.fps if lib is not None else motions[0].fps))
         for name, m in zip(names, motions, strict=True):
+            if not isinstance(m, Motion):
+                raise TypeError(f"partial_fit takes Motion objects (read files with posturemap.io.bvh.read), got "
+                                f"{type(m).__name__}")
+            m.check_usable(name)
             self.check_skeleton(m.skeleton, name)
             if not same_fps(m.fps, fps):
                 raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first "
@@ -204,7 +209,9 @@ class PostureMap:
 
     # -- use ------------------------------------------------------------------------------
     def encode(self, motion: Motion) -> np.ndarray:
-        """Full posture vectors of a motion with this map's skeleton, (F, D)."""
+        """Full posture vectors of a motion with this map's skeleton, (F, D); a
+        :class:`UserError` for a clip of no frames or with a NaN or infinite value."""
+        motion.check_usable("motion")
         self.check_skeleton(motion.skeleton, "motion")
         return self.space_.encode(motion)
 
@@ -227,7 +234,9 @@ class PostureMap:
             raise ValueError("the posture map is not fitted: fit it on clips or load a map file first")
 
     def save(self, path: str) -> None:
-        """Write the map to ``path`` (.npz, no pickle) atomically."""
+        """Write the map to ``path`` (.npz, no pickle) atomically; a folder that is missing or
+        not writable, a full disk and the like raise :class:`UserError` naming the file (an
+        existing file stays as it was)."""
         self.require_fitted()
         meta = {
             "format": FORMAT, "version": VERSION,
@@ -265,7 +274,10 @@ class PostureMap:
                 np.lib.format.write_array(member, np.asanyarray(arr), allow_pickle=False)
                 zf.writestr(name + ".npy", member.getvalue(),
                             zipfile.ZIP_STORED if name.startswith("library_") else zipfile.ZIP_DEFLATED)
-        write_bytes_atomic(path, buf.getvalue())
+        try:
+            write_bytes_atomic(path, buf.getvalue())
+        except OSError as e:
+            raise UserError(os.fspath(path), f"cannot write file ({e.strerror or e})") from None
 
     @classmethod
     def load(cls, path: str) -> "PostureMap":

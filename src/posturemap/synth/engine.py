@@ -72,7 +72,7 @@ from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
-from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe
+from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
 from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
 
@@ -118,7 +118,9 @@ class TransitionEngine:
 
     # -- clips --------------------------------------------------------------------------------
     def add(self, name: str, motion: Motion) -> Track:
-        """Prepare a clip under ``name`` (same skeleton as the map, if any)."""
+        """Prepare a clip under ``name`` (same skeleton as the map, if any; at least one frame,
+        every value finite)."""
+        motion.check_usable(name)
         if self.skeleton is None:
             self.skeleton = motion.skeleton
         if not motion.skeleton.same_as(self.skeleton):
@@ -172,6 +174,7 @@ class TransitionEngine:
         the up axis and moved by ``shift`` (default: as the last :meth:`generate` placed them);
         without ``align``, as they are."""
         track = self._track("b", b)
+        b_start = frame_index("b_start", b_start, len(track.gpos), f"clip B {b!r}")
         if not align:
             return track.motion[b_start:]
         if (turn is None or shift is None) and "dtheta" not in self.last:
@@ -188,16 +191,18 @@ class TransitionEngine:
         the numpy kernels (unless something else switched), several times slower; and after
         ``kernels.compiled()`` alone the first few calls take 10-500 ms each instead of about one.
 
-        ``methods``: the methods the caller will ask for (those needing a map are skipped
+        ``methods``: the methods (or one method's name) the caller will ask for (those needing a map are skipped
         without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
         transitions run between the first and the last clip added, from their ends and their
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
         B where it is (matches of every confidence, as these clips give them); then, with a
         motion library, what runs at one confidence only (every part retrieved; a splice), run
-        directly. Returns the number of transitions run; :attr:`last` is left as it was. Raises
+        directly. Returns the number of transitions run; :attr:`last` and the frames earlier calls
+        returned are left as they were. Raises
         :class:`RequestError` when no clip has been added."""
         if not self.tracks:
             raise RequestError("a", "no clips to warm up with (add one first)")
+        methods = (methods,) if isinstance(methods, str) else tuple(methods)
         kernels.compiled()
         names = list(self.tracks)
         a, b = names[0], names[-1]
@@ -206,7 +211,10 @@ class TransitionEngine:
         runnable = [m for m in methods if self.model is not None or m not in KEYED]
         seams = sorted({(na - 1, 0), (na // 2, nb // 2)})
         lengths = [max(1, round(gap * fps) - 1) for gap in WARM_UP_GAPS_S]
-        last, count = self.last, 0
+        # Frames returned by earlier calls stay as they were: the warm-up writes into buffers of
+        # its own, and keeps those of lengths no call has asked for yet.
+        last, count, buffers = self.last, 0, self._buffers
+        self._buffers = {}
         for method in runnable:
             for length in lengths:
                 for a_end, b_start in seams:
@@ -221,6 +229,7 @@ class TransitionEngine:
                 _open_columns(self, ta, tb, na - 1, 0, length)
                 spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
         self.last = last
+        self._buffers = {**self._buffers, **buffers}
         return count
 
     def _track(self, field: str, name: str) -> Track:
@@ -703,6 +712,9 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     -------
     Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
     """
+    if request is not None and not isinstance(request, TransitionRequest):
+        raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
+                        "(give its fields as keywords: length=..., alpha=...)")
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)
     engine.add("b", b)

@@ -99,6 +99,12 @@ def _whole(field: str, v, lo: int, hi: int, where: str | None = None) -> int:
     return v
 
 
+def frame_index(field: str, v, count: int, where: str) -> int:
+    """``v`` as a frame of a clip of ``count`` frames (``where`` names the clip), or a
+    :class:`RequestError` on ``field``."""
+    return _whole(field, v, 0, count - 1, where)
+
+
 def _flag(field: str, v) -> bool:
     if not _is_bool(v):
         raise RequestError(field, f"must be true or false, got {describe(v)}")
