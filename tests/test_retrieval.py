@@ -410,6 +410,26 @@ def test_engines_of_one_library_share_its_search_rows(model, clips):
     assert rt.lists is not first and len(rt.lists[1]) == len(other)
 
 
+def test_a_fork_makes_the_same_transitions_with_its_own_buffers_and_clips(model, clips):
+    # The studio serves each request from a fork (one per thread): the same frames, the clips
+    # and the library's rows shared, the output buffers and the list of clips its own.
+    parent = TransitionEngine(model)
+    for n in HELD_OUT[:2]:
+        parent.add(n, clips[n])
+    args = dict(length=30, a_end=40, b_start=0, method="retrieval")
+    rots, pos = parent.generate(*HELD_OUT[:2], **args)
+    kept = rots.copy(), pos.copy()
+    child = parent.fork()
+    assert child.tracks[HELD_OUT[0]] is parent.tracks[HELD_OUT[0]]
+    assert child._retriever.lists is parent._retriever.lists
+    r2, p2 = child.generate(*HELD_OUT[:2], **args)
+    assert r2 is not rots and np.array_equal(r2, kept[0]) and np.array_equal(p2, kept[1])
+    child.generate(HELD_OUT[1], HELD_OUT[0], **args)  # the parent's frames stay as they were
+    assert np.array_equal(rots, kept[0]) and np.array_equal(pos, kept[1])
+    child.add(HELD_OUT[2], clips[HELD_OUT[2]])
+    assert HELD_OUT[2] in child.tracks and HELD_OUT[2] not in parent.tracks
+
+
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):
     with pytest.raises(RequestError, match="add one first"):
         TransitionEngine(model).warm_up()

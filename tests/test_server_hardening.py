@@ -146,7 +146,9 @@ def test_engine_pool_shares_clips_and_keeps_buffers_apart(app):
     for e in engines:
         studio._pool.put(e)
     assert len(engines) == POOL_SIZE >= 2
-    assert all(e.tracks is studio.engine.tracks and e.model is studio.engine.model for e in engines)
+    shared = studio.engine.tracks  # the same prepared clips (each engine its own list of them)
+    assert all(e.model is studio.engine.model and e.tracks.keys() == shared.keys()
+               and all(e.tracks[n] is t for n, t in shared.items()) for e in engines)
     assert len({id(e) for e in engines}) == len(engines)
 
 

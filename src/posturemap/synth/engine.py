@@ -156,8 +156,9 @@ class TransitionEngine:
 
     def fork(self) -> TransitionEngine:
         """Another engine for another thread: its own buffers and caches, the same clips, map and
-        motion library (shared, read-only)."""
-        shared = {id(self.model): self.model, id(self.tracks): self.tracks}
+        motion library (shared, read-only). A clip added to one engine afterwards is not in the
+        other."""
+        shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
