@@ -618,16 +618,17 @@ def test_rotation_first_and_partial_position_channels():
 
 def test_number_formats_parse_exactly_like_python_float(monkeypatch):
     rng = np.random.default_rng(8)
+    # (Magnitudes up to the reader's bound, bvh.MAX_ABS_VALUE; beyond it a value is refused, below.)
     values = np.concatenate([rng.normal(0, 100, 600), rng.normal(0, 1e-6, 300), rng.uniform(-1e7, 1e7, 300),
-                             10.0 ** rng.uniform(-40, 40, 300) * rng.choice([-1, 1], 300),
-                             [0.0, -0.0, 2.0 ** 53, 2.0 ** 53 + 2, 9007199254740993.0, 1e22, 1e23, 5e-324]])
+                             10.0 ** rng.uniform(-40, 9, 300) * rng.choice([-1, 1], 300),
+                             [0.0, -0.0, 2.0 ** 29, 2.0 ** 29 + 1, 999999999.5, 1e9, -1e9, 5e-324]])
     formats = ["%.17g", "%.9g", "%.15g", "%.6f", "%e", "%.3E", "%+.4f", "%.0f", "%.12f", "%.20f", "%r"]
     tokens = []
     for k, v in enumerate(values):
         fmt = formats[k % len(formats)]
         tokens.append(repr(float(v)) if fmt == "%r" else fmt % v)
-    tokens += ["1.", ".5", "-.25", "+7", "00012.50", "1e0", "1E+2", "-0", "0e999", "123456789012345678901234",
-               "0.000000000000000000000000001", "1.7976931348623157e308", "4.9e-324"]
+    tokens += ["1.", ".5", "-.25", "+7", "00012.50", "1e0", "1E+2", "-0", "0e999", "123456789.012345678901234",
+               "0.000000000000000000000000001", "1.0000000000000000000001e9", "4.9e-324"]
     tokens = tokens[: len(tokens) // 3 * 3]
     rows = np.array(tokens, dtype=object).reshape(-1, 3)
     text = ("HIERARCHY\nROOT r\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n"
@@ -639,6 +640,18 @@ def test_number_formats_parse_exactly_like_python_float(monkeypatch):
     assert np.array_equal(np.signbit(got), np.signbit(expected))
     without_kernels(monkeypatch)
     assert np.array_equal(bvh.loads(text).positions[:, 0], expected)
+
+
+@pytest.mark.parametrize("token", ["1.0000001e9", "-9007199254740993", "1e22", "123456789012345678901234",
+                                  "1.7976931348623157e308"])
+def test_values_beyond_the_bound_are_refused_on_both_paths(token, monkeypatch):
+    text = GOLDEN.replace("1 0 0 90 90 0", f"1 0 0 90 {token} 0")
+    message = f"x.bvh:{_frame_line(3)}: value beyond +-1e+09 in frame data"
+    with pytest.raises(BVHError, match=re.escape(message)):
+        bvh.loads(text, "x.bvh")
+    without_kernels(monkeypatch)
+    with pytest.raises(BVHError, match=re.escape(message)):
+        bvh.loads(text, "x.bvh")
 
 
 def test_many_long_numbers_take_the_general_path_exactly():
@@ -855,6 +868,10 @@ ERRORS = {
     "non-numeric": (GOLDEN.replace("1 0 0 90 90 0", "1 0 0 90 abc 0"), _frame_line(3), "non-numeric value 'abc'"),
     "comma decimal": (GOLDEN.replace("1 2 3 0", "1,5 2 3 0"), _frame_line(0), "non-numeric value '1,5'"),
     "nan": (GOLDEN.replace("1 0 0 90 90 0", "1 0 0 90 nan 0"), _frame_line(3), "NaN or infinite"),
+    # Finite but no pose: 1e50-1e308 ran through forward kinematics into numpy's overflow warnings
+    # (many lines on stderr) and an error naming the output, or exit 0 with garbage.
+    "huge value": (GOLDEN.replace("1 0 0 90 90 0", "1 0 0 90 1e50 0"), _frame_line(3), "beyond +-1e+09"),
+    "huge offset": (GOLDEN.replace("OFFSET 5 0 0", "OFFSET 5e300 0 0"), 12, "has a value beyond +-1e+09"),
     "NaN": (GOLDEN.replace("1 2 3 0", "1 NaN 3 0"), _frame_line(0), "NaN or infinite"),
     "inf": (GOLDEN.replace("1 2 3 0", "1 inf 3 0"), _frame_line(0), "NaN or infinite"),
     "-inf": (GOLDEN.replace("1 2 3 0", "1 -inf 3 0"), _frame_line(0), "NaN or infinite"),
@@ -920,7 +937,8 @@ def test_error_messages(case, tmp_path):
     assert isinstance(info.value, ValueError)
 
 
-@pytest.mark.parametrize("case", ["too few values", "non-numeric", "nan", "truncated", "compensating lines"])
+@pytest.mark.parametrize("case", ["too few values", "non-numeric", "nan", "huge value", "truncated",
+                                  "compensating lines"])
 def test_error_messages_are_the_same_without_kernels(case, monkeypatch):
     text = ERRORS[case][0]
     with pytest.raises(BVHError) as fast:

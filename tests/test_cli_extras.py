@@ -90,6 +90,33 @@ def test_cli_transition_preview(sample_clips, tmp_path, capsys):
         assert not (tmp_path / "u.bvh").exists()  # checked before anything is written
 
 
+def test_cli_transition_writes_both_outputs_or_neither(sample_clips, tmp_path, capsys, monkeypatch):
+    # The output was written before the filmstrip was drawn: a filmstrip that could not be
+    # written (an immutable folder, a full disk) left the output behind with exit code 2.
+    from posturemap.errors import UserError
+
+    a, b = tmp_path / "walk.bvh", tmp_path / "run.bvh"
+    bvh.write(a, sample_clips["walk"])
+    bvh.write(b, sample_clips["run"])
+    out, png = tmp_path / "u.bvh", tmp_path / "u.png"
+    args = ["transition", str(a), str(b), "-o", str(out), "--preview", str(png), "--method", "slerp"]
+
+    def refused(path, *rest, **kw):
+        raise UserError(str(path), "cannot write file (Operation not permitted)")
+
+    with monkeypatch.context() as m:
+        m.setattr(preview, "_save", lambda fig, path, title: refused(path))
+        assert cli.main(args) == 2
+    assert "u.png: cannot write" in capsys.readouterr().err
+    assert not out.exists() and not png.exists()
+    with monkeypatch.context() as m:  # and the output refused after the filmstrip was drawn
+        m.setattr(bvh, "write", refused)
+        assert cli.main(args) == 2
+    assert "u.bvh: cannot write" in capsys.readouterr().err
+    assert not out.exists() and not png.exists()
+    assert cli.main(args) == 0 and out.exists() and png.exists()
+
+
 # -- optional extras ----------------------------------------------------------------------------
 def hide_modules(monkeypatch, *names):
     """Make ``importlib.util.find_spec`` (and import) fail for ``names``, as if not installed."""

@@ -166,6 +166,13 @@ def _nonfinite(token):
         return False
 
 
+def _huge(token):
+    try:
+        return abs(float(token)) > bvh.MAX_ABS_VALUE
+    except ValueError:
+        return False
+
+
 ERRORS = {
     r"binary data, not a BVH text file": None,
     r"empty file": None,
@@ -191,6 +198,7 @@ ERRORS = {
     r"OFFSET needs 3 numbers, found (\d+)": lambda line, m: len(_tokens(line)) - 1 == int(m[1]),
     r"OFFSET has a non-numeric value": lambda line, m: _tokens(line)[0].upper() == "OFFSET",
     r"OFFSET has a NaN or infinite value": lambda line, m: any(_nonfinite(t) for t in _tokens(line)[1:]),
+    r"OFFSET has a value beyond \+-1e\+09": lambda line, m: any(_huge(t) for t in _tokens(line)[1:]),
     r"CHANNELS needs a count": lambda line, m: _tokens(line)[0].upper() == "CHANNELS",
     r"CHANNELS says (-?\d+) but lists (\d+)": lambda line, m: (int(m[1]) == int(_tokens(line)[1])
                                                             and len(_tokens(line)) - 2 == int(m[2])),
@@ -211,6 +219,7 @@ ERRORS = {
     r"frame has (\d+) values, expected (\d+)": lambda line, m: (len(_tokens(line)) == int(m[1])
                                                                and int(m[1]) != int(m[2])),
     r"NaN or infinite value in frame data": lambda line, m: any(_nonfinite(t) for t in _tokens(line)),
+    r"value beyond \+-1e\+09 in frame data": lambda line, m: any(_huge(t) for t in _tokens(line)),
     r"non-numeric value (.+)": lambda line, m: any(repr(t[:40]) == m[1] for t in _tokens(line)),
 }
 ERROR_PATTERNS = [(re.compile(k), v) for k, v in ERRORS.items()]

@@ -488,13 +488,32 @@ def test_cli_errors(bvh_dir, tmp_path, saved, capsys, fresh):
         (["train", walk, "--classes", unknown, "-o", out], [str(unknown), "unknown joint 'Tail'"]),
         (["train", walk, "--epochs", "0", "-o", out], ["--epochs"]),
         (["train", walk, "--features", "quat", "-o", out], ["--features"]),
+        # Past the bounds a map cannot be computed or written: an infinite radius went into the
+        # file's JSON as Infinity (unreadable), 1e200 overflowed when squared, a neighbourhood
+        # past int64 broke the compiled kernel, a negative seed reached numpy (tracebacks).
+        (["train", walk, "--radius", "inf", "-o", out], ["--radius", "up to 1e+06"]),
+        (["train", walk, "--radius", "1e200", "-o", out], ["--radius"]),
+        (["train", walk, "--neighborhood", "99999999999999999999999", "-o", out], ["--neighborhood"]),
+        (["train", walk, "--epochs", "10001", "-o", out], ["--epochs", "from 1 to 10000"]),
+        (["train", walk, "--seed", "-1", "-o", out], ["--seed", "from 0 to 4294967295"]),
+        (["bench", "--seed", "-1", "--out", tmp_path / "bench"], ["--seed"]),
     ]
     for args, words in cases:
         code, stdout, err = run_cli(*args) if fresh else run_cli_here(capsys, *args)
         check_one_error_line(code, err, *words)
         assert stdout == ""
         assert not out.exists(), args  # nothing written when training fails
+    assert not (tmp_path / "bench").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp")]
+
+
+@pytest.mark.parametrize("params", [dict(radius=float("inf")), dict(radius=1e200), dict(epochs=10**9),
+                                    dict(neighborhood=10**23), dict(seed=-1)])
+def test_parameters_past_their_bounds_are_refused(clips, params):
+    # The same bounds in the API: a map that cannot be computed or written is refused before
+    # training (a radius of inf was trained and saved, and the file could not be read back).
+    with pytest.raises(ValueError, match="radius|epochs|neighborhood|seed"):
+        PostureMap(**params).fit([clips["walk"]])
 
 
 def test_cli_mixed_with_bandai(bvh_dir, bandai_files, tmp_path):

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 
 from . import __version__
 from .errors import UserError, require_extra
+from .learn.limits import MAX_EPOCHS, MAX_NEIGHBORHOOD, MAX_RADIUS, MAX_SEED
 from .synth.request import AUTO_SHORT_S, DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHOD_INFO, METHODS
 
 
@@ -98,7 +100,10 @@ def _checked(convert, ok, rule: str):
 _positive_int = _checked(int, lambda v: v >= 1, "a whole number of at least 1")
 _nonneg_int = _checked(int, lambda v: v >= 0, "a whole number, not negative")
 _gain = _checked(float, lambda v: 0.0 < v < 1.0, "a number between 0 and 1 (exclusive)")
-_positive = _checked(float, lambda v: v > 0, "a positive number or 'auto'")
+_positive = _checked(float, lambda v: 0 < v <= MAX_RADIUS, f"a positive number up to {MAX_RADIUS:g} or 'auto'")
+_hops = _checked(int, lambda v: 0 <= v <= MAX_NEIGHBORHOOD, f"a whole number from 0 to {MAX_NEIGHBORHOOD}")
+_epochs = _checked(int, lambda v: 1 <= v <= MAX_EPOCHS, f"a whole number from 1 to {MAX_EPOCHS}")
+_seed = _checked(int, lambda v: 0 <= v <= MAX_SEED, f"a whole number from 0 to {MAX_SEED}")
 
 
 def _radius(text: str):
@@ -194,21 +199,31 @@ def _cmd_transition(args) -> int:
         raise UserError("--" + e.field.replace("_", "-"), e.what) from None
     a_end = request.a_end
     used = report.get("method", args.method)
-    if as_gltf:
-        stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
-        gltf.write(args.output, out, parts=gltf.transition_parts(a_end + 1, args.length, len(out)),
-                   split=args.split_animations, name=f"{stem(args.a)}_to_{stem(args.b)}",
-                   up=model.space_.up if model is not None else None)
-    else:
-        bvh.write(args.output, out)
+    # The filmstrip first (drawing it is what fails most), then the output; if that cannot be
+    # written, a filmstrip this call made is removed again: an error leaves nothing new.
+    made_preview = False
     if args.preview:
         from .io import preview
         from .core.motion import length_unit
 
+        made_preview = not os.path.exists(args.preview)
         preview.transition_filmstrip(out, a_end + 1, args.length, args.preview,
                                      up=model.space_.up if model is not None else up_axis(out),
                                      title=f"{os.path.basename(args.a)} -> {os.path.basename(args.b)}: "
                                            f"{args.length} {used} frames", unit=length_unit(a))
+    try:
+        if as_gltf:
+            stem = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
+            gltf.write(args.output, out, parts=gltf.transition_parts(a_end + 1, args.length, len(out)),
+                       split=args.split_animations, name=f"{stem(args.a)}_to_{stem(args.b)}",
+                       up=model.space_.up if model is not None else None)
+        else:
+            bvh.write(args.output, out)
+    except BaseException:
+        if made_preview:
+            with contextlib.suppress(OSError):
+                os.remove(args.preview)
+        raise
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames "
           f"+ B[{args.b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
     if "retrieval" in report:
@@ -331,10 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="maximum distance from a posture to its neuron, or 'auto' (default) to derive it "
                         "from the data for each bone class (a number is used for all four: their automatic "
                         "radii differ several times over, see `posturemap inspect MAP`)")
-    t.add_argument("--neighborhood", type=_nonneg_int, default=2, help="initial neighbourhood in graph hops (2)")
-    t.add_argument("--epochs", type=_positive_int, default=4, help="passes over the data (4)")
+    t.add_argument("--neighborhood", type=_hops, default=2, help="initial neighbourhood in graph hops (2)")
+    t.add_argument("--epochs", type=_epochs, default=4, help="passes over the data (4)")
     t.add_argument("--learning-rate", type=_gain, default=0.5, help="initial gain in (0, 1), falls to 0 (0.5)")
-    t.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    t.add_argument("--seed", type=_seed, default=0, help="random seed (0)")
     t.add_argument("--features", choices=("logmap", "euler"), default="logmap",
                    help="posture features: logmap (default, rotation vectors) or euler (the paper's angles)")
     t.add_argument("--classes", metavar="FILE.json", help='bone class overrides {"Joint": "body|global|medium|detail"}')
@@ -392,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--quick", action="store_true", help="small run for CI (about 20 s on 2 idle cores)")
     e.add_argument("--data", default=None, help="data folder holding bandai1/ and cmu/ (default: $POSTUREMAP_DATA)")
     e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")
-    e.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    e.add_argument("--seed", type=_seed, default=0, help="random seed (0)")
     e.set_defaults(func=_cmd_bench)
 
     v = sub.add_parser("serve", help="interactive transition studio in the browser")

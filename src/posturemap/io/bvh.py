@@ -36,6 +36,7 @@ MAX_JOINTS = 10_000
 MAX_DEPTH = MAX_JOINTS  # joints on one chain from a root (the parser keeps its own stack)
 MAX_VALUES = 500_000_000  # frames * channels; beyond this a file is not motion capture
 MAX_FILE_BYTES = 2 << 30  # 2 GiB: larger files are refused before reading
+MAX_ABS_VALUE = 1e9  # a channel or offset value beyond this (in any unit) is not a pose: refused
 MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-4, 10.0  # seconds: 10 kHz .. 0.1 Hz
 
 _CHANNEL_NAMES = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}  # any case
@@ -258,6 +259,8 @@ def _numbers(tokens: list[str], n: int, path: str, lineno: int, what: str) -> np
         raise BVHError(path, lineno, f"{what} has a non-numeric value") from None
     if not np.all(np.isfinite(v)):
         raise BVHError(path, lineno, f"{what} has a NaN or infinite value")
+    if np.any(np.abs(v) > MAX_ABS_VALUE):
+        raise BVHError(path, lineno, f"{what} has a value beyond +-{MAX_ABS_VALUE:g}")
     return v
 
 
@@ -352,8 +355,8 @@ def _parse_frames(raw: bytes | str, text: str | None, offset: int, last_lineno: 
     kernels = _fast_kernels()
     if kernels is not None and num_channels > 0:
         values = _parse_frames_fast(kernels, raw, text, offset, num_frames, num_channels)
-        if values is not None:
-            return values
+        if values is not None and np.all(np.abs(values) <= MAX_ABS_VALUE):
+            return values  # (else the general parser says which line is out of range)
     if text is None:
         text = _decode(raw, path)
     return _parse_frames_general(text[offset:], last_lineno, num_frames, num_channels, path)
@@ -413,6 +416,10 @@ def _parse_frames_general(body_text: str, last_lineno: int, num_frames: int, num
     if bad.any():
         f = int(np.argmax(bad.any(axis=1)))
         raise BVHError(path, numbered[f][0], "NaN or infinite value in frame data")
+    huge = np.abs(values) > MAX_ABS_VALUE
+    if huge.any():
+        f = int(np.argmax(huge.any(axis=1)))
+        raise BVHError(path, numbered[f][0], f"value beyond +-{MAX_ABS_VALUE:g} in frame data")
     return values
 
 

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .limits import MAX_EPOCHS, MAX_NEIGHBORHOOD, MAX_RADIUS
+
 AUTO_SUBSAMPLE = 2000
 AUTO_FACTOR = 3.0
 MIN_EDGE_SUPPORT = 2
@@ -145,8 +147,11 @@ class UniformPostureMap:
             raise ValueError("X has NaN or infinite values")
         if not 0 < self.learning_rate < 1:
             raise ValueError(f"learning_rate must be in (0, 1), got {self.learning_rate}")
-        if int(self.epochs) < 1 or int(self.neighborhood) < 0:
-            raise ValueError("epochs must be >= 1 and neighborhood >= 0")
+        if not 1 <= int(self.epochs) <= MAX_EPOCHS or not 0 <= int(self.neighborhood) <= MAX_NEIGHBORHOOD:
+            raise ValueError(f"epochs must be from 1 to {MAX_EPOCHS} and neighborhood from 0 to {MAX_NEIGHBORHOOD}, "
+                             f"got {self.epochs!r} and {self.neighborhood!r}")
+        if isinstance(self.seed, bool) or not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
+            raise ValueError(f"seed must be a whole number, not negative, got {self.seed!r}")
         return X
 
     def _period(self, d):
@@ -170,8 +175,8 @@ class UniformPostureMap:
             r = auto_radius(X, period, self.seed)
         else:
             r = float(self.radius)
-            if not r > 0:
-                raise ValueError(f"radius must be positive or 'auto', got {self.radius!r}")
+            if not 0 < r <= MAX_RADIUS:  # a larger radius squared overflows; inf is no resolution
+                raise ValueError(f"radius must be a positive number up to {MAX_RADIUS:g} or 'auto', got {self.radius!r}")
         self.radius_ = r
         self.period_ = period
         self.weights_ = np.zeros((0, X.shape[1]))
