@@ -4,6 +4,7 @@ folders only from arguments or ``POSTUREMAP_DATA``, the demo's own output folder
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import sys
@@ -88,6 +89,36 @@ def test_cli_transition_preview(sample_clips, tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and what in err, err
         assert not (tmp_path / "u.bvh").exists()  # checked before anything is written
+
+
+def test_cli_transition_warns_of_a_clip_turned_to_another_up_axis(sample_clips, tmp_path, capsys):
+    # The same rig turned from Y up to Z up passes the skeleton's check; the map's up axis then
+    # turned B about the wrong axis, silently. It is read from the body's extent, which a clip
+    # lying on the floor can mislead, so it warns (one line) rather than refuses.
+    from posturemap.core import quat
+    from posturemap.learn.model import PostureMap
+
+    turn = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)
+
+    def z_up(m):
+        rots, pos = m.rotations.copy(), m.positions.copy()
+        rots[:, 0] = quat.mul(turn, rots[:, 0])
+        pos[:, 0] = quat.mul_vec(turn, pos[:, 0])
+        return dataclasses.replace(m, rotations=rots, positions=pos, source=None)
+
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    m = tmp_path / "map.npz"
+    PostureMap(seed=0, library=False).fit([walk, run_]).save(str(m))
+    for name, clips, warned in (("y", (walk, run_), False), ("z", (z_up(walk), z_up(run_)), True)):
+        a, b = tmp_path / f"walk_{name}.bvh", tmp_path / f"run_{name}.bvh"
+        bvh.write(a, clips[0])
+        bvh.write(b, clips[1])
+        assert cli.main(["transition", str(a), str(b), "-o", str(tmp_path / f"{name}.bvh"), "--map", str(m),
+                         "--method", "slerp", "--length", "10"]) == 0
+        err = capsys.readouterr().err
+        assert err == (f"posturemap: warning: {a}: the body stands along Z, the map's clips along Y: the "
+                       "transition may not line up (a map trained on clips of this orientation would)\n"
+                       if warned else ""), err
 
 
 def test_cli_transition_writes_both_outputs_or_neither(sample_clips, tmp_path, capsys, monkeypatch):

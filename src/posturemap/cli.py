@@ -186,6 +186,14 @@ def _cmd_transition(args) -> int:
     if args.map:
         model = PostureMap.load(args.map)
         model.check_skeleton(a.skeleton, args.a)
+        # The same rig turned to another up axis passes the skeleton's check (its bones are the
+        # same); the map's axis would then turn B and plant the feet wrongly. Read from the
+        # body's extent, which a clip lying on the floor can mislead: a warning, as the studio's.
+        up = up_axis(a)
+        if up != model.space_.up:
+            print(f"posturemap: warning: {args.a}: the body stands along {'XYZ'[up]}, the map's clips along "
+                  f"{'XYZ'[model.space_.up]}: the transition may not line up (a map trained on clips of this "
+                  "orientation would)", file=sys.stderr)
     elif args.method in KEYED:
         model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
     report = {}
