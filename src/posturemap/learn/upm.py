@@ -176,7 +176,8 @@ class UniformPostureMap:
         else:
             r = float(self.radius)
             if not 0 < r <= MAX_RADIUS:  # a larger radius squared overflows; inf is no resolution
-                raise ValueError(f"radius must be a positive number up to {MAX_RADIUS:g} or 'auto', got {self.radius!r}")
+                raise ValueError(f"radius must be a positive number up to {MAX_RADIUS:g} or 'auto', "
+                                 f"got {self.radius!r}")
         self.radius_ = r
         self.period_ = period
         self.weights_ = np.zeros((0, X.shape[1]))

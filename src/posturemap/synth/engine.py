@@ -192,8 +192,8 @@ class TransitionEngine:
         the numpy kernels (unless something else switched), several times slower; and after
         ``kernels.compiled()`` alone the first few calls take 10-500 ms each instead of about one.
 
-        ``methods``: the methods (or one method's name) the caller will ask for (those needing a map are skipped
-        without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
+        ``methods``: the methods (or one method's name) the caller will ask for (those needing a
+        map are skipped without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
         transitions run between the first and the last clip added, from their ends and their
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
         B where it is (matches of every confidence, as these clips give them); then, with a
@@ -216,21 +216,24 @@ class TransitionEngine:
         # its own, and keeps those of lengths no call has asked for yet.
         last, count, buffers = self.last, 0, self._buffers
         self._buffers = {}
-        for method in runnable:
-            for length in lengths:
-                for a_end, b_start in seams:
-                    for align in (True, False):
-                        self.generate(a, b, method=method, length=length, a_end=a_end, b_start=b_start, align=align)
-                        count += 1
-        if self._retriever is not None:
-            # What runs only at one confidence, whichever the schedule's matches had: every
-            # part retrieved (the open columns) and a splice (when both halves fit at all).
-            ta, tb = self.tracks[a], self.tracks[b]
-            for length in lengths:
-                _open_columns(self, ta, tb, na - 1, 0, length)
-                spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
-        self.last = last
-        self._buffers = {**self._buffers, **buffers}
+        try:
+            for method in runnable:
+                for length in lengths:
+                    for a_end, b_start in seams:
+                        for align in (True, False):
+                            self.generate(a, b, method=method, length=length, a_end=a_end, b_start=b_start,
+                                          align=align)
+                            count += 1
+            if self._retriever is not None:
+                # What runs only at one confidence, whichever the schedule's matches had: every
+                # part retrieved (the open columns) and a splice (when both halves fit at all).
+                ta, tb = self.tracks[a], self.tracks[b]
+                for length in lengths:
+                    _open_columns(self, ta, tb, na - 1, 0, length)
+                    spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
+        finally:
+            self.last = last
+            self._buffers = {**self._buffers, **buffers}
         return count
 
     def _track(self, field: str, name: str) -> Track:
