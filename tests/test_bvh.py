@@ -645,13 +645,8 @@ def test_number_formats_parse_exactly_like_python_float(monkeypatch):
 @pytest.mark.parametrize("token", ["1.0000001e9", "-9007199254740993", "1e22", "123456789012345678901234",
                                   "1.7976931348623157e308"])
 def test_values_beyond_the_bound_are_refused_on_both_paths(token, monkeypatch):
-    text = GOLDEN.replace("1 0 0 90 90 0", f"1 0 0 90 {token} 0")
-    message = f"x.bvh:{_frame_line(3)}: value beyond +-1e+09 in frame data"
-    with pytest.raises(BVHError, match=re.escape(message)):
-        bvh.loads(text, "x.bvh")
-    without_kernels(monkeypatch)
-    with pytest.raises(BVHError, match=re.escape(message)):
-        bvh.loads(text, "x.bvh")
+    refused_on_both_paths(GOLDEN.replace("1 0 0 90 90 0", f"1 0 0 90 {token} 0"),
+                          f"x.bvh:{_frame_line(3)}: value beyond +-1e+09 in frame data", monkeypatch)
 
 
 def test_many_long_numbers_take_the_general_path_exactly():
@@ -949,14 +944,18 @@ def test_error_messages_are_the_same_without_kernels(case, monkeypatch):
     assert str(fast.value) == str(general.value)
 
 
-def test_error_line_numbers_count_blank_lines(monkeypatch):
-    text = GOLDEN.replace("Frame Time: 0.04\n", "Frame Time: 0.04\n\n\n").replace("1 0 0 90 90 0", "1 0 0 90 ? 0")
-    expected = f"x.bvh:{_frame_line(3) + 2}: non-numeric value '?'"
+def refused_on_both_paths(text: str, expected: str, monkeypatch) -> None:
+    """``bvh.loads(text, "x.bvh")`` raises ``expected`` with the compiled parser and without it."""
     with pytest.raises(BVHError, match=re.escape(expected)):
         bvh.loads(text, "x.bvh")
     without_kernels(monkeypatch)
     with pytest.raises(BVHError, match=re.escape(expected)):
         bvh.loads(text, "x.bvh")
+
+
+def test_error_line_numbers_count_blank_lines(monkeypatch):
+    text = GOLDEN.replace("Frame Time: 0.04\n", "Frame Time: 0.04\n\n\n").replace("1 0 0 90 90 0", "1 0 0 90 ? 0")
+    refused_on_both_paths(text, f"x.bvh:{_frame_line(3) + 2}: non-numeric value '?'", monkeypatch)
 
 
 def test_large_frame_count_with_short_body_allocates_little():

@@ -163,7 +163,7 @@ class TransitionEngine:
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
         if self._retriever is not None:  # and its rows of the library's frames (read only)
-            for name in ("_mats", "_lists", "_index_w"):
+            for name in ("_mats", "_index_w"):
                 value = getattr(self._retriever, name, None)
                 if value is not None:
                     shared[id(value)] = value
@@ -193,14 +193,13 @@ class TransitionEngine:
         ``kernels.compiled()`` alone the first few calls take 10-500 ms each instead of about one.
 
         ``methods``: the methods (or one method's name) the caller will ask for (those needing a
-        map are skipped without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks with it. The
-        transitions run between the first and the last clip added, from their ends and their
+        map are skipped without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks
+        with it. The transitions run between the first and the last clip added, from their ends and their
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
         B where it is (matches of every confidence, as these clips give them); then, with a
         motion library, what runs at one confidence only (every part retrieved; a splice), run
         directly. Returns the number of transitions run; :attr:`last` and the frames earlier calls
-        returned are left as they were. Raises
-        :class:`RequestError` when no clip has been added."""
+        returned are left as they were. Raises :class:`RequestError` when no clip has been added."""
         if not self.tracks:
             raise RequestError("a", "no clips to warm up with (add one first)")
         methods = (methods,) if isinstance(methods, str) else tuple(methods)
@@ -265,14 +264,7 @@ class TransitionEngine:
         if not same_fps(ta.motion.fps, tb.motion.fps):
             raise RequestError("b", f"clip {b!r} is at {tb.motion.fps:g} fps, {a!r} at {ta.motion.fps:g} fps: "
                                     "resample one clip to the other's rate first (posturemap.resample)")
-        if request is not None and not isinstance(request, TransitionRequest):
-            raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
-                            "(give its fields as keywords: length=..., alpha=...)")
-        if request is None:
-            req = TransitionRequest(**fields)  # what replacing the defaults' fields makes, in one step
-        else:
-            req = request.replace(**fields) if fields else request
-        req = req.resolved(len(ta.gpos), len(tb.gpos))
+        req = TransitionRequest.of(request, **fields).resolved(len(ta.gpos), len(tb.gpos))
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
         return _RUN[req.method](self, ta, tb, a, b, req)
@@ -716,13 +708,10 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     -------
     Motion with ``a_end + 1 + length + len(b) - b_start`` frames, A's skeleton and fps.
     """
-    if request is not None and not isinstance(request, TransitionRequest):
-        raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
-                        "(give its fields as keywords: length=..., alpha=...)")
+    req = TransitionRequest.of(request, **fields)
     engine = TransitionEngine(model, a.skeleton if model is None else None)
     engine.add("a", a)
     engine.add("b", b)
-    req = (request if request is not None else TransitionRequest()).replace(**fields)
     req = req.resolved(len(a), len(b))
     rots, pos = engine.generate("a", "b", req)
     if report is not None:

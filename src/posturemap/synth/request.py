@@ -150,6 +150,19 @@ class TransitionRequest:
         """A copy with some fields changed."""
         return dataclasses.replace(self, **fields)
 
+    @classmethod
+    def of(cls, request: TransitionRequest | None = None, **fields) -> TransitionRequest:
+        """``request`` (default: the defaults) with ``fields`` on top: what :meth:`generate
+        <posturemap.synth.engine.TransitionEngine.generate>` and
+        :func:`~posturemap.synth.engine.transition` take. A ``TypeError`` for anything else than a
+        request (a dict of fields, say)."""
+        if request is None:
+            return cls(**fields)  # what replacing the defaults' fields makes, in one step
+        if not isinstance(request, cls):
+            raise TypeError(f"request must be a TransitionRequest, got {type(request).__name__} "
+                            "(give its fields as keywords: length=..., alpha=...)")
+        return request.replace(**fields) if fields else request
+
     def resolved(self, len_a: int, len_b: int, *, max_length: int = MAX_LENGTH, names: tuple[str, str] | None = None
                  ) -> TransitionRequest:
         """The request checked against clips of ``len_a`` and ``len_b`` frames, defaults filled in.

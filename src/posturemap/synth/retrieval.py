@@ -165,7 +165,6 @@ class Retriever:
             cols = np.flatnonzero(np.isin(index_dims, dims))
             self.index_cols.append(cols if len(cols) else np.arange(len(index_dims)))
         self._mats = None
-        self._lists = None  # see lists
         self._index_w = None
         self._plan = None  # see _scale_plan
         self._dims_of = {}  # see seam_distances
@@ -440,9 +439,7 @@ class Retriever:
         instead of 188 (Bandai). They depend on the library alone and are kept with it
         (:meth:`~posturemap.synth.library.MotionLibrary.derived`): every engine serving it shares
         them."""
-        if self._lists is None:
-            self._lists = self.lib.derived(("search lists", W_VEL, W_ROOT), self._build_lists)
-        return self._lists
+        return self.lib.derived(("search lists", W_VEL, W_ROOT), self._build_lists)
 
     def _build_lists(self):
         lib = self.lib
