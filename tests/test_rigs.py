@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from posturemap.core import kernels
 from posturemap.core.joints import key_joints, leg_chains, leg_toes
 from posturemap.core.motion import Motion, root_index, up_axis
 from posturemap.core.skeleton import Skeleton
@@ -233,3 +234,29 @@ def test_the_upper_bodys_top_is_the_spine_not_a_hip_joint(cmu_file, sample_clips
     sk = bvh.read(cmu_file).skeleton
     lower, upper = part_masks(sk, root_index(sk))
     assert upper[sk.index("LHipJoint")] and upper[sk.index("RHipJoint")]
+
+
+def test_a_rig_whose_offsets_are_all_zero_still_makes_finite_transitions(sample_clips):
+    # Every joint at the root's place (offsets zeroed: a rig exported without its rest pose):
+    # speeds and distances divided by the legs' length divided by zero (a traceback, or NaN
+    # frames from the foot lock). The legs have no length, so the scale is the one of a rig without legs.
+    import posturemap
+    from posturemap.core.joints import leg_length
+
+    m = sample_clips["walk"]
+    sk = m.skeleton
+    flat = Skeleton(sk.names, sk.parents, np.zeros_like(sk.offsets), sk.channels, sk.end_sites)
+    pos = m.positions.copy()
+    pos[:, 1:] = 0.0
+    z = Motion(flat, m.rotations.copy(), pos, m.fps)
+    assert leg_chains(flat) and leg_length(flat) == 1.0
+    model = posturemap.PostureMap(seed=0).fit([z])
+    for method in posturemap.METHODS:
+        for align in (True, False):
+            out = posturemap.transition(z, z, model, length=15, a_end=20, b_start=40, method=method, align=align)
+            assert np.isfinite(out.rotations).all() and np.isfinite(out.positions).all(), (method, align)
+    # The numpy foot lock too, and a leg that cannot bend is left as it is: the same frames as without the lock.
+    with kernels.numpy_backend(), np.errstate(all="raise"):
+        locked = posturemap.transition(z, z, model, length=15, a_end=20, b_start=40, method="slerp")
+        free = posturemap.transition(z, z, model, length=15, a_end=20, b_start=40, method="slerp", foot_lock=False)
+    np.testing.assert_allclose(locked.rotations, free.rotations, atol=1e-12)

@@ -205,12 +205,13 @@ LEGS_MISSING = ("none found by name (an ankle named foot or ankle, under a shin 
 
 def leg_length(sk: Skeleton, chains=None) -> float:
     """Mean thigh + shin bone length of the legs (from the offsets, through any twist joints
-    between), in the skeleton's unit; 1.0 without legs. ``chains`` defaults to :func:`leg_chains`."""
+    between), in the skeleton's unit; 1.0 without legs, or where every leg found has no length
+    (a rig whose offsets are all zero: speeds and distances are divided by this).
+    ``chains`` defaults to :func:`leg_chains`."""
     chains = leg_chains(sk) if chains is None else chains
-    if not chains:
-        return 1.0
-    return float(np.mean([_rest_distance(sk, thigh, shin) + _rest_distance(sk, shin, ankle)
-                          for thigh, shin, ankle in chains]))
+    lengths = [_rest_distance(sk, thigh, shin) + _rest_distance(sk, shin, ankle) for thigh, shin, ankle in chains]
+    lengths = [x for x in lengths if x > 0.0]
+    return float(np.mean(lengths)) if lengths else 1.0
 
 
 def legs_root(sk: Skeleton, chains=None) -> int:

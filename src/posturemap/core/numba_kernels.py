@@ -465,6 +465,8 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
         reach = lab + lcb
         lat = _soft_limit(lat, max(math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2), (1.0 - soft) * reach),
                           reach)
+    if min(lab, lcb) <= eps:  # a thigh or shin of no length cannot bend: the leg as it is
+        return (a_lr[0], a_lr[1], a_lr[2], a_lr[3]), (b_lr[0], b_lr[1], b_lr[2], b_lr[3])
     lat = min(max(lat, eps), lab + lcb - eps)
     ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
     ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)

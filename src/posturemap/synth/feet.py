@@ -141,10 +141,14 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     lat = np.linalg.norm(t - a, axis=-1)
     if soft > 0:
         lat = soft_limit(lat, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * (lab + lcb)), lab + lcb)
+    # A thigh or shin of no length (a rig whose offsets are zero) cannot bend: that leg is left as it is.
+    rigid = np.minimum(lab, lcb) <= eps
+    lab, lcb = np.where(rigid, 1.0, lab), np.where(rigid, 1.0, lcb)
     lat = np.clip(lat, eps, lab + lcb - eps)
     ac_ab_0, ba_bc_0, ac_at_0 = angle(c - a, b - a), angle(a - b, c - b), angle(c - a, t - a)
-    ac_ab_1 = np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0))
-    ba_bc_1 = np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0))
+    ac_ab_1 = np.where(rigid, ac_ab_0, np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0)))
+    ba_bc_1 = np.where(rigid, ba_bc_0, np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0)))
+    ac_at_0 = np.where(rigid, 0.0, ac_at_0)
     axis1 = _unit_rows(np.cross(c - a, t - a))
     r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
     r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
