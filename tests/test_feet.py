@@ -378,25 +378,34 @@ def test_soft_limit_is_the_value_until_its_start_then_bends_onto_the_limit():
         np.testing.assert_allclose([jit._soft_limit(v, st, lim) for v in xs], soft_limit(xs, st, lim), rtol=1e-12)
 
 
-def test_a_far_spot_drags_the_foot_instead_of_letting_it_go(sample_clips):
-    # A foot planted on a spot a growing distance from where the motion puts it: held exactly
-    # while the spot is within MAX_DRIFT[0] leg lengths, then moved ever less of the way, never
-    # more than MAX_DRIFT[1]; the weight is the fraction of the way.
-    m = sample_clips["walk"]
+def sliding_stance(m, length=20):
+    """A run of ``length`` frames of ``m`` standing on one frame, its first leg's foot sliding
+    sideways 0 to 0.6 leg lengths while its contacts say planted (the last frame not), A's end
+    planted on the first frame's spot, B's far away: ``(sk, chains, rots, pos, up, a_feet,
+    b_feet, contacts, g, leg, side)``, ``g`` the ankle's global positions before the slide."""
     sk, up = m.skeleton, up_axis(m)
     chains = leg_chains(sk)[:1]
     leg = leg_length(sk, chains)
-    length = 20
     rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
     g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
     side = (np.arange(3) == (up + 1) % 3).astype(float)
-    # The motion's foot slides sideways (0 to 0.6 leg lengths) while its contacts say planted;
-    # A's end planted on the first frame's spot.
     pos[:, 0] -= np.linspace(0.0, 0.6 * leg, length)[:, None] * side
     a_feet = np.repeat(g[:1], 2, axis=0)[:, None]
     b_feet = a_feet + 5 * leg * side  # far away and not relevant (no run reaches B)
     contacts = np.ones((length, 1), dtype=bool)
     contacts[-1] = False
+    return sk, chains, rots, pos, up, a_feet, b_feet, contacts, g, leg, side
+
+
+def test_a_far_spot_drags_the_foot_of_a_run_too_short_to_step(sample_clips, monkeypatch):
+    # A foot planted on a spot a growing distance from where the motion puts it, in a run too
+    # short for a step (the step made longer than the run): held exactly while the spot is
+    # within MAX_DRIFT[0] leg lengths, then moved ever less of the way, never more than
+    # MAX_DRIFT[1]; the weight is the fraction of the way.
+    monkeypatch.setattr(feet, "STEP_S", 10.0)
+    m = sample_clips["walk"]
+    length = 20
+    sk, chains, rots, pos, up, a_feet, b_feet, contacts, g, leg, side = sliding_stance(m, length)
     for r, w in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts).values():
         ankle = fk(sk.parents, r, pos)[1][:, chains[0][2]]
         moved = np.linalg.norm((ankle - g[:1]) * (1 - (np.arange(3) == up)), axis=-1) / leg
@@ -409,6 +418,89 @@ def test_a_far_spot_drags_the_foot_instead_of_letting_it_go(sample_clips):
         correction = slide - moved[:-1]
         assert np.all(moved[:-1][~held] > 0) and np.all(np.diff(correction[~held]) > 0)
         assert np.all(correction[~held] > MAX_DRIFT[0] - 1e-9) and np.all(correction < MAX_DRIFT[1])
+
+
+def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips):
+    # The same sliding stance, in a run long enough for a step: the foot is not dragged but held
+    # on A's spot, then steps (lifted) in the run's middle to where it lifts off, moved back
+    # toward A's spot by MAX_DRIFT[0] leg lengths (what the lock holds without dragging).
+    m = sample_clips["walk"]
+    length = 20
+    sk, chains, rots, pos, up, a_feet, b_feet, contacts, g, leg, side = sliding_stance(m, length)
+    step = round(feet.STEP_S * m.fps)
+    assert length - 1 >= step + 2
+    k0 = (length - 1 - step) // 2
+    flat = 1 - (np.arange(3) == up)
+    lift_off = fk(sk.parents, rots, pos)[1][length - 2, chains[0][2]] * flat
+    landing = lift_off + (g[0] * flat - lift_off) * MAX_DRIFT[0] * leg / np.linalg.norm(g[0] * flat - lift_off)
+    for r, w in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts).values():
+        ankle = fk(sk.parents, r, pos)[1][:, chains[0][2]]
+        assert np.all(w[:-1, 0] == 1)  # every spot within the drift: held all through, never dragged
+        np.testing.assert_allclose(ankle[:k0] * flat, np.tile(g[0] * flat, (k0, 1)), atol=1e-6)
+        np.testing.assert_allclose(ankle[k0 + step: length - 1] * flat,
+                                   np.tile(landing, (length - 1 - k0 - step, 1)), atol=1e-6)
+        # On the ground before the step, off it in the step (after it, the toe's clearance of the
+        # last frame's swing may lift the foot a little: not asserted).
+        heights = ankle[:, up] - g[:, up]
+        assert np.all(np.abs(heights[:k0]) < 1e-6)
+        assert heights[k0 + step // 2] > 0.5 * min(feet.STEP_LIFT * leg, 0.5 * np.linalg.norm(landing - g[0] * flat))
+
+
+def test_a_run_held_to_one_seam_steps_there_when_it_lands_far_and_lets_go_where_that_foot_moves():
+    length, step = 20, 6
+    h = np.zeros(length)
+    horiz = np.zeros((length, 3))
+    a_spot, b_spot = np.array([100.0, 0, 0]), np.array([30.0, 0, 0])
+    on = np.zeros(length, bool)
+    on[5:] = True  # lands on frame 5 at the origin and stays until B, where B's spot is 30 away
+    w, target, raised = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, 0.0, 1.0, on=on, step=step,
+                                                 lift=4.0, reach=10.0)
+    assert np.all(w[5:] == 1) and not w[:5].any()
+    # Held where it lands moved 10 (the reach) toward B's spot, a step of `step` frames in the
+    # run's middle, then B's spot; lifted (at most `lift`) in the step only.
+    k0 = 5 + (15 - step) // 2
+    np.testing.assert_array_equal(target[5:k0], np.tile([10.0, 0, 0], (k0 - 5, 1)))
+    np.testing.assert_array_equal(target[k0 + step:], np.tile(b_spot, (length - k0 - step, 1)))
+    assert np.all(np.diff(target[k0 - 1: k0 + step + 1, 0]) > 0)
+    assert np.all(raised[k0: k0 + step] > 0) and raised.max() <= 4.0 and not raised[:k0].any()
+    # Within the reach, or without room for a step, B's spot all through, as before.
+    for kw in ({"reach": 40.0}, {"reach": 10.0, "step": 14}):
+        w2, t2, r2 = lock_weights_and_targets(h, horiz, False, a_spot, True, b_spot, 0.0, 1.0, on=on,
+                                              **{"step": step, "lift": 4.0, **kw})
+        np.testing.assert_array_equal(t2[5:], np.tile(b_spot, (15, 1)))
+        assert not r2.any()
+    # B's foot not planted: the run is held (on the middle of its frames) but for its last `step`
+    # frames, where the foot goes to B's through the air; all of it without a step.
+    w3, t3, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=on, step=step)
+    assert np.all(w3[5: length - step] == 1) and not w3[length - step:].any()
+    w4, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=on)
+    assert not w4.any()
+    # Likewise at A's end: a run from A's first new frame where A's foot moves is let go in its first frames.
+    w5, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=~on, step=2)
+    assert not w5[:2].any() and np.all(w5[2:5] == 1) and not w5[5:].any()
+
+
+def test_a_foot_planted_at_b_is_told_by_bs_floor_not_by_the_new_frames(sample_clips):
+    # The new frames stand 3 contact heights lower than B (a blend, an interpolation): measured
+    # against the lowest ankle of the new frames and the seams, B's planted foot looked lifted,
+    # and the run that reaches it was let go; against B's own floor it is held on B's spot.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)[:1]
+    leg = leg_length(sk, chains)
+    length = 20
+    rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+    g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
+    pos[:, 0, up] -= 3 * feet.CONTACT_HEIGHT * leg
+    b_feet = np.repeat(g[:1], 2, axis=0)[:, None]
+    a_feet = b_feet + np.eye(3)[up] * leg  # A's foot in the air
+    contacts = np.ones((length, 1), dtype=bool)
+    floors = (float(a_feet[..., up].min()), float(b_feet[..., up].min()))
+    for kw, held in (({}, False), ({"seam_floors": floors}, True)):
+        out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, **kw)
+        for r, w in out.values():
+            assert np.all(w[-3:, 0] == 1) == held and (not w[-3:, 0].any()) == (not held)
+        np.testing.assert_allclose(out["numpy"][0], out["numba"][0], atol=IK_ATOL)
 
 
 def test_soft_ik_bends_the_knee_smoothly_near_full_reach():

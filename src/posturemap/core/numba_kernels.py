@@ -560,7 +560,7 @@ def _carried(g, grot, t, top, joint):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
-              weights):
+              a_floor, b_floor, reach, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -574,7 +574,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
-    :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); weights (L, n) out.
+    :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
+    b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
+    frames and the new frames); reach (length unit): how far a run held on one seam's spot may lie
+    from the foot's other end before it steps (``lock_weights_and_targets``); weights (L, n) out.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -593,9 +596,11 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         for t in range(n_l):
             floor = min(floor, gpos[t, ankle, up])
         da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
-        a_on = a_feet[1, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        fa = floor if math.isnan(a_floor) else a_floor
+        fb = floor if math.isnan(b_floor) else b_floor
+        a_on = a_feet[1, leg, up] < fa + height_tol and math.sqrt(da * da + db * db) < speed_tol
         da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
-        b_on = b_feet[0, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        b_on = b_feet[0, leg, up] < fb + height_tol and math.sqrt(da * da + db * db) < speed_tol
         if contacts.shape[0] > 0:
             for t in range(n_l):
                 on[t] = contacts[t, leg]
@@ -606,17 +611,17 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 speed = math.sqrt((ha - pa) ** 2 + (hb - pb) ** 2)
                 on[t] = gpos[t, ankle, up] < floor + height_tol and speed < speed_tol
                 pa, pb = ha, hb
-        # A run at a seam where that clip's foot is not planted would jump.
+        # A run at a seam where that clip's foot is not planted would jump: let go there.
         first_stop = 0
         while first_stop < n_l and on[first_stop]:
             first_stop += 1
+        if first_stop > 0 and not a_on:
+            on[:step if 0 < step <= first_stop - 2 else first_stop] = False
         last_start = n_l
         while last_start > 0 and on[last_start - 1]:
             last_start -= 1
-        if first_stop > 0 and not a_on:
-            on[:first_stop] = False
         if last_start < n_l and not b_on:
-            on[last_start:] = False
+            on[n_l - step if 0 < step <= n_l - last_start - 2 else last_start:] = False
         # Lock weights and targets (posturemap.synth.feet.lock_weights_and_targets).
         for t in range(n_l):
             weight[t] = 0.0
@@ -634,15 +639,25 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             from_a = start == 0 and a_on
             to_b = stop == n_l and b_on
             n = stop - start
-            k = max(0, min(step, n - 2))  # A's spot, the step over k frames in the middle, B's spot
+            k = max(0, min(step, n - 2))  # the first spot, the step over k frames in the middle, the last
             k0 = (n - k) // 2
             xa, xb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]
+            # A run on one seam's spot steps where the foot's other end lies beyond the drift.
+            stepping = from_a and to_b
+            if not stepping and n >= step + 2 and (from_a or to_b):
+                f = stop - 1 if from_a else start
+                ea, eb = gpos[f, ankle, a_], gpos[f, ankle, b_]
+                far = math.sqrt((ea - xa) ** 2 + (eb - xb) ** 2) if from_a else math.sqrt((ya - ea) ** 2 + (yb - eb) ** 2)
+                if from_a and far > reach:  # the lift-off moved toward A's spot by reach
+                    ya, yb, stepping = ea + (xa - ea) * (reach / far), eb + (xb - eb) * (reach / far), True
+                elif to_b and far > reach:  # the landing moved toward B's spot by reach
+                    xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
             high = min(lift, 0.5 * math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2))
             ma, mb = gpos[(start + stop - 1) // 2, ankle, a_], gpos[(start + stop - 1) // 2, ankle, b_]
             for u in range(start, stop):
                 i = u - start
-                if from_a and to_b:
+                if stepping:
                     if i >= k0 + k:
                         sa, sb = ya, yb
                     elif i < k0:

@@ -283,8 +283,11 @@ class TransitionEngine:
         na, nb = round(FLOOR_S * ta.motion.fps) + 1, round(FLOOR_S * tb.motion.fps) + 1
         toe_floor = min(ta.lowest_toe[max(a_end + 1 - na, 0): a_end + 1].min().item(),
                         tb.lowest_toe[b_start: b_start + nb].min().item() + shift[self._up].item())
+        # Whether a foot is planted at a seam: against that clip's own floor, its lowest ankle there.
+        seam_floors = (ta.feet[max(a_end + 1 - na, 0): a_end + 1, :, self._up].min().item(),
+                       tb.feet[b_start: b_start + nb, :, self._up].min().item() + shift[self._up].item())
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
-                         ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes)
+                         ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""

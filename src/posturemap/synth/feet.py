@@ -212,7 +212,7 @@ def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
 
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
-                             speed_tol=np.inf, on=None, step=0, lift=0.0):
+                             speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -223,13 +223,22 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     the target the foot's own position (:func:`swing_offsets` carries the runs' corrections
     through the frames between them). ``on`` (L,) bool, when given, says which frames are planted
     instead (e.g. the contacts of a retrieved real segment). A run that begins at A's end where
-    A's foot is not planted (or ends at B's start where B's is not) is not held: its spot would
-    jump there.
+    A's foot is not planted (or ends at B's start where B's is not) is not held in its ``step``
+    frames at that seam (all of it without a step or where it is shorter than ``step`` + 2): held up to the seam, its
+    spot would jump there; let go, its offset passes to the seam's through the air.
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
     with a smoothstep while the foot rises by ``lift`` (at most half the step's length) on a
     half sine and comes down on B's spot. The lift (L,) is added to the ankle's height.
+
+    A run held on one seam's spot only steps too where that spot lies farther than ``reach``
+    from where the motion puts the foot at the run's other end (two real segments blended with
+    their stances apart, a seam's offset): a run ending at B's start holds the foot where it
+    lands, then steps onto B's spot; a run starting at A's end holds A's spot, then steps to
+    where the foot lifts off. Held on the one spot, such a foot would be dragged there (the lock
+    moves a foot by at most about ``MAX_DRIFT`` of a leg; :func:`lock_feet`). It needs ``step``
+    frames and one more at each end; a shorter run keeps the one spot.
     """
     length = len(h)
     if on is None:
@@ -239,32 +248,30 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     else:
         on = np.array(on, dtype=bool)
     # A run at a seam where that clip's foot is not planted would jump there (to B's spot from
-    # A's first new frame): it is not held.
+    # A's first new frame): its ``step`` frames at that seam are not held (the foot goes to the
+    # seam's through the air), nor the whole run where fewer than two frames would be left.
     runs = contact_runs(on)
     if runs and runs[0][0] == 0 and not a_on:
-        on[: runs[0][1]] = False
+        on[: step if 0 < step <= runs[0][1] - 2 else runs[0][1]] = False
+    runs = contact_runs(on)
     if runs and runs[-1][1] == length and not b_on:
-        on[runs[-1][0]:] = False
+        on[length - step if 0 < step <= length - runs[-1][0] - 2 else runs[-1][0]:] = False
     weight = np.zeros(length)
     raised = np.zeros(length)
     target = horiz.copy()
     for start, stop in contact_runs(on):
         from_a = start == 0 and a_on
         to_b = stop == length and b_on
-        spot = np.empty((stop - start, 3))
-        if from_a and to_b:
-            # Planted all through: A's spot, a step in the middle of the run, B's spot.
-            n = stop - start
-            k = max(0, min(step, n - 2))  # a run of 1 or 2 frames: A's spot (if 2), then B's
-            k0 = (n - k) // 2
-            spot[:k0], spot[k0 + k:] = a_spot, b_spot
-            if k > 0:
-                u = np.arange(1, k + 1) / (k + 1.0)
-                spot[k0: k0 + k] = a_spot + (u * u * (3 - 2 * u))[:, None] * (b_spot - a_spot)
-                high = min(lift, 0.5 * float(np.linalg.norm(b_spot - a_spot)))
-                raised[start + k0: start + k0 + k] = high * np.sin(np.pi * u)
+        n = stop - start
+        spot = np.empty((n, 3))
+        if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
+            _step(spot, raised[start:stop], a_spot, b_spot, step, lift)
+        elif from_a and n >= step + 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
+            _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
         elif from_a:
             spot[:] = a_spot
+        elif to_b and n >= step + 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
+            _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift)
         elif to_b:
             spot[:] = b_spot
         else:
@@ -272,6 +279,25 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         weight[start:stop] = 1.0
         target[start:stop] = spot
     return weight, target, raised
+
+
+def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
+    """``x`` moved ``reach`` toward ``y`` (which lies farther)."""
+    return x + (y - x) * (reach / float(np.linalg.norm(y - x)))
+
+
+def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float):
+    """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
+    the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
+    frames: ``first`` (if 2), then ``last``."""
+    n = len(spot)
+    k = max(0, min(step, n - 2))
+    k0 = (n - k) // 2
+    spot[:k0], spot[k0 + k:] = first, last
+    if k > 0:
+        u = np.arange(1, k + 1) / (k + 1.0)
+        spot[k0: k0 + k] = first + (u * u * (3 - 2 * u))[:, None] * (last - first)
+        raised[k0: k0 + k] = min(lift, 0.5 * float(np.linalg.norm(last - first))) * np.sin(np.pi * u)
 
 
 def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
@@ -311,7 +337,7 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
-              contacts=None, body: float | None = None, toe_floor=None, toes=None) -> np.ndarray:
+              contacts=None, body: float | None = None, toe_floor=None, toes=None, seam_floors=None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
@@ -323,7 +349,11 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     keeps them. ``toe_floor``, when given: the lowest height of the toes in the context (the
     engine: over A's last ``FLOOR_S`` seconds and B's first); a toe under it is lifted out, held
     or not. Without it, the lowest toe of a held foot in the new frames, or with none held, the
-    lowest toe in the new frames.
+    lowest toe in the new frames. ``seam_floors``, when given: the lowest ankle of A's last
+    ``FLOOR_S`` seconds and of B's first (B's as aligned), the floors that say whether a foot is
+    planted at each seam; without them, a leg's lowest ankle in its four seam frames and the new
+    frames (which a blend or an interpolation can take under the floor B stands on: B's foot,
+    planted, was then taken for lifted, and its run was not held).
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -338,6 +368,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     toe_floor = np.inf if toe_floor is None else float(toe_floor)
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
+    a_floor, b_floor = (np.nan, np.nan) if seam_floors is None else (float(seam_floors[0]), float(seam_floors[1]))
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
@@ -349,7 +380,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
-                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), weights)
+                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor, MAX_DRIFT[0] * body, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -358,16 +389,17 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
         floor = min(context_h.min(), h.min())
-        a_on = (a_feet[1, leg, up] < floor + height_tol
+        a_on = (a_feet[1, leg, up] < (floor if np.isnan(a_floor) else a_floor) + height_tol
                 and np.linalg.norm((a_feet[1, leg] - a_feet[0, leg]) * flat) < speed_tol)
-        b_on = (b_feet[0, leg, up] < floor + height_tol
+        b_on = (b_feet[0, leg, up] < (floor if np.isnan(b_floor) else b_floor) + height_tol
                 and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
         horiz = gpos[:, ankle] * flat
         speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
         on = None if contacts is None else contacts[:, leg]
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
-                                                          on, round(STEP_S * fps), STEP_LIFT * body)
+                                                          on, round(STEP_S * fps), STEP_LIFT * body,
+                                                          MAX_DRIFT[0] * body)
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
