@@ -89,3 +89,32 @@ def test_the_other_dataset_sample_takes_the_same_number_from_every_cell(tmp_path
     assert mod.sample_files(tmp_path, 2, seed=0) == picked
     draws = {tuple(p.name for p, _, _ in mod.sample_files(tmp_path, 2, seed=s)) for s in range(8)}
     assert len(draws) > 1
+
+
+def test_the_transition_feet_script_measures_skate_against_the_real_clips(bandai_paths, monkeypatch):
+    from posturemap.core.joints import leg_chains, leg_toes
+    from posturemap.learn.model import PostureMap
+    from posturemap.synth.engine import TransitionEngine
+
+    monkeypatch.syspath_prepend(str(BENCH))
+    mod = _module("transition_feet")
+    names = ["walk_normal_001", "run_normal_001", "bow_normal_001"]
+    paths = bandai_paths(names)
+    clips = [bvh.read(paths[n]) for n in names]
+    engine = TransitionEngine(PostureMap(seed=0).fit(clips, names))
+    for n, m in zip(names, clips):
+        engine.add(n, m)
+    # A body standing still has no skate; a walk has some.
+    sk = clips[0].skeleton
+    chains = leg_chains(sk)
+    feet = np.array([c[2] for c in chains] + leg_toes(sk, chains).tolist())
+    walk = clips[0]
+    still = mod.skate_of(walk.rotations[[40] * 10], walk.positions[[40] * 10], sk, feet, walk.fps, 1, 20.0, 1.0)
+    moving = mod.skate_of(walk.rotations[40:50], walk.positions[40:50], sk, feet, walk.fps, 1, 20.0, 1.0)
+    assert still == 0.0 and moving > 1.0
+    out = mod.measure(engine, names, clips, (30,), 12, np.random.default_rng(0), 1.0)["30"]
+    assert set(out) == {mod.label(m, f) for m, f in mod.METHODS} | {"real clips"}
+    # SLERP glides the feet between two stances; the default plants them, as the real clips do.
+    assert out["auto+feet"]["mean"] < 0.5 * out["slerp"]["mean"]
+    assert out["real clips"]["mean"] < 0.5 * out["slerp"]["mean"]
+    assert all(s["median"] <= s["p90"] <= s["p99"] <= s["max"] for s in out.values())

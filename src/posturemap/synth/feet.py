@@ -7,9 +7,13 @@ in-between frames are made:
    and in the new frames), or the retrieved segment's contacts say so;
 2. every run of ground frames gets one spot: A's last foot position if the run starts at A's
    end with the foot planted there, B's first if it ends at B's start with the foot planted,
-   otherwise the foot's position in the middle of the run. A foot planted all through a gap, on
-   A's spot at one end and B's at the other, makes a step between them in the middle of the run
-   (lifted, over ``STEP_S`` seconds) instead of jumping;
+   otherwise the foot's position in the middle of the run. Whether a foot is planted at a seam
+   is judged against that clip's own floor (its lowest ankle over ``FLOOR_S``). A foot planted
+   all through a gap, on A's spot at one end and B's at the other, makes a step between them in
+   the middle of the run (lifted, over ``STEP_S`` seconds) instead of jumping; so does a run
+   held to one seam's spot that lies farther than ``MAX_DRIFT[0]`` from the foot's other end
+   (where it lands, or lifts off), rather than dragging the foot there. A run that reaches a
+   seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``;
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
    where the motion put it, its length softly limited where the spot lies far from the foot
    (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
