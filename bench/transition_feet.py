@@ -121,9 +121,9 @@ def run(data_dir: Path, quick: bool = False, seed: int = 0, log=print) -> dict:
     draws = 20 if quick else DRAWS
     lengths = (30,) if quick else LENGTHS
     t0 = time.perf_counter()
+    rows = measure(engine, names, clips, lengths, draws, np.random.default_rng(seed), unit_cm(clips[0])[0])
     result = {"date": datetime.date.today().isoformat(), "machine": machine(), "seed": seed, "clips": len(clips),
-              "draws": draws, "fps": clips[0].fps,
-              "lengths": measure(engine, names, clips, lengths, draws, np.random.default_rng(seed), unit_cm(clips[0])[0])}
+              "draws": draws, "fps": clips[0].fps, "lengths": rows}
     log(f"{draws} draws per length in {time.perf_counter() - t0:.0f} s")
     return result
 

@@ -648,7 +648,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             if not stepping and n >= step + 2 and (from_a or to_b):
                 f = stop - 1 if from_a else start
                 ea, eb = gpos[f, ankle, a_], gpos[f, ankle, b_]
-                far = math.sqrt((ea - xa) ** 2 + (eb - xb) ** 2) if from_a else math.sqrt((ya - ea) ** 2 + (yb - eb) ** 2)
+                far = (math.sqrt((ea - xa) ** 2 + (eb - xb) ** 2) if from_a
+                       else math.sqrt((ya - ea) ** 2 + (yb - eb) ** 2))
                 if from_a and far > reach:  # the lift-off moved toward A's spot by reach
                     ya, yb, stepping = ea + (xa - ea) * (reach / far), eb + (xb - eb) * (reach / far), True
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
