@@ -164,3 +164,23 @@ def test_written_bvh_reads_back(tmp_path):
     bvh.write(tmp_path / "r.bvh", m)
     back = bvh.read(tmp_path / "r.bvh")
     assert np.allclose(back.positions, m.positions, atol=1e-5)
+
+
+def test_a_symbolic_link_is_written_through_and_kept(tmp_path):
+    # An output named by a link (a project's "latest.bvh" pointing into a folder of takes): the
+    # file it points to gets the data, the link stays a link; a dangling link makes its file.
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    real = takes / "take1.bvh"
+    real.write_bytes(b"old")
+    link = tmp_path / "latest.bvh"
+    link.symlink_to(real)
+    chain = tmp_path / "current.bvh"
+    chain.symlink_to(link)
+    fileio.write_bytes_atomic(chain, b"new")
+    assert chain.is_symlink() and link.is_symlink() and real.read_bytes() == b"new"
+    assert not [p for p in takes.iterdir() if p.name.startswith(fileio.TEMP_PREFIX)]
+    dangling = tmp_path / "next.bvh"
+    dangling.symlink_to(takes / "take2.bvh")
+    fileio.write_bytes_atomic(dangling, b"made")
+    assert dangling.is_symlink() and (takes / "take2.bvh").read_bytes() == b"made"

@@ -8,7 +8,8 @@ refused before it is read.
 Writing (:func:`write_bytes_atomic`): the data goes to a temporary file ``.tmp-*`` in the
 target's folder, which is flushed to disk (``fsync``), given the mode a new file gets under
 the process's umask (``0666 & ~umask``) and renamed over the target; the folder is then
-synced so that the rename survives a power cut. Until the rename the target keeps its old
+synced so that the rename survives a power cut (a symbolic link is written through, to the
+file it points to). Until the rename the target keeps its old
 content; afterwards it has the new one, never a mix (``kill -9`` at any point included). The
 temporary file is removed on every error, on Ctrl+C and on SIGTERM (received in the main
 thread while writing; the signal is then handled as before).
@@ -121,10 +122,16 @@ def _fsync_folder(folder: str) -> None:
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically and durably (see the module docstring).
 
+    A symbolic link is written through: the file it points to (after every link of the chain)
+    gets the data and the link stays, as a shell's ``>`` does; the rename alone would have
+    replaced the link by a file.
+
     Raises ``OSError`` (the caller names the file) for a missing or read-only folder, a full
     disk and the like; no temporary file is left behind and an existing file stays as it was.
     """
     path = os.fspath(path)
+    if os.path.islink(path):
+        path = os.path.realpath(path)
     folder = os.path.dirname(os.path.abspath(path))
     with _sigterm_raises():
         fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, dir=folder)
