@@ -14,7 +14,7 @@ map and its motion library trained on every clip (default parameters, seed 0 or 
 - per method: the default (``auto`` + foot lock), the previous default (``upm-valid`` + foot
   lock), SLERP, the spline and inertialization (without the lock, as the bench's baselines);
 - next to them, the real motion's own skate: seeded windows of the same number of frames cut
-  from the same clips;
+  from the same clips (as many draws; a clip shorter than the window gives none);
 - mean, median, p90, p99 and the largest over the draws: a foot that slides 30 cm in one
   transition of a hundred shows at the p99, not in the mean.
 
@@ -131,8 +131,9 @@ def run(data_dir: Path, quick: bool = False, seed: int = 0, log=print) -> dict:
 def markdown(result: dict, command: str) -> str:
     lines = [f"{result['draws']} seeded transitions per gap length between two different clips of the "
              f"{result['clips']} (B placed to continue A); map and library of every clip. Height-weighted foot "
-             "skate in cm/s over A's last frame, the new frames and B's first; the real clips' row: as many "
-             "seeded windows of the same number of frames cut from the clips themselves.", ""]
+             "skate in cm/s over A's last frame, the new frames and B's first; the real clips' row: seeded windows "
+             "of the same number of frames cut from the clips themselves (as many draws; a clip shorter than the "
+             "window gives none).", ""]
     for length, row in result["lengths"].items():
         seconds = int(length) / result["fps"]
         lines += [f"**{length} frames ({seconds:.2f} s)**", "", "| method | mean | median | p90 | p99 | max |",

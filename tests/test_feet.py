@@ -475,32 +475,91 @@ def test_a_run_held_to_one_seam_steps_there_when_it_lands_far_and_lets_go_where_
     assert np.all(w3[5: length - step] == 1) and not w3[length - step:].any()
     w4, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=on)
     assert not w4.any()
+    # Two frames must stay held: a run of step + 1 frames is let go whole, one of step + 2 keeps two.
+    for extra, kept in ((1, 0), (2, 2)):
+        run = np.zeros(length, bool)
+        run[length - step - extra:] = True
+        w6, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=run, step=step)
+        assert w6.sum() == kept and not w6[length - step:].any()
+        w7, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=run[::-1], step=step)
+        assert w7.sum() == kept and not w7[:step].any()
     # Likewise at A's end: a run from A's first new frame where A's foot moves is let go in its first frames.
     w5, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=~on, step=2)
     assert not w5[:2].any() and np.all(w5[2:5] == 1) and not w5[5:].any()
 
 
-def test_a_foot_planted_at_b_is_told_by_bs_floor_not_by_the_new_frames(sample_clips):
-    # The new frames stand 3 contact heights lower than B (a blend, an interpolation): measured
-    # against the lowest ankle of the new frames and the seams, B's planted foot looked lifted,
-    # and the run that reaches it was let go; against B's own floor it is held on B's spot.
+def test_a_seams_planted_foot_is_told_by_that_clips_floor_not_by_the_new_frames(sample_clips):
+    # The new frames stand 3 contact heights lower than the seams (a blend, an interpolation):
+    # measured against the lowest ankle of the new frames and the seams, a seam's planted foot
+    # looked lifted and the run reaching it was let go at that seam; against the seam's own
+    # floor it is held there. The other seam's foot is in the air: let go over its `step` frames.
     m = sample_clips["walk"]
     sk, up = m.skeleton, up_axis(m)
     chains = leg_chains(sk)[:1]
     leg = leg_length(sk, chains)
     length = 20
+    step = round(feet.STEP_S * m.fps)
     rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
     g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
     pos[:, 0, up] -= 3 * feet.CONTACT_HEIGHT * leg
-    b_feet = np.repeat(g[:1], 2, axis=0)[:, None]
-    a_feet = b_feet + np.eye(3)[up] * leg  # A's foot in the air
+    ground = np.repeat(g[:1], 2, axis=0)[:, None]
+    lifted = ground + np.eye(3)[up] * leg
     contacts = np.ones((length, 1), dtype=bool)
-    floors = (float(a_feet[..., up].min()), float(b_feet[..., up].min()))
-    for kw, held in (({}, False), ({"seam_floors": floors}, True)):
-        out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, **kw)
-        for r, w in out.values():
-            assert np.all(w[-3:, 0] == 1) == held and (not w[-3:, 0].any()) == (not held)
-        np.testing.assert_allclose(out["numpy"][0], out["numba"][0], atol=IK_ATOL)
+    floors = (float(g[0, up]), float(g[0, up]))
+    for a_feet, b_feet, planted in ((lifted, ground, slice(length - 3, length)), (ground, lifted, slice(0, 3))):
+        free = slice(0, step) if planted.start else slice(length - step, length)
+        for kw, held in (({}, False), ({"seam_floors": floors}, True)):
+            out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, **kw)
+            for r, w in out.values():
+                assert not w[free, 0].any()  # the seam whose foot is in the air: let go
+                assert np.all(w[planted, 0] == 1) if held else not w[planted, 0].any()
+            np.testing.assert_allclose(out["numpy"][1], out["numba"][1], atol=1e-12)
+            np.testing.assert_allclose(out["numpy"][0], out["numba"][0], atol=IK_ATOL)
+
+
+def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, monkeypatch):
+    # Seeded random stances, sliding or not, with contacts given or detected, seam floors or
+    # not, gaps of 1-25 frames at 1-60 fps (a step of 0-18 frames): the compiled lock makes the
+    # numpy lock's weights and rotations, and the new rules (a run stepping off or onto a seam's
+    # spot, a run let go at a seam) are met on the way.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)
+    leg = leg_length(sk, chains)
+    rng = np.random.default_rng(3)
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    calls = {"_step": 0, "_toward": 0}
+    for name in calls:
+        f = getattr(feet, name)
+        monkeypatch.setattr(feet, name, lambda *a, _f=f, _n=name: (calls.__setitem__(_n, calls[_n] + 1), _f(*a))[1])
+    for _ in range(300):
+        length = int(rng.integers(1, 26))
+        fps = float(rng.choice([1.0, 10.0, 30.0, 60.0]))
+        f0 = int(rng.integers(0, len(m) - length))
+        frames = np.full(length, f0) if rng.random() < 0.5 else np.arange(f0, f0 + length)
+        rots, pos = m.rotations[frames].copy(), m.positions[frames].copy()
+        pos[:, 0] -= np.linspace(0.0, rng.uniform(0, 1.0) * leg, length)[:, None] * side
+        g = fk(sk.parents, rots, pos)[1][:, [c[2] for c in chains]]
+        a_feet = np.repeat(g[:1], 2, axis=0) + rng.normal(0, 0.3 * leg, (1, 2, 3)) * (rng.random() < 0.5)
+        b_feet = np.repeat(g[-1:], 2, axis=0) + rng.normal(0, 0.3 * leg, (1, 2, 3)) * (rng.random() < 0.5)
+        contacts = None
+        if rng.random() < 0.6:
+            contacts = np.zeros((length, len(chains)), bool)
+            i, j = sorted(rng.integers(0, length + 1, 2))
+            contacts[i:j] = True
+            contacts[:j] |= rng.random() < 0.5
+            contacts[i:] |= rng.random() < 0.5
+        floors = None if rng.random() < 0.5 else tuple(rng.normal(g[..., up].min(), 0.1 * leg, 2))
+        if length >= 14 and fps == 30.0 and rng.random() < 0.5:  # a run of exactly step + 1 or + 2 frames at a seam
+            contacts = np.zeros((length, len(chains)), bool)
+            n = round(feet.STEP_S * fps) + int(rng.integers(1, 3))
+            contacts[:n] = rng.random() < 0.5
+            contacts[length - n:] = rng.random() < 0.5
+        out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, seam_floors=floors)
+        assert np.isfinite(out["numpy"][0]).all()
+        np.testing.assert_allclose(out["numba"][1], out["numpy"][1], atol=1e-9)
+        np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
+    assert calls["_toward"] > 20 and calls["_step"] > calls["_toward"]
 
 
 def test_soft_ik_bends_the_knee_smoothly_near_full_reach():

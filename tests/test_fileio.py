@@ -184,3 +184,10 @@ def test_a_symbolic_link_is_written_through_and_kept(tmp_path):
     dangling.symlink_to(takes / "take2.bvh")
     fileio.write_bytes_atomic(dangling, b"made")
     assert dangling.is_symlink() and (takes / "take2.bvh").read_bytes() == b"made"
+    # A loop of links is an error (OSError, which the callers name), not a file put in its place.
+    loop = tmp_path / "loop1.bvh"
+    loop.symlink_to(tmp_path / "loop2.bvh")
+    (tmp_path / "loop2.bvh").symlink_to(loop)
+    with pytest.raises(OSError):
+        fileio.write_bytes_atomic(loop, b"x")
+    assert loop.is_symlink() and (tmp_path / "loop2.bvh").is_symlink()

@@ -569,7 +569,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     array with no rows to detect them from height and speed; drift_lo/drift_hi, eps, soft and
     hinge: ``MAX_DRIFT``, ``IK_EPS``, ``SOFT_REACH`` and ``KNEE_HINGE`` of
     :mod:`posturemap.synth.feet`; step (frames)
-    and lift (length unit): the step of a foot planted all through from A's spot to B's;
+    and lift (length unit): the step between two spots of one run (A's and B's, or a seam's and
+    where the foot lands or lifts off beyond ``reach``) and the frames let go at a seam whose foot moves;
     toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
     (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
@@ -645,7 +646,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]
             # A run on one seam's spot steps where the foot's other end lies beyond the drift.
             stepping = from_a and to_b
-            if not stepping and n >= step + 2 and (from_a or to_b):
+            if not stepping and 0 < step <= n - 2 and (from_a or to_b):
                 f = stop - 1 if from_a else start
                 ea, eb = gpos[f, ankle, a_], gpos[f, ankle, b_]
                 far = (math.sqrt((ea - xa) ** 2 + (eb - xb) ** 2) if from_a

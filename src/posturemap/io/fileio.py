@@ -18,6 +18,7 @@ thread while writing; the signal is then handled as before).
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import stat
@@ -123,8 +124,8 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically and durably (see the module docstring).
 
     A symbolic link is written through: the file it points to (after every link of the chain)
-    gets the data and the link stays, as a shell's ``>`` does; the rename alone would have
-    replaced the link by a file.
+    gets the data (and the new file's mode) and the link stays; the rename alone would have
+    replaced the link by a file. A loop of links raises ``OSError`` (ELOOP).
 
     Raises ``OSError`` (the caller names the file) for a missing or read-only folder, a full
     disk and the like; no temporary file is left behind and an existing file stays as it was.
@@ -132,6 +133,8 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     path = os.fspath(path)
     if os.path.islink(path):
         path = os.path.realpath(path)
+        if os.path.islink(path):  # realpath stops inside a loop of links
+            raise OSError(errno.ELOOP, os.strerror(errno.ELOOP), path)
     folder = os.path.dirname(os.path.abspath(path))
     with _sigterm_raises():
         fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, dir=folder)

@@ -13,7 +13,8 @@ in-between frames are made:
    the middle of the run (lifted, over ``STEP_S`` seconds) instead of jumping; so does a run
    held to one seam's spot that lies farther than ``MAX_DRIFT[0]`` from the foot's other end
    (where it lands, or lifts off), rather than dragging the foot there. A run that reaches a
-   seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``;
+   seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``
+   (the whole run where it is not longer than that by two frames);
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
    where the motion put it, its length softly limited where the spot lies far from the foot
    (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
@@ -56,7 +57,8 @@ from ..core.skeleton import Skeleton
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while the spot lies within
 #                           the first of where the motion put the foot; farther, it is moved ever
 #                           less toward it, never past the second (soft_limit): dragged, not stretched
-STEP_S = 0.3  # seconds of the step from A's spot to B's of a foot planted all through a gap
+STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, or a seam's spot and
+#               where the foot lands or lifts off far from it), and of a run let go at a seam
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
@@ -67,7 +69,8 @@ TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least heigh
 #                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
 CLEAR_SPEED = (0.25, 2.5)  # leg lengths per second: no clearance below the first, full from the second
 CLEAR_S = 0.1  # seconds: the lift reaches its height this long before the shortfall and leaves it after
-FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait)
+FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
+#               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
 
 def _compiled():
@@ -239,10 +242,12 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     A run held on one seam's spot only steps too where that spot lies farther than ``reach``
     from where the motion puts the foot at the run's other end (two real segments blended with
     their stances apart, a seam's offset): a run ending at B's start holds the foot where it
-    lands, then steps onto B's spot; a run starting at A's end holds A's spot, then steps to
-    where the foot lifts off. Held on the one spot, such a foot would be dragged there (the lock
-    moves a foot by at most about ``MAX_DRIFT`` of a leg; :func:`lock_feet`). It needs ``step``
-    frames and one more at each end; a shorter run keeps the one spot.
+    lands moved ``reach`` toward B's spot, then steps onto B's spot; a run starting at A's end
+    holds A's spot, then steps to where the foot lifts off moved ``reach`` back toward A's spot
+    (the lock holds a foot that far from the motion's without dragging it). Held on the one
+    spot, such a foot would be dragged there (the lock moves a foot by at most about
+    ``MAX_DRIFT`` of a leg; :func:`lock_feet`). It needs a step of at least one frame and one
+    more frame at each end; a shorter run, or no step, keeps the one spot.
     """
     length = len(h)
     if on is None:
@@ -270,11 +275,11 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         spot = np.empty((n, 3))
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
             _step(spot, raised[start:stop], a_spot, b_spot, step, lift)
-        elif from_a and n >= step + 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
+        elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
             _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
         elif from_a:
             spot[:] = a_spot
-        elif to_b and n >= step + 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
+        elif to_b and 0 < step <= n - 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
             _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift)
         elif to_b:
             spot[:] = b_spot
