@@ -231,8 +231,9 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     through the frames between them). ``on`` (L,) bool, when given, says which frames are planted
     instead (e.g. the contacts of a retrieved real segment). A run that begins at A's end where
     A's foot is not planted (or ends at B's start where B's is not) is not held in its ``step``
-    frames at that seam (all of it without a step or where it is shorter than ``step`` + 2): held up to the seam, its
-    spot would jump there; let go, its offset passes to the seam's through the air.
+    frames at that seam (all of it without a step or where it is shorter than ``step`` + 2):
+    held up to the seam, its spot would jump there; let go, its offset passes to the seam's
+    through the air.
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
