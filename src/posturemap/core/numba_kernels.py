@@ -560,7 +560,7 @@ def _carried(g, grot, t, top, joint):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
-              a_floor, b_floor, reach, weights):
+              a_floor, b_floor, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -570,18 +570,19 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     hinge: ``MAX_DRIFT``, ``IK_EPS``, ``SOFT_REACH`` and ``KNEE_HINGE`` of
     :mod:`posturemap.synth.feet`; step (frames)
     and lift (length unit): the step between two spots of one run (A's and B's, or a seam's and
-    where the foot lands or lifts off beyond ``reach``) and the frames let go at a seam whose foot moves;
+    where the foot lands or lifts off far from it) and the frames let go at a seam whose foot moves;
     toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
     (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
-    frames and the new frames); reach (length unit): how far a run held on one seam's spot may lie
-    from the foot's other end before it steps (``lock_weights_and_targets``); weights (L, n) out.
+    frames and the new frames); weights (L, n) out. A run held on one seam's spot steps where the
+    foot's other end lies farther than ``drift_lo * body`` (``lock_weights_and_targets``' reach).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
+    reach = drift_lo * body
     on_all = np.empty((n_legs, n_l), dtype=np.bool_)
     weight = np.empty(n_l)
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot

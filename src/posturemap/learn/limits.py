@@ -1,6 +1,8 @@
 """The training parameters' bounds, without numpy (the command line checks its options with
 them before anything heavy is imported; :class:`~posturemap.learn.upm.UniformPostureMap`
-checks the same).
+checks the radius, neighbourhood and epochs alike, and any seed that is a whole number, not
+negative: ``MAX_SEED`` bounds the command line's ``--seed``, which ``posturemap bench`` gives numpy's
+legacy generator).
 
 Past them a map is meaningless or cannot be computed: a radius whose square overflows (or an
 infinite one, which resolves nothing and cannot be written into a map file's JSON), more graph

@@ -281,11 +281,11 @@ class TransitionEngine:
         # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first (B's heights
         # moved with B): a stance in any gait, so a held foot's toe under it is lifted out.
         na, nb = round(FLOOR_S * ta.motion.fps) + 1, round(FLOOR_S * tb.motion.fps) + 1
-        toe_floor = min(ta.lowest_toe[max(a_end + 1 - na, 0): a_end + 1].min().item(),
-                        tb.lowest_toe[b_start: b_start + nb].min().item() + shift[self._up].item())
+        end_a, start_b = slice(max(a_end + 1 - na, 0), a_end + 1), slice(b_start, b_start + nb)
+        rise = shift[self._up].item()
+        toe_floor = min(ta.lowest_toe[end_a].min().item(), tb.lowest_toe[start_b].min().item() + rise)
         # Whether a foot is planted at a seam: against that clip's own floor, its lowest ankle there.
-        seam_floors = (ta.feet[max(a_end + 1 - na, 0): a_end + 1, :, self._up].min().item(),
-                       tb.feet[b_start: b_start + nb, :, self._up].min().item() + shift[self._up].item())
+        seam_floors = (ta.feet[end_a, :, self._up].min().item(), tb.feet[start_b, :, self._up].min().item() + rise)
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors)
 

@@ -390,8 +390,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
-                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor,
-                      MAX_DRIFT[0] * body, weights)
+                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
