@@ -8,7 +8,7 @@ import pytest
 
 import posturemap
 from posturemap.core import quat
-from posturemap.core.motion import Motion, resample
+from posturemap.core.motion import Motion, at_one_rate, resample
 from posturemap.io import bvh
 
 from clikit import assert_refused, run
@@ -109,3 +109,42 @@ def test_option_errors_name_the_option_first(capsys, tmp_path):
     # As a file's errors name the file: "posturemap: error: --length: ...", not argparse's "argument --length".
     line = option_refused(capsys, "transition", "a.bvh", "b.bvh", "-o", tmp_path / "t.bvh", "--length", "0")
     assert line == "posturemap: error: --length: must be a whole number of at least 1, got '0'"
+
+
+def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_clips):
+    # B at twice A's rate: the command line resamples B to A's rate (saying so) rather than
+    # refusing it; --b-start counts B's own frames and keeps the nearest in time.
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    a, b = tmp_path / "walk.bvh", tmp_path / "run60.bvh"
+    bvh.write(a, walk)
+    bvh.write(b, resample(run_, 2 * run_.fps))
+    b60 = bvh.read(b)
+    out = tmp_path / "t.bvh"
+    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--method", "slerp", "--length", "10",
+                            "--b-start", "22", "--no-align")
+    assert code == 0, err
+    assert f"{b}: {b60.fps:g} fps, resampled to A's {walk.fps:g} fps (its frame 22 is frame 11)" in stdout
+    r, b30 = bvh.read(out), resample(b60, walk.fps)
+    assert r.fps == pytest.approx(walk.fps, rel=1e-6) and len(r) == len(walk) + 10 + len(b30) - 11
+    np.testing.assert_allclose(r.global_positions()[len(walk) + 10:], b30.global_positions()[11:], atol=1e-3)
+    # B's own last frame is the last a --b-start can name.
+    assert_refused(capsys, "--b-start", "transition", a, b, "-o", out, "--b-start", str(len(b60)),
+                   words=[f"frame {len(b60)} is outside clip B (frames 0..{len(b60) - 1})"])
+    # Training: every clip at the first one's rate, each resampled one named on stderr.
+    code, stdout, err = run(capsys, "train", a, b, "-o", tmp_path / "m.npz", "--epochs", "1")
+    assert code == 0, err
+    assert f"posturemap: note: {b}: {b60.fps:g} fps, resampled to {walk.fps:g} fps (the first clip's rate)" in err
+    m = posturemap.PostureMap.load(tmp_path / "m.npz")
+    assert m.info_["fps"] == pytest.approx(walk.fps) and m.info_["frames"] == len(walk) + len(b30)
+
+
+def test_at_one_rate_resamples_only_the_clips_at_another_rate(sample_clips):
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    fast = resample(run_, 2 * run_.fps)
+    out, changed = at_one_rate([walk, fast, run_, walk[:0]])
+    assert changed == [1] and out[0] is walk and out[2] is run_ and len(out[3]) == 0
+    assert out[1].fps == walk.fps and len(out[1]) == len(run_)
+    np.testing.assert_allclose(out[1].global_positions(), run_.global_positions(), atol=1e-9)
+    out, changed = at_one_rate([walk, fast], fps=fast.fps)
+    assert changed == [0] and out[1] is fast and out[0].fps == fast.fps
+    assert at_one_rate([]) == ([], [])

@@ -29,7 +29,7 @@ with warnings.catch_warnings():  # starlette 1.x prefers httpx2 for its test cli
 from posturemap.io import bvh
 from posturemap.core import quat
 from posturemap.learn.model import PostureMap
-from posturemap.core.motion import Motion
+from posturemap.core.motion import Motion, resample
 from posturemap.synth.engine import transition
 from posturemap.synth.request import DEFAULT_METHOD, KEYED, METHODS
 from posturemap.web import server, studio
@@ -318,6 +318,23 @@ def test_no_map_keyed_method_is_503(sample_clips):
         r = post(c, {"a": "walk", "b": "run", "method": "upm"})
         assert r.status_code == 503 and "posture map" in r.json()["error"]
         assert post(c, {"a": "walk", "b": "run", "method": "inertialize"}).status_code == 200
+
+
+def test_a_clip_at_another_rate_is_resampled_to_the_first_clips(sample_clips, model):
+    # Before, transitions between the two answered 422 (different frame rates).
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    lines = []
+    app = create_app({"walk": walk, "run": resample(run_, 2 * run_.fps)}, model, log=lines.append)
+    served = app.state.studio.clips["run"]
+    assert served.fps == walk.fps and len(served) == len(run_)
+    np.testing.assert_allclose(served.global_positions(), run_.global_positions(), atol=1e-9)
+    assert [x for x in lines if "resampled" in x] == [
+        f"posturemap: note: run: {2 * run_.fps:g} fps, resampled to {walk.fps:g} fps (the first clip's rate)"]
+    with TestClient(app, raise_server_exceptions=False) as c:
+        assert c.get("/api/clips").json()["clips"][1]["fps"] == pytest.approx(walk.fps)
+        r = post(c, {"a": "walk", "b": "run", "length": 10, "b_start": 5})
+        assert r.status_code == 200, r.text
+        assert r.json()["frames"] == expected_frames(len(walk), len(run_), len(walk) - 1, 10, 5)
 
 
 def test_mixed_skeletons_are_refused(sample_clips, cmu_file):

@@ -112,6 +112,7 @@ def _radius(text: str):
 
 def _cmd_train(args) -> int:
     from .core import kernels
+    from .core.motion import at_one_rate
     from .io.bvh import read_inputs
     from .learn.features import load_class_overrides
     from .learn.model import PostureMap
@@ -119,12 +120,16 @@ def _cmd_train(args) -> int:
     _check_output(args.output)
     kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
+    motions, changed = at_one_rate([m for _, m in clips])
+    for i in changed:  # a map's clips share one rate: the first clip's
+        print(f"posturemap: note: {clips[i][0]}: {clips[i][1].fps:g} fps, resampled to {motions[0].fps:g} fps "
+              f"(the first clip's rate)", file=sys.stderr)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
     pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
                     args.features, classes)
     try:
-        pm.fit([m for _, m in clips], [p for p, _ in clips], progress=progress)
+        pm.fit(motions, [p for p, _ in clips], progress=progress)
     finally:
         progress.close()
     pm.save(args.output)
@@ -159,7 +164,7 @@ def _is_gltf_output(path: str) -> bool:
 def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
-    from .core.motion import same_fps, up_axis
+    from .core.motion import resample, same_fps, up_axis
     from .synth.engine import transition
     from .synth.request import KEYED, RequestError, TransitionRequest
     from .core.joints import leg_chains
@@ -178,10 +183,15 @@ def _cmd_transition(args) -> int:
     why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
     if why:
         raise UserError(args.b, why)
-    if not same_fps(a.fps, b.fps):
-        raise UserError(args.b, f"{b.fps:g} fps, {args.a} {a.fps:g} fps: resample one clip to the other's rate first "
-                                f"(posturemap resample {args.b} --fps {a.fps:g} -o ...)")
     _check_output(args.output)
+    b_start, rate_note = args.b_start, None
+    if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames: the nearest in time
+        if b_start >= len(b):
+            raise UserError("--b-start", f"frame {b_start} is outside clip B (frames 0..{len(b) - 1})")
+        b_fps, b = b.fps, resample(b, a.fps)
+        b_start = min(round(args.b_start * a.fps / b_fps), len(b) - 1)
+        rate_note = (f"  {args.b}: {b_fps:g} fps, resampled to A's {a.fps:g} fps "
+                     f"(its frame {args.b_start} is frame {b_start})")
     model = None
     if args.map:
         model = PostureMap.load(args.map)
@@ -198,7 +208,7 @@ def _cmd_transition(args) -> int:
         model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
     report = {}
     request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
-                                a_end=args.a_end, b_start=args.b_start, align=not args.no_align,
+                                a_end=args.a_end, b_start=b_start, align=not args.no_align,
                                 foot_lock=not args.no_foot_lock)
     try:
         request = request.resolved(len(a), len(b))
@@ -233,7 +243,9 @@ def _cmd_transition(args) -> int:
                 os.remove(args.preview)
         raise
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames "
-          f"+ B[{args.b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
+          f"+ B[{b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
+    if rate_note:
+        print(rate_note)
     if "retrieval" in report:
         print(describe_retrieval(report["retrieval"]))
     if not args.no_foot_lock and not leg_chains(a.skeleton):
@@ -348,7 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     t = sub.add_parser("train", help="learn a posture map (four class UPMs) from BVH files or folders")
-    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files (not its subfolders)")
+    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files (not its subfolders); one skeleton, and clips "
+                        "at another frame rate than the first are resampled to it")
     t.add_argument("-o", "--output", required=True, metavar="MAP", help="map file to write (.npz)")
     t.add_argument("--radius", type=_radius, default="auto",
                    help="maximum distance from a posture to its neuron, or 'auto' (default) to derive it "
@@ -381,7 +394,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"control parameter ({DEFAULT_ALPHA}): retrieval prefers motion that continues A at 0, that arrives "
                         "in B at 1; the key-posture methods put the key near A at 0, near B at 1")
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
-    r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0)")
+    r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0); B at another frame rate than A is resampled to A's, "
+                        "and this counts B's own frames")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
     r.add_argument("--no-foot-lock", action="store_true",
                    help="do not pin planted feet nor lift toes out of the floor and clear of it (foot-skate cleanup)")
@@ -401,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=_cmd_inspect)
 
-    s = sub.add_parser("resample", help="write a BVH clip at another frame rate (clips used together share one rate)")
+    s = sub.add_parser("resample", help="write a BVH clip at another frame rate (rotations SLERPed, translations LERPed)")
     s.add_argument("input", metavar="IN.bvh")
     s.add_argument("--fps", type=_checked(float, lambda v: 0.1 <= v <= 10000.0, "a frame rate in [0.1, 10000]"),
                    required=True, help="the new frame rate (frames per second)")
@@ -419,7 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=_cmd_bench)
 
     v = sub.add_parser("serve", help="interactive transition studio in the browser")
-    v.add_argument("inputs", nargs="*", metavar="INPUT", help="BVH files or folders (default: the bundled sample)")
+    v.add_argument("inputs", nargs="*", metavar="INPUT", help="BVH files or folders (default: the bundled sample); clips at another frame "
+                        "rate than the first are resampled to it")
     v.add_argument("--map", metavar="MAP", help="posture map to use (default: learn one from the clips)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     v.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 takes a free one)")

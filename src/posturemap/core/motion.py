@@ -141,6 +141,25 @@ def resample(motion: Motion, fps: float) -> Motion:
     return Motion(motion.skeleton, rots, pos, fps)
 
 
+def at_one_rate(motions: list[Motion], fps: float | None = None) -> tuple[list[Motion], list[int]]:
+    """``motions`` at one frame rate, ``fps`` (default the first motion's): each at another rate
+    resampled to it (:func:`resample`), the others (and any of no frames) as they are. Returns the
+    motions and the indices of those resampled.
+
+    The command line and the studio take clips of mixed rates this way (each resampled one named
+    in a note); the API's :meth:`~posturemap.learn.model.PostureMap.fit` and a transition's A and
+    B need one rate and say so.
+    """
+    motions = list(motions)
+    if not motions:
+        return [], []
+    fps = float(motions[0].fps if fps is None else fps)
+    changed = [i for i, m in enumerate(motions) if m.num_frames and not same_fps(m.fps, fps)]
+    for i in changed:
+        motions[i] = resample(motions[i], fps)
+    return motions, changed
+
+
 def root_index(motion_or_skeleton) -> int:
     """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 

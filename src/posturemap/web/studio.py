@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.motion import Motion, body_height, concatenate, length_unit, root_index, same_fps, up_axis
+from ..core.motion import Motion, at_one_rate, body_height, concatenate, length_unit, root_index, up_axis
 from ..errors import UserError
 from ..io import bvh
 from ..synth.engine import TransitionEngine
@@ -71,8 +71,8 @@ class Studio:
 
     Parameters
     ----------
-    clips : dict of name to Motion, one skeleton (the first clip's) and, for transitions
-        between two clips, one frame rate
+    clips : dict of name to Motion, one skeleton (the first clip's); a clip at another frame rate
+        than the first's is resampled to it (a note through ``log``)
     model : PostureMap or None; None learns one from the clips in a background thread
         (when ``train``), so the page loads at once
     train : learn a map when ``model`` is None (False: only the methods without a key)
@@ -92,6 +92,13 @@ class Studio:
         for name, m in self.clips.items():
             if not m.skeleton.same_as(self.skeleton):
                 raise UserError(name, f"skeleton differs from {first_name} (the studio needs one skeleton)")
+        # One rate, the first clip's (a transition's A and B share one, and so do a map's clips).
+        motions, changed = at_one_rate(list(self.clips.values()))
+        for i in changed:
+            name = self.names[i]
+            self.log(f"posturemap: note: {name}: {self.clips[name].fps:g} fps, resampled to {first.fps:g} fps "
+                     "(the first clip's rate)")
+        self.clips = dict(zip(self.names, motions, strict=True))
         if model is not None:
             model.check_skeleton(self.skeleton, first_name)
         self.bones = bone_names(self.skeleton.names)
@@ -262,9 +269,6 @@ class Studio:
             if f not in raw:
                 raise ApiError(422, f"{f}: missing (name of clip {f.upper()})", f)
         ma, mb = self._clip(raw["a"], "a"), self._clip(raw["b"], "b")
-        if not same_fps(ma.fps, mb.fps):
-            raise ApiError(422, f"clips {raw['a']!r} ({ma.fps:g} fps) and {raw['b']!r} ({mb.fps:g} fps) "
-                                f"have different frame rates", "b")
         try:
             req = TransitionRequest.from_fields(raw).resolved(len(ma), len(mb), max_length=MAX_LENGTH,
                                                               names=(raw["a"], raw["b"]))
