@@ -521,7 +521,7 @@ def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, 
     # Seeded random stances, sliding or not, with contacts given or detected, seam floors or
     # not, gaps of 1-25 frames at 1-60 fps (a step of 0-18 frames): the compiled lock makes the
     # numpy lock's weights and rotations, and the new rules (a run stepping off or onto a seam's
-    # spot, a run let go at a seam) are met on the way.
+    # spot, a run let go at a seam, interpolated feet stepping in turn) are met on the way.
     m = sample_clips["walk"]
     sk, up = m.skeleton, up_axis(m)
     chains = leg_chains(sk)
@@ -532,6 +532,9 @@ def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, 
     for name in calls:
         f = getattr(feet, name)
         monkeypatch.setattr(feet, name, lambda *a, _f=f, _n=name: (calls.__setitem__(_n, calls[_n] + 1), _f(*a))[1])
+    turns = []  # stance_windows' answers where feet stepped in turn
+    windows = feet.stance_windows
+    monkeypatch.setattr(feet, "stance_windows", lambda *a: (w := windows(*a), (w[:, 0] >= 0).any() and turns.append(w))[0])
     for _ in range(300):
         length = int(rng.integers(1, 26))
         fps = float(rng.choice([1.0, 10.0, 30.0, 60.0]))
@@ -550,6 +553,8 @@ def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, 
             contacts[:j] |= rng.random() < 0.5
             contacts[i:] |= rng.random() < 0.5
         floors = None if rng.random() < 0.5 else tuple(rng.normal(g[..., up].min(), 0.1 * leg, 2))
+        if contacts is None and rng.random() < 0.4:  # both feet planted at both seams: they step in turn
+            a_feet, b_feet, floors = np.repeat(g[:1], 2, axis=0), np.repeat(g[-1:], 2, axis=0), None
         if length >= 14 and fps == 30.0 and rng.random() < 0.5:  # a run of exactly step + 1 or + 2 frames at a seam
             contacts = np.zeros((length, len(chains)), bool)
             n = round(feet.STEP_S * fps) + int(rng.integers(1, 3))
@@ -560,6 +565,7 @@ def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, 
         np.testing.assert_allclose(out["numba"][1], out["numpy"][1], atol=1e-9)
         np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
     assert calls["_toward"] > 20 and calls["_step"] > calls["_toward"]
+    assert len(turns) > 10 and sum(w[:, 1].min() > 0 for w in turns) > 5
 
 
 def test_soft_ik_bends_the_knee_smoothly_near_full_reach():
@@ -610,6 +616,72 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift):
         assert np.all(raised[k0: k0 + k] > 0)
 
 
+def test_stance_windows_give_each_moving_foot_its_own_part_of_the_gap_farthest_first():
+    from posturemap.core import numba_kernels
+
+    nan = np.nan
+    # One foot to move (or none): the middle of its run, as any foot planted all through.
+    for moves in ([nan, nan], [nan, 30.0], [1.0, 30.0], [30.0]):
+        assert (feet.stance_windows(moves, 16, 9, 4.0) == -1).all()
+    # Two: the farther first, each in the middle of its half, one frame short of it at each end.
+    w = feet.stance_windows([20.0, 30.0], 16, 9, 4.0)
+    assert w.tolist() == [[9, 6], [1, 6]]
+    assert feet.stance_windows([30.0, 30.0], 16, 9, 4.0).tolist() == [[1, 6], [9, 6]]  # a tie: the lower index
+    assert feet.stance_windows([30.0, 20.0], 40, 9, 4.0).tolist() == [[5, 9], [25, 9]]  # long parts: the step
+    # Three feet (a quadruped's three), a gap too short for steps: parts of 1-2 frames, no frame each.
+    assert feet.stance_windows([5.0, 6.0, 7.0], 5, 9, 4.0).tolist() == [[4, 0], [2, 0], [0, 0]]
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        n = int(rng.integers(1, 5))
+        moves = np.where(rng.random(n) < 0.3, nan, rng.choice([3.0, 5.0, 8.0, 8.0, 20.0], n))
+        length, step = int(rng.integers(1, 50)), int(rng.integers(0, 20))
+        w = feet.stance_windows(moves, length, step, 4.0)
+        np.testing.assert_array_equal(numba_kernels._stance_windows(moves, length, step, 4.0), w)
+        steps = sorted((int(a), int(a + k)) for a, k in w if a >= 0)
+        assert len(steps) in (0, np.sum(moves > 4.0))
+        assert all(0 <= a <= b <= length for a, b in steps)
+        assert all(b0 <= a1 for (_, b0), (a1, _) in zip(steps, steps[1:]))  # one foot after another
+
+
+def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_clips):
+    # Both feet planted at A's end and at B's start on other spots, the interpolated legs gliding
+    # between them a little above the floor (not planted by the lock's test in the middle): each
+    # foot is held on A's spot, steps lifted in its own half of the gap, and is held on B's;
+    # never both in the air. Before, the lock let both glide along the floor together.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)
+    leg = leg_length(sk, chains)
+    length = 16
+    rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    flat = 1 - (np.arange(3) == up)
+    t = np.linspace(0.0, 1.0, length)
+    pos[:, 0] += (0.18 * leg * t[:, None]) * side + (0.06 * leg * np.sin(np.pi * t)[:, None]) * (1 - flat)
+    g = fk(sk.parents, rots, pos)[1][:, [c[2] for c in chains]]
+    a_feet, b_feet = np.repeat(g[:1], 2, axis=0), np.repeat(g[-1:], 2, axis=0)
+    a_spot, b_spot = g[0] * flat, g[-1] * flat
+    windows = feet.stance_windows([0.18 * leg] * 2, length, round(STEP_S * m.fps), feet.STAND_STEP * leg)
+    assert windows.tolist() == [[1, 6], [9, 6]]
+    out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps)
+    for r, w in out.values():
+        ankles = fk(sk.parents, r, pos)[1][:, [c[2] for c in chains]]
+        assert np.all(w == 1)
+        for i, (k0, k) in enumerate(windows):  # held (a straight leg's soft reach: within 0.2% of a leg)
+            np.testing.assert_allclose(ankles[:k0, i] * flat, np.tile(a_spot[i], (k0, 1)), atol=0.002 * leg)
+            np.testing.assert_allclose(ankles[k0 + k:, i] * flat, np.tile(b_spot[i], (length - k0 - k, 1)),
+                                       atol=0.002 * leg)
+            lifted = ankles[k0: k0 + k, i, up] - g[k0: k0 + k, i, up]
+            assert lifted.min() > 0 and lifted.max() > 0.5 * min(feet.STEP_LIFT * leg, 0.09 * leg)
+    np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
+    # With the legs' contacts given (a retrieved segment's), the feet do as the contacts say.
+    on = np.ones((length, len(chains)), bool)
+    on[4:12] = False
+    r, _ = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, on)["numpy"]
+    ankles = fk(sk.parents, r, pos)[1][:, [c[2] for c in chains]]
+    assert np.abs(ankles[4:12, :, up] - g[4:12, :, up]).max() < 0.03 * leg  # only the toes' clearance
+
+
 def _pair_engine(bandai_files, a_name: str, b_name: str):
     """Bandai clips ``a_name`` and ``b_name`` as "a" and "b" of a map-less engine: (engine, a, b)."""
     by_name = {p.name: p for p in bandai_files}
@@ -624,12 +696,13 @@ def _pair_engine(bandai_files, a_name: str, b_name: str):
 def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
     # Transitions from a bow to a walk, B placed to continue A: between two frames where a foot
     # is fully locked it moves at most as fast as the step's smoothstep allows (1.5 / (step + 1)
-    # of the largest A-to-B distance the lock accepts). Without the step (STEP_S = 0, as before
-    # it existed) a foot planted at both seams jumps from A's spot to B's in one frame.
+    # of the largest A-to-B distance the lock accepts; the step is shorter where both feet step
+    # in turn, each in half the gap). Without the step (STEP_S = 0, as before it existed) a foot
+    # planted at both seams jumps from A's spot to B's in one frame.
     e, a, b = _pair_engine(bandai_files, "bow_normal_001", "walk_normal_001")
     ankles = [c[2] for c in e._legs]
     leg = leg_length(a.skeleton)
-    bound = MAX_DRIFT[1] * leg * 1.5 / (round(STEP_S * a.fps) + 1)
+    bound = MAX_DRIFT[1] * leg * 1.5 / (min(round(STEP_S * a.fps), 20 // 2 - 2) + 1)
 
     def worst_held_move():
         rng = np.random.default_rng(3)

@@ -558,9 +558,34 @@ def _carried(g, grot, t, top, joint):
 
 
 @nb.njit(**_OPTS)
+def _stance_windows(moves, length, step, least):
+    """:func:`posturemap.synth.feet.stance_windows`: (n, 2) ``(k0, k)`` per leg, -1 for none."""
+    n = moves.shape[0]
+    out = np.full((n, 2), -1, dtype=np.int64)
+    order = np.empty(n, dtype=np.int64)
+    parts = 0
+    for i in range(n):
+        if moves[i] > least:  # NaN: not standing
+            j = parts  # insertion by distance, farthest first, the lower index on a tie
+            while j > 0 and moves[order[j - 1]] < moves[i]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = i
+            parts += 1
+    if parts < 2:
+        return out
+    for r in range(parts):
+        lo, hi = r * length // parts, (r + 1) * length // parts
+        k = max(0, min(step, hi - lo - 2))
+        out[order[r], 0] = lo + (hi - lo - k) // 2
+        out[order[r], 1] = k
+    return out
+
+
+@nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
-              a_floor, b_floor, weights):
+              a_floor, b_floor, stand, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -577,12 +602,38 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
-    frames and the new frames); weights (L, n) out. A run held on one seam's spot steps where the
-    foot's other end lies farther than ``drift_lo * body`` (``lock_weights_and_targets``' reach).
+    frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
+    interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart) step one after another
+    (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out. A run held on one seam's
+    spot steps where the foot's other end lies farther than ``drift_lo * body``
+    (``lock_weights_and_targets``' reach).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     reach = drift_lo * body
+    # Each leg's floor and whether it is planted at A's end and at B's start; the interpolated
+    # legs planted at both (no contacts given) are held through and step once, one after another.
+    floors = np.empty(n_legs)
+    a_ons = np.empty(n_legs, dtype=np.bool_)
+    b_ons = np.empty(n_legs, dtype=np.bool_)
+    moves = np.full(n_legs, np.nan)
+    for leg in range(n_legs):
+        ankle = legs[leg, 2]
+        floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
+        for t in range(n_l):
+            floor = min(floor, gpos[t, ankle, up])
+        da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
+        fa = floor if math.isnan(a_floor) else a_floor
+        fb = floor if math.isnan(b_floor) else b_floor
+        a_ons[leg] = a_feet[1, leg, up] < fa + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
+        b_ons[leg] = b_feet[0, leg, up] < fb + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        floors[leg] = floor
+        da, db = b_feet[0, leg, a_] - a_feet[1, leg, a_], b_feet[0, leg, b_] - a_feet[1, leg, b_]
+        move = math.sqrt(da * da + db * db)
+        if contacts.shape[0] == 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
+            moves[leg] = move
+    windows = _stance_windows(moves, n_l, step, stand)
     on_all = np.empty((n_legs, n_l), dtype=np.bool_)
     weight = np.empty(n_l)
     target = np.empty((n_l, 2))  # the horizontal coordinates (a_, b_) of each frame's spot
@@ -594,18 +645,12 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     for leg in range(n_legs):
         on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
-        floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
-        for t in range(n_l):
-            floor = min(floor, gpos[t, ankle, up])
-        da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
-        fa = floor if math.isnan(a_floor) else a_floor
-        fb = floor if math.isnan(b_floor) else b_floor
-        a_on = a_feet[1, leg, up] < fa + height_tol and math.sqrt(da * da + db * db) < speed_tol
-        da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
-        b_on = b_feet[0, leg, up] < fb + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        floor, a_on, b_on = floors[leg], a_ons[leg], b_ons[leg]
         if contacts.shape[0] > 0:
             for t in range(n_l):
                 on[t] = contacts[t, leg]
+        elif not math.isnan(moves[leg]):  # held through, one step
+            on[:] = True
         else:
             pa, pb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             for t in range(n_l):
@@ -643,6 +688,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             n = stop - start
             k = max(0, min(step, n - 2))  # the first spot, the step over k frames in the middle, the last
             k0 = (n - k) // 2
+            if from_a and to_b and windows[leg, 0] >= 0:  # a standing foot's own part of the gap
+                k0, k = windows[leg, 0], windows[leg, 1]
             xa, xb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]
             # A run on one seam's spot steps where the foot's other end lies beyond the drift.

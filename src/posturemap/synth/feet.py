@@ -14,7 +14,12 @@ in-between frames are made:
    held to one seam's spot that lies farther than ``MAX_DRIFT[0]`` from the foot's other end
    (where it lands, or lifts off), rather than dragging the foot there. A run that reaches a
    seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``
-   (the whole run where it is not longer than that by two frames);
+   (the whole run where it is not longer than that by two frames). Where the legs are
+   interpolated (no retrieved contacts), a foot planted at both seams on spots at most
+   ``MAX_DRIFT[1]`` apart is held through the whole gap and steps once, from A's spot to B's:
+   an interpolation glides it between the two stances, low over the floor. Where two feet or more must move farther than ``STAND_STEP``,
+   they step one after another, each in its own part of the gap, the farthest first
+   (:func:`stance_windows`): a person changes stance by stepping, not by hopping;
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
    where the motion put it, its length softly limited where the spot lies far from the foot
    (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
@@ -60,6 +65,8 @@ MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while 
 STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, or a seam's spot and
 #               where the foot lands or lifts off far from it), and of a run let go at a seam
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
+STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): interpolated feet planted at both seams whose spots lie
+#                    farther apart than this step one after another (stance_windows)
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
@@ -218,8 +225,33 @@ def contact_runs(on: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
 
 
+def stance_windows(moves, length: int, step: int, least: float) -> np.ndarray:
+    """Where each standing foot steps (:func:`lock_feet`): ``(k0, k)`` per leg (n, 2), the step's
+    first frame and its frames, or ``(-1, -1)`` for a step in the middle of its run.
+
+    ``moves`` (n,): how far each foot must go from A's spot to B's (NaN for a foot that does
+    not stand at both seams); ``length`` the new frames; ``step`` a step's frames; ``least``
+    the distance from which a foot counts. Where two feet or more move farther than ``least``,
+    the gap is cut into as many equal parts (``r * length // parts`` on), the farthest foot
+    first (the lower index on a tie), and each steps in the middle of its part, over ``step``
+    frames at most and at least one frame short of its part at each end. One foot alone keeps
+    the middle of the gap (all ``-1``).
+    """
+    moves = np.asarray(moves, dtype=float)
+    out = np.full((len(moves), 2), -1, dtype=np.int64)
+    legs = sorted((i for i in range(len(moves)) if moves[i] > least), key=lambda i: (-moves[i], i))
+    parts = len(legs)
+    if parts < 2:
+        return out
+    for r, leg in enumerate(legs):
+        lo, hi = r * length // parts, (r + 1) * length // parts
+        k = max(0, min(step, hi - lo - 2))
+        out[leg] = (lo + (hi - lo - k) // 2, k)
+    return out
+
+
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
-                             speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf):
+                             speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -239,6 +271,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
     with a smoothstep while the foot rises by ``lift`` (at most half the step's length) on a
     half sine and comes down on B's spot. The lift (L,) is added to the ankle's height.
+    ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
+    instead (:func:`stance_windows`).
 
     A run held on one seam's spot only steps too where that spot lies farther than ``reach``
     from where the motion puts the foot at the run's other end (two real segments blended with
@@ -275,7 +309,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         n = stop - start
         spot = np.empty((n, 3))
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
-            _step(spot, raised[start:stop], a_spot, b_spot, step, lift)
+            _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
             _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
         elif from_a:
@@ -296,13 +330,18 @@ def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
     return x + (y - x) * (reach / float(np.linalg.norm(y - x)))
 
 
-def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float):
+def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float,
+          window=None):
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
-    frames: ``first`` (if 2), then ``last``."""
+    frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
+    k0 + k - 1`` instead."""
     n = len(spot)
-    k = max(0, min(step, n - 2))
-    k0 = (n - k) // 2
+    if window is None:
+        k = max(0, min(step, n - 2))
+        k0 = (n - k) // 2
+    else:
+        k0, k = int(window[0]), int(window[1])
     spot[:k0], spot[k0 + k:] = first, last
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
@@ -390,26 +429,39 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
-                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor, weights)
+                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor,
+                      STAND_STEP * body, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
-    locks = []  # per leg: the offsets, lifts and held frames; the IK once the toes' floor is known
+    length, step = len(rots), round(STEP_S * fps)
+    seams = []  # per leg: its floor, whether it is planted at A's end and at B's start
+    moves = np.full(len(chains), np.nan)  # interpolated legs planted at both seams: how far each must go
     for leg, (thigh, shin, ankle) in enumerate(chains):
-        h = gpos[:, ankle, up]
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
-        floor = min(context_h.min(), h.min())
+        floor = min(context_h.min(), gpos[:, ankle, up].min())
         a_on = (a_feet[1, leg, up] < (floor if np.isnan(a_floor) else a_floor) + height_tol
                 and np.linalg.norm((a_feet[1, leg] - a_feet[0, leg]) * flat) < speed_tol)
         b_on = (b_feet[0, leg, up] < (floor if np.isnan(b_floor) else b_floor) + height_tol
                 and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
+        seams.append((floor, a_on, b_on))
+        move = np.linalg.norm((b_feet[0, leg] - a_feet[1, leg]) * flat)
+        if contacts is None and a_on and b_on and move <= MAX_DRIFT[1] * body:  # one step's way at most
+            moves[leg] = move
+    windows = stance_windows(moves, length, step, STAND_STEP * body)
+    locks = []  # per leg: the offsets, lifts and held frames; the IK once the toes' floor is known
+    for leg, (thigh, shin, ankle) in enumerate(chains):
+        floor, a_on, b_on = seams[leg]
+        h = gpos[:, ankle, up]
         horiz = gpos[:, ankle] * flat
         speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
         on = None if contacts is None else contacts[:, leg]
+        if not np.isnan(moves[leg]):  # interpolated and planted at both seams: held through, one step
+            on = np.ones(length, dtype=bool)
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
-                                                          on, round(STEP_S * fps), STEP_LIFT * body,
-                                                          MAX_DRIFT[0] * body)
+                                                          on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
+                                                          None if windows[leg, 0] < 0 else windows[leg])
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
