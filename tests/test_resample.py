@@ -148,3 +148,28 @@ def test_at_one_rate_resamples_only_the_clips_at_another_rate(sample_clips):
     out, changed = at_one_rate([walk, fast], fps=fast.fps)
     assert changed == [0] and out[1] is fast and out[0].fps == fast.fps
     assert at_one_rate([]) == ([], [])
+
+
+def test_a_resample_too_large_to_hold_is_refused_before_allocating(capsys, tmp_path, sample_clips):
+    # 0.1 fps made 10,000 fps: every frame becomes 100,000. Refused by size (2 GiB, the largest
+    # BVH file read), naming the clip, rather than a MemoryError (or the machine swapping).
+    import dataclasses
+    import tracemalloc
+
+    walk = sample_clips["walk"]
+    slow, fast = dataclasses.replace(walk, fps=0.1), dataclasses.replace(walk, fps=10000.0)
+    tracemalloc.start()
+    with pytest.raises(ValueError, match=r"make \d+ at 10000 fps, [\d.]+ GiB: over 2 GiB"):
+        resample(slow, 10000.0)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1 << 20
+    with pytest.raises(posturemap.errors.UserError, match="^slow: "):
+        at_one_rate([fast, slow], names=["fast", "slow"])
+    a, b = tmp_path / "fast.bvh", tmp_path / "slow.bvh"
+    bvh.write(a, fast)
+    bvh.write(b, slow)
+    assert_refused(capsys, b, "resample", b, "--fps", "10000", "-o", tmp_path / "o.bvh", words=["GiB"])
+    assert_refused(capsys, b, "transition", a, b, "-o", tmp_path / "t.bvh", "--method", "slerp", words=["GiB"])
+    assert_refused(capsys, b, "train", a, b, "-o", tmp_path / "m.npz", words=["GiB"])
+    assert not any(p.name.startswith(("o.", "t.", "m.")) for p in tmp_path.iterdir())

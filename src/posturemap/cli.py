@@ -120,7 +120,7 @@ def _cmd_train(args) -> int:
     _check_output(args.output)
     kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
-    motions, changed = at_one_rate([m for _, m in clips])
+    motions, changed = at_one_rate([m for _, m in clips], names=[p for p, _ in clips])
     for i in changed:  # a map's clips share one rate: the first clip's
         print(f"posturemap: note: {clips[i][0]}: {clips[i][1].fps:g} fps, resampled to {motions[0].fps:g} fps "
               f"(the first clip's rate)", file=sys.stderr)
@@ -164,7 +164,7 @@ def _is_gltf_output(path: str) -> bool:
 def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
-    from .core.motion import resample, same_fps, up_axis
+    from .core.motion import at_one_rate, same_fps, up_axis
     from .synth.engine import transition
     from .synth.request import KEYED, RequestError, TransitionRequest
     from .core.joints import leg_chains
@@ -188,7 +188,7 @@ def _cmd_transition(args) -> int:
     if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames: the nearest in time
         if b_start >= len(b):
             raise UserError("--b-start", f"frame {b_start} is outside clip B (frames 0..{len(b) - 1})")
-        b_fps, b = b.fps, resample(b, a.fps)
+        b_fps, b = b.fps, at_one_rate([b], a.fps, [args.b])[0][0]
         b_start = min(round(args.b_start * a.fps / b_fps), len(b) - 1)
         rate_note = (f"  {args.b}: {b_fps:g} fps, resampled to A's {a.fps:g} fps "
                      f"(its frame {args.b_start} is frame {b_start})")
@@ -261,7 +261,10 @@ def _cmd_resample(args) -> int:
     as_gltf = _is_gltf_output(args.output)
     _check_output(args.output)
     m = bvh.read(args.input)
-    out = resample(m, args.fps)
+    try:
+        out = resample(m, args.fps)
+    except ValueError as e:  # a result too large to hold
+        raise UserError(args.input, str(e)) from None
     if as_gltf:
         gltf.write(args.output, out)
     else:

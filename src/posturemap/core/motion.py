@@ -109,6 +109,7 @@ def concatenate(motions: list[Motion]) -> Motion:
 
 
 MIN_FPS, MAX_FPS = 0.1, 10000.0  # as a BVH frame time of 10 s .. 0.1 ms (posturemap.io.bvh)
+MAX_RESAMPLED_BYTES = 2 << 30  # a resampled motion's rotations and translations (float64): the largest BVH file read
 
 
 def resample(motion: Motion, fps: float) -> Motion:
@@ -119,7 +120,10 @@ def resample(motion: Motion, fps: float) -> Motion:
     B, a map's training clips): this makes one clip the other's.
 
     Raises ValueError for a rate outside [0.1, 10000] (a BVH frame time of 10 s to 0.1 ms, what
-    the reader takes) and for a motion with no frame.
+    the reader takes), for a motion with no frame, and before allocating anything, for a result
+    whose rotations and translations would take more than :data:`MAX_RESAMPLED_BYTES` (2 GiB,
+    the largest BVH file the reader takes: 1,000 frames at 0.1 fps made 10,000 fps would be
+    100 million frames).
     """
     fps = float(fps)
     if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
@@ -131,6 +135,10 @@ def resample(motion: Motion, fps: float) -> Motion:
                       None if motion.source is None else motion.source.copy())
     last = motion.num_frames - 1
     n = int(np.floor(last * fps / motion.fps + 0.5)) + 1
+    size = n * motion.skeleton.num_joints * 7 * 8
+    if size > MAX_RESAMPLED_BYTES:
+        raise ValueError(f"{motion.num_frames} frames at {motion.fps:g} fps make {n} at {fps:g} fps, "
+                         f"{size / 2**30:.1f} GiB: over {MAX_RESAMPLED_BYTES / 2**30:g} GiB")
     u = np.minimum(np.arange(n) * (motion.fps / fps), last)  # in the clip's frames
     i0 = np.minimum(np.floor(u).astype(np.int64), max(last - 1, 0))
     i1 = np.minimum(i0 + 1, last)
@@ -141,10 +149,11 @@ def resample(motion: Motion, fps: float) -> Motion:
     return Motion(motion.skeleton, rots, pos, fps)
 
 
-def at_one_rate(motions: list[Motion], fps: float | None = None) -> tuple[list[Motion], list[int]]:
+def at_one_rate(motions: list[Motion], fps: float | None = None, names=None) -> tuple[list[Motion], list[int]]:
     """``motions`` at one frame rate, ``fps`` (default the first motion's): each at another rate
     resampled to it (:func:`resample`), the others (and any of no frames) as they are. Returns the
-    motions and the indices of those resampled.
+    motions and the indices of those resampled. A clip too large to resample raises
+    :class:`~posturemap.errors.UserError` naming it by ``names`` (default ``clip i``).
 
     The command line and the studio take clips of mixed rates this way (each resampled one named
     in a note); the API's :meth:`~posturemap.learn.model.PostureMap.fit` and a transition's A and
@@ -156,7 +165,10 @@ def at_one_rate(motions: list[Motion], fps: float | None = None) -> tuple[list[M
     fps = float(motions[0].fps if fps is None else fps)
     changed = [i for i, m in enumerate(motions) if m.num_frames and not same_fps(m.fps, fps)]
     for i in changed:
-        motions[i] = resample(motions[i], fps)
+        try:
+            motions[i] = resample(motions[i], fps)
+        except ValueError as e:
+            raise UserError(f"clip {i}" if names is None else names[i], str(e)) from None
     return motions, changed
 
 

@@ -93,7 +93,7 @@ class Studio:
             if not m.skeleton.same_as(self.skeleton):
                 raise UserError(name, f"skeleton differs from {first_name} (the studio needs one skeleton)")
         # One rate, the first clip's (a transition's A and B share one, and so do a map's clips).
-        motions, changed = at_one_rate(list(self.clips.values()))
+        motions, changed = at_one_rate(list(self.clips.values()), names=self.names)
         for i in changed:
             name = self.names[i]
             self.log(f"posturemap: note: {name}: {self.clips[name].fps:g} fps, resampled to {first.fps:g} fps "
