@@ -572,7 +572,7 @@ def _stance_windows(moves, length, step, least):
                 j -= 1
             order[j] = i
             parts += 1
-    if parts < 2:
+    if parts < 2 or length // parts < 3:
         return out
     for r in range(parts):
         lo, hi = r * length // parts, (r + 1) * length // parts

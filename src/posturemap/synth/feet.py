@@ -235,13 +235,14 @@ def stance_windows(moves, length: int, step: int, least: float) -> np.ndarray:
     the gap is cut into as many equal parts (``r * length // parts`` on), the farthest foot
     first (the lower index on a tie), and each steps in the middle of its part, over ``step``
     frames at most and at least one frame short of its part at each end. One foot alone keeps
-    the middle of the gap (all ``-1``).
+    the middle of the gap (all ``-1``), and so do all where a part would be shorter than three
+    frames (a step of no frame would move the foot from one spot to the other at once).
     """
     moves = np.asarray(moves, dtype=float)
     out = np.full((len(moves), 2), -1, dtype=np.int64)
     legs = sorted((i for i in range(len(moves)) if moves[i] > least), key=lambda i: (-moves[i], i))
     parts = len(legs)
-    if parts < 2:
+    if parts < 2 or length // parts < 3:
         return out
     for r, leg in enumerate(legs):
         lo, hi = r * length // parts, (r + 1) * length // parts
