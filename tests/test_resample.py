@@ -127,6 +127,10 @@ def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_c
     r, b30 = bvh.read(out), resample(b60, walk.fps)
     assert r.fps == pytest.approx(walk.fps, rel=1e-6) and len(r) == len(walk) + 10 + len(b30) - 11
     np.testing.assert_allclose(r.global_positions()[len(walk) + 10:], b30.global_positions()[11:], atol=1e-3)
+    # A frame halfway between two at A's rate goes to the later one, as resample's own frames do.
+    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--method", "slerp", "--length", "10",
+                            "--b-start", "5")
+    assert code == 0 and "(its frame 5 is frame 3)" in stdout, err
     # B's own last frame is the last a --b-start can name.
     assert_refused(capsys, "--b-start", "transition", a, b, "-o", out, "--b-start", str(len(b60)),
                    words=[f"frame {len(b60)} is outside clip B (frames 0..{len(b60) - 1})"])
@@ -148,18 +152,21 @@ def test_at_one_rate_resamples_only_the_clips_at_another_rate(sample_clips):
     out, changed = at_one_rate([walk, fast], fps=fast.fps)
     assert changed == [0] and out[1] is fast and out[0].fps == fast.fps
     assert at_one_rate([]) == ([], [])
+    with pytest.raises(ValueError, match="fps must be a number"):  # the rate asked for, not a clip, at fault
+        at_one_rate([walk, fast], fps=0.0)
 
 
 def test_a_resample_too_large_to_hold_is_refused_before_allocating(capsys, tmp_path, sample_clips):
-    # 0.1 fps made 10,000 fps: every frame becomes 100,000. Refused by size (2 GiB, the largest
-    # BVH file read), naming the clip, rather than a MemoryError (or the machine swapping).
+    # 0.1 fps made 10,000 fps: every frame becomes 100,000. Refused by size (512 MiB of result,
+    # about 1.8 GiB at the peak of making it), naming the clip, rather than a MemoryError (or
+    # the machine swapping).
     import dataclasses
     import tracemalloc
 
     walk = sample_clips["walk"]
     slow, fast = dataclasses.replace(walk, fps=0.1), dataclasses.replace(walk, fps=10000.0)
     tracemalloc.start()
-    with pytest.raises(ValueError, match=r"make \d+ at 10000 fps, [\d.]+ GiB: over 2 GiB"):
+    with pytest.raises(ValueError, match=r"make \d+ at 10000 fps, [\d,]+ MiB: over 512 MiB"):
         resample(slow, 10000.0)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
@@ -169,7 +176,7 @@ def test_a_resample_too_large_to_hold_is_refused_before_allocating(capsys, tmp_p
     a, b = tmp_path / "fast.bvh", tmp_path / "slow.bvh"
     bvh.write(a, fast)
     bvh.write(b, slow)
-    assert_refused(capsys, b, "resample", b, "--fps", "10000", "-o", tmp_path / "o.bvh", words=["GiB"])
-    assert_refused(capsys, b, "transition", a, b, "-o", tmp_path / "t.bvh", "--method", "slerp", words=["GiB"])
-    assert_refused(capsys, b, "train", a, b, "-o", tmp_path / "m.npz", words=["GiB"])
+    assert_refused(capsys, b, "resample", b, "--fps", "10000", "-o", tmp_path / "o.bvh", words=["MiB"])
+    assert_refused(capsys, b, "transition", a, b, "-o", tmp_path / "t.bvh", "--method", "slerp", words=["MiB"])
+    assert_refused(capsys, b, "train", a, b, "-o", tmp_path / "m.npz", words=["MiB"])
     assert not any(p.name.startswith(("o.", "t.", "m.")) for p in tmp_path.iterdir())

@@ -189,7 +189,7 @@ def _cmd_transition(args) -> int:
         if b_start >= len(b):
             raise UserError("--b-start", f"frame {b_start} is outside clip B (frames 0..{len(b) - 1})")
         b_fps, b = b.fps, at_one_rate([b], a.fps, [args.b])[0][0]
-        b_start = min(round(args.b_start * a.fps / b_fps), len(b) - 1)
+        b_start = min(int(args.b_start * a.fps / b_fps + 0.5), len(b) - 1)  # halves up, as resample's frames
         rate_note = (f"  {args.b}: {b_fps:g} fps, resampled to A's {a.fps:g} fps "
                      f"(its frame {args.b_start} is frame {b_start})")
     model = None
@@ -363,8 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     t = sub.add_parser("train", help="learn a posture map (four class UPMs) from BVH files or folders")
-    t.add_argument("inputs", nargs="+", metavar="INPUT", help="BVH file or folder of BVH files (not its subfolders); one skeleton, and clips "
-                        "at another frame rate than the first are resampled to it")
+    t.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="BVH file or folder of BVH files (not its subfolders); one skeleton, and clips at "
+                        "another frame rate than the first are resampled to it")
     t.add_argument("-o", "--output", required=True, metavar="MAP", help="map file to write (.npz)")
     t.add_argument("--radius", type=_radius, default="auto",
                    help="maximum distance from a posture to its neuron, or 'auto' (default) to derive it "
@@ -397,7 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"control parameter ({DEFAULT_ALPHA}): retrieval prefers motion that continues A at 0, that arrives "
                         "in B at 1; the key-posture methods put the key near A at 0, near B at 1")
     r.add_argument("--a-end", type=_nonneg_int, default=None, help="last frame of A to keep (default: last)")
-    r.add_argument("--b-start", type=_nonneg_int, default=0, help="first frame of B to keep (0); B at another frame rate than A is resampled to A's, "
+    r.add_argument("--b-start", type=_nonneg_int, default=0,
+                   help="first frame of B to keep (0); B at another frame rate than A is resampled to A's, "
                         "and this counts B's own frames")
     r.add_argument("--no-align", action="store_true", help="leave B where it is (no move or turn)")
     r.add_argument("--no-foot-lock", action="store_true",
@@ -436,8 +438,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=_cmd_bench)
 
     v = sub.add_parser("serve", help="interactive transition studio in the browser")
-    v.add_argument("inputs", nargs="*", metavar="INPUT", help="BVH files or folders (default: the bundled sample); clips at another frame "
-                        "rate than the first are resampled to it")
+    v.add_argument("inputs", nargs="*", metavar="INPUT",
+                   help="BVH files or folders (default: the bundled sample); clips at another frame rate than "
+                        "the first are resampled to it")
     v.add_argument("--map", metavar="MAP", help="posture map to use (default: learn one from the clips)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     v.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 takes a free one)")
@@ -474,6 +477,9 @@ def main(argv=None) -> int:
         return 141
     except OSError as e:  # permissions, a file where a folder should be, a full disk...
         sys.stderr.write(f"posturemap: error: {e.filename or ''}: {e.strerror or e}\n")
+        return 2
+    except MemoryError:
+        sys.stderr.write("posturemap: error: memory: not enough for this input\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("posturemap: interrupted\n")

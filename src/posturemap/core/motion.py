@@ -109,7 +109,8 @@ def concatenate(motions: list[Motion]) -> Motion:
 
 
 MIN_FPS, MAX_FPS = 0.1, 10000.0  # as a BVH frame time of 10 s .. 0.1 ms (posturemap.io.bvh)
-MAX_RESAMPLED_BYTES = 2 << 30  # a resampled motion's rotations and translations (float64): the largest BVH file read
+MAX_RESAMPLED_BYTES = 512 << 20  # a resampled motion's rotations and translations (float64); making them
+#                                   takes about 3.5 times as much at its peak (about 1.8 GiB here)
 
 
 def resample(motion: Motion, fps: float) -> Motion:
@@ -121,9 +122,9 @@ def resample(motion: Motion, fps: float) -> Motion:
 
     Raises ValueError for a rate outside [0.1, 10000] (a BVH frame time of 10 s to 0.1 ms, what
     the reader takes), for a motion with no frame, and before allocating anything, for a result
-    whose rotations and translations would take more than :data:`MAX_RESAMPLED_BYTES` (2 GiB,
-    the largest BVH file the reader takes: 1,000 frames at 0.1 fps made 10,000 fps would be
-    100 million frames).
+    whose rotations and translations would take more than :data:`MAX_RESAMPLED_BYTES` (512 MiB:
+    a 22-joint clip of 435,000 frames, an hour at 120 fps; 1,000 frames at 0.1 fps made 10,000
+    fps would be 100 million).
     """
     fps = float(fps)
     if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
@@ -138,7 +139,7 @@ def resample(motion: Motion, fps: float) -> Motion:
     size = n * motion.skeleton.num_joints * 7 * 8
     if size > MAX_RESAMPLED_BYTES:
         raise ValueError(f"{motion.num_frames} frames at {motion.fps:g} fps make {n} at {fps:g} fps, "
-                         f"{size / 2**30:.1f} GiB: over {MAX_RESAMPLED_BYTES / 2**30:g} GiB")
+                         f"{size / 2**20:,.0f} MiB: over {MAX_RESAMPLED_BYTES / 2**20:g} MiB")
     u = np.minimum(np.arange(n) * (motion.fps / fps), last)  # in the clip's frames
     i0 = np.minimum(np.floor(u).astype(np.int64), max(last - 1, 0))
     i1 = np.minimum(i0 + 1, last)
@@ -149,7 +150,8 @@ def resample(motion: Motion, fps: float) -> Motion:
     return Motion(motion.skeleton, rots, pos, fps)
 
 
-def at_one_rate(motions: list[Motion], fps: float | None = None, names=None) -> tuple[list[Motion], list[int]]:
+def at_one_rate(motions: list[Motion], fps: float | None = None,
+                names: list[str] | None = None) -> tuple[list[Motion], list[int]]:
     """``motions`` at one frame rate, ``fps`` (default the first motion's): each at another rate
     resampled to it (:func:`resample`), the others (and any of no frames) as they are. Returns the
     motions and the indices of those resampled. A clip too large to resample raises
@@ -163,6 +165,8 @@ def at_one_rate(motions: list[Motion], fps: float | None = None, names=None) -> 
     if not motions:
         return [], []
     fps = float(motions[0].fps if fps is None else fps)
+    if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise ValueError(f"fps must be a number in [{MIN_FPS:g}, {MAX_FPS:g}], got {fps:g}")
     changed = [i for i, m in enumerate(motions) if m.num_frames and not same_fps(m.fps, fps)]
     for i in changed:
         try:

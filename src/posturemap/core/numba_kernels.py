@@ -603,7 +603,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
-    interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart) step one after another
+    interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
+    ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them) step one after another
     (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out. A run held on one seam's
     spot steps where the foot's other end lies farther than ``drift_lo * body``
     (``lock_weights_and_targets``' reach).
@@ -632,7 +633,18 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         da, db = b_feet[0, leg, a_] - a_feet[1, leg, a_], b_feet[0, leg, b_] - a_feet[1, leg, b_]
         move = math.sqrt(da * da + db * db)
         if contacts.shape[0] == 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
-            moves[leg] = move
+            # Only a foot the motion glides: under a step's lift, near the line between the spots.
+            glides = n_l > 0
+            dd = max(da * da + db * db, 1e-300)
+            for t in range(n_l):
+                pa, pb = gpos[t, ankle, a_] - a_feet[1, leg, a_], gpos[t, ankle, b_] - a_feet[1, leg, b_]
+                u = min(max((pa * da + pb * db) / dd, 0.0), 1.0)
+                if (gpos[t, ankle, up] >= floor + lift
+                        or math.sqrt((pa - u * da) ** 2 + (pb - u * db) ** 2) > reach):
+                    glides = False
+                    break
+            if glides:
+                moves[leg] = move
     windows = _stance_windows(moves, n_l, step, stand)
     on_all = np.empty((n_legs, n_l), dtype=np.bool_)
     weight = np.empty(n_l)

@@ -16,8 +16,10 @@ in-between frames are made:
    seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``
    (the whole run where it is not longer than that by two frames). Where the legs are
    interpolated (no retrieved contacts), a foot planted at both seams on spots at most
-   ``MAX_DRIFT[1]`` apart is held through the whole gap and steps once, from A's spot to B's:
-   an interpolation glides it between the two stances, low over the floor. Where two feet or more must move farther than ``STAND_STEP``,
+   ``MAX_DRIFT[1]`` apart, which the motion keeps under a step's lift and within
+   ``MAX_DRIFT[0]`` of the line between them, is held through the whole gap and steps once,
+   from A's spot to B's: an interpolation glides it between the two stances, low over the
+   floor (a leg it lifts, as in a kick, is left to it). Where two feet or more must move farther than ``STAND_STEP``,
    they step one after another, each in its own part of the gap, the farthest first
    (:func:`stance_windows`): a person changes stance by stepping, not by hopping;
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
@@ -251,6 +253,19 @@ def stance_windows(moves, length: int, step: int, least: float) -> np.ndarray:
     return out
 
 
+def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.ndarray, up: int, top: float,
+            off: float) -> bool:
+    """Whether the motion's ankle (L, 3) glides from A's spot to B's (up coordinates zeroed): it
+    stays under the height ``top`` and within ``off`` of the line between the spots. A leg the
+    motion lifts (a kick) or swings wide is not held through the gap."""
+    if len(ankle) == 0 or ankle[:, up].max() >= top:
+        return False
+    d = b_spot - a_spot
+    p = ankle * flat - a_spot
+    u = np.clip(p @ d / max(float(d @ d), 1e-300), 0.0, 1.0)
+    return bool(np.linalg.norm(p - u[:, None] * d, axis=1).max() <= off)
+
+
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
                              speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
@@ -447,7 +462,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                 and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
         seams.append((floor, a_on, b_on))
         move = np.linalg.norm((b_feet[0, leg] - a_feet[1, leg]) * flat)
-        if contacts is None and a_on and b_on and move <= MAX_DRIFT[1] * body:  # one step's way at most
+        if (contacts is None and a_on and b_on and move <= MAX_DRIFT[1] * body  # one step's way at most
+                and _glides(gpos[:, ankle], a_feet[1, leg] * flat, b_feet[0, leg] * flat, flat, up,
+                            floor + STEP_LIFT * body, MAX_DRIFT[0] * body)):
             moves[leg] = move
     windows = stance_windows(moves, length, step, STAND_STEP * body)
     locks = []  # per leg: the offsets, lifts and held frames; the IK once the toes' floor is known

@@ -254,7 +254,7 @@ def run_cli(args) -> int:
     app = create_app(clips, model, allowed_hosts=LOOPBACK_HOSTS if local else None, log=log)
     port = sock.getsockname()[1]
     shown = f"[{args.host}]" if ":" in args.host else args.host
-    frames = sum(len(m) for m in clips.values())
+    frames = sum(len(m) for m in app.state.studio.clips.values())  # as served (resampled to one rate)
     print(f"posturemap studio: {len(clips)} clips ({frames} frames), "
           f"map {'from ' + args.map if args.map else 'learning in the background'}", flush=True)
     if not local:
