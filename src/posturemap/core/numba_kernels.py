@@ -604,10 +604,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
     interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
-    ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them) step one after another
-    (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out. A run held on one seam's
-    spot steps where the foot's other end lies farther than ``drift_lo * body``
-    (``lock_weights_and_targets``' reach).
+    ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them)
+    step one after another (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out.
+    A run held on one seam's spot steps where the foot's other end lies farther than
+    ``drift_lo * body`` (``lock_weights_and_targets``' reach).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3

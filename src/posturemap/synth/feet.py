@@ -19,9 +19,10 @@ in-between frames are made:
    ``MAX_DRIFT[1]`` apart, which the motion keeps under a step's lift and within
    ``MAX_DRIFT[0]`` of the line between them, is held through the whole gap and steps once,
    from A's spot to B's: an interpolation glides it between the two stances, low over the
-   floor (a leg it lifts, as in a kick, is left to it). Where two feet or more must move farther than ``STAND_STEP``,
-   they step one after another, each in its own part of the gap, the farthest first
-   (:func:`stance_windows`): a person changes stance by stepping, not by hopping;
+   floor (a leg it lifts, as in a kick, is left to it). Where two feet or more must move
+   farther than ``STAND_STEP``, they step one after another, each in its own part of the gap,
+   the farthest first (:func:`stance_windows`): a person changes stance by stepping, not by
+   hopping;
 3. in a run the ankle is moved onto its spot (height kept): the foot's offset is the spot minus
    where the motion put it, its length softly limited where the spot lies far from the foot
    (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
