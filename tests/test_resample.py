@@ -180,3 +180,17 @@ def test_a_resample_too_large_to_hold_is_refused_before_allocating(capsys, tmp_p
     assert_refused(capsys, b, "transition", a, b, "-o", tmp_path / "t.bvh", "--method", "slerp", words=["MiB"])
     assert_refused(capsys, b, "train", a, b, "-o", tmp_path / "m.npz", words=["MiB"])
     assert not any(p.name.startswith(("o.", "t.", "m.")) for p in tmp_path.iterdir())
+
+
+def test_running_out_of_memory_is_one_error_line(capsys, tmp_path, sample_clips, monkeypatch):
+    # Whatever runs out (a huge but valid input), the command line says so in one line, exit 2.
+    a = tmp_path / "walk.bvh"
+    bvh.write(a, sample_clips["walk"])
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(bvh, "read", no_memory)
+    line = assert_refused(capsys, "memory", "resample", a, "--fps", "60", "-o", tmp_path / "o.bvh")
+    assert line == "posturemap: error: memory: not enough for this input"
+    assert not (tmp_path / "o.bvh").exists()
