@@ -120,7 +120,8 @@ def _cmd_train(args) -> int:
     _check_output(args.output)
     kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
-    motions, changed = at_one_rate([m for _, m in clips], names=[p for p, _ in clips])
+    paths = [p for p, _ in clips]
+    motions, changed = at_one_rate([m for _, m in clips], names=paths)
     for i in changed:  # a map's clips share one rate: the first clip's
         print(f"posturemap: note: {clips[i][0]}: {clips[i][1].fps:g} fps, resampled to {motions[0].fps:g} fps "
               f"(the first clip's rate)", file=sys.stderr)
@@ -129,7 +130,7 @@ def _cmd_train(args) -> int:
     pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
                     args.features, classes)
     try:
-        pm.fit(motions, [p for p, _ in clips], progress=progress)
+        pm.fit(motions, paths, progress=progress)
     finally:
         progress.close()
     pm.save(args.output)
@@ -166,7 +167,7 @@ def _cmd_transition(args) -> int:
     from .learn.model import PostureMap
     from .core.motion import at_one_rate, same_fps, up_axis
     from .synth.engine import transition
-    from .synth.request import KEYED, RequestError, TransitionRequest
+    from .synth.request import KEYED, RequestError, TransitionRequest, frame_index
     from .core.joints import leg_chains
 
     as_gltf = _is_gltf_output(args.output)
@@ -186,8 +187,10 @@ def _cmd_transition(args) -> int:
     _check_output(args.output)
     b_start, rate_note = args.b_start, None
     if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames: the nearest in time
-        if b_start >= len(b):
-            raise UserError("--b-start", f"frame {b_start} is outside clip B (frames 0..{len(b) - 1})")
+        try:
+            frame_index("b_start", b_start, len(b), "clip B")
+        except RequestError as e:
+            raise UserError("--b-start", e.what) from None
         b_fps, b = b.fps, at_one_rate([b], a.fps, [args.b])[0][0]
         b_start = min(int(args.b_start * a.fps / b_fps + 0.5), len(b) - 1)  # halves up, as resample's frames
         rate_note = (f"  {args.b}: {b_fps:g} fps, resampled to A's {a.fps:g} fps "
