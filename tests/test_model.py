@@ -12,6 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
+from clikit import assert_refused
 from posturemap.io import bvh
 from posturemap import cli, sample
 from posturemap.core import quat
@@ -546,6 +547,31 @@ def test_cli_output_folder_checked_before_training(bvh_dir, tmp_path):
     out = tmp_path / "no" / "such" / "map.npz"
     code, _, err = run_cli("train", bvh_dir / "walk.bvh", "-o", out)
     check_one_error_line(code, err, str(out), "output folder does not exist")
+
+
+def test_cli_never_writes_over_its_inputs(bvh_dir, tmp_path, saved, capsys):
+    # `train clip.bvh -o clip.bvh` replaced the clip with a map (exit 0), and `transition A B -o A`
+    # replaced A: an output that is one of the command's inputs is refused, the input untouched.
+    clip = tmp_path / "walk.bvh"
+    clip.write_bytes((bvh_dir / "walk.bvh").read_bytes())
+    other = bvh_dir / "run.bvh"
+    before = clip.read_bytes()
+    link = tmp_path / "alias.bvh"
+    link.symlink_to(clip)  # the same file by another name
+    for args, path, words in [
+        (["train", clip, "-o", clip], clip, ["must end in .npz"]),
+        (["train", clip, "-o", tmp_path / "map"], tmp_path / "map", ["must end in .npz"]),
+        (["transition", clip, other, "-o", clip], clip, ["is an input", str(clip)]),
+        (["transition", other, clip, "-o", link], link, ["is an input", str(clip)]),
+        (["transition", clip, other, "--map", saved, "-o", clip], clip, ["is an input"]),
+        (["resample", clip, "--fps", "60", "-o", link], link, ["is an input"]),
+    ]:
+        assert_refused(capsys, path, *args, words=words)
+        assert clip.read_bytes() == before, args
+    assert not (tmp_path / "map").exists()
+    # An input read again as another input is no output: the command still runs.
+    assert cli.main(["transition", str(clip), str(clip), "-o", str(tmp_path / "out.bvh")]) == 0
+    capsys.readouterr()
 
 
 def test_predict_and_score_follow_the_class_maps(sample_clips):

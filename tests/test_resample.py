@@ -131,6 +131,11 @@ def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_c
     code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--method", "slerp", "--length", "10",
                             "--b-start", "5")
     assert code == 0 and "(its frame 5 is frame 3)" in stdout, err
+    # Without --map, the map made of A and B lists B's segments by B's frames at A's rate, so
+    # it names B with that rate.
+    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--length", "20")
+    assert code == 0, err
+    assert f"{b} (at {walk.fps:g} fps) frames " in stdout and f"{b} frames" not in stdout, stdout
     # B's own last frame is the last a --b-start can name.
     assert_refused(capsys, "--b-start", "transition", a, b, "-o", out, "--b-start", str(len(b60)),
                    words=[f"frame {len(b60)} is outside clip B (frames 0..{len(b60) - 1})"])
@@ -140,6 +145,8 @@ def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_c
     assert f"posturemap: note: {b}: {b60.fps:g} fps, resampled to {walk.fps:g} fps (the first clip's rate)" in err
     m = posturemap.PostureMap.load(tmp_path / "m.npz")
     assert m.info_["fps"] == pytest.approx(walk.fps) and m.info_["frames"] == len(walk) + len(b30)
+    # The library names the resampled clip with the rate its frames are counted at.
+    assert m.library_.clip_names[:2] == (str(a), f"{b} (at {walk.fps:g} fps)")
 
 
 def test_at_one_rate_resamples_only_the_clips_at_another_rate(sample_clips):

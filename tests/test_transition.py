@@ -762,8 +762,10 @@ def test_different_skeletons_raise(clips, model, sample_clips):
         transition(clips[WALK], other, None, method="spline")
     with pytest.raises(UserError, match="skeleton differs"):
         transition(clips[WALK], other, model)
-    with pytest.raises(UserError, match="skeleton differs"):
+    with pytest.raises(UserError, match="skeleton differs from the map's"):
         transition(other, sample_clips["run"], model)  # both alike, but not the map's skeleton
+    with pytest.raises(UserError, match="b: skeleton differs from the other clips'"):
+        transition(clips[WALK], other, None, method="slerp")  # no map: B against A
     engine = TransitionEngine(model)
     with pytest.raises(UserError, match="skeleton differs"):
         engine.add("x", other)

@@ -117,7 +117,9 @@ def _cmd_train(args) -> int:
     from .learn.features import load_class_overrides
     from .learn.model import PostureMap
 
-    _check_output(args.output)
+    if not args.output.lower().endswith(".npz"):
+        raise UserError(args.output, "a map's name must end in .npz")
+    _check_output(args.output, args.inputs)
     kernels.compiled()  # training needs them; reading many files is faster with them too
     clips = read_inputs(args.inputs)
     paths = [p for p, _ in clips]
@@ -125,6 +127,8 @@ def _cmd_train(args) -> int:
     for i in changed:  # a map's clips share one rate: the first clip's
         print(f"posturemap: note: {clips[i][0]}: {clips[i][1].fps:g} fps, resampled to {motions[0].fps:g} fps "
               f"(the first clip's rate)", file=sys.stderr)
+        # Its frames in the library (and in a transition's report) are at that rate: said in its name.
+        paths[i] = f"{paths[i]} (at {motions[0].fps:g} fps)"
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
     pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
@@ -142,12 +146,21 @@ def _cmd_train(args) -> int:
     return 0
 
 
-def _check_output(path: str):
+def _check_output(path: str, inputs=()):
+    """Refuse an output whose folder is missing, that is a folder, or that is one of the
+    command's ``inputs`` (writing it would replace a file the command reads)."""
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise UserError(path, "output folder does not exist")
     if os.path.isdir(path):
         raise UserError(path, "is a folder, expected a file name")
+    for source in inputs:
+        try:
+            same = os.path.samefile(path, source)
+        except OSError:  # either missing (the output is new) or unreadable (the input's read says so)
+            same = False
+        if same:
+            raise UserError(path, f"is an input of this command ({source}); write the output to another file")
 
 
 def _is_gltf_output(path: str) -> bool:
@@ -177,14 +190,14 @@ def _cmd_transition(args) -> int:
         require_extra("preview", "matplotlib", what="--preview")
         if not args.preview.lower().endswith(".png"):
             raise UserError(args.preview, "a preview file name must end in .png")
-        _check_output(args.preview)
+        _check_output(args.preview, [args.a, args.b])
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
     why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
     if why:
         raise UserError(args.b, why)
-    _check_output(args.output)
+    _check_output(args.output, [args.a, args.b])
     b_start, rate_note = args.b_start, None
     if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames: the nearest in time
         try:
@@ -208,7 +221,9 @@ def _cmd_transition(args) -> int:
                   f"{'XYZ'[model.space_.up]}: the transition may not line up (a map trained on clips of this "
                   "orientation would)", file=sys.stderr)
     elif args.method in KEYED:
-        model = PostureMap(seed=0).fit([a, b], [args.a, args.b])
+        # A resampled B is named so in the report: its frames there are at A's rate.
+        b_name = args.b if rate_note is None else f"{args.b} (at {a.fps:g} fps)"
+        model = PostureMap(seed=0).fit([a, b], [args.a, b_name])
     report = {}
     request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
                                 a_end=args.a_end, b_start=b_start, align=not args.no_align,
@@ -262,7 +277,7 @@ def _cmd_resample(args) -> int:
     from .core.motion import resample
 
     as_gltf = _is_gltf_output(args.output)
-    _check_output(args.output)
+    _check_output(args.output, [args.input])
     m = bvh.read(args.input)
     try:
         out = resample(m, args.fps)

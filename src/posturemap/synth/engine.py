@@ -124,7 +124,8 @@ class TransitionEngine:
         if self.skeleton is None:
             self.skeleton = motion.skeleton
         if not motion.skeleton.same_as(self.skeleton):
-            raise UserError(name, "skeleton differs from the other clips (joints, hierarchy or channels)")
+            whose = "the map's" if self.model is not None else "the other clips'"
+            raise UserError(name, f"skeleton differs from {whose} (joints, hierarchy or channels)")
         why = motion.skeleton.body_mismatch(self.skeleton,
                                             "the map's" if self.model is not None else "the other clips'")
         if why:
