@@ -268,7 +268,8 @@ def summary(motion: Motion) -> str:
     return (f"{motion.num_frames} frames at {motion.fps:g} fps ({motion.num_frames / motion.fps:.2f} s), "
             f"{sk.num_joints} joints, {sum(len(c) for c in sk.channels)} channels, "
             f"up axis {AXES[up]}, body height {height:.3g} "
-            f"({length_unit(motion, height)}), root joint {sk.names[root_index(motion)]!r}")
+            f"({length_unit(motion, height)}; top joint to lowest, under the actor's height), "
+            f"root joint {sk.names[root_index(motion)]!r}")
 
 
 def up_vector(axis: int) -> np.ndarray:
