@@ -716,27 +716,40 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
             high = min(lift, 0.5 * math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2))
-            ma, mb = gpos[(start + stop - 1) // 2, ankle, a_], gpos[(start + stop - 1) // 2, ankle, b_]
+            mid = (start + stop - 1) // 2
+            ma, mb = gpos[mid, ankle, a_], gpos[mid, ankle, b_]
+            # The foot turns about its toe: the toe's place about the ankle at the run's first and
+            # last frames, between which its reference moves as the spot does.
+            toe = toes[leg]
+            ra0, rb0 = gpos[start, toe, a_] - gpos[start, ankle, a_], gpos[start, toe, b_] - gpos[start, ankle, b_]
+            ra1 = gpos[stop - 1, toe, a_] - gpos[stop - 1, ankle, a_]
+            rb1 = gpos[stop - 1, toe, b_] - gpos[stop - 1, ankle, b_]
             for u in range(start, stop):
                 i = u - start
                 if stepping:
                     if i >= k0 + k:
-                        sa, sb = ya, yb
+                        sa, sb, ref = ya, yb, 1.0
                     elif i < k0:
-                        sa, sb = xa, xb
+                        sa, sb, ref = xa, xb, 0.0
                     else:
                         uu = (i - k0 + 1) / (k + 1.0)
                         ss = uu * uu * (3.0 - 2.0 * uu)
-                        sa, sb = xa + ss * (ya - xa), xb + ss * (yb - xb)
+                        sa, sb, ref = xa + ss * (ya - xa), xb + ss * (yb - xb), ss
                         raised[u] = high * math.sin(math.pi * uu)
                 elif from_a:
-                    sa, sb = xa, xb
+                    sa, sb, ref = xa, xb, 0.0
                 elif to_b:
-                    sa, sb = ya, yb
-                else:
-                    sa, sb = ma, mb
+                    sa, sb, ref = ya, yb, 1.0
+                else:  # the toe's reference: the run's middle, as the spot's
+                    sa, sb, ref = ma, mb, 0.0
                 weight[u] = 1.0
-                target[u, 0], target[u, 1] = sa, sb
+                if from_a or to_b:
+                    ha, hb = ra0 + ref * (ra1 - ra0), rb0 + ref * (rb1 - rb0)
+                else:
+                    ha, hb = gpos[mid, toe, a_] - gpos[mid, ankle, a_], gpos[mid, toe, b_] - gpos[mid, ankle, b_]
+                ta = gpos[u, toe, a_] - gpos[u, ankle, a_] - ha
+                tb = gpos[u, toe, b_] - gpos[u, ankle, b_] - hb
+                target[u, 0], target[u, 1] = sa - ta, sb - tb
         # The runs' offsets, softly limited where the spot is far from the foot.
         for t in range(n_l):
             offset[t, 0] = target[t, 0] - gpos[t, ankle, a_]
