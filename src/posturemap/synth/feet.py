@@ -368,14 +368,17 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     return weight, target, raised
 
 
-def _step_share(ref: np.ndarray, step: int, window=None) -> None:
-    """``ref`` (n,) in place: how far a run's step (:func:`_step`) has gone at each frame, 0 to 1."""
-    n = len(ref)
+def _step_window(n: int, step: int, window=None) -> tuple[int, int]:
+    """A run of ``n`` frames' step (:func:`_step`): its first frame and its length ``(k0, k)``."""
     if window is None:
         k = max(0, min(step, n - 2))
-        k0 = (n - k) // 2
-    else:
-        k0, k = int(window[0]), int(window[1])
+        return (n - k) // 2, k
+    return int(window[0]), int(window[1])
+
+
+def _step_share(ref: np.ndarray, step: int, window=None) -> None:
+    """``ref`` (n,) in place: how far a run's step (:func:`_step`) has gone at each frame, 0 to 1."""
+    k0, k = _step_window(len(ref), step, window)
     ref[:k0], ref[k0 + k:] = 0.0, 1.0
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
@@ -393,12 +396,7 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
     k0 + k - 1`` instead."""
-    n = len(spot)
-    if window is None:
-        k = max(0, min(step, n - 2))
-        k0 = (n - k) // 2
-    else:
-        k0, k = int(window[0]), int(window[1])
+    k0, k = _step_window(len(spot), step, window)
     spot[:k0], spot[k0 + k:] = first, last
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
