@@ -789,7 +789,7 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
     feet_joints = ankles + list(leg_toes(e.skeleton, e._legs))
     height = metrics.SKATE_HEIGHT_LEGS * leg_length(e.skeleton, e._legs)
     rng = np.random.default_rng(1)
-    free_steps, locked_steps = [], []
+    free_steps, locked_steps, free_heels, locked_heels = [], [], [], []
     for _ in range(12):  # seeded seams anywhere in the clips, with A's last 2 frames as context
         kw = dict(length=20, a_end=int(rng.integers(2, len(a))), b_start=int(rng.integers(0, len(b) - 2)),
                   method="spline")
@@ -801,6 +801,14 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
         # closeness to the floor, no contact detection (the toes, lowest, carry nearly all of it).
         free_steps.append(metrics.weighted_skate(g0, a.fps, 1, height))
         locked_steps.append(metrics.weighted_skate(g1, a.fps, 1, height))
+        # The heels too: ankles low (within 4 cm of the floor, 11 cm for Bandai's ankles) and slow
+        # (under 50 cm/s) in the free motion move slower locked. The foot turns about its toe,
+        # so a held ankle moves as the foot rolls or turns over it (as the real clips' ankles
+        # do: flat on the floor, 7.2 cm/s against the toes' 5.1).
+        g0a, g1a = g0[:, :len(ankles)], g1[:, :len(ankles)]
+        contacts = metrics.foot_contacts(g0a, a.fps, 1, np.full(len(ankles), 11.0), 4.0, 50.0)
+        free_heels.append(metrics.horizontal_speed(g0a, a.fps, 1)[contacts])
+        locked_heels.append(metrics.horizontal_speed(g1a, a.fps, 1)[contacts])
         # Only the legs change; the feet keep their global orientation.
         legs = sorted({j for c in e._legs for j in c})
         others = [j for j in range(a.skeleton.num_joints) if j not in legs]
@@ -811,6 +819,10 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
     free, locked = np.mean(free_steps), np.mean(locked_steps)
     # 0.61 and 0.54 (a foot held by its ankle, its toe sliding as it rolled: 0.62 and 0.71).
     assert locked < 0.7 * free, (free, locked)
+    free, locked = np.concatenate(free_heels), np.concatenate(locked_heels)
+    assert len(free) > 10
+    # 0.75 and 0.66 (held by the ankle: 0.42 and 0.44).
+    assert locked.mean() < 0.8 * free.mean(), (free.mean(), locked.mean())
 
 
 @pytest.mark.parametrize("given_contacts", [False, True])

@@ -25,8 +25,9 @@ in-between frames are made:
    hopping;
 3. in a run the ankle is moved onto its spot (height kept), and the foot turns about its toe,
    not its ankle: where the motion rolls the foot up onto its toe or turns it, the ankle moves
-   over the toe, which stays where it was at the run's reference frame (the spot's: A's end, B's
-   start or the run's middle; across a step, from the first spot's to the last's). Held by the
+   over the toe, which stays where it was at the run's reference frame (the first new frame for
+   a run on A's spot, the last for one on B's, the middle for one on its own; across a step,
+   from the first frame's to the last's). Held by the
    ankle, the toe slid back as the heel rose and swung round as the foot turned: between two
    clips, 41% of the skate at 0.5 s was a held foot's toe, and the toes carry nearly all the
    skate (the ankles stand higher than the height weight's reach). The foot's offset is the
