@@ -123,11 +123,10 @@ class TransitionEngine:
         motion.check_usable(name)
         if self.skeleton is None:
             self.skeleton = motion.skeleton
+        whose = "the map's" if self.model is not None else "the other clips'"
         if not motion.skeleton.same_as(self.skeleton):
-            whose = "the map's" if self.model is not None else "the other clips'"
             raise UserError(name, f"skeleton differs from {whose} (joints, hierarchy or channels)")
-        why = motion.skeleton.body_mismatch(self.skeleton,
-                                            "the map's" if self.model is not None else "the other clips'")
+        why = motion.skeleton.body_mismatch(self.skeleton, whose)
         if why:
             raise UserError(name, why)
         if self._root is None:

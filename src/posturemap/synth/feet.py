@@ -27,13 +27,12 @@ in-between frames are made:
    not its ankle: where the motion rolls the foot up onto its toe or turns it, the ankle moves
    over the toe, which stays where it was at the run's reference frame (the first new frame for
    a run on A's spot, the last for one on B's, the middle for one on its own; across a step,
-   from the first frame's to the last's). Held by the
-   ankle, the toe slid back as the heel rose and swung round as the foot turned: between two
-   clips, 41% of the skate at 0.5 s was a held foot's toe, and the toes carry nearly all the
-   skate (the ankles stand higher than the height weight's reach). The foot's offset is the
-   spot (less the toe's turn) minus where the motion put the ankle, its length softly limited
-   where the spot lies far from the foot (``MAX_DRIFT``: the foot is dragged rather than the leg
-   stretched). Between runs, while the
+   from the first frame's to the last's). Held by the ankle, the toe slid back as the heel rose
+   and swung round as the foot turned: between two clips, 41% of the skate at 0.5 s was a held
+   foot's toe, and the toes carry nearly all the skate (the ankles stand higher than the height
+   weight's reach). The foot's offset is the spot (less the toe's turn) minus where the motion
+   put the ankle, its length softly limited where the spot lies far from the foot
+   (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
    foot is in the air, the offset passes smoothly (a cubic with the runs' offsets and their
    rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
