@@ -112,7 +112,7 @@ def _radius(text: str):
 
 def _cmd_train(args) -> int:
     from .core import kernels
-    from .core.motion import at_one_rate
+    from .core.motion import at_one_rate, resampled_note
     from .io.bvh import read_inputs
     from .learn.features import load_class_overrides
     from .learn.model import PostureMap
@@ -125,8 +125,7 @@ def _cmd_train(args) -> int:
     paths = [p for p, _ in clips]
     motions, changed = at_one_rate([m for _, m in clips], names=paths)
     for i in changed:  # a map's clips share one rate: the first clip's
-        print(f"posturemap: note: {clips[i][0]}: {clips[i][1].fps:g} fps, resampled to {motions[0].fps:g} fps "
-              f"(the first clip's rate)", file=sys.stderr)
+        print(resampled_note(clips[i][0], clips[i][1].fps, motions[0].fps), file=sys.stderr)
         # Its frames in the library (and in a transition's report) are at that rate: said in its name.
         paths[i] = f"{paths[i]} (at {motions[0].fps:g} fps)"
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None

@@ -176,6 +176,11 @@ def at_one_rate(motions: list[Motion], fps: float | None = None,
     return motions, changed
 
 
+def resampled_note(name: str, was: float, now: float) -> str:
+    """The note the command line and the studio give for a clip :func:`at_one_rate` resampled."""
+    return f"posturemap: note: {name}: {was:g} fps, resampled to {now:g} fps (the first clip's rate)"
+
+
 def root_index(motion_or_skeleton) -> int:
     """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 

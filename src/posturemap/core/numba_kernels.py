@@ -718,12 +718,13 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             high = min(lift, 0.5 * math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2))
             mid = (start + stop - 1) // 2
             ma, mb = gpos[mid, ankle, a_], gpos[mid, ankle, b_]
-            # The foot turns about its toe: the toe's place about the ankle at the run's first and
-            # last frames, between which its reference moves as the spot does.
+            # The foot turns about its toe, held where it was at the spot's frame: the toe's place
+            # about the ankle at a seam's run's first and last frames (its reference moves between
+            # them as the spot does), or at the middle of a run on its own.
             toe = toes[leg]
-            ra0, rb0 = gpos[start, toe, a_] - gpos[start, ankle, a_], gpos[start, toe, b_] - gpos[start, ankle, b_]
-            ra1 = gpos[stop - 1, toe, a_] - gpos[stop - 1, ankle, a_]
-            rb1 = gpos[stop - 1, toe, b_] - gpos[stop - 1, ankle, b_]
+            f0, f1 = (start, stop - 1) if from_a or to_b else (mid, mid)
+            ra0, rb0 = gpos[f0, toe, a_] - gpos[f0, ankle, a_], gpos[f0, toe, b_] - gpos[f0, ankle, b_]
+            ra1, rb1 = gpos[f1, toe, a_] - gpos[f1, ankle, a_], gpos[f1, toe, b_] - gpos[f1, ankle, b_]
             for u in range(start, stop):
                 i = u - start
                 if stepping:
@@ -740,15 +741,11 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     sa, sb, ref = xa, xb, 0.0
                 elif to_b:
                     sa, sb, ref = ya, yb, 1.0
-                else:  # the toe's reference: the run's middle, as the spot's
+                else:
                     sa, sb, ref = ma, mb, 0.0
                 weight[u] = 1.0
-                if from_a or to_b:
-                    ha, hb = ra0 + ref * (ra1 - ra0), rb0 + ref * (rb1 - rb0)
-                else:
-                    ha, hb = gpos[mid, toe, a_] - gpos[mid, ankle, a_], gpos[mid, toe, b_] - gpos[mid, ankle, b_]
-                ta = gpos[u, toe, a_] - gpos[u, ankle, a_] - ha
-                tb = gpos[u, toe, b_] - gpos[u, ankle, b_] - hb
+                ta = gpos[u, toe, a_] - gpos[u, ankle, a_] - (ra0 + ref * (ra1 - ra0))
+                tb = gpos[u, toe, b_] - gpos[u, ankle, b_] - (rb0 + ref * (rb1 - rb0))
                 target[u, 0], target[u, 1] = sa - ta, sb - tb
         # The runs' offsets, softly limited where the spot is far from the foot.
         for t in range(n_l):

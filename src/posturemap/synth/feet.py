@@ -339,18 +339,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         to_b = stop == length and b_on
         n = stop - start
         spot = np.empty((n, 3))
-        ref = np.zeros(n)  # a seam's run: the toe's reference, 0 its first frame, 1 its last (across a step, between)
+        ref = np.zeros(n)  # where the spot is between the run's first spot and its last, 0 to 1
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
-            _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window)
-            _step_share(ref, step, window)
+            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
-            _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
-            _step_share(ref, step)
+            ref = _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
         elif from_a:
             spot[:] = a_spot
         elif to_b and 0 < step <= n - 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
-            _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift)
-            _step_share(ref, step)
+            ref = _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift)
         elif to_b:
             spot[:] = b_spot
             ref[:] = 1.0
@@ -358,31 +355,11 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
             spot[:] = horiz[(start + stop - 1) // 2]
         weight[start:stop] = 1.0
         target[start:stop] = spot
-        if toe is not None:
+        if toe is not None:  # the toe held where it was at the spot's frame: a seam's, or the run's middle
             run_toe = toe[start:stop]
-            if from_a or to_b:
-                held_toe = run_toe[0] + ref[:, None] * (run_toe[-1] - run_toe[0])
-            else:
-                held_toe = run_toe[(n - 1) // 2]
-            target[start:stop] -= run_toe - held_toe
+            first, last = (run_toe[0], run_toe[-1]) if from_a or to_b else (run_toe[(n - 1) // 2],) * 2
+            target[start:stop] -= run_toe - (first + ref[:, None] * (last - first))
     return weight, target, raised
-
-
-def _step_window(n: int, step: int, window=None) -> tuple[int, int]:
-    """A run of ``n`` frames' step (:func:`_step`): its first frame and its length ``(k0, k)``."""
-    if window is None:
-        k = max(0, min(step, n - 2))
-        return (n - k) // 2, k
-    return int(window[0]), int(window[1])
-
-
-def _step_share(ref: np.ndarray, step: int, window=None) -> None:
-    """``ref`` (n,) in place: how far a run's step (:func:`_step`) has gone at each frame, 0 to 1."""
-    k0, k = _step_window(len(ref), step, window)
-    ref[:k0], ref[k0 + k:] = 0.0, 1.0
-    if k > 0:
-        u = np.arange(1, k + 1) / (k + 1.0)
-        ref[k0: k0 + k] = u * u * (3 - 2 * u)
 
 
 def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
@@ -391,17 +368,26 @@ def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
 
 
 def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float,
-          window=None):
+          window=None) -> np.ndarray:
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
-    k0 + k - 1`` instead."""
-    k0, k = _step_window(len(spot), step, window)
+    k0 + k - 1`` instead. Returns how far the step has gone at each frame (n,), 0 to 1."""
+    n = len(spot)
+    if window is None:
+        k = max(0, min(step, n - 2))
+        k0 = (n - k) // 2
+    else:
+        k0, k = int(window[0]), int(window[1])
+    share = np.zeros(n)
+    share[k0 + k:] = 1.0
     spot[:k0], spot[k0 + k:] = first, last
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
-        spot[k0: k0 + k] = first + (u * u * (3 - 2 * u))[:, None] * (last - first)
+        share[k0: k0 + k] = u * u * (3 - 2 * u)
+        spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
         raised[k0: k0 + k] = min(lift, 0.5 * float(np.linalg.norm(last - first))) * np.sin(np.pi * u)
+    return share
 
 
 def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:

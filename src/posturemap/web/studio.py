@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.motion import Motion, at_one_rate, body_height, concatenate, length_unit, root_index, up_axis
+from ..core.motion import (Motion, at_one_rate, body_height, concatenate, length_unit, resampled_note, root_index,
+                           up_axis)
 from ..errors import UserError
 from ..io import bvh
 from ..synth.engine import TransitionEngine
@@ -95,9 +96,7 @@ class Studio:
         # One rate, the first clip's (a transition's A and B share one, and so do a map's clips).
         motions, changed = at_one_rate(list(self.clips.values()), names=self.names)
         for i in changed:
-            name = self.names[i]
-            self.log(f"posturemap: note: {name}: {self.clips[name].fps:g} fps, resampled to {first.fps:g} fps "
-                     "(the first clip's rate)")
+            self.log(resampled_note(self.names[i], self.clips[self.names[i]].fps, first.fps))
         self.clips = dict(zip(self.names, motions, strict=True))
         if model is not None:
             model.check_skeleton(self.skeleton, first_name)
