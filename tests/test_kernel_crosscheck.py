@@ -616,8 +616,10 @@ def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),
     # groups of 3 and 1 columns, some columns fixed to the shortest time constant; samples
-    # 1 or 4 frames apart; also a context of two samples (no time scale from that side).
-    from posturemap.synth.bases import damped_frames, damped_time_scales
+    # 1 or 4 frames apart; also a context of two samples (no time scale from that side). The
+    # reach (in the groups of the first 7 or 10 columns) at most a third of the gap, so that
+    # some groups are capped.
+    from posturemap.synth.bases import DAMPED_PEAK, damped_frames, damped_time_scales, reach_scales
 
     rng = np.random.default_rng(112)
     starts = np.array([0, 3, 6, 7, 10], dtype=np.intp)
@@ -633,11 +635,17 @@ def test_damped_columns_are_the_bases_damped_frames():
         rows[1][:, 6] = 3.0 * np.arange(n_b)  # a steady drift at B: inf, held at tau_max
         tau_min = 1.5
         tau_max = max(tau_min, 0.25 * (length + 1))  # as the engine holds it
-        out = np.empty((length, n_c))
-        NK.damped_columns(inputs, length, rows[0], rows[1], float(step), starts, fixed, tau_min, tau_max, out)
         scale = np.where(fixed, 0.0, damped_time_scales(rows, step, starts))
-        expected = damped_frames(inputs, length, scale, tau_min, tau_max)
-        np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
+        for reach_columns in (0, 7, 10):
+            reach_max = (length + 1) / 3.0
+            out = np.empty((length, n_c))
+            NK.damped_columns(inputs, length, rows[0], rows[1], float(step), starts, fixed, tau_min, tau_max,
+                              reach_columns, reach_max, DAMPED_PEAK, out)
+            reach = reach_scales(inputs, starts, reach_columns, reach_max)
+            expected = damped_frames(inputs, length, scale, tau_min, tau_max, reach)
+            np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
+            if reach_columns == 0:
+                np.testing.assert_allclose(out, damped_frames(inputs, length, scale, tau_min, tau_max), atol=1e-12)
         for g, c0 in enumerate(starts):
             c1 = starts[g + 1] if g + 1 < len(starts) else n_c
             ev, ea = NK._group_energy(rows[0], c0, c1, float(step))

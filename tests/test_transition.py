@@ -22,9 +22,9 @@ from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
-from posturemap.synth.bases import (DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
+from posturemap.synth.bases import (DAMPED_PEAK, DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
-                                   linear_basis)
+                                   linear_basis, reach_scales)
 from posturemap.synth import periodic
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
@@ -1103,6 +1103,59 @@ def test_damped_keeps_a_steady_motion_on_the_line(length):
     v = (p_b - p_a) / (length + 1.0)
     np.testing.assert_allclose(damped_curve(length, 3.0, [p_a, v, p_b, v]), linear_basis(length) @ [p_a, p_b],
                                atol=1e-12)
+
+
+def test_reach_scales_carry_a_seam_velocity_to_the_other_seam():
+    # One joint (3 columns) from 0 to B's value (2, 0, 0): A's velocity heading straight there
+    # at 0.1 a frame gets the time constant whose carried offset v g(t) peaks at the distance
+    # left (2); heading away, or across, none. B's velocity arriving from A's side alike. Only
+    # whole groups within the first ``columns`` columns take part; ``longest`` caps it.
+    starts = np.array([0, 3, 4])
+    inputs = np.zeros((4, 7))
+    inputs[2, 0] = 2.0
+    inputs[1, 0:3] = [0.1, 0.0, 0.0]
+    inputs[3, 0:3] = [0.0, 0.3, 0.0]  # across: no reach at B
+    inputs[2, 3], inputs[1, 3], inputs[3, 3] = -1.0, 0.5, -0.25  # A heads away, B arrives from A's side
+    tau_a, tau_b = reach_scales(inputs, starts, 4, 1e9)
+    np.testing.assert_allclose(tau_a[:3], 2.0 / (DAMPED_PEAK * 0.1))
+    np.testing.assert_allclose(tau_b[:3], 0.0)
+    assert tau_a[3] == 0.0 and tau_b[3] == pytest.approx(1.0 / (DAMPED_PEAK * 0.25))
+    assert not tau_a[4:].any() and not tau_b[4:].any()
+    t = np.linspace(0.0, 10 * tau_a[0], 200001)
+    g = t * (1 + t / tau_a[0]) * np.exp(-t / tau_a[0])
+    assert 0.1 * g.max() == pytest.approx(2.0, rel=1e-6)
+    np.testing.assert_allclose(reach_scales(inputs, starts, 4, 5.0)[0][:3], 5.0)  # capped
+    assert not reach_scales(inputs, starts, 3, 1e9)[1].any()  # the second group left out
+    assert not reach_scales(inputs, starts, 2, 1e9)[0].any()  # no whole group
+
+
+@pytest.mark.parametrize("backwards", [False, True])
+def test_damped_carries_a_raised_arm_to_where_b_holds_it(clips, backwards):
+    # A still body raising its right arm by 80 degrees over a second (a minimum-jerk reach),
+    # the gap (1.5 s) beginning a quarter of the way into it: damped carries the seam's velocity
+    # on to where B holds the arm, and errs two thirds of SLERP's or less; carried for the
+    # motion's own time scale (short: the arm is accelerating) it crawled along the straight
+    # line at 0.95x SLERP's error. Backwards, the arm is held at A and lowered from B's seam on:
+    # B's velocity is carried back alike.
+    m = clips[WALK]
+    length, a_end, n = 45, 40, 150
+    j = m.skeleton.names.index("UpperArm_R")
+    s = np.clip((np.arange(n) - (a_end - 8)) / 30.0, 0.0, 1.0)
+    theta = 1.4 * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    if backwards:
+        theta = theta[::-1]
+        a_end = n - 1 - (a_end + length + 1)
+    rots = np.repeat(m.rotations[:1], n, axis=0)
+    rots[:, j] = quat.mul(rots[:, j], quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), theta))
+    eng = TransitionEngine()
+    eng.add("reach", Motion(m.skeleton, rots, np.repeat(m.positions[:1], n, axis=0), m.fps))
+    truth = theta[a_end + 1: a_end + length + 1]
+    err = {}
+    for method in ("damped", "slerp"):
+        r, _ = eng.generate("reach", "reach", length=length, a_end=a_end, b_start=a_end + length + 1, align=False,
+                            method=method, foot_lock=False)
+        err[method] = np.sqrt(np.mean((quat.angle_between(r[:, j], m.rotations[0, j]) - truth) ** 2))
+    assert err["damped"] < 0.7 * err["slerp"], err
 
 
 # -- waves continued through the gap (periodic) -------------------------------------------------

@@ -4,7 +4,9 @@ Every ``*_basis`` function returns a read-only matrix (cached per length) that m
 values (``pA, vA, pB, vB`` and, per basis, a key or A's acceleration) to the ``length`` new
 frames at times ``1..length``; A's end is at time 0 and B's start at ``length + 1``. ``damped``
 is such a map per column once its time constants are known: :func:`damped_frames` applies it,
-the time constants taken from the clips' motion at the seams (:func:`damped_time_scales`).
+the time constants taken from the clips' motion at the seams (:func:`damped_time_scales`) and,
+for a seam velocity that heads for the other seam's pose, from the distance left to it
+(:func:`reach_scales`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,11 @@ DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
 DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
 DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s each, both seams together)
+DAMPED_REACH_SHARE = 0.5  # damped: a velocity heading for the other seam's pose carried at most this share of the gap
+# The peak of damped's carried offset g(t) = t (1 + t / tau) exp(-t / tau), in units of tau:
+# at t = phi tau (phi the golden ratio), g = phi (1 + phi) exp(-phi) tau = 0.8399 tau.
+_PHI = (1.0 + 5.0 ** 0.5) / 2.0
+DAMPED_PEAK = _PHI * (1.0 + _PHI) * float(np.exp(-_PHI))
 
 
 def key_spline_basis(length: int, key_at: int) -> np.ndarray:
@@ -90,20 +97,56 @@ def damped_reach(times: np.ndarray, d: float, tau: float) -> tuple[np.ndarray, n
     return times * np.exp(-times / tau), (d - times) * np.exp(-(d - times) / tau)
 
 
-def damped_weights(length: int, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def damped_weights(length: int, tau: np.ndarray, tau_b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """How much of A's and B's residual seam velocity each frame carries: (length, C) each, for
-    time constants ``tau`` (C,) in frames (see :func:`damped_frames`)."""
+    time constants ``tau`` (C,) in frames, B's ``tau_b`` when it has its own (see
+    :func:`damped_frames`)."""
+    tau_b = tau if tau_b is None else tau_b
     d = length + 1.0
     t = np.arange(1, length + 1, dtype=float)[:, None]
     w = t / d
     u = d - t
     to_b = w * w * (3 - 2 * w)  # smoothstep: 0 and 1 with no slope at the seams
     near_a = (1 - to_b) * t * (1 + t / tau) * np.exp(-t / tau)
-    near_b = to_b * u * (1 + u / tau) * np.exp(-u / tau)
+    near_b = to_b * u * (1 + u / tau_b) * np.exp(-u / tau_b)
     return near_a, near_b
 
 
-def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: float, tau_max: float) -> np.ndarray:
+def reach_scales(inputs: np.ndarray, starts: np.ndarray, columns: int, longest: float) -> tuple[np.ndarray, np.ndarray]:
+    """The time constants (frames) that carry each seam's velocity to the other seam's pose:
+    ``(tau_a, tau_b)``, (C,) each, for the rows ``pA, vA, pB, vB`` of ``inputs``.
+
+    Per group of columns (a joint's rotation vector; each begins at ``starts``, as
+    ``np.add.reduceat`` reads them) among the first ``columns``: where A's velocity ``vA`` heads
+    for B's value (``dist = (pB - pA) . vA / |vA| > 0``), ``dist / (DAMPED_PEAK |vA|)``, which
+    makes :func:`damped_frames`'s carried offset peak at the distance left; B's alike where the
+    velocity it arrives with comes from A's side. At most ``longest``; 0 elsewhere (a velocity
+    heading away, a still joint, the other columns).
+
+    A hand rising at A's seam to where it is held at B's goes on rising until it gets there, as a
+    reach does, instead of carrying its velocity for its own short time scale (the acceleration
+    of a hand that starts to rise is high) and then crawling along the straight line.
+    """
+    n_c = inputs.shape[1]
+    out = np.zeros((2, n_c))
+    bounds = np.append(starts, n_c)
+    groups = np.flatnonzero(bounds[1:] <= columns)
+    if not len(groups):
+        return out[0], out[1]
+    first, last = bounds[groups], bounds[groups + 1]
+    end = last[-1]
+    diff = inputs[2, :end] - inputs[0, :end]
+    for k, v in enumerate((inputs[1, :end], inputs[3, :end])):
+        along = np.add.reduceat(diff * v, first)
+        speed = np.sqrt(np.add.reduceat(v * v, first))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tau = np.where((along > 0) & (speed > 0), along / (DAMPED_PEAK * speed * speed), 0.0)
+        out[k, :end] = np.repeat(np.minimum(tau, longest), last - first)
+    return out[0], out[1]
+
+
+def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: float, tau_max: float,
+                  reach: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The straight line from pA to pB plus each seam's velocity beyond it, fading: the frames
     (length, C) from the rows ``pA, vA, pB, vB`` of ``inputs`` (4 or more, C), each column's
     time constant ``tau`` its ``scale`` (frames, :func:`damped_time_scales`) held within
@@ -118,10 +161,16 @@ def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: f
     ``1.6 tau`` frames, and the offset fades back onto the straight line (SLERP/LERP) by
     ``8 tau``. A motion that turns back (a wave) is not carried on past its seam, one that keeps
     going (a raised arm) for as long as its time scale says, and one at a steady speed (a
-    walking root) stays on the line.
+    walking root) stays on the line. ``reach``: per seam, time constants (C,) that a column's
+    own may not fall below (:func:`reach_scales`: a velocity heading for the other seam's pose
+    carried until it gets there), the bounds notwithstanding.
     """
     p_a, v_a, p_b, v_b = inputs[:4]
-    near_a, near_b = damped_weights(length, np.clip(scale, tau_min, tau_max))
+    tau = np.clip(scale, tau_min, tau_max)
+    if reach is None:
+        near_a, near_b = damped_weights(length, tau)
+    else:
+        near_a, near_b = damped_weights(length, np.maximum(tau, reach[0]), np.maximum(tau, reach[1]))
     d = length + 1.0
     slope = (p_b - p_a) / d
     w = (np.arange(1, length + 1) / d)[:, None]
