@@ -21,7 +21,7 @@ DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
 DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
 DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s each, both seams together)
-DAMPED_REACH_SHARE = 0.5  # damped: a velocity heading for the other seam's pose carried at most this share of the gap
+DAMPED_REACH_SHARE = 0.35  # damped: a velocity heading for the other seam's pose carried at most this share of the gap
 # The peak of damped's carried offset g(t) = t (1 + t / tau) exp(-t / tau), in units of tau:
 # at t = phi tau (phi the golden ratio), g = phi (1 + phi) exp(-phi) tau = 0.8399 tau.
 _PHI = (1.0 + 5.0 ** 0.5) / 2.0
