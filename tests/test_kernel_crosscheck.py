@@ -612,20 +612,23 @@ def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
         assert abs(fast[len(ia), s0 + 3] - ta.heading[42]) < np.pi  # B's heading unwrapped to A's
 
 
-@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply")
+@crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply",
+             "numba_kernels:_reach_apply")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),
     # groups of 3 and 1 columns, some columns fixed to the shortest time constant; samples
     # 1 or 4 frames apart; also a context of two samples (no time scale from that side). The
-    # reach (in the groups of the first 7 or 10 columns) at most a third of the gap, so that
-    # some groups are capped.
-    from posturemap.synth.bases import DAMPED_PEAK, damped_frames, damped_time_scales, reach_scales
+    # reach in the groups of the first 5, 8 or 10 columns (5 and 8 fall inside a group, which
+    # is then left out), at most a third of the gap, so that some groups are capped; it must
+    # change the frames somewhere.
+    from posturemap.synth.bases import DAMPED_PEAK, damped_frames, damped_time_scales, reach_parts
 
     rng = np.random.default_rng(112)
     starts = np.array([0, 3, 6, 7, 10], dtype=np.intp)
     n_c = 13
     fixed = np.zeros(n_c, dtype=bool)
     fixed[[3, 5]] = True
+    changed = {k: False for k in (0, 5, 8, 10)}
     for step, n_a, n_b, length in ((1, 10, 10, 30), (4, 10, 7, 45), (1, 2, 10, 5), (2, 10, 10, 1), (1, 2, 2, 8)):
         inputs = rng.normal(size=(5, n_c))
         rows = [rng.normal(scale=0.05, size=(n, n_c)) for n in (n_a, n_b)]
@@ -636,16 +639,18 @@ def test_damped_columns_are_the_bases_damped_frames():
         tau_min = 1.5
         tau_max = max(tau_min, 0.25 * (length + 1))  # as the engine holds it
         scale = np.where(fixed, 0.0, damped_time_scales(rows, step, starts))
-        for reach_columns in (0, 7, 10):
+        plain = damped_frames(inputs, length, scale, tau_min, tau_max)
+        for reach_columns in (0, 5, 8, 10):
             reach_max = (length + 1) / 3.0
             out = np.empty((length, n_c))
             NK.damped_columns(inputs, length, rows[0], rows[1], float(step), starts, fixed, tau_min, tau_max,
                               reach_columns, reach_max, DAMPED_PEAK, out)
-            reach = reach_scales(inputs, starts, reach_columns, reach_max)
+            reach = reach_parts(inputs, starts, reach_columns, length + 1.0, reach_max)
             expected = damped_frames(inputs, length, scale, tau_min, tau_max, reach)
             np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
             if reach_columns == 0:
-                np.testing.assert_allclose(out, damped_frames(inputs, length, scale, tau_min, tau_max), atol=1e-12)
+                np.testing.assert_allclose(out, plain, atol=1e-12)
+            changed[reach_columns] |= np.abs(out - plain).max() > 1e-3
         for g, c0 in enumerate(starts):
             c1 = starts[g + 1] if g + 1 < len(starts) else n_c
             ev, ea = NK._group_energy(rows[0], c0, c1, float(step))
@@ -656,6 +661,7 @@ def test_damped_columns_are_the_bases_damped_frames():
                 a = np.diff(v, axis=0) / step
                 assert ev == pytest.approx(np.mean(v * v, axis=0).sum(), rel=1e-12)
                 assert ea == pytest.approx(np.mean(a * a, axis=0).sum(), rel=1e-12)
+    assert changed == {0: False, 5: True, 8: True, 10: True}
 
 
 @crosschecks("bvh:parse_frames")

@@ -8,6 +8,7 @@ data against the numpy reference in :mod:`posturemap.core.quat`. The CLI runs in
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 
@@ -24,7 +25,7 @@ from posturemap.core.motion import Motion, concatenate, root_index, up_axis
 from posturemap.core.skeleton import fk
 from posturemap.synth.bases import (DAMPED_PEAK, DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
-                                   linear_basis, reach_scales)
+                                   linear_basis, reach_parts)
 from posturemap.synth import periodic
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
@@ -1105,38 +1106,54 @@ def test_damped_keeps_a_steady_motion_on_the_line(length):
                                atol=1e-12)
 
 
-def test_reach_scales_carry_a_seam_velocity_to_the_other_seam():
-    # One joint (3 columns) from 0 to B's value (2, 0, 0): A's velocity heading straight there
-    # at 0.1 a frame gets the time constant whose carried offset v g(t) peaks at the distance
-    # left (2); heading away, or across, none. B's velocity arriving from A's side alike. Only
-    # whole groups within the first ``columns`` columns take part; ``longest`` caps it.
+def test_reach_parts_carry_a_seam_velocity_to_the_other_seam():
+    # One joint (3 columns) from 0 to B's value (2, 0, 0) over a 45-frame gap (d = 46): A's
+    # velocity along the path at 0.1 a frame, faster than the line's 2 / 46, gets the time
+    # constant whose carried offset g(t) 0.1 peaks at the distance to go (2), and only its part
+    # along the path (less the line's slope) is carried so: the sideways 0.3 keeps the column's
+    # own. B's velocity across the path: none. A second joint (1 column): A's velocity heading
+    # away, none; B's arriving from A's side, its own. Only whole groups within the first
+    # ``columns`` columns take part; ``longest`` caps the time constant.
+    d = 46.0
     starts = np.array([0, 3, 4])
     inputs = np.zeros((4, 7))
     inputs[2, 0] = 2.0
-    inputs[1, 0:3] = [0.1, 0.0, 0.0]
-    inputs[3, 0:3] = [0.0, 0.3, 0.0]  # across: no reach at B
-    inputs[2, 3], inputs[1, 3], inputs[3, 3] = -1.0, 0.5, -0.25  # A heads away, B arrives from A's side
-    tau_a, tau_b = reach_scales(inputs, starts, 4, 1e9)
+    inputs[1, 0:3] = [0.1, 0.3, 0.0]
+    inputs[3, 0:3] = [0.0, 0.3, 0.0]
+    inputs[2, 3], inputs[1, 3], inputs[3, 3] = -1.0, 0.5, -0.25
+    tau_a, tau_b, part_a, part_b = reach_parts(inputs, starts, 4, d, 1e9)
     np.testing.assert_allclose(tau_a[:3], 2.0 / (DAMPED_PEAK * 0.1))
-    np.testing.assert_allclose(tau_b[:3], 0.0)
-    assert tau_a[3] == 0.0 and tau_b[3] == pytest.approx(1.0 / (DAMPED_PEAK * 0.25))
-    assert not tau_a[4:].any() and not tau_b[4:].any()
+    np.testing.assert_allclose(part_a[:3], [0.1 - 2.0 / d, 0.0, 0.0])
+    assert not tau_b[:3].any() and not part_b[:3].any()
+    assert tau_a[3] == 0.0 and part_a[3] == 0.0
+    assert tau_b[3] == pytest.approx(1.0 / (DAMPED_PEAK * 0.25)) and part_b[3] == pytest.approx(-(0.25 - 1.0 / d))
+    assert not np.concatenate([tau_a[4:], tau_b[4:], part_a[4:], part_b[4:]]).any()
     t = np.linspace(0.0, 10 * tau_a[0], 200001)
     g = t * (1 + t / tau_a[0]) * np.exp(-t / tau_a[0])
     assert 0.1 * g.max() == pytest.approx(2.0, rel=1e-6)
-    np.testing.assert_allclose(reach_scales(inputs, starts, 4, 5.0)[0][:3], 5.0)  # capped
-    assert not reach_scales(inputs, starts, 3, 1e9)[1].any()  # the second group left out
-    assert not reach_scales(inputs, starts, 2, 1e9)[0].any()  # no whole group
+    np.testing.assert_allclose(reach_parts(inputs, starts, 4, d, 5.0)[0][:3], 5.0)  # capped
+    assert not reach_parts(inputs, starts, 3, d, 1e9)[1].any()  # the second group left out
+    assert not reach_parts(inputs, starts, 2, d, 1e9)[0].any()  # no whole group
+    # Slower along the path than the line: nothing to carry. And no jump where a seam's speed
+    # crosses the line's: just above it, the frames are within 1e-6 of just below it.
+    frames = {}
+    for k, speed in (("below", 2.0 / d - 1e-7), ("above", 2.0 / d + 1e-7)):
+        inputs[1, 0:3] = [speed, 0.0, 0.0]
+        reach = reach_parts(inputs, starts, 4, d, 0.35 * d)
+        assert (reach[0][0] > 0) == (k == "above")
+        frames[k] = damped_frames(inputs, 45, np.full(7, 1.5), 1.5, 10.0, reach)
+    np.testing.assert_allclose(frames["above"], frames["below"], atol=1e-6)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("backwards", [False, True])
-def test_damped_carries_a_raised_arm_to_where_b_holds_it(clips, backwards):
+def test_damped_carries_a_raised_arm_to_where_b_holds_it(clips, backwards, compiled):
     # A still body raising its right arm by 80 degrees over a second (a minimum-jerk reach),
     # the gap (1.5 s) beginning a quarter of the way into it: damped carries the seam's velocity
     # on toward where B holds the arm, and errs 0.72x SLERP's; carried for the motion's own time
     # scale (short: the arm is accelerating) it crawled along the straight line at 0.95x SLERP's
     # error. Backwards, the arm is held at A and lowered from B's seam on: B's velocity is
-    # carried back alike.
+    # carried back alike. The compiled kernels and numpy's alike.
     m = clips[WALK]
     length, a_end, n = 45, 40, 150
     j = m.skeleton.names.index("UpperArm_R")
@@ -1152,8 +1169,9 @@ def test_damped_carries_a_raised_arm_to_where_b_holds_it(clips, backwards):
     truth = theta[a_end + 1: a_end + length + 1]
     err = {}
     for method in ("damped", "slerp"):
-        r, _ = eng.generate("reach", "reach", length=length, a_end=a_end, b_start=a_end + length + 1, align=False,
-                            method=method, foot_lock=False)
+        with contextlib.nullcontext() if compiled else kernels.numpy_backend():
+            r, _ = eng.generate("reach", "reach", length=length, a_end=a_end, b_start=a_end + length + 1,
+                                align=False, method=method, foot_lock=False)
         err[method] = np.sqrt(np.mean((quat.angle_between(r[:, j], m.rotations[0, j]) - truth) ** 2))
     assert err["damped"] < 0.8 * err["slerp"], err
 

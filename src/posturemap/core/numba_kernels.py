@@ -922,11 +922,15 @@ def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min,
     :func:`posturemap.synth.bases.damped_time_scales` of ``rows_a`` and ``rows_b`` together
     (samples ``step`` frames apart, column groups beginning at ``starts``), 0 where ``fixed``,
     held within ``[tau_min, tau_max]``; in the groups of the first ``reach_columns`` columns,
-    each seam's at least :func:`posturemap.synth.bases.reach_scales`'s (at most ``reach_max``;
-    ``peak``: :data:`posturemap.synth.bases.DAMPED_PEAK`)."""
+    :func:`posturemap.synth.bases.reach_parts` (at most ``reach_max``; ``peak``:
+    :data:`posturemap.synth.bases.DAMPED_PEAK`)."""
     n_c = inputs.shape[1]
+    d = length + 1.0
+    tau = np.empty(n_c)
     tau_a = np.empty(n_c)
     tau_b = np.empty(n_c)
+    part_a = np.zeros(n_c)
+    part_b = np.zeros(n_c)
     for g in range(starts.shape[0]):
         c0 = starts[g]
         c1 = starts[g + 1] if g + 1 < starts.shape[0] else n_c
@@ -937,32 +941,39 @@ def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min,
             scale = math.sqrt(ev / ea)
         else:
             scale = math.inf if ev > 0.0 else 0.0
-        reach_a, reach_b = 0.0, 0.0
-        if c1 <= reach_columns:
-            along_a, along_b, speed_a, speed_b = 0.0, 0.0, 0.0, 0.0
-            for c in range(c0, c1):
-                diff = inputs[2, c] - inputs[0, c]
-                along_a += diff * inputs[1, c]
-                along_b += diff * inputs[3, c]
-                speed_a += inputs[1, c] * inputs[1, c]
-                speed_b += inputs[3, c] * inputs[3, c]
-            if along_a > 0.0 and speed_a > 0.0:
-                reach_a = min(along_a / (peak * speed_a), reach_max)
-            if along_b > 0.0 and speed_b > 0.0:
-                reach_b = min(along_b / (peak * speed_b), reach_max)
         for c in range(c0, c1):
             s = 0.0 if fixed[c] else scale
-            t = min(max(s, tau_min), tau_max)
-            tau_a[c] = max(t, reach_a)
-            tau_b[c] = max(t, reach_b)
-    _damped_apply(inputs, length, tau_a, tau_b, out)
+            tau[c] = min(max(s, tau_min), tau_max)
+            tau_a[c] = tau[c]
+            tau_b[c] = tau[c]
+        if c1 <= reach_columns:
+            dd, along_a, along_b = 0.0, 0.0, 0.0
+            for c in range(c0, c1):
+                diff = inputs[2, c] - inputs[0, c]
+                dd += diff * diff
+                along_a += diff * inputs[1, c]
+                along_b += diff * inputs[3, c]
+            if dd > 0.0 and along_a * d > dd:
+                t = min(dd / (peak * along_a), reach_max)
+                share = along_a / dd - 1.0 / d
+                for c in range(c0, c1):
+                    tau_a[c] = max(tau[c], t)
+                    part_a[c] = share * (inputs[2, c] - inputs[0, c])
+            if dd > 0.0 and along_b * d > dd:
+                t = min(dd / (peak * along_b), reach_max)
+                share = along_b / dd - 1.0 / d
+                for c in range(c0, c1):
+                    tau_b[c] = max(tau[c], t)
+                    part_b[c] = share * (inputs[2, c] - inputs[0, c])
+    _damped_apply(inputs, length, tau, out)
+    _reach_apply(length, tau, tau_a, tau_b, part_a, part_b, min(reach_columns, n_c), out)
 
 
 @nb.njit(**_OPTS)
-def _damped_apply(inputs, length, tau_a, tau_b, out):
+def _damped_apply(inputs, length, tau, out):
     """:func:`posturemap.synth.bases.damped_frames` of ``inputs`` (rows pA, vA, pB, vB) with
-    each column's time constants ``tau_a`` and ``tau_b`` at A's and B's seam (C,; frames, already
-    held within their bounds) into ``out`` (length, C)."""
+    each column's time constant ``tau`` (C,; frames, already held within its bounds) into ``out``
+    (length, C)."""
     n_c = inputs.shape[1]
     d = length + 1.0
     for i in range(length):
@@ -970,17 +981,43 @@ def _damped_apply(inputs, length, tau_a, tau_b, out):
         w = t / d
         u = d - t
         to_b = w * w * (3.0 - 2.0 * w)
-        ta, tb, near_a, near_b = -1.0, -1.0, 0.0, 0.0
+        tc, near_a, near_b = -1.0, 0.0, 0.0
         for c in range(n_c):
-            if tau_a[c] != ta:  # a group's columns share their weights
-                ta = tau_a[c]
-                near_a = (1.0 - to_b) * t * (1.0 + t / ta) * math.exp(-t / ta)
-            if tau_b[c] != tb:
-                tb = tau_b[c]
-                near_b = to_b * u * (1.0 + u / tb) * math.exp(-u / tb)
+            if tau[c] != tc:  # a group's columns share their weights
+                tc = tau[c]
+                near_a = (1.0 - to_b) * t * (1.0 + t / tc) * math.exp(-t / tc)
+                near_b = to_b * u * (1.0 + u / tc) * math.exp(-u / tc)
             p_a, v_a, p_b, v_b = inputs[0, c], inputs[1, c], inputs[2, c], inputs[3, c]
             slope = (p_b - p_a) / d
             out[i, c] = p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
+
+
+@nb.njit(**_OPTS)
+def _reach_apply(length, tau, tau_a, tau_b, part_a, part_b, columns, out):
+    """Into ``out`` (length, C), in place: the reach's parts of the seam velocities (``part_a``,
+    ``part_b``) carried with their time constants ``tau_a``, ``tau_b`` instead of the columns'
+    own ``tau`` (:func:`posturemap.synth.bases.damped_frames` with ``reach``), over the first
+    ``columns`` columns."""
+    d = length + 1.0
+    for i in range(length):
+        t = i + 1.0
+        w = t / d
+        u = d - t
+        to_b = w * w * (3.0 - 2.0 * w)
+        key_a, key_b, own_a, own_b, extra_a, extra_b = -1.0, -1.0, -1.0, -1.0, 0.0, 0.0
+        for c in range(columns):
+            if part_a[c] != 0.0:
+                if tau_a[c] != key_a or tau[c] != own_a:  # a group's columns share their weights
+                    key_a, own_a = tau_a[c], tau[c]
+                    extra_a = (1.0 - to_b) * t * ((1.0 + t / key_a) * math.exp(-t / key_a)
+                                                  - (1.0 + t / own_a) * math.exp(-t / own_a))
+                out[i, c] += extra_a * part_a[c]
+            if part_b[c] != 0.0:
+                if tau_b[c] != key_b or tau[c] != own_b:
+                    key_b, own_b = tau_b[c], tau[c]
+                    extra_b = to_b * u * ((1.0 + u / key_b) * math.exp(-u / key_b)
+                                          - (1.0 + u / own_b) * math.exp(-u / own_b))
+                out[i, c] -= extra_b * part_b[c]
 
 
 @nb.njit(**_OPTS)
@@ -1314,8 +1351,7 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
         res[1, c] = inputs[1, c] - (fit[1, c] - fit[0, c])
         res[2, c] = inputs[2, c] - fit[2, c]
         res[3, c] = inputs[3, c] - (fit[3, c] - fit[2, c])
-    taus = np.full(n_c, tau)
-    _damped_apply(res, length, taus, taus, frames)
+    _damped_apply(res, length, np.full(n_c, tau), frames)
     for i in range(length):
         t = i + 1.0
         ct, st = math.cos(omega * t), math.sin(omega * t)

@@ -5,8 +5,8 @@ values (``pA, vA, pB, vB`` and, per basis, a key or A's acceleration) to the ``l
 frames at times ``1..length``; A's end is at time 0 and B's start at ``length + 1``. ``damped``
 is such a map per column once its time constants are known: :func:`damped_frames` applies it,
 the time constants taken from the clips' motion at the seams (:func:`damped_time_scales`) and,
-for a seam velocity that heads for the other seam's pose, from the distance left to it
-(:func:`reach_scales`).
+for the part of a seam velocity that heads for the other seam's pose faster than the straight
+line, from the distance to go (:func:`reach_parts`).
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ import numpy as np
 
 VELOCITY_HORIZON_S = 0.1  # upm-valid: time constant (s) over which a seam velocity fades from the keys
 DAMPED_TAU_S = 0.05  # damped: the seam velocities' shortest time constant (s; see damped_frames) ...
-DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales), ...
+DAMPED_TAU_MAX_S = 0.33  # ... and the longest (see damped_time_scales; a reach's may be longer), ...
 DAMPED_GAP_SHARE = 0.25  # ... nor more than this share of the gap (the offset peaks before its middle)
 DAMPED_STEP_S = 1 / 30  # damped: the time scales are measured on samples this far apart ...
 DAMPED_SAMPLES = 10  # ... this many of each clip at its seam (0.3 s each, both seams together)
-DAMPED_REACH_SHARE = 0.35  # damped: a velocity heading for the other seam's pose carried at most this share of the gap
+DAMPED_REACH_SHARE = 0.35  # damped: a reach's time constant at most this share of the gap (see reach_parts)
 # The peak of damped's carried offset g(t) = t (1 + t / tau) exp(-t / tau), in units of tau:
 # at t = phi tau (phi the golden ratio), g = phi (1 + phi) exp(-phi) tau = 0.8399 tau.
 _PHI = (1.0 + 5.0 ** 0.5) / 2.0
@@ -112,41 +112,50 @@ def damped_weights(length: int, tau: np.ndarray, tau_b: np.ndarray | None = None
     return near_a, near_b
 
 
-def reach_scales(inputs: np.ndarray, starts: np.ndarray, columns: int, longest: float) -> tuple[np.ndarray, np.ndarray]:
-    """The time constants (frames) that carry each seam's velocity to the other seam's pose:
-    ``(tau_a, tau_b)``, (C,) each, for the rows ``pA, vA, pB, vB`` of ``inputs``.
+def reach_parts(inputs: np.ndarray, starts: np.ndarray, columns: int, d: float,
+                longest: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What carries each seam's velocity on to the other seam's pose: ``(tau_a, tau_b, part_a,
+    part_b)``, (C,) each, for the rows ``pA, vA, pB, vB`` of ``inputs`` and a gap of ``d``
+    frames between the seams (see :func:`damped_frames`).
 
     Per group of columns (a joint's rotation vector; each begins at ``starts``, as
-    ``np.add.reduceat`` reads them) among the first ``columns``: where A's velocity ``vA`` heads
-    for B's value (``dist = (pB - pA) . vA / |vA| > 0``), ``dist / (DAMPED_PEAK |vA|)``, which
-    makes :func:`damped_frames`'s carried offset peak at the distance left; B's alike where the
-    velocity it arrives with comes from A's side. At most ``longest``; 0 elsewhere (a velocity
-    heading away, a still joint, the other columns).
+    ``np.add.reduceat`` reads them) among the first ``columns``, with ``D = pB - pA``: where A's
+    velocity along the path, ``s = D . vA / |D|``, is faster than the straight line's
+    ``|D| / d``, the time constant ``|D| / (DAMPED_PEAK s)`` (at most ``longest``; the carried
+    offset ``g(t) s`` peaks at ``DAMPED_PEAK tau s``, about the distance to go) and the part of
+    ``vA - D / d`` along the path, ``(s / |D| - 1 / d) D``, which it carries; the velocity across
+    the path keeps the column's own time constant. B's alike, where the velocity it arrives
+    with comes from A's side faster than the line. 0 elsewhere (a velocity heading away or
+    slower than the line, a still joint, the other columns), and at the threshold the part is 0,
+    so the frames do not jump as a seam's speed crosses it.
 
     A hand rising at A's seam to where it is held at B's goes on rising until it gets there, as a
     reach does, instead of carrying its velocity for its own short time scale (the acceleration
     of a hand that starts to rise is high) and then crawling along the straight line.
     """
     n_c = inputs.shape[1]
-    out = np.zeros((2, n_c))
+    out = np.zeros((4, n_c))
     bounds = np.append(starts, n_c)
     groups = np.flatnonzero(bounds[1:] <= columns)
     if not len(groups):
-        return out[0], out[1]
+        return out[0], out[1], out[2], out[3]
     first, last = bounds[groups], bounds[groups + 1]
     end = last[-1]
     diff = inputs[2, :end] - inputs[0, :end]
+    dd = np.add.reduceat(diff * diff, first)
     for k, v in enumerate((inputs[1, :end], inputs[3, :end])):
         along = np.add.reduceat(diff * v, first)
-        speed = np.sqrt(np.add.reduceat(v * v, first))
+        reach = (dd > 0) & (along * d > dd)
         with np.errstate(divide="ignore", invalid="ignore"):
-            tau = np.where((along > 0) & (speed > 0), along / (DAMPED_PEAK * speed * speed), 0.0)
-        out[k, :end] = np.repeat(np.minimum(tau, longest), last - first)
-    return out[0], out[1]
+            tau = np.where(reach, np.minimum(dd / (DAMPED_PEAK * along), longest), 0.0)
+            share = np.where(reach, along / dd - 1.0 / d, 0.0)
+        out[k, :end] = np.repeat(tau, last - first)
+        out[2 + k, :end] = np.repeat(share, last - first) * diff
+    return out[0], out[1], out[2], out[3]
 
 
 def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: float, tau_max: float,
-                  reach: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                  reach: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
     """The straight line from pA to pB plus each seam's velocity beyond it, fading: the frames
     (length, C) from the rows ``pA, vA, pB, vB`` of ``inputs`` (4 or more, C), each column's
     time constant ``tau`` its ``scale`` (frames, :func:`damped_time_scales`) held within
@@ -161,20 +170,22 @@ def damped_frames(inputs: np.ndarray, length: int, scale: np.ndarray, tau_min: f
     ``1.6 tau`` frames, and the offset fades back onto the straight line (SLERP/LERP) by
     ``8 tau``. A motion that turns back (a wave) is not carried on past its seam, one that keeps
     going (a raised arm) for as long as its time scale says, and one at a steady speed (a
-    walking root) stays on the line. ``reach``: per seam, time constants (C,) that a column's
-    own may not fall below (:func:`reach_scales`: a velocity heading for the other seam's pose
-    carried until it gets there), the bounds notwithstanding.
+    walking root) stays on the line. ``reach``: :func:`reach_parts`, the part of each seam's
+    velocity that heads for the other seam's pose faster than the line, carried with its own
+    longer time constant (not below the column's), the bounds notwithstanding.
     """
     p_a, v_a, p_b, v_b = inputs[:4]
     tau = np.clip(scale, tau_min, tau_max)
-    if reach is None:
-        near_a, near_b = damped_weights(length, tau)
-    else:
-        near_a, near_b = damped_weights(length, np.maximum(tau, reach[0]), np.maximum(tau, reach[1]))
+    near_a, near_b = damped_weights(length, tau)
     d = length + 1.0
     slope = (p_b - p_a) / d
     w = (np.arange(1, length + 1) / d)[:, None]
-    return p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
+    out = p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
+    if reach is not None:
+        tau_a, tau_b, part_a, part_b = reach
+        far_a, far_b = damped_weights(length, np.maximum(tau, tau_a), np.maximum(tau, tau_b))
+        out += (far_a - near_a) * part_a - (far_b - near_b) * part_b
+    return out
 
 
 def damped_time_scales(samples, step: int, starts: np.ndarray) -> np.ndarray:

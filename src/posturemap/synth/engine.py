@@ -39,9 +39,11 @@ real motion:
     The straight line (SLERP/LERP) plus what each seam's velocity adds to it, carried on past
     its seam for as long as that motion keeps a velocity (its time scale over A's last and B's
     first 0.3 s: ``1 / omega`` of a wave, held within 0.05-0.33 s; the root's horizontal
-    position 0.05 s; a joint turning toward the other seam's pose, until it gets there), then
-    let go (:func:`posturemap.synth.bases.damped_frames`, :func:`_damped_frames`); a joint that swings back and forth at both seams (a waving hand)
-    swings on through the gap in phase with both (:mod:`posturemap.synth.periodic`). The
+    position 0.05 s; a joint turning toward the other seam's pose faster than the straight
+    line, that part until it gets there, within 0.35 of the gap), then let go
+    (:func:`posturemap.synth.bases.damped_frames`, :func:`_damped_frames`); a joint that swings
+    back and forth at both seams (a waving hand) swings on through the gap in phase with both
+    (:mod:`posturemap.synth.periodic`). The
     retrieval's fallback on gaps from 0.6 s, where the cubic overshoots.
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
@@ -67,7 +69,7 @@ from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
 from .bases import (DAMPED_GAP_SHARE, DAMPED_PEAK, DAMPED_REACH_SHARE, DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_MAX_S,
                     DAMPED_TAU_S, VELOCITY_HORIZON_S, damped_frames, damped_reach, damped_time_scales, hermite_basis,
-                    inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis, reach_scales)
+                    inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis, reach_parts)
 from . import retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
@@ -484,11 +486,11 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     come back (over the six splits of ``docs/retrieval.md``, adapting it too cost about 2% L2P).
     The root's height keeps its own, with the legs that carry it. No time constant exceeds
     ``DAMPED_GAP_SHARE`` of the gap, so that each seam's carried velocity turns (at 1.6 tau)
-    before the gap's middle, except where a joint's rotation heads for the other seam's pose:
-    there it is carried until it gets there (:func:`posturemap.synth.bases.reach_scales`, at
-    most ``DAMPED_REACH_SHARE`` of the gap), as a hand raised to where B holds it goes on rising
-    instead of crawling along the straight line (``docs/retrieval.md``, "A reach is carried to
-    its end")."""
+    before the gap's middle, except where a joint's rotation heads for the other seam's pose
+    faster than the straight line: that part of its velocity is carried until it gets there
+    (:func:`posturemap.synth.bases.reach_parts`, at most ``DAMPED_REACH_SHARE`` of the gap), as
+    a hand raised to where B holds it goes on rising instead of crawling along the straight
+    line (``docs/retrieval.md``, "A reach is carried to its end")."""
     rows_a, rows_b, step, swing_joints, swing_rows = context
     j_count = eng.skeleton.num_joints
     starts, fixed = _column_groups(j_count), _fixed_columns(j_count, eng._up)
@@ -501,7 +503,7 @@ def _damped_frames(eng, seam, inputs, ref, req, fps, keys, context):
     else:
         scale = np.where(fixed, 0.0, damped_time_scales((rows_a, rows_b), step, starts))
         out = damped_frames(inputs, req.length, scale, DAMPED_TAU_S * fps, longest,
-                            reach_scales(inputs, starts, 3 * j_count, reach_max))
+                            reach_parts(inputs, starts, 3 * j_count, req.length + 1.0, reach_max))
     _continue_swings(out, inputs, *swing_rows, req.length, fps, j_count, swing_joints)
     return out
 

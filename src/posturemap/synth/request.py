@@ -46,7 +46,8 @@ METHOD_INFO = {
     "spline": Method("cubic Hermite spline matching values and velocities at both seams"),
     "slerp": Method("SLERP of every rotation, LERP of the root"),
     "damped": Method("SLERP/LERP plus each seam's velocity, carried for its motion's own time scale "
-                     "(0.05-0.33 s), then let go; a joint swinging at both seams swings on in phase"),
+                     "(0.05-0.33 s; a joint reaching for the other seam's pose, until it gets there), then "
+                     "let go; a joint swinging at both seams swings on in phase"),
     "inertialize": Method("B's start plus a decaying offset from A's end (Bollo 2016)"),
 }
 METHODS = tuple(METHOD_INFO)
