@@ -43,8 +43,8 @@ real motion:
     line, that part until it gets there, within 0.35 of the gap), then let go
     (:func:`posturemap.synth.bases.damped_frames`, :func:`_damped_frames`); a joint that swings
     back and forth at both seams (a waving hand) swings on through the gap in phase with both
-    (:mod:`posturemap.synth.periodic`). The
-    retrieval's fallback on gaps from 0.6 s, where the cubic overshoots.
+    (:mod:`posturemap.synth.periodic`). The retrieval's fallback on gaps from 0.6 s, where the
+    cubic overshoots.
 ``inertialize``
     B's start, extrapolated backwards with its velocity, plus an offset that decays with a
     quintic from A's end (value, velocity, acceleration) to zero (Bollo 2016).
