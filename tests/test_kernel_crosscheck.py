@@ -613,7 +613,7 @@ def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
 
 
 @crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply",
-             "numba_kernels:_reach_apply")
+             "numba_kernels:_reach_group")
 def test_damped_columns_are_the_bases_damped_frames():
     # Random seam inputs and context samples (a wave, a still group, a steady drift, noise),
     # groups of 3 and 1 columns, some columns fixed to the shortest time constant; samples

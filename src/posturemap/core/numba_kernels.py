@@ -947,33 +947,36 @@ def damped_columns(inputs, length, rows_a, rows_b, step, starts, fixed, tau_min,
             tau_a[c] = tau[c]
             tau_b[c] = tau[c]
         if c1 <= reach_columns:
-            dd, along_a, along_b = 0.0, 0.0, 0.0
-            for c in range(c0, c1):
-                diff = inputs[2, c] - inputs[0, c]
-                dd += diff * diff
-                along_a += diff * inputs[1, c]
-                along_b += diff * inputs[3, c]
-            if dd > 0.0 and along_a * d > dd:
-                t = min(dd / (peak * along_a), reach_max)
-                share = along_a / dd - 1.0 / d
-                for c in range(c0, c1):
-                    tau_a[c] = max(tau[c], t)
-                    part_a[c] = share * (inputs[2, c] - inputs[0, c])
-            if dd > 0.0 and along_b * d > dd:
-                t = min(dd / (peak * along_b), reach_max)
-                share = along_b / dd - 1.0 / d
-                for c in range(c0, c1):
-                    tau_b[c] = max(tau[c], t)
-                    part_b[c] = share * (inputs[2, c] - inputs[0, c])
-    _damped_apply(inputs, length, tau, out)
-    _reach_apply(length, tau, tau_a, tau_b, part_a, part_b, min(reach_columns, n_c), out)
+            _reach_group(inputs, 1, c0, c1, d, peak, reach_max, tau, tau_a, part_a)
+            _reach_group(inputs, 3, c0, c1, d, peak, reach_max, tau, tau_b, part_b)
+    _damped_apply(inputs, length, tau, out, tau_a, tau_b, part_a, part_b, min(reach_columns, n_c))
 
 
 @nb.njit(**_OPTS)
-def _damped_apply(inputs, length, tau, out):
+def _reach_group(inputs, row, c0, c1, d, peak, reach_max, tau, tau_out, part_out):
+    """:func:`posturemap.synth.bases.reach_parts` of one seam (its velocity in ``inputs[row]``)
+    for the group of columns ``c0:c1``, into ``tau_out`` and ``part_out`` (left as they are where
+    the seam's speed along the path is not faster than the straight line's)."""
+    dd, along = 0.0, 0.0
+    for c in range(c0, c1):
+        diff = inputs[2, c] - inputs[0, c]
+        dd += diff * diff
+        along += diff * inputs[row, c]
+    if dd > 0.0 and along * d > dd:
+        t = min(dd / (peak * along), reach_max)
+        share = along / dd - 1.0 / d
+        for c in range(c0, c1):
+            tau_out[c] = max(tau[c], t)
+            part_out[c] = share * (inputs[2, c] - inputs[0, c])
+
+
+@nb.njit(**_OPTS)
+def _damped_apply(inputs, length, tau, out, tau_a, tau_b, part_a, part_b, columns):
     """:func:`posturemap.synth.bases.damped_frames` of ``inputs`` (rows pA, vA, pB, vB) with
     each column's time constant ``tau`` (C,; frames, already held within its bounds) into ``out``
-    (length, C)."""
+    (length, C); over the first ``columns`` columns, the reach's parts of the seam velocities
+    (``part_a``, ``part_b``) carried with their time constants ``tau_a``, ``tau_b`` instead
+    (``damped_frames``'s ``reach``; ``columns`` 0: none)."""
     n_c = inputs.shape[1]
     d = length + 1.0
     for i in range(length):
@@ -990,20 +993,6 @@ def _damped_apply(inputs, length, tau, out):
             p_a, v_a, p_b, v_b = inputs[0, c], inputs[1, c], inputs[2, c], inputs[3, c]
             slope = (p_b - p_a) / d
             out[i, c] = p_a + w * (p_b - p_a) + near_a * (v_a - slope) - near_b * (v_b - slope)
-
-
-@nb.njit(**_OPTS)
-def _reach_apply(length, tau, tau_a, tau_b, part_a, part_b, columns, out):
-    """Into ``out`` (length, C), in place: the reach's parts of the seam velocities (``part_a``,
-    ``part_b``) carried with their time constants ``tau_a``, ``tau_b`` instead of the columns'
-    own ``tau`` (:func:`posturemap.synth.bases.damped_frames` with ``reach``), over the first
-    ``columns`` columns."""
-    d = length + 1.0
-    for i in range(length):
-        t = i + 1.0
-        w = t / d
-        u = d - t
-        to_b = w * w * (3.0 - 2.0 * w)
         key_a, key_b, own_a, own_b, extra_a, extra_b = -1.0, -1.0, -1.0, -1.0, 0.0, 0.0
         for c in range(columns):
             if part_a[c] != 0.0:
@@ -1351,7 +1340,8 @@ def swing_columns(rows, times, inputs, length, omegas, starts, tau, gate, turn, 
         res[1, c] = inputs[1, c] - (fit[1, c] - fit[0, c])
         res[2, c] = inputs[2, c] - fit[2, c]
         res[3, c] = inputs[3, c] - (fit[3, c] - fit[2, c])
-    _damped_apply(res, length, np.full(n_c, tau), frames)
+    taus, none = np.full(n_c, tau), np.zeros(n_c)
+    _damped_apply(res, length, taus, frames, taus, taus, none, none, 0)
     for i in range(length):
         t = i + 1.0
         ct, st = math.cos(omega * t), math.sin(omega * t)
