@@ -112,7 +112,7 @@ def _radius(text: str):
 
 def _cmd_train(args) -> int:
     from .core import kernels
-    from .core.motion import at_one_rate, resampled_note
+    from .core.motion import at_one_rate, resampled_name, resampled_note
     from .io.bvh import read_inputs
     from .learn.features import load_class_overrides
     from .learn.model import PostureMap
@@ -127,7 +127,7 @@ def _cmd_train(args) -> int:
     for i in changed:  # a map's clips share one rate: the first clip's
         print(resampled_note(clips[i][0], clips[i][1].fps, motions[0].fps), file=sys.stderr)
         # Its frames in the library (and in a transition's report) are at that rate: said in its name.
-        paths[i] = f"{paths[i]} (at {motions[0].fps:g} fps)"
+        paths[i] = resampled_name(paths[i], motions[0].fps)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
     pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
@@ -177,7 +177,7 @@ def _is_gltf_output(path: str) -> bool:
 def _cmd_transition(args) -> int:
     from .io import bvh, gltf
     from .learn.model import PostureMap
-    from .core.motion import at_one_rate, same_fps, up_axis
+    from .core.motion import at_one_rate, resampled_name, same_fps, up_axis
     from .synth.engine import transition
     from .synth.request import KEYED, RequestError, TransitionRequest, frame_index
     from .core.joints import leg_chains
@@ -221,7 +221,7 @@ def _cmd_transition(args) -> int:
                   "orientation would)", file=sys.stderr)
     elif args.method in KEYED:
         # A resampled B is named so in the report: its frames there are at A's rate.
-        b_name = args.b if rate_note is None else f"{args.b} (at {a.fps:g} fps)"
+        b_name = args.b if rate_note is None else resampled_name(args.b, a.fps)
         model = PostureMap(seed=0).fit([a, b], [args.a, b_name])
     report = {}
     request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,

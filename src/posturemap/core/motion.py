@@ -181,6 +181,12 @@ def resampled_note(name: str, was: float, now: float) -> str:
     return f"posturemap: note: {name}: {was:g} fps, resampled to {now:g} fps (the first clip's rate)"
 
 
+def resampled_name(name: str, fps: float) -> str:
+    """A resampled clip's name in a map's library and a transition's report, whose frames it
+    counts at the new rate ``fps``."""
+    return f"{name} (at {fps:g} fps)"
+
+
 def root_index(motion_or_skeleton) -> int:
     """The joint that carries the trajectory (the pelvis): decided from the skeleton.
 
