@@ -978,6 +978,88 @@ def test_held_toes_under_the_floor_are_lifted_in_gaps_of_one_to_three_frames(sam
         assert np.all(lifted > g0[:, toes, up] + 1e-3), length
 
 
+def test_toe_height_counts_give_the_least_height_real_toes_keep_at_each_speed():
+    # One toe planted (height 0, still: it is the floor, and too slow to count), the other moving
+    # at 1.2 leg lengths per second with heights spread evenly from 0.01 to 0.05 leg lengths: its
+    # samples all fall in the 1.0-1.5 bin, whose 10th percentile is 0.014. Bins without samples
+    # take the slower bin's height (0 below the first counted one). On a platform 0.3 legs up,
+    # the floor under the toes rises with them: the same counts.
+    body, fps, up, n = 0.9, 30.0, 1, 400
+    toes = np.zeros((n, 2, 3))
+    toes[:, 1, 0] = np.arange(n) * 1.2 * body / fps
+    toes[:, 1, up] = np.linspace(0.01, 0.05, n) * body
+    counts = feet.toe_height_counts(toes, up, fps, body)
+    assert counts.shape == (len(feet.CLEAR_BINS) - 1, len(feet.CLEAR_HEIGHTS) - 1)
+    assert counts.sum() == n and counts[2].sum() == n
+    curve = feet.clearance_curve(counts)
+    np.testing.assert_allclose(curve[2], 0.014, atol=1e-3)
+    np.testing.assert_array_equal(curve[:2], 0.0)
+    np.testing.assert_array_equal(curve[3:], curve[2])
+    raised = toes.copy()
+    raised[..., up] += 0.3 * body
+    on_platform = feet.toe_height_counts(raised, up, fps, body)
+    assert on_platform.sum() == n and np.abs(on_platform - counts).sum() <= 4  # rounding at bin edges only
+    np.testing.assert_allclose(feet.clearance_curve(on_platform), curve, atol=1e-4)
+    # The floor is the lowest toe within FLOOR_S: a toe that dips 0.01 legs under the planted one
+    # for a moment lowers it there only, so its heights near the dip count from the dip.
+    dipped = toes.copy()
+    dipped[200, 1, up] = -0.01 * body
+    near = feet.toe_height_counts(dipped, up, fps, body)
+    assert near[2].sum() == n and not np.array_equal(near, counts)
+    # Counts of several clips add up to the library's; too few samples in a bin count as none.
+    np.testing.assert_array_equal(feet.clearance_curve(counts + counts), curve)
+    few = np.zeros_like(counts)
+    few[2, 10] = feet.CLEAR_MIN_SAMPLES - 1
+    np.testing.assert_array_equal(feet.clearance_curve(few), 0.0)
+
+
+def test_clearance_need_is_the_rule_raised_by_the_library_curve():
+    curve = np.array([0.004, 0.012, 0.017, 0.015, 0.025, 0.034])
+    speeds = np.array([0.1, 0.375, 0.75, 1.25, 2.0, 3.25, 6.0, 9.0])
+    rule = TOE_CLEAR * np.clip((speeds - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]), 0.0, 1.0)
+    np.testing.assert_allclose(feet.clearance_need(speeds, TOE_CLEAR), rule)
+    need = feet.clearance_need(speeds, TOE_CLEAR, curve)
+    at_knots = np.concatenate([[0.0], curve, [curve[-1]]])  # 0 below CLEAR_BINS[0], the fastest beyond
+    np.testing.assert_allclose(need, np.maximum(rule, at_knots))
+    assert need[2] == curve[1] > rule[2] and need[5] == rule[5] > curve[4]  # each wins somewhere
+    np.testing.assert_array_equal(feet.clearance_need(speeds, 0.0, curve), 0.0)  # no toe joint: nothing
+
+
+def test_foot_lock_lifts_a_slow_dragged_toe_to_the_library_clearance(sample_clips):
+    # The body glides at 0.75 leg lengths per second, the left toe on the floor: the fixed rule asks
+    # for 0.0067 leg lengths there, a library whose toes keep 0.02 at that speed asks for that, and
+    # the lock (compiled and numpy alike) lifts the toe to it.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains, toes = leg_chains(sk), leg_toes(sk)
+    body = leg_length(sk, chains)
+    length, fps = 30, m.fps
+    g_all = fk(sk.parents, m.rotations, m.positions)[1]
+    frame = int(np.argmax(g_all[:, toes[1], up] - g_all[:, toes[0], up]))
+    rots, pos = m.rotations[np.full(length, frame)].copy(), m.positions[np.full(length, frame)].copy()
+    ahead = (np.arange(3) == (up + 2) % 3).astype(float)
+    step = 0.75 * body / fps * ahead
+    pos[:, 0] += np.arange(length)[:, None] * step
+    gpos0 = fk(sk.parents, rots, pos)[1]
+    floor = gpos0[:, toes, up].min()
+    ankles = [c[2] for c in chains]
+    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
+    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    curve = np.full(len(feet.CLEAR_BINS) - 1, 0.02)
+    rr = round(CLEAR_S * fps)
+    mid = slice(2 * rr, length - 2 * rr)
+    heights = {}
+    for name, given in (("rule", None), ("library", curve)):
+        results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor, toes=toes,
+                            clearance=given)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+        heights[name] = fk(sk.parents, results["numpy"][0], pos)[1][mid, toes[0], up] - floor
+    rule = TOE_CLEAR * (0.75 - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0])
+    assert np.all(heights["rule"] >= rule * body * (1 - 1e-6)) and np.all(heights["rule"] < 0.012 * body)
+    assert np.all(heights["library"] >= 0.02 * body * (1 - 1e-6))
+    assert np.all(heights["library"] < 0.021 * body)  # lifted to it, not beyond
+
+
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # One posture held while the whole body glides forward at 2.5 leg lengths per second, the left
     # toe on the floor: nothing is planted (too fast), and the lock lifts that toe clear of the

@@ -613,6 +613,9 @@ def test_partial_fit_grows_the_maps_and_the_library(sample_clips):
     idx = model.space_.class_dims[1]
     win = model.maps_[1].predict(model.encode(run)[:, idx])
     np.testing.assert_array_equal(lib.win[s: s + len(run)], win)
+    # Its toe counts are both clips' (the new clip's added to the first library's).
+    alone = PostureMap(seed=0).fit([run], ["run"]).library_.toe_counts
+    np.testing.assert_array_equal(lib.toe_counts, PostureMap(seed=0).fit([walk], ["walk"]).library_.toe_counts + alone)
     # Another fps or skeleton is refused, naming the clip.
     with pytest.raises(UserError, match="fps"):
         model.partial_fit([Motion(run.skeleton, run.rotations, run.positions, run.fps * 2)], ["fast"])

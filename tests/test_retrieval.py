@@ -109,6 +109,48 @@ def test_walking_feet_are_planted_about_half_the_time(model):
     assert lib.contacts[walk].any(axis=1).mean() > 0.9  # double or single support, never flight
 
 
+def test_the_library_counts_its_toes_heights_and_the_lock_takes_its_clearance(model, clips, engine, monkeypatch):
+    # The library's toe counts are its recorded clips' (feet.toe_height_counts of each, summed:
+    # the reversed copies move as fast at the same heights); its clearance is their curve, and
+    # the engine's foot lock is given it.
+    from posturemap.core.joints import leg_chains, leg_length
+    from posturemap.core.motion import up_axis
+    from posturemap.synth import engine as engine_module, feet
+
+    lib = model.library_
+    sk = clips[LIBRARY[0]].skeleton
+    chains = leg_chains(sk)
+    toes, body = leg_toes(sk, chains), leg_length(sk, chains)
+    up = up_axis(clips[LIBRARY[0]])
+    expected = sum(feet.toe_height_counts(fk(sk.parents, clips[c].rotations, clips[c].positions)[1][:, toes],
+                                          up, clips[c].fps, body) for c in LIBRARY)
+    np.testing.assert_array_equal(lib.toe_counts, expected)
+    np.testing.assert_array_equal(lib.clearance, feet.clearance_curve(expected))
+    assert np.all(lib.clearance > 0) and lib.clearance.max() < 0.1  # every bin counted, within the counts' range
+    seen = []
+
+    def spy(*args, **kw):
+        seen.append(args[14] if len(args) > 14 else kw.get("clearance"))
+        return feet.lock_feet(*args, **kw)
+
+    monkeypatch.setattr(engine_module, "lock_feet", spy)
+    name = HELD_OUT[0]
+    engine.generate(name, name, length=25, a_end=30, b_start=56, align=False, method="auto", foot_lock=True)
+    assert len(seen) == 1 and seen[0] is lib.clearance
+
+
+def test_a_map_file_without_toe_counts_loads_with_the_fixed_clearance(model, tmp_path):
+    # Map files written before the library counted its toes load; the lock then keeps to TOE_CLEAR.
+    path = tmp_path / "old.npz"
+    model.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k != "library_toe_counts"}
+    np.savez(path, **arrays)
+    back = PostureMap.load(path)
+    assert back.library_.toe_counts is None and back.library_.clearance is None
+    assert len(back.library_) == len(model.library_)
+
+
 def test_key_joints_are_found_by_name(model):
     sk = model.skeleton_
     lower, upper = key_joints(sk)
@@ -494,7 +536,8 @@ def test_map_file_keeps_the_library(model, engine, tmp_path):
     assert np.array_equal(r1, eng.generate(name, name, **args)[0])
 
 
-@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index", "not-unit", "ints", "missing"])
+@pytest.mark.parametrize("damage", ["nan", "shape", "clips", "index", "not-unit", "ints", "missing", "toe-counts",
+                                    "toe-shape"])
 def test_a_damaged_library_is_refused(model, tmp_path, damage):
     path = tmp_path / "lib.npz"
     model.save(path)
@@ -513,6 +556,10 @@ def test_a_damaged_library_is_refused(model, tmp_path, damage):
         arrays["library_rots"] = arrays["library_rots"] * 2
     elif damage == "ints":
         arrays["library_pose"] = arrays["library_pose"].astype(np.int64)
+    elif damage == "toe-counts":
+        arrays["library_toe_counts"] = arrays["library_toe_counts"] - 0.5  # not whole, some negative
+    elif damage == "toe-shape":
+        arrays["library_toe_counts"] = arrays["library_toe_counts"][:, :-1]
     else:
         del arrays["library_rots"]
     np.savez(path, **arrays)
@@ -1470,11 +1517,22 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
             out.append(metrics.weighted_skate(g[None], 30.0, UP, height)[0])
         return np.mean(out), used
 
+    # The feet the splice plants, measured under the fixed clearance: this small library's toes
+    # (walks, runs, a dash) keep 1.5-6 cm above the floor from 0.5 leg lengths per second, and
+    # its clearance lifts the sliding feet of both out of the measure's reach (last lines).
+    library_class = type(engine.model.library_)
+    clearance = library_class.clearance
+    monkeypatch.setattr(library_class, "clearance", property(lambda self: None))
     with_splice, used = skates()
     monkeypatch.setattr(engine_module, "spliced", lambda *args, **kw: None)  # the engine's name for it
     without, _ = skates()
     assert used >= 4
     assert with_splice < 0.8 * without, (with_splice, without)
+    monkeypatch.setattr(library_class, "clearance", clearance)
+    lifted_without, _ = skates()
+    monkeypatch.undo()
+    lifted_with, _ = skates()
+    assert lifted_with < lifted_without < 0.5 * without, (lifted_with, lifted_without, without)
 
 
 def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, clips):

@@ -505,10 +505,12 @@ def _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised):
 
 
 @nb.njit(**_OPTS)
-def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, clear_hi, r, deficit, widest):
+def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, clear_hi, curve_v, curve_h, r,
+              deficit, widest):
     """Add to ``raised`` (L,) the lift that keeps the toe out of the floor and a swinging toe clear
     of it (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
+    ``curve_v``/``curve_h`` a library's clearance by speed (per frame / length unit; empty: none);
     ``deficit`` (2, L) and ``widest`` scratch: row 0 the free frames' deficits then lift, row 1
     the held frames'."""
     n_l = gpos.shape[0]
@@ -517,13 +519,16 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     for t in range(n_l):
         deficit[0, t] = 0.0
         deficit[1, t] = 0.0
-        u = 0.0  # a held foot's toe (or one frame, without a speed) needs the floor only
+        need = 0.0  # a held foot's toe (or one frame, without a speed) needs the floor only
         if not held[t] and n_l > 1:
             lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
             da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
             db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
-            u = min(max((math.sqrt(da * da + db * db) - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
-        short = clear * u - (gpos[t, toe, up] + raised[t] - toe_floor)
+            v = math.sqrt(da * da + db * db)
+            need = clear * min(max((v - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
+            if clear > 0.0 and curve_v.shape[0] > 0:
+                need = max(need, np.interp(v, curve_v, curve_h))
+        short = need - (gpos[t, toe, up] + raised[t] - toe_floor)
         if short > 0.0:
             deficit[1 if held[t] else 0, t] = short
             any_deficit = True
@@ -584,8 +589,8 @@ def _stance_windows(moves, length, step, least):
 
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
-              drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, clear_r,
-              a_floor, b_floor, stand, weights):
+              drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, curve_v,
+              curve_h, clear_r, a_floor, b_floor, stand, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -598,8 +603,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     where the foot lands or lifts off far from it) and the frames let go at a seam whose foot moves;
     toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
     (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
-    clear (length unit), clear_lo/clear_hi (length unit per frame) and clear_r (frames): the
-    swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
+    clear (length unit), clear_lo/clear_hi (length unit per frame), curve_v/curve_h (length unit
+    per frame / length unit: a library's clearance by speed, empty for none) and clear_r (frames):
+    the swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
     :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
@@ -804,7 +810,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         # A foot without a toe joint: its ankle kept out of the floor, no clearance above it.
         _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear if toes[leg] != ankle else 0.0, clear_lo,
-                  clear_hi, clear_r, deficit, widest)
+                  clear_hi, curve_v, curve_h, clear_r, deficit, widest)
         hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised)
         for t in range(n_l):
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:

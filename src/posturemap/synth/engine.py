@@ -274,7 +274,9 @@ class TransitionEngine:
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
         """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with
         A's last two frames and B's first two (B placed by ``dtheta``, ``shift``) as context, and
-        the toes' floor from A's last and B's first ``FLOOR_S`` seconds; returns the lock weights."""
+        the toes' floor from A's last and B's first ``FLOOR_S`` seconds, and the map's motion
+        library's toe clearance (:attr:`~posturemap.synth.library.MotionLibrary.clearance`, where
+        it has one); returns the lock weights."""
         a_end, b_start = req.a_end, req.b_start
         # A's frames a_end - 1, a_end and B's b_start, b_start + 1 (repeated at a clip's end): slices where they can be
         a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
@@ -288,8 +290,10 @@ class TransitionEngine:
         toe_floor = min(ta.lowest_toe[end_a].min().item(), tb.lowest_toe[start_b].min().item() + rise)
         # Whether a foot is planted at a seam: against that clip's own floor, its lowest ankle there.
         seam_floors = (ta.feet[end_a, :, self._up].min().item(), tb.feet[start_b, :, self._up].min().item() + rise)
+        library = getattr(self.model, "library_", None)
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
-                         ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors)
+                         ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors,
+                         None if library is None else library.clearance)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""

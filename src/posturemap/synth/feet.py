@@ -40,7 +40,9 @@ in-between frames are made:
 4. a swinging foot clears the floor: while it is in the air, its toe (where the foot has a toe
    joint: :func:`posturemap.core.joints.leg_toes`) is kept at least
    ``TOE_CLEAR`` leg lengths above the floor once it moves at ``CLEAR_SPEED[1]`` leg lengths per
-   second, less in proportion below (nothing under ``CLEAR_SPEED[0]``). Blends of real segments
+   second, less in proportion below (nothing under ``CLEAR_SPEED[0]``), or as high as the motion
+   library's own toes keep at that speed in nine frames of ten where that is higher
+   (:func:`clearance_curve`: performers and rigs differ). Blends of real segments
    (and interpolation) can drag a toe along the floor at walking speed, which real feet do not
    do; the foot is raised by the shortfall, spread smoothly over ``CLEAR_S`` seconds on each side
    (:func:`clearance_lift`). No toe stays under the floor, held or not: a retrieved stance can
@@ -85,6 +87,13 @@ TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least heigh
 #                   full speed; real toes keep it: 79-97% of bandai1's toe samples at 0.3-8 leg lengths
 #                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
 CLEAR_SPEED = (0.25, 2.5)  # leg lengths per second: no clearance below the first, full from the second
+# A motion library's own toes raise the clearance (clearance_curve): per speed bin (leg lengths per
+# second, edges CLEAR_BINS) the CLEAR_PERCENTILE-th percentile of its toes' heights above the floor
+# under them (their lowest within FLOOR_S), counted in bins of CLEAR_HEIGHTS (leg lengths).
+CLEAR_BINS = (0.25, 0.5, 1.0, 1.5, 2.5, 4.0, 8.0)
+CLEAR_HEIGHTS = np.linspace(0.0, 0.1, 51)
+CLEAR_PERCENTILE = 10.0
+CLEAR_MIN_SAMPLES = 30  # a speed bin with fewer toe samples takes the slower bin's height
 CLEAR_S = 0.1  # seconds: the lift reaches its height this long before the shortfall and leaves it after
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
@@ -182,16 +191,89 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
 
 
+def toe_height_counts(toes: np.ndarray, up: int, fps: float, body: float) -> np.ndarray:
+    """How high one clip's toes are at each speed: counts (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS)
+    - 1) of toe samples by horizontal speed (leg lengths per second, central differences as
+    :func:`clearance_lift` measures them) and height above the floor under them (leg lengths; the
+    floor of a frame is the lowest of the toes within ``FLOOR_S`` seconds of it, as the lock's
+    floor is a stance's lowest toe; heights above the last bin count in it). Speeds outside
+    ``CLEAR_BINS`` are not counted. ``toes`` (F, K, 3): the toe joints' global positions.
+    Counts of several clips add up (a library's: :func:`clearance_curve`)."""
+    counts = np.zeros((len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS) - 1))
+    if len(toes) < 2 or toes.shape[1] == 0:
+        return counts
+    from scipy.ndimage import minimum_filter1d
+
+    r = max(1, round(FLOOR_S * fps))
+    h = toes[..., up]
+    floor = minimum_filter1d(h.min(axis=1), size=2 * r + 1, mode="nearest")
+    height = np.clip((h - floor[:, None]) / body, 0.0, CLEAR_HEIGHTS[-1] * (1.0 - 1e-9))
+    flat = np.ones(3)
+    flat[up] = 0.0
+    speed = np.linalg.norm(np.gradient(toes * flat, axis=0), axis=-1) * fps / body
+    counts += np.histogram2d(speed.ravel(), height.ravel(), bins=(np.asarray(CLEAR_BINS), CLEAR_HEIGHTS))[0]
+    return counts
+
+
+def clearance_curve(counts: np.ndarray) -> np.ndarray:
+    """The least height (leg lengths) a swinging toe keeps at the speeds of ``CLEAR_BINS``, from
+    the toe heights of a library's clips (:func:`toe_height_counts`, summed): per speed bin the
+    ``CLEAR_PERCENTILE``-th percentile of its heights (linear within a height bin). A bin with
+    fewer than ``CLEAR_MIN_SAMPLES`` samples takes the slower bin's value (0 for the slowest).
+    Returns (len(CLEAR_BINS) - 1,), the heights at :func:`clearance_speeds`."""
+    counts = np.asarray(counts, dtype=float)
+    out = np.zeros(len(counts))
+    for i, row in enumerate(counts):
+        total = row.sum()
+        if total < CLEAR_MIN_SAMPLES:
+            out[i] = out[i - 1] if i else 0.0
+            continue
+        cum = np.concatenate([[0.0], np.cumsum(row)]) / total
+        out[i] = float(np.interp(CLEAR_PERCENTILE / 100.0, cum, CLEAR_HEIGHTS))
+    return out
+
+
+def clearance_speeds() -> np.ndarray:
+    """The speeds (leg lengths per second) of a :func:`clearance_curve`'s heights: the middle of
+    each bin of ``CLEAR_BINS``."""
+    edges = np.asarray(CLEAR_BINS, dtype=float)
+    return 0.5 * (edges[1:] + edges[:-1])
+
+
+def clearance_need(speed: np.ndarray, clear: float, curve: np.ndarray | None = None) -> np.ndarray:
+    """How high (leg lengths) a swinging toe moving at ``speed`` (leg lengths per second) must be:
+    ``clear`` times ``(v - v0) / (v1 - v0)`` clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1)), or
+    where a library's own toes keep higher (``curve``, :func:`clearance_curve`), their height:
+    linear between :func:`clearance_speeds`, from 0 at ``CLEAR_BINS[0]``, the fastest bin's
+    beyond it. ``clear`` 0 (a foot without a toe joint) asks for nothing."""
+    need = clear * np.clip((np.asarray(speed, dtype=float) - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]),
+                           0.0, 1.0)
+    if curve is None or clear == 0.0:
+        return need
+    xs = np.concatenate([[CLEAR_BINS[0]], clearance_speeds()])
+    return np.maximum(need, np.interp(speed, xs, np.concatenate([[0.0], curve])))
+
+
+def _clearance_table(curve: np.ndarray | None, body: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """A :func:`clearance_curve` for the compiled lock: the speeds (length unit per frame, from
+    ``CLEAR_BINS[0]``) and heights (length unit, from 0) :func:`clearance_need` interpolates
+    between; empty arrays for no curve."""
+    if curve is None:
+        return np.zeros(0), np.zeros(0)
+    xs = np.concatenate([[CLEAR_BINS[0]], clearance_speeds()]) * body / fps
+    return xs, np.concatenate([[0.0], np.asarray(curve, dtype=float)]) * body
+
+
 def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, body: float, fps: float,
-                   clear: float = TOE_CLEAR) -> np.ndarray:
+                   clear: float = TOE_CLEAR, curve: np.ndarray | None = None) -> np.ndarray:
     """How much to raise a foot (L,) so that its toe stays out of the floor, and clears it while it
     swings.
 
     ``toe`` (L, 3) the toe's positions over the new frames, ``free`` (L,) bool the frames where the
     foot is not held, ``floor`` the floor's height for this toe. In a free frame the toe's
-    horizontal speed (central differences, one-sided at the ends) asks for ``clear * body``
-    (``TOE_CLEAR``; 0 for the ankle of a foot without a toe joint) times ``(v - v0) / (v1 - v0)``
-    clipped to [0, 1] (``CLEAR_SPEED`` = (v0, v1), leg lengths per second) above the floor; a
+    horizontal speed (central differences, one-sided at the ends) asks for ``body`` times
+    :func:`clearance_need` (``clear``: ``TOE_CLEAR``, 0 for the ankle of a foot without a toe
+    joint; ``curve``: a library's :func:`clearance_curve`, or None) above the floor; a
     held foot's toe asks for the floor itself (a retrieved stance can put it a few centimetres
     under it). The shortfall of a frame's height below that is its
     deficit. With ``r = round(CLEAR_S * fps)`` (at least 1), the free frames' deficits and the
@@ -211,7 +293,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     flat[up] = 0.0
     step = np.gradient(toe * flat, axis=0) if length > 1 else np.zeros((1, 3))
     speed = np.linalg.norm(step, axis=-1) * fps / body
-    need = clear * body * np.clip((speed - CLEAR_SPEED[0]) / (CLEAR_SPEED[1] - CLEAR_SPEED[0]), 0.0, 1.0)
+    need = body * clearance_need(speed, clear, curve)
     deficit = np.maximum(np.where(free, need, 0.0) - (toe[:, up] - floor), 0.0)
     if not deficit.any():
         return np.zeros(length)
@@ -427,7 +509,8 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
 
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
-              contacts=None, body: float | None = None, toe_floor=None, toes=None, seam_floors=None) -> np.ndarray:
+              contacts=None, body: float | None = None, toe_floor=None, toes=None, seam_floors=None,
+              clearance: np.ndarray | None = None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
@@ -443,7 +526,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     ``FLOOR_S`` seconds and of B's first (B's as aligned), the floors that say whether a foot is
     planted at each seam; without them, a leg's lowest ankle in its four seam frames and the new
     frames (which a blend or an interpolation can take under the floor B stands on: B's foot,
-    planted, was then taken for lifted, and its run was not held).
+    planted, was then taken for lifted, and its run was not held). ``clearance``: the motion
+    library's :func:`clearance_curve`, the least height of its swinging toes by speed, which
+    raises the swinging toes' clearance where it lies above ``TOE_CLEAR``'s (None: that alone).
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -470,7 +555,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
-                      CLEAR_SPEED[1] * body / fps, max(1, round(CLEAR_S * fps)), a_floor, b_floor,
+                      CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
+                      max(1, round(CLEAR_S * fps)), a_floor, b_floor,
                       STAND_STEP * body, weights)
         return weights
     flat = np.ones(3)
@@ -533,7 +619,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         # context), not lifted higher (an ankle swings low at heel strike).
         toe = gpos[:, toes[leg]] + offset
         toe[:, up] += raised
-        raised += clearance_lift(toe, ~held, toe_floor, up, body, fps, TOE_CLEAR if toes[leg] != ankle else 0.0)
+        raised += clearance_lift(toe, ~held, toe_floor, up, body, fps, TOE_CLEAR if toes[leg] != ankle else 0.0,
+                                 clearance)
         frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:
             continue

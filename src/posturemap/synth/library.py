@@ -19,6 +19,11 @@ Per library frame (all training clips, one after another; ``clip_start`` marks t
   thighs, upper arms, clavicles). Its inverted index (neuron -> frames, CSR) is the search's
   first stage, as an IVF index of a nearest-neighbour library is.
 
+And for the whole library, ``toe_counts``: its toes' heights above the floor by speed
+(:func:`posturemap.synth.feet.toe_height_counts`, summed over the clips), from which
+:attr:`MotionLibrary.clearance` says how high its swinging toes keep (the foot lock lifts a
+swinging toe that hangs lower; None for a skeleton without toes or a map file written before).
+
 Every clip is also searched played backwards (``reverse``, on by default): time-reversed real
 motion, the same postures and contacts travelled the other way, so that a library of forward
 walks also holds backward walks. The reversed copies are made in memory when the library is
@@ -33,8 +38,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length
+from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length, leg_toes
 from ..core.skeleton import Skeleton, fk
+from .feet import CLEAR_BINS, CLEAR_HEIGHTS, clearance_curve, toe_height_counts
 
 INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)
 FLOOR_PERCENTILE = 5.0  # a clip's floor under each ankle: this percentile of its heights
@@ -130,6 +136,7 @@ class MotionLibrary:
     lower: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     upper: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     reverse: bool = True
+    toe_counts: np.ndarray | None = None
     recorded: int = field(init=False)
     clip_of: np.ndarray = field(init=False)
     clip_end: np.ndarray = field(init=False)
@@ -188,6 +195,17 @@ class MotionLibrary:
         return value
 
     @property
+    def clearance(self) -> np.ndarray | None:
+        """The least height of the library's swinging toes by speed (leg lengths, at
+        :func:`posturemap.synth.feet.clearance_speeds`: :func:`~posturemap.synth.feet.clearance_curve`
+        of ``toe_counts``), or None without toe counts."""
+        if self.toe_counts is None:
+            return None
+        if "clearance" not in self._derived:
+            self._derived["clearance"] = clearance_curve(self.toe_counts)
+        return self._derived["clearance"]
+
+    @property
     def num_clips(self) -> int:
         return len(self.clip_start) - 1
 
@@ -202,6 +220,8 @@ class MotionLibrary:
         out = {k: getattr(self, k)[:n] for k in ARRAYS if k != "clip_start"}
         out["clip_start"] = self.clip_start[: self.num_recorded_clips + 1]
         out["lower"], out["upper"] = self.lower, self.upper
+        if self.toe_counts is not None:
+            out["toe_counts"] = self.toe_counts
         return out
 
     def joined(self, other: "MotionLibrary") -> "MotionLibrary":
@@ -212,8 +232,10 @@ class MotionLibrary:
         starts = np.concatenate([a["clip_start"], a["clip_start"][-1] + b["clip_start"][1:]])
         names = (tuple(self.clip_names[: self.num_recorded_clips])
                  + tuple(other.clip_names[: other.num_recorded_clips]))
+        counts = (None if self.toe_counts is None or other.toe_counts is None
+                  else self.toe_counts + other.toe_counts)
         return MotionLibrary(self.fps, self.up, self.leg, starts, clip_names=names, lower=self.lower,
-                             upper=self.upper, reverse=self.reverse,
+                             upper=self.upper, reverse=self.reverse, toe_counts=counts,
                              **{k: np.concatenate([a[k], b[k]]) for k in per_frame})
 
     def source_frames(self, s: int, e: int) -> tuple[str, int, int]:
@@ -285,7 +307,17 @@ class MotionLibrary:
         reverse = meta.get("reverse", True)
         if not isinstance(reverse, bool):
             raise ValueError("library 'reverse' is not true or false")
-        return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, reverse=reverse, **out)
+        counts = arrays.get("toe_counts")  # absent from map files written before it
+        if counts is not None:
+            shape = (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS) - 1)
+            if counts.shape != shape:
+                raise ValueError(f"library toe_counts has shape {counts.shape}, expected {shape}")
+            if counts.dtype.kind not in "iuf" or not np.all(np.isfinite(counts)) or np.any(counts < 0) \
+                    or np.any(counts != np.round(counts)):
+                raise ValueError("library toe_counts are not counts")
+            counts = counts.astype(np.float64)
+        return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, reverse=reverse,
+                   toe_counts=counts, **out)
 
 
 def feature_scales(lib: MotionLibrary) -> np.ndarray:
@@ -320,6 +352,9 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
     joints = np.concatenate([lower, upper])
     chains = leg_chains(sk)
     leg = leg_length(sk, chains)
+    toes = leg_toes(sk, chains)
+    has_toes = bool(len(chains)) and all(t != c[2] for t, c in zip(toes, chains))
+    counts = None
     parts = {k: [] for k in ("rots", "gpos", "heading", "contacts", "pose", "vel", "root")}
     for tr in tracks:
         m = tr.motion
@@ -329,6 +364,9 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
         parts["gpos"].append(tr.gpos)
         parts["heading"].append(tr.heading)
         parts["contacts"].append(clip_contacts(gp[:, [c[2] for c in chains]], up, m.fps, leg))
+        if has_toes:
+            clip_counts = toe_height_counts(gp[:, toes], up, m.fps, leg)
+            counts = clip_counts if counts is None else counts + clip_counts
         parts["pose"].append(pose.astype(np.float32))
         parts["vel"].append(vel.astype(np.float32))
         parts["root"].append(root.astype(np.float32))
@@ -339,4 +377,4 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
     starts = np.concatenate([[0], np.cumsum([len(tr.gpos) for tr in tracks])]).astype(np.int64)
     names = tuple(names) if names is not None else tuple(f"clip {i}" for i in range(len(tracks)))
     return MotionLibrary(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, win=win,
-                         reverse=reverse, **arrays)
+                         reverse=reverse, toe_counts=counts, **arrays)
