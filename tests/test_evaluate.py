@@ -414,6 +414,15 @@ def test_truth_as_prediction_scores_zero_error(tiny_state):
     both = natural(np.concatenate([tr[:, seam_on], evaluate.rebuilt_frames(tr, bad_r)]),
                    np.concatenate([tp[:, seam_on], tp[:, seam_on]]))
     np.testing.assert_allclose(both, got["per_window"]["naturalness"] + bad["per_window"]["naturalness"])
+    # Without a pose-validity index (a report that does not show validity), the same scores and
+    # validity None.
+    bare = dataclasses.replace(ctx, index=None)
+    quick = evaluate.score_inbetween(bare, tr, tp, bad_r, tp[:, sl], length)
+    assert quick["validity"] is None and quick["validity_p95"] is None
+    for k in ("l2q", "l2p", "npss", "mpjpe_cm", "skate", "jerk"):
+        assert quick[k] == bad[k], k
+    assert evaluate.score_truth(bare, tr, tp, length)["validity"] is None
+    assert evaluate.score_truth(bare, tr, tp, length)["skate"] == ref["skate"]
 
 
 def test_naturalness_finds_a_copy_of_real_motion_and_ignores_the_windows_own_frames(tiny_state):

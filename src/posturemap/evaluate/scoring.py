@@ -22,8 +22,9 @@ class Context:
 
     feet : indices of the foot joints; floor : (K,) their planted heights (a low percentile
     of their training heights, clip unit); std : (J, 3) L2P statistics; index : KD-tree of
-    training postures; skate_height : H of the skate measure (clip unit); cm : centimetres
-    per clip unit (every figure in cm is the clip's figure times ``cm``).
+    training postures (None: no pose validity, reported as None); skate_height : H of the skate
+    measure (clip unit); cm : centimetres per clip unit (every figure in cm is the clip's figure
+    times ``cm``).
     """
 
     skeleton: object
@@ -176,7 +177,7 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
     root_err = np.linalg.norm(pg_p[:, sl, ctx.root] - tg_p[:, sl, ctx.root], axis=-1)
     rel_p = pg_p[:, sl] - pg_p[:, sl, ctx.root: ctx.root + 1]
     rel_t = tg_p[:, sl] - tg_p[:, sl, ctx.root: ctx.root + 1]
-    valid = metrics.pose_validity(window_features(ctx, pred_r, pred_p), ctx.index)
+    valid = None if ctx.index is None else metrics.pose_validity(window_features(ctx, pred_r, pred_p), ctx.index)
     per_window = {
         "l2q": [metrics.l2q(p_rot[i: i + 1, sl], t_rot[i: i + 1, sl]) for i in range(n)],
         "l2p": [metrics.l2p(p_pos[i: i + 1, sl], t_pos[i: i + 1, sl], ctx.std) for i in range(n)],
@@ -194,8 +195,8 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "skate": float(skate.mean()),
         "contact_skate": contact,
         "penetration_cm": float(np.mean(per_window["penetration_cm"])),
-        "validity": float(valid.mean()),
-        "validity_p95": float(np.percentile(valid, 95)),
+        "validity": None if valid is None else float(valid.mean()),
+        "validity_p95": None if valid is None else float(np.percentile(valid, 95)),
         "jerk": metrics.jerk(pg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
         "per_window": per_window,
     }
@@ -223,10 +224,12 @@ def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> di
     sl = slice(N_PAST, N_PAST + length)
     _, tg_p = global_windows(truth_r, truth_p, ctx.skeleton.parents)
     skate, contact = skate_scores(ctx, tg_p, slice(N_PAST - 1, N_PAST + length))
-    valid = metrics.pose_validity(window_features(ctx, truth_r[:, sl], truth_p[:, sl]), ctx.index)
+    valid = (None if ctx.index is None
+             else metrics.pose_validity(window_features(ctx, truth_r[:, sl], truth_p[:, sl]), ctx.index))
     pen = penetration(ctx, tg_p, length) * ctx.cm
     out = {"skate": float(skate.mean()), "contact_skate": contact, "penetration_cm": float(pen.mean()),
-           "validity": float(valid.mean()), "validity_p95": float(np.percentile(valid, 95)),
+           "validity": None if valid is None else float(valid.mean()),
+           "validity_p95": None if valid is None else float(np.percentile(valid, 95)),
            "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
            "per_window": {"skate": skate.tolist(), "penetration_cm": pen.tolist()}}
     if natural is not None:
