@@ -91,6 +91,21 @@ def test_the_other_dataset_sample_takes_the_same_number_from_every_cell(tmp_path
     assert len(draws) > 1
 
 
+def test_the_lafan1_segments_are_split_by_performer_without_their_mirror_images(tmp_path):
+    mod = _module("lafan1_segments")
+    for name in ("walk1_subject1_walk_filtered", "walk1_subject1_walk_mirror_filtered",
+                 "obstacles1_subject2_walk10_filtered", "jumps1_subject5_big_filtered",
+                 "fallAndGetUp1_subject5_walk2_mirror_filtered", "pushAndStumble1_subject5_stumble_filtered",
+                 "dataset-2_walk_active_001"):
+        (tmp_path / f"{name}.bvh").write_text("")
+    (tmp_path / "walk1_subject1_walk_filtered.json").write_text("")  # not a BVH file
+    found = [(p.stem, s, k) for p, s, k in mod.segment_files(tmp_path)]
+    assert found == [("jumps1_subject5_big_filtered", "subject5", "jumps: big"),
+                     ("obstacles1_subject2_walk10_filtered", "subject2", "obstacles: walk"),
+                     ("pushAndStumble1_subject5_stumble_filtered", "subject5", "pushAndStumble: stumble"),
+                     ("walk1_subject1_walk_filtered", "subject1", "walk: walk")]
+
+
 def test_the_transition_feet_script_measures_skate_against_the_real_clips(bandai_paths, monkeypatch):
     from posturemap.core.joints import leg_chains, leg_toes
     from posturemap.learn.model import PostureMap
