@@ -11,7 +11,8 @@ A map file is a ZIP archive of ``.npy`` members (``numpy.savez``), read here wit
 - per class ``c`` in 0..3: ``c{c}_weights (n, d)``, ``c{c}_edges (E, 2)``, ``c{c}_hits (n,)``,
   ``c{c}_witness (n,)``, ``c{c}_period (d,)``, where ``d`` is the number of the class's
   active dimensions;
-- ``library_*``: the motion library's per-frame arrays (shapes checked by
+- ``library_*``: the motion library's per-frame arrays, and its toes' height counts by speed
+  (``library_toe_counts``, absent from files written before them; shapes and values checked by
   :meth:`posturemap.synth.library.MotionLibrary.from_parts`).
 
 :func:`read` checks, in this order and before the next step reads anything: the path is a
