@@ -42,10 +42,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from other_dataset import scored_lengths, score_tables  # noqa: E402
 from transition_speed import machine, machine_line, report_parser, save_outputs  # noqa: E402
 
-METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", "auto+feet")
-DEFAULT = "auto+feet"
 LENGTHS = (5, 15, 30, 45)  # the bench's gaps, frames at 30 fps (as many times more at another rate)
 PER_CONTENT = (30, 45)  # the per-motion tables' (1 and 1.5 s)
 NAME = re.compile(r"^(?P<theme>[A-Za-z]+)(?P<take>\d+)_(?P<subject>subject\d+)_(?P<label>.+?)_filtered$")
@@ -90,7 +89,7 @@ def load(directory: Path, test_subject: str, fps: float | None):
 
 def evaluate(split, seed: int, log=print) -> dict:
     """Every method's scores at each of the split's lengths, the truth's skate, the default per motion."""
-    from posturemap.evaluate import protocol, runner, scoring
+    from posturemap.evaluate import protocol, runner
 
     settings = dataclasses.replace(protocol.Settings.full(), som_epochs=0.25)
     t0 = time.perf_counter()
@@ -99,35 +98,16 @@ def evaluate(split, seed: int, log=print) -> dict:
     # dimensions take about a minute per method and length there; this report has no validity).
     state = runner.prepare(split, settings, seed, log=lambda *a: None, full=False)
     windows = protocol.make_windows(state, settings, seed)
-    ctx, test = state["ctx"], state["test"]
-    engines = runner.empty_engines(state)
+    test = state["test"]
     kinds = np.array([split.contents[c] for c, _ in windows])
     rate = float(test[0].fps)
     lib = state["model"].library_
-    out = {"fps": rate, "joints": len(ctx.skeleton.names), "train_clips": len(split.train),
+    out = {"fps": rate, "joints": len(state["ctx"].skeleton.names), "train_clips": len(split.train),
            "train_frames": int(sum(len(m) for m in split.train)), "clips": len(test), "windows": len(windows),
            "contents": {k: int((kinds == k).sum()) for k in sorted(set(kinds))},
            "clearance": None if lib.clearance is None else [round(float(x), 4) for x in lib.clearance],
-           "lengths": {}}
-    per_content = {round(n * rate / 30.0) for n in PER_CONTENT}
-    for length in split.lengths:
-        truth_r, truth_p, preds = runner.predict_windows(engines, METHODS, test, windows, length)
-        tg = scoring.truth_globals(ctx, truth_r, truth_p)
-        row = {"truth_skate": scoring.score_truth(ctx, truth_r, truth_p, length)["skate"]}
-        for m in METHODS:
-            sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
-            row[m] = {k: sc[k] for k in ("l2q", "l2p", "npss", "mpjpe_cm", "skate")}
-        if length in per_content:
-            row["per_content"] = {}
-            for k in sorted(set(kinds)):
-                ix = np.flatnonzero(kinds == k)
-                tk = tuple(x[ix] for x in tg)
-                cell = {m: scoring.score_inbetween(ctx, truth_r[ix], truth_p[ix], preds[m][0][ix], preds[m][1][ix],
-                                                   length, accuracy_only=True, truth_g=tk)
-                        for m in ("slerp", "spline", "damped", DEFAULT)}
-                cell["truth_skate"] = scoring.score_truth(ctx, truth_r[ix], truth_p[ix], length)["skate"]
-                row["per_content"][k] = cell
-        out["lengths"][str(length)] = row
+           "lengths": scored_lengths(state, windows, kinds, split.lengths,
+                                     {round(n * rate / 30.0) for n in PER_CONTENT})}
     log(f"lafan1 segments at {rate:.4g} fps: {len(test)} test segments, {len(windows)} windows in "
         f"{time.perf_counter() - t0:.0f} s")
     return out
@@ -154,34 +134,7 @@ def markdown(result: dict, command: str) -> str:
                   f"clearance by speed, leg lengths: {res['clearance']}). Gaps of "
                   + ", ".join(f"{length} frames ({int(length) / rate:.2f} s)" for length in res["lengths"])
                   + ". Ratios to SLERP (lower is better); SLERP's own value in its column.", ""]
-        for key, label in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE (cm)")):
-            lines += [f"**{label}**", "", "| frames | " + " | ".join(METHODS) + " |",
-                      "| ---: | " + " | ".join("---:" for _ in METHODS) + " |"]
-            for length, row in res["lengths"].items():
-                sl = row["slerp"][key]
-                cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in METHODS[1:]]
-                lines.append(f"| {length} | " + " | ".join(cells) + " |")
-            lines.append("")
-        lines += ["**Foot skate** (cm/s, height-weighted foot speed over the gap, no contact detection)", "",
-                  "| frames | " + " | ".join(METHODS) + " | truth |",
-                  "| ---: | " + " | ".join("---:" for _ in METHODS) + " | ---: |"]
-        for length, row in res["lengths"].items():
-            lines.append(f"| {length} | " + " | ".join(f"{row[m]['skate']:.2f}" for m in METHODS)
-                         + f" | {row['truth_skate']:.2f} |")
-        lines.append("")
-        for length, row in res["lengths"].items():
-            if "per_content" not in row:
-                continue
-            lines += [f"**Per motion at {length} frames** (L2Q / L2P as ratios to SLERP; skate in cm/s)", "",
-                      "| motion | windows | SLERP L2Q | spline | damped | default | default skate / truth |",
-                      "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
-            for k, cell in row["per_content"].items():
-                sl = cell["slerp"]
-                ratio = [f"{cell[m]['l2q'] / sl['l2q']:.2f}x / {cell[m]['l2p'] / sl['l2p']:.2f}x"
-                         for m in ("spline", "damped", DEFAULT)]
-                lines.append(f"| {k} | {res['contents'][k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
-                             + f" | {cell[DEFAULT]['skate']:.2f} / {cell['truth_skate']:.2f} |")
-            lines.append("")
+        lines += score_tables(res["lengths"], res["contents"], "motion")
     lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 

@@ -83,7 +83,7 @@ def load(data_dir: Path, other: Path, per_cell: int, seed: int):
 
 def run(data_dir: Path, other: Path, per_cell: int = 2, seed: int = 0, log=print) -> dict:
     from posturemap.core import kernels
-    from posturemap.evaluate import protocol, runner, scoring
+    from posturemap.evaluate import protocol, runner
 
     kernels.compiled()
     settings = dataclasses.replace(protocol.Settings.full(), som_epochs=0.25)
@@ -91,20 +91,34 @@ def run(data_dir: Path, other: Path, per_cell: int = 2, seed: int = 0, log=print
     t0 = time.perf_counter()
     state = runner.prepare(split, settings, seed, log=lambda *a: None)
     windows = protocol.make_windows(state, settings, seed)
-    ctx, test = state["ctx"], state["test"]
-    engines = runner.empty_engines(state)
+    test = state["test"]
     kinds = np.array([split.contents[c] for c, _ in windows])
     result = {"date": datetime.date.today().isoformat(), "machine": machine(), "seed": seed,
               "per_cell": per_cell, "clips": len(test), "train_clips": len(split.train), "windows": len(windows),
-              "contents": {k: int((kinds == k).sum()) for k in sorted(set(kinds))}, "lengths": {}}
-    for length in LENGTHS:
+              "contents": {k: int((kinds == k).sum()) for k in sorted(set(kinds))},
+              "lengths": scored_lengths(state, windows, kinds, LENGTHS, PER_CONTENT)}
+    log(f"dataset-2: {len(test)} clips, {len(windows)} windows in {time.perf_counter() - t0:.0f} s")
+    return result
+
+
+def scored_lengths(state: dict, windows, kinds: np.ndarray, lengths, per_content) -> dict:
+    """Each length's scores (``{str(length): row}``) of :data:`METHODS` on ``windows`` of
+    ``state`` (:func:`posturemap.evaluate.runner.prepare`): L2Q, L2P, NPSS, MPJPE and skate per
+    method and the truth's skate; at the lengths in ``per_content`` also per motion (``kinds``,
+    one per window): SLERP's, the spline's, ``damped``'s and the default's accuracy and skate."""
+    from posturemap.evaluate import runner, scoring
+
+    ctx, test = state["ctx"], state["test"]
+    engines = runner.empty_engines(state)
+    out = {}
+    for length in lengths:
         truth_r, truth_p, preds = runner.predict_windows(engines, METHODS, test, windows, length)
         tg = scoring.truth_globals(ctx, truth_r, truth_p)
         row = {"truth_skate": scoring.score_truth(ctx, truth_r, truth_p, length)["skate"]}
         for m in METHODS:
             sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
             row[m] = {k: sc[k] for k in ("l2q", "l2p", "npss", "mpjpe_cm", "skate")}
-        if length in PER_CONTENT:
+        if length in per_content:
             row["per_content"] = {}
             for k in sorted(set(kinds)):
                 ix = np.flatnonzero(kinds == k)
@@ -114,20 +128,18 @@ def run(data_dir: Path, other: Path, per_cell: int = 2, seed: int = 0, log=print
                         for m in ("slerp", "spline", "damped", DEFAULT)}
                 cell["truth_skate"] = scoring.score_truth(ctx, truth_r[ix], truth_p[ix], length)["skate"]
                 row["per_content"][k] = cell
-        result["lengths"][str(length)] = row
-    log(f"dataset-2: {len(test)} clips, {len(windows)} windows in {time.perf_counter() - t0:.0f} s")
-    return result
+        out[str(length)] = row
+    return out
 
 
-def markdown(result: dict, command: str) -> str:
-    lines = [f"{result['clips']} test clips ({result['per_cell']} per content and style, seed {result['seed']}; a clip "
-             f"shorter than a window gives none), {result['windows']} windows; library: the {result['train_clips']} "
-             "clips of bandai1. "
-             "Ratios to SLERP (lower is better); SLERP's own value in its column.", ""]
+def score_tables(scores: dict, contents: dict, kind: str = "content") -> list[str]:
+    """Markdown lines of :func:`scored_lengths`' ``scores``: L2Q, L2P, NPSS and MPJPE as ratios to
+    SLERP's, the skate beside the truth's, and per ``kind`` (``contents``: windows of each)."""
+    lines = []
     for key, label in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE (cm)")):
         lines += [f"**{label}**", "", "| frames | " + " | ".join(METHODS) + " |",
                   "| ---: | " + " | ".join("---:" for _ in METHODS) + " |"]
-        for length, row in result["lengths"].items():
+        for length, row in scores.items():
             sl = row["slerp"][key]
             cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in METHODS[1:]]
             lines.append(f"| {length} | " + " | ".join(cells) + " |")
@@ -135,23 +147,32 @@ def markdown(result: dict, command: str) -> str:
     lines += ["**Foot skate** (cm/s, height-weighted foot speed over the gap, no contact detection)", "",
               "| frames | " + " | ".join(METHODS) + " | truth |", "| ---: | " + " | ".join("---:" for _ in METHODS)
               + " | ---: |"]
-    for length, row in result["lengths"].items():
+    for length, row in scores.items():
         lines.append(f"| {length} | " + " | ".join(f"{row[m]['skate']:.2f}" for m in METHODS)
                      + f" | {row['truth_skate']:.2f} |")
     lines.append("")
-    for length, row in result["lengths"].items():
+    for length, row in scores.items():
         if "per_content" not in row:
             continue
-        lines += [f"**Per content at {length} frames** (L2Q / L2P as ratios to SLERP; skate in cm/s)", "",
-                  "| content | windows | SLERP L2Q | spline | damped | default | default skate / truth |",
+        lines += [f"**Per {kind} at {length} frames** (L2Q / L2P as ratios to SLERP; skate in cm/s)", "",
+                  f"| {kind} | windows | SLERP L2Q | spline | damped | default | default skate / truth |",
                   "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for k, cell in row["per_content"].items():
             sl = cell["slerp"]
             ratio = [f"{cell[m]['l2q'] / sl['l2q']:.2f}x / {cell[m]['l2p'] / sl['l2p']:.2f}x"
                      for m in ("spline", "damped", DEFAULT)]
-            lines.append(f"| {k} | {result['contents'][k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
+            lines.append(f"| {k} | {contents[k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
                          + f" | {cell[DEFAULT]['skate']:.2f} / {cell['truth_skate']:.2f} |")
         lines.append("")
+    return lines
+
+
+def markdown(result: dict, command: str) -> str:
+    lines = [f"{result['clips']} test clips ({result['per_cell']} per content and style, seed {result['seed']}; a clip "
+             f"shorter than a window gives none), {result['windows']} windows; library: the {result['train_clips']} "
+             "clips of bandai1. "
+             "Ratios to SLERP (lower is better); SLERP's own value in its column.", ""]
+    lines += score_tables(result["lengths"], result["contents"])
     lines.append(machine_line(result, command))
     return "\n".join(lines) + "\n"
 

@@ -1025,21 +1025,28 @@ def test_clearance_need_is_the_rule_raised_by_the_library_curve():
     np.testing.assert_array_equal(feet.clearance_need(speeds, 0.0, curve), 0.0)  # no toe joint: nothing
 
 
+def gliding_left_toe(m, speed: float, length: int = 30):
+    """One posture of ``m`` (the left toe down, the right up) held for ``length`` frames while the
+    body glides forward at ``speed`` leg lengths per second: ``(sk, up, chains, toes, body, length,
+    fps, rots, pos, step)``, ``step`` the root's move per frame."""
+    sk, up = m.skeleton, up_axis(m)
+    chains, toes = leg_chains(sk), leg_toes(sk)
+    body = leg_length(sk, chains)
+    g_all = fk(sk.parents, m.rotations, m.positions)[1]
+    frame = int(np.argmax(g_all[:, toes[1], up] - g_all[:, toes[0], up]))  # left toe down, right up
+    rots, pos = m.rotations[np.full(length, frame)].copy(), m.positions[np.full(length, frame)].copy()
+    ahead = (np.arange(3) == (up + 2) % 3).astype(float)
+    step = speed * body / m.fps * ahead
+    pos[:, 0] += np.arange(length)[:, None] * step
+    return sk, up, chains, toes, body, length, m.fps, rots, pos, step
+
+
 def test_foot_lock_lifts_a_slow_dragged_toe_to_the_library_clearance(sample_clips):
     # The body glides at 0.75 leg lengths per second, the left toe on the floor: the fixed rule asks
     # for 0.0067 leg lengths there, a library whose toes keep 0.02 at that speed asks for that, and
     # the lock (compiled and numpy alike) lifts the toe to it.
     m = sample_clips["walk"]
-    sk, up = m.skeleton, up_axis(m)
-    chains, toes = leg_chains(sk), leg_toes(sk)
-    body = leg_length(sk, chains)
-    length, fps = 30, m.fps
-    g_all = fk(sk.parents, m.rotations, m.positions)[1]
-    frame = int(np.argmax(g_all[:, toes[1], up] - g_all[:, toes[0], up]))
-    rots, pos = m.rotations[np.full(length, frame)].copy(), m.positions[np.full(length, frame)].copy()
-    ahead = (np.arange(3) == (up + 2) % 3).astype(float)
-    step = 0.75 * body / fps * ahead
-    pos[:, 0] += np.arange(length)[:, None] * step
+    sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.75)
     gpos0 = fk(sk.parents, rots, pos)[1]
     floor = gpos0[:, toes, up].min()
     ankles = [c[2] for c in chains]
@@ -1066,16 +1073,7 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # floor through the leg's IK, the foot keeping its orientation. The compiled kernel
     # (numba_kernels._toe_lift inside lock_legs) does what the numpy reference does.
     m = sample_clips["walk"]
-    sk, up = m.skeleton, up_axis(m)
-    chains, toes = leg_chains(sk), leg_toes(sk)
-    body = leg_length(sk, chains)
-    length, fps = 30, m.fps
-    g_all = fk(sk.parents, m.rotations, m.positions)[1]
-    frame = int(np.argmax(g_all[:, toes[1], up] - g_all[:, toes[0], up]))  # left toe down, right up
-    rots, pos = m.rotations[np.full(length, frame)].copy(), m.positions[np.full(length, frame)].copy()
-    ahead = (np.arange(3) == (up + 2) % 3).astype(float)
-    step = 2.5 * body / fps * ahead
-    pos[:, 0] += np.arange(length)[:, None] * step
+    sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 2.5)
     grot0, gpos0 = fk(sk.parents, rots, pos)
     floor = gpos0[:, toes, up].min()
     ankles = [c[2] for c in chains]
