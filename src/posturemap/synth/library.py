@@ -201,9 +201,7 @@ class MotionLibrary:
         of ``toe_counts``), or None without toe counts."""
         if self.toe_counts is None:
             return None
-        if "clearance" not in self._derived:
-            self._derived["clearance"] = clearance_curve(self.toe_counts)
-        return self._derived["clearance"]
+        return self.derived("clearance", lambda: clearance_curve(self.toe_counts))
 
     @property
     def num_clips(self) -> int:
