@@ -735,11 +735,15 @@ def test_inspect_describes_the_library(model, tmp_path, capsys):
     out = capsys.readouterr().out
     n = model.library_.recorded
     assert f"motion library: {n} frames of {len(LIBRARY)} clips at 30 fps, also played backwards" in out
+    heights = " / ".join(f"{h:.3f}" for h in model.library_.clearance)
+    assert f"swinging toes kept at least {heights} leg lengths above the floor at 0.375 / 0.75 / 1.25" in out
     assert cli.main(["inspect", str(path), "--json"]) == 0
     import json
 
     d = json.loads(capsys.readouterr().out)["library"]
     assert d["frames"] == n and d["clips"] == len(LIBRARY) and "Foot_L" in d["key_joints"]
+    np.testing.assert_allclose(d["toe_clearance"]["heights"], model.library_.clearance, atol=5e-5)
+    assert d["toe_clearance"]["speeds"] == [0.375, 0.75, 1.25, 2.0, 3.25, 6.0]
 
 
 def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engine, clips, model):

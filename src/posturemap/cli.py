@@ -348,6 +348,11 @@ def _cmd_inspect(args) -> int:
         print(f"  motion library: {lib['frames']} frames of {lib['clips']} clips at {lib['fps']:.5g} fps"
               f"{', also played backwards' if lib['reverse'] else ''}; {lib['bytes_per_frame']:.0f} bytes per frame; "
               f"matched on {', '.join(lib['key_joints'])}")
+        toe = lib.get("toe_clearance")
+        if toe:
+            print("  swinging toes kept at least " + " / ".join(f"{h:.3f}" for h in toe["heights"])
+                  + " leg lengths above the floor at " + " / ".join(f"{v:g}" for v in toe["speeds"])
+                  + " leg lengths per second (as the library's own, where above the fixed rule)")
     else:
         print("  motion library: none (retrieval falls back to interpolation)")
     p = d["params"]

@@ -327,6 +327,17 @@ class PostureMap:
         self.library = False if self.library_ is None else (True if self.library_.reverse else "recorded")
         return self
 
+    def _toe_clearance(self) -> dict | None:
+        """The library's swinging-toe clearance for :meth:`describe`: ``{"speeds", "heights"}`` in
+        leg lengths (per second), or None (no toe counts: a rig without toes, an older file)."""
+        curve = self.library_.clearance
+        if curve is None:
+            return None
+        from ..synth.feet import clearance_speeds
+
+        return {"speeds": [round(float(v), 3) for v in clearance_speeds()],
+                "heights": [round(float(h), 4) for h in curve]}
+
     def describe(self) -> dict:
         """JSON-ready summary: neurons per class, parameters, quality, class assignment."""
         return {
@@ -348,5 +359,6 @@ class PostureMap:
                 **{k: v for k, v in self.library_.meta().items() if k != "clips"},
                 "clips": self.library_.num_recorded_clips,
                 "key_joints": [self.skeleton_.names[j] for j in np.concatenate([self.library_.lower,
-                                                                                self.library_.upper])]},
+                                                                                self.library_.upper])],
+                "toe_clearance": self._toe_clearance()},
         }
