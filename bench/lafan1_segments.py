@@ -6,8 +6,8 @@ second one (the same rig), ``foreign_skeleton.py`` rewrites Bandai's clips as an
 This script takes other people's motion on another rig: Ubisoft La Forge's LaFAN1 (Harvey et
 al. 2020; five performers; CC BY-NC-ND 4.0), as a motion-matching course project published it
 (https://github.com/karstm/motion-matching, ``data/mocap/lafan1_filtered_60fps``): 153 segments
-cut from the takes (walks, jogs, runs, sidesteps, backward walks, stumbles, jumps, dance,
-crawling starts...), filtered, resampled to 60 fps, each with a ``SimulationBone`` root on the
+cut from the takes (walks, jogs, runs, sidesteps, backward walks, stumbles, jumps, dance...),
+filtered, resampled to 60 fps, each with a ``SimulationBone`` root on the
 ground above the hips (23 joints, centimetres, Y up); and each segment mirrored, which this
 script skips (``*_mirror_filtered.bvh``: mirror images are not other motion). These are not the
 original takes, so the standard LaFAN1 benchmark (windows of subject 5's whole takes at 30 fps)
@@ -27,7 +27,7 @@ Nothing is copied: the files are read where they are (the licence forbids sharin
 
 Usage::
 
-    python bench/lafan1_segments.py --lafan DIR [--test-subject subject5] [--fps 60,30] [--doc PATH] [--json PATH] [--seed S]
+    python bench/lafan1_segments.py --lafan DIR [--test-subject subject5] [--fps native,30] [--doc PATH] [--json PATH] [--seed S]
 """
 
 from __future__ import annotations
