@@ -14,8 +14,9 @@ from posturemap.core import quat
 from posturemap.core.joints import key_joints, leg_chains, leg_length, leg_toes
 from posturemap.core.motion import up_axis
 from posturemap.synth import feet
-from posturemap.synth.feet import (CLEAR_S, CLEAR_SPEED, FLOOR_S, MAX_DRIFT, STEP_S, TOE_CLEAR, clearance_lift,
-                                   contact_runs, lock_weights_and_targets, soft_limit, swing_offsets, two_bone_ik)
+from posturemap.synth.feet import (CLEAR_FADE_S, CLEAR_S, CLEAR_SPEED, FLOOR_S, MAX_DRIFT, STEP_S, TOE_CLEAR,
+                                   clearance_lift, contact_runs, lock_weights_and_targets, soft_limit, swing_offsets,
+                                   two_bone_ik)
 from posturemap.core.skeleton import fk
 from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine
@@ -324,6 +325,53 @@ def test_lock_targets_from_a_and_b_and_nothing_in_the_air():
     w3, _, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0,
                                         speed=np.full(length, 5.0), speed_tol=1.0)
     assert not w3.any()
+
+
+def test_a_toe_planted_at_a_seam_is_held_while_the_new_frames_keep_it_low():
+    # The foot is in the air at both seams (heel up), its toe planted at A's end: the frames from
+    # A's end while the toe stays low, at most `most`, hold the ankle where the toe stays on A's
+    # toe spot; a gap of SEAM_TOE_GAP frames is kept free before a run held already; B's side
+    # likewise, back from B's start.
+    length = 20
+    h = np.full(length, 30.0)  # the ankle high: no run of its own
+    horiz = np.zeros((length, 3))
+    horiz[:, 0] = np.arange(length) * 2.0
+    toe = np.tile([12.0, 0.0, 3.0], (length, 1))  # the toe's place about the ankle, turning a little
+    toe[:, 2] += np.arange(length) * 0.1
+    low = np.zeros(length, dtype=bool)
+    low[:4] = low[-7:] = True
+    a_toe, b_toe = np.array([10.0, 0.0, 3.0]), np.array([52.0, 0.0, 5.0])
+    a_spot, b_spot = np.zeros(3), np.array([40.0, 0, 0])
+
+    def lock(a_t, b_t, most, on=None):
+        return lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, on=on, toe=toe,
+                                        toe_seams=(a_t, a_toe, b_t, b_toe, low, most))[:2]
+
+    w, target = lock(True, False, 6)
+    np.testing.assert_array_equal(w, np.r_[np.ones(4), np.zeros(length - 4)])  # held while low
+    np.testing.assert_allclose(target[:4] + toe[:4], np.tile(a_toe, (4, 1)))  # the toe on A's spot
+    np.testing.assert_array_equal(target[4:], horiz[4:])
+    w, _ = lock(True, True, 6)
+    np.testing.assert_array_equal(w, np.r_[np.ones(4), np.zeros(length - 10), np.ones(6)])  # B's: at most 6
+    w, target = lock(False, True, 2)
+    np.testing.assert_array_equal(w, np.r_[np.zeros(length - 2), np.ones(2)])
+    np.testing.assert_allclose(target[-2:] + toe[-2:], np.tile(b_toe, (2, 1)))
+    # A run of the segment's contacts from frame 3: A's toe held 3 - SEAM_TOE_GAP frames only.
+    on = np.zeros(length, dtype=bool)
+    on[3:8] = True
+    w, _ = lock(True, False, 6, on)
+    np.testing.assert_array_equal(w, np.r_[np.ones(3 - feet.SEAM_TOE_GAP), np.zeros(feet.SEAM_TOE_GAP), np.ones(5),
+                                           np.zeros(length - 8)])
+    # A foot held from A's end already keeps its own run; a toe not planted is not held.
+    on[:] = False
+    on[:5] = True
+    w_run, t_run, _ = lock_weights_and_targets(h, horiz, True, a_spot, False, b_spot, 0.0, 1.0, on=on, toe=toe)
+    w, target, _ = lock_weights_and_targets(h, horiz, True, a_spot, False, b_spot, 0.0, 1.0, on=on, toe=toe,
+                                            toe_seams=(True, a_toe, False, b_toe, low, 6))
+    np.testing.assert_array_equal(w, w_run)
+    np.testing.assert_array_equal(target, t_run)
+    w, _ = lock(False, False, 6)
+    assert not w.any()
 
 
 def test_a_held_foot_turns_about_its_toe():
@@ -917,6 +965,12 @@ def test_foot_lock_context_is_a_last_two_frames_and_b_first_two_at_the_clips_end
                         g_b[b_start: b_start + nb].min() + e.last["shift"][e.up])
         lower.append(toe_floor < min(g_a[[max(a_end - 1, 0), a_end]].min(), g_b[ib].min() + e.last["shift"][e.up]))
         assert seen[-1][11] == pytest.approx(toe_floor, abs=1e-9)
+        # The toes of the same frames, for the toes planted at the seams (B's placed as its ankles).
+        toes_a = fk(a.skeleton.parents, a.rotations, a.positions)[1][:, leg_toes(a.skeleton)]
+        toes_b = fk(b.skeleton.parents, b.rotations, b.positions)[1][:, leg_toes(b.skeleton)]
+        np.testing.assert_allclose(seen[-1][15], toes_a[[max(a_end - 1, 0), a_end]], atol=1e-9)
+        placed = rotate_about_up(toes_b[ib], e.last["dtheta"], e.up) + e.last["shift"]
+        np.testing.assert_allclose(seen[-1][16], placed, atol=1e-9)
     assert any(lower)  # the longer context found a lower toe than the seams' two frames
 
 
@@ -937,10 +991,14 @@ def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while
     assert np.all(lift[r: 28] >= need - 1e-9)
     assert np.all(lift[28 + 2 * r + 1:] == 0)
     # Continuous: it falls over 2r + 1 frames into the held run, and rises from A's seam on a
-    # smoothstep over r + 1 frames (its steepest slope 1.5 / (r + 1) of the lift).
+    # smoothstep over CLEAR_FADE_S (its steepest slope 1.5 / fade of the lift): half of it in the
+    # first new frame at 30 fps, all of it from the second.
+    fade = max(1, round(CLEAR_FADE_S * fps))
+    assert fade == 2
     assert np.max(np.abs(np.diff(lift[r:]))) <= need / (2 * r + 1) + 1e-9
-    assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:r + 1]])))) <= 1.5 * need / (r + 1) + 1e-9
-    assert 0 < lift[0] < 0.2 * need
+    assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:r + 1]])))) <= 1.5 * need / fade + 1e-9
+    assert lift[0] == pytest.approx(0.5 * lift[1])
+    assert lift[1] >= need - 1e-9
     # Slow, high enough or held: no lift.
     slow = toe.copy()
     slow[:, 0] = np.arange(length) * 0.2 * body / fps
@@ -1065,6 +1123,56 @@ def test_foot_lock_lifts_a_slow_dragged_toe_to_the_library_clearance(sample_clip
     assert np.all(heights["rule"] >= rule * body * (1 - 1e-6)) and np.all(heights["rule"] < 0.012 * body)
     assert np.all(heights["library"] >= 0.02 * body * (1 - 1e-6))
     assert np.all(heights["library"] < 0.021 * body)  # lifted to it, not beyond
+
+
+def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(sample_clips):
+    # The body glides at 0.8 leg lengths per second (too fast for the ankle to count as planted),
+    # the left toe low: at A's end that toe stood still. The lock holds it on its spot for
+    # SEAM_TOE_S, then lets it go (its offset carried off through the air); without A's toes it
+    # slid from the first frame. B's planted toe likewise at the other end; and a toe that rises
+    # out of the contact height is let go there.
+    m = sample_clips["walk"]
+    sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.8)
+    gpos0 = fk(sk.parents, rots, pos)[1]
+    floor = gpos0[:, toes, up].min()
+    ankles = [c[2] for c in chains]
+    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
+    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    a_toes = gpos0[0, toes] - np.array([2.0, 1.0])[:, None, None] * step
+    b_toes = gpos0[-1, toes] + np.array([1.0, 2.0])[:, None, None] * step
+    a_toes[0, 0] = a_toes[1, 0]  # the left toe still at A's end: planted
+    most = round(feet.SEAM_TOE_S * fps)
+    assert most == 6
+    horizontal = np.arange(3) != up
+    kw = dict(body=body, toe_floor=floor, toes=toes)
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, a_toes=a_toes, b_toes=b_toes, **kw)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+    np.testing.assert_array_equal(results["numba"][1], results["numpy"][1])
+    r, w = results["numpy"]
+    np.testing.assert_array_equal(w[:, 0], np.r_[np.ones(most), np.zeros(length - most)])
+    assert not w[:, 1].any()
+    g1 = fk(sk.parents, r, pos)[1]
+    held = g1[:most, toes[0]][:, horizontal] - a_toes[1, 0][horizontal]
+    assert np.abs(held).max() < 0.005 * body  # on A's spot (within the soft reach of a leg trailing behind)
+    free = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, **kw)["numpy"][0]
+    slid = fk(sk.parents, free, pos)[1][:most, toes[0]][:, horizontal] - a_toes[1, 0][horizontal]
+    assert np.linalg.norm(slid[-1]) > (most - 0.5) * np.linalg.norm(step)
+    # B's toe planted instead: held over B's last `most` frames on B's spot.
+    b_still = b_toes.copy()
+    b_still[1, 0] = b_still[0, 0]
+    a_moving = gpos0[0, toes] - np.array([2.0, 1.0])[:, None, None] * step
+    results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, a_toes=a_moving, b_toes=b_still, **kw)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+    r, w = results["numpy"]
+    np.testing.assert_array_equal(w[:, 0], np.r_[np.zeros(length - most), np.ones(most)])
+    g1 = fk(sk.parents, r, pos)[1]
+    assert np.abs(g1[-most:, toes[0]][:, horizontal] - b_still[0, 0][horizontal]).max() < 0.005 * body
+    # The body rises out of the contact height from frame 3: the toe is held over frames 0-2 only.
+    risen = pos.copy()
+    risen[3:, 0, up] += 0.06 * body
+    results = lock_both(sk, chains, rots, risen, up, a_feet, b_feet, fps, a_toes=a_toes, b_toes=b_toes, **kw)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+    np.testing.assert_array_equal(results["numpy"][1][:, 0], np.r_[np.ones(3), np.zeros(length - 3)])
 
 
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):

@@ -506,13 +506,13 @@ def _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised):
 
 @nb.njit(**_OPTS)
 def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, clear_hi, curve_v, curve_h, r,
-              deficit, widest):
+              fade_free, deficit, widest):
     """Add to ``raised`` (L,) the lift that keeps the toe out of the floor and a swinging toe clear
     of it (:func:`posturemap.synth.feet.clearance_lift`, the reference): the toe at ``gpos[:, toe]``
     moved by the ankle's ``offset`` (L, 2) and ``raised``; ``held`` (L,) the frames not free;
     ``curve_v``/``curve_h`` a library's clearance by speed (per frame / length unit; empty: none);
-    ``deficit`` (2, L) and ``widest`` scratch: row 0 the free frames' deficits then lift, row 1
-    the held frames'."""
+    ``fade_free`` the free frames' fade at the seams (frames); ``deficit`` (2, L) and ``widest``
+    scratch: row 0 the free frames' deficits then lift, row 1 the held frames'."""
     n_l = gpos.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
     any_deficit = False
@@ -535,8 +535,8 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
     if not any_deficit:
         return
     width = 2 * r + 1
-    for k in range(2):  # free frames: faded over r + 1 frames at the seams; held: over 2r + 1
-        fade = r + 1.0 if k == 0 else 2.0 * r + 1.0
+    for k in range(2):  # free frames: faded over fade_free frames at the seams; held: over 2r + 1
+        fade = fade_free if k == 0 else 2.0 * r + 1.0
         for i in range(n_l + 2 * r):
             m = 0.0
             for f in range(i - 2 * r, i + 1):
@@ -590,7 +590,7 @@ def _stance_windows(moves, length, step, least):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, curve_v,
-              curve_h, clear_r, a_floor, b_floor, stand, weights):
+              curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -606,14 +606,19 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     clear (length unit), clear_lo/clear_hi (length unit per frame), curve_v/curve_h (length unit
     per frame / length unit: a library's clearance by speed, empty for none) and clear_r (frames):
     the swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of
-    :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`); a_floor and
+    :mod:`posturemap.synth.feet`, :func:`posturemap.synth.feet.clearance_lift`), clear_fade (frames)
+    its fade at the seams (``CLEAR_FADE_S``); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
     interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
     ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them)
     step one after another (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
-    ``drift_lo * body`` (``lock_weights_and_targets``' reach).
+    ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
+    A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
+    seam whose foot no run holds there stays on its spot while the new frames keep it low, at most
+    toe_most frames, toe_gap frames free before a held one (``SEAM_TOE_S``, ``SEAM_TOE_GAP``;
+    ``posturemap.synth.feet._hold_seam_toes``).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -753,6 +758,41 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 ta = gpos[u, toe, a_] - gpos[u, ankle, a_] - (ra0 + ref * (ra1 - ra0))
                 tb = gpos[u, toe, b_] - gpos[u, ankle, b_] - (rb0 + ref * (rb1 - rb0))
                 target[u, 0], target[u, 1] = sa - ta, sb - tb
+        # A toe planted at a seam whose foot no run holds there stays on its spot while the new
+        # frames keep it low (posturemap.synth.feet._hold_seam_toes): A's first, then B's.
+        if a_toes.shape[0] == 2 and n_l > 0:
+            toe = toes[leg]
+            tf = toe_floor
+            if tf == np.inf:
+                tf = min(min(a_toes[0, leg, up], a_toes[1, leg, up]), min(b_toes[0, leg, up], b_toes[1, leg, up]))
+            for side in range(2):
+                if side == 0:
+                    da, db = a_toes[1, leg, a_] - a_toes[0, leg, a_], a_toes[1, leg, b_] - a_toes[0, leg, b_]
+                    planted = a_toes[1, leg, up] < tf + height_tol and math.sqrt(da * da + db * db) < speed_tol
+                    sa, sb, first = a_toes[1, leg, a_], a_toes[1, leg, b_], 0
+                else:
+                    da, db = b_toes[1, leg, a_] - b_toes[0, leg, a_], b_toes[1, leg, b_] - b_toes[0, leg, b_]
+                    planted = b_toes[0, leg, up] < tf + height_tol and math.sqrt(da * da + db * db) < speed_tol
+                    sa, sb, first = b_toes[0, leg, a_], b_toes[0, leg, b_], n_l - 1
+                if not planted or on[first]:
+                    continue
+                n = 0
+                while n < min(toe_most, n_l):
+                    f = n if side == 0 else n_l - 1 - n
+                    if on[f] or gpos[f, toe, up] >= tf + height_tol:
+                        break
+                    n += 1
+                for i in range(n_l):  # toe_gap frames free before a frame held already
+                    f = i if side == 0 else n_l - 1 - i
+                    if on[f]:
+                        n = min(n, max(i - toe_gap, 0))
+                        break
+                for i in range(n):
+                    f = i if side == 0 else n_l - 1 - i
+                    on[f] = True
+                    weight[f] = 1.0
+                    target[f, 0] = sa - (gpos[f, toe, a_] - gpos[f, ankle, a_])
+                    target[f, 1] = sb - (gpos[f, toe, b_] - gpos[f, ankle, b_])
         # The runs' offsets, softly limited where the spot is far from the foot.
         for t in range(n_l):
             offset[t, 0] = target[t, 0] - gpos[t, ankle, a_]
@@ -810,7 +850,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
         # A foot without a toe joint: its ankle kept out of the floor, no clearance above it.
         _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear if toes[leg] != ankle else 0.0, clear_lo,
-                  clear_hi, curve_v, curve_h, clear_r, deficit, widest)
+                  clear_hi, curve_v, curve_h, clear_r, clear_fade, deficit, widest)
         hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised)
         for t in range(n_l):
             if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:

@@ -291,9 +291,12 @@ class TransitionEngine:
         # Whether a foot is planted at a seam: against that clip's own floor, its lowest ankle there.
         seam_floors = (ta.feet[end_a, :, self._up].min().item(), tb.feet[start_b, :, self._up].min().item() + rise)
         library = getattr(self.model, "library_", None)
+        a_toes = ta.toes[a_end - 1: a_end + 1] if a_end > 0 else ta.toes[[0, 0]]
+        b_toes = tb.toes[b_start: b_start + 2] if b_start + 1 < len(tb.toes) else tb.toes[[b_start, b_start]]
+        b_toes = rotate_about_up(b_toes, dtheta, self._up) + shift
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors,
-                         None if library is None else library.clearance)
+                         None if library is None else library.clearance, a_toes, b_toes)
 
     def _fk(self, rots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations and positions of the new frames (compiled FK, output buffers)."""

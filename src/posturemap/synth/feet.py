@@ -36,7 +36,9 @@ in-between frames are made:
    foot is in the air, the offset passes smoothly (a cubic with the runs' offsets and their
    rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
-   before and after it;
+   before and after it. A toe planted at a seam whose foot no run holds there (the heel up, or
+   the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
+   low, up to ``SEAM_TOE_S``: otherwise it slid off in the first frames;
 4. a swinging foot clears the floor: while it is in the air, its toe (where the foot has a toe
    joint: :func:`posturemap.core.joints.leg_toes`) is kept at least
    ``TOE_CLEAR`` leg lengths above the floor once it moves at ``CLEAR_SPEED[1]`` leg lengths per
@@ -48,9 +50,9 @@ in-between frames are made:
    (:func:`clearance_lift`). No toe stays under the floor, held or not: a retrieved stance can
    put a planted foot a few centimetres into it (a held foot's lift fades in at the seams over
    ``2r + 1`` frames, ``r = CLEAR_S * fps``, so a gap shorter than ``4r + 1`` frames gets part of
-   it only). The floor is where feet stand: the lowest toe over A's last ``FLOOR_S`` seconds and
-   B's first (a stance in any gait), so a toe that dips under it is lifted out rather than taken
-   for the floor;
+   it only; a swinging toe's, over ``CLEAR_FADE_S``). The floor is where feet stand: the lowest
+   toe over A's last ``FLOOR_S`` seconds and B's first (a stance in any gait), so a toe that dips
+   under it is lifted out rather than taken for the floor;
 5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
    end of the leg's reach bends the knee smoothly instead of snapping it straight. A nearly
@@ -95,6 +97,9 @@ CLEAR_HEIGHTS = np.linspace(0.0, 0.1, 51)
 CLEAR_PERCENTILE = 10.0
 CLEAR_MIN_SAMPLES = 30  # a speed bin with fewer toe samples takes the slower bin's height
 CLEAR_S = 0.1  # seconds: the lift reaches its height this long before the shortfall and leaves it after
+CLEAR_FADE_S = 0.05  # seconds: a swinging toe's lift fades to nothing over this at each seam
+SEAM_TOE_S = 0.2  # seconds: a toe planted at a seam is held there at most this long while the new frames keep it low
+SEAM_TOE_GAP = 2  # frames left free between a seam's held toe and a run held after it (the offsets pass between)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -280,8 +285,10 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     held frames' each give a lift, the mean over ``[t - r, t + r]`` of the largest deficit within
     ``r`` of each frame: at least the deficit at every frame, rising and falling linearly over
     ``2r`` frames. Near the seams each is faded to 0 on a smoothstep from frame -1 and frame L, so
-    A's and B's frames are not moved: over ``r + 1`` frames for the free frames' (a gentler fade
-    left a third more of the 15-frame skate on three splits of bandai1), over ``2r + 1`` for the
+    A's and B's frames are not moved: over ``CLEAR_FADE_S`` (at least one frame) for the free
+    frames' (over ``r + 1`` frames, the toes of the first and last tenth of a gap skated three
+    times the truth's on LaFAN1 at 30 fps; the toes' vertical acceleration at the seams stays
+    within the real motion's), over ``2r + 1`` for the
     held frames' (a planted leg is often straight, and lifting a straight leg's ankle bends its
     knee by the square root of the lift: over ``r + 1`` frames the knee of a standing leg jumped at
     A's seam). The lift is the larger of the two.
@@ -299,7 +306,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
         return np.zeros(length)
     r = max(1, round(CLEAR_S * fps))
     lift = np.zeros(length)
-    for frames, fade in ((free, r + 1.0), (~free, 2.0 * r + 1.0)):
+    for frames, fade in ((free, float(max(1, round(CLEAR_FADE_S * fps)))), (~free, 2.0 * r + 1.0)):
         part = np.where(frames, deficit, 0.0)
         if not part.any():
             continue
@@ -357,7 +364,8 @@ def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.
 
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
-                             speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None):
+                             speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None,
+                             toe_seams=None):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -379,6 +387,10 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     half sine and comes down on B's spot. The lift (L,) is added to the ankle's height.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
+
+    ``toe_seams`` ``(a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most)``, with ``toe``: a toe
+    planted at a seam (the heel may be up) stays on its spot while ``low`` (L,) says the new frames
+    keep it low, at most ``most`` frames (:func:`_hold_seam_toes`).
 
     ``toe`` (L, 3), when given: per frame the toe's horizontal place relative to the ankle. A
     held foot then turns about its toe, not its ankle: the target moves back by how far the toe
@@ -441,7 +453,32 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
             run_toe = toe[start:stop]
             first, last = (run_toe[0], run_toe[-1]) if from_a or to_b else (run_toe[(n - 1) // 2],) * 2
             target[start:stop] -= run_toe - (first + ref[:, None] * (last - first))
+    if toe_seams is not None and toe is not None:
+        _hold_seam_toes(weight, target, toe, *toe_seams)
     return weight, target, raised
+
+
+def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most):
+    """A toe planted at a seam stays on its spot while the new frames keep it low, in place: from
+    A's end (``a_toe_on``, its spot ``a_toe_spot``), when its first new frame is not held, the frames
+    ``low`` (L,) up to the first that is not, at most ``most`` of them, hold the ankle where the
+    toe stays on the spot (``toe`` (L, 3) the toe's horizontal place about the ankle); at least
+    ``SEAM_TOE_GAP`` frames are left free before a frame held already, for the offsets to pass
+    between the two spots. The same back from B's start, after A's."""
+    length = len(weight)
+    forward = np.arange(length)
+    for on, spot, frames in ((a_toe_on, a_toe_spot, forward), (b_toe_on, b_toe_spot, forward[::-1])):
+        if not on or length == 0 or weight[frames[0]] > 0:
+            continue
+        n = 0
+        while n < min(most, length) and low[frames[n]] and weight[frames[n]] == 0:
+            n += 1
+        held = np.flatnonzero(weight[frames] > 0)
+        if len(held):
+            n = min(n, max(int(held[0]) - SEAM_TOE_GAP, 0))
+        hold = frames[:n]
+        weight[hold] = 1.0
+        target[hold] = spot - toe[hold]
 
 
 def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
@@ -510,7 +547,7 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
 
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
               contacts=None, body: float | None = None, toe_floor=None, toes=None, seam_floors=None,
-              clearance: np.ndarray | None = None) -> np.ndarray:
+              clearance: np.ndarray | None = None, a_toes=None, b_toes=None) -> np.ndarray:
     """Pull planted feet onto their spots in the new frames; modifies ``rots`` in place.
 
     ``rots``/``positions`` (L, J, 4)/(L, J, 3) are the new frames' local rotations and
@@ -529,6 +566,12 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     planted, was then taken for lifted, and its run was not held). ``clearance``: the motion
     library's :func:`clearance_curve`, the least height of its swinging toes by speed, which
     raises the swinging toes' clearance where it lies above ``TOE_CLEAR``'s (None: that alone).
+    ``a_toes``/``b_toes`` (2, n_legs, 3), when given: the toes in A's last two frames and B's first
+    two (B as aligned; a leg without a toe joint: its ankle). A toe planted at a seam (within
+    ``CONTACT_HEIGHT`` of the toes' floor, slower than ``CONTACT_SPEED``), whose foot the first new
+    frame (the last, at B) does not hold, stays on its spot while the new frames keep it that low,
+    at most ``SEAM_TOE_S``: a heel rises from a planted toe, and a retrieved segment's toe, in
+    another phase of its step, slid off it at once.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -556,8 +599,13 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
-                      max(1, round(CLEAR_S * fps)), a_floor, b_floor,
-                      STAND_STEP * body, weights)
+                      max(1, round(CLEAR_S * fps)), float(max(1, round(CLEAR_FADE_S * fps))), a_floor, b_floor,
+                      STAND_STEP * body,
+                      np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
+                      else np.ascontiguousarray(a_toes, dtype=float),
+                      np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
+                      else np.ascontiguousarray(b_toes, dtype=float),
+                      round(SEAM_TOE_S * fps), SEAM_TOE_GAP, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -585,13 +633,22 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         horiz = gpos[:, ankle] * flat
         speed = np.linalg.norm(np.diff(np.concatenate([a_feet[1:, leg] * flat, horiz]), axis=0), axis=-1)
         on = None if contacts is None else contacts[:, leg]
+        toe_seams = None  # the toe planted at each seam (low and slow), its spot, the new frames' low toes
+        if a_toes is not None and b_toes is not None:
+            tf = toe_floor if toe_floor != np.inf else min(a_toes[:, leg, up].min(), b_toes[:, leg, up].min())
+            a_t = (a_toes[1, leg, up] < tf + height_tol
+                   and np.linalg.norm((a_toes[1, leg] - a_toes[0, leg]) * flat) < speed_tol)
+            b_t = (b_toes[0, leg, up] < tf + height_tol
+                   and np.linalg.norm((b_toes[1, leg] - b_toes[0, leg]) * flat) < speed_tol)
+            toe_seams = (a_t, a_toes[1, leg] * flat, b_t, b_toes[0, leg] * flat,
+                         gpos[:, toes[leg], up] < tf + height_tol, round(SEAM_TOE_S * fps))
         if not np.isnan(moves[leg]):  # interpolated and planted at both seams: held through, one step
             on = np.ones(length, dtype=bool)
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
                                                           on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
                                                           None if windows[leg, 0] < 0 else windows[leg],
-                                                          (gpos[:, toes[leg]] - gpos[:, ankle]) * flat)
+                                                          (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams)
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
