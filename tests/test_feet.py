@@ -355,6 +355,15 @@ def test_a_toe_planted_at_a_seam_is_held_while_the_new_frames_keep_it_low():
     np.testing.assert_array_equal(w, np.r_[np.ones(4), np.zeros(length - 10), np.ones(6)])  # B's: at most 6
     w, target = lock(False, True, 2)
     np.testing.assert_array_equal(w, np.r_[np.zeros(length - 2), np.ones(2)])
+    # Low all through: each seam's toe held over half the gap at most, SEAM_TOE_GAP frames between
+    # (held through, A's toe jumped to B's spot at B's seam).
+    low[:] = True
+    w, target = lock(True, True, length)
+    half = (length - feet.SEAM_TOE_GAP) // 2
+    np.testing.assert_array_equal(w, np.r_[np.ones(half), np.zeros(feet.SEAM_TOE_GAP), np.ones(half)])
+    np.testing.assert_allclose(target[-half:] + toe[-half:], np.tile(b_toe, (half, 1)))
+    low[:] = False
+    low[:4] = low[-7:] = True
     np.testing.assert_allclose(target[-2:] + toe[-2:], np.tile(b_toe, (2, 1)))
     # A run of the segment's contacts from frame 3: A's toe held 3 - SEAM_TOE_GAP frames only.
     on = np.zeros(length, dtype=bool)
@@ -1167,6 +1176,12 @@ def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(s
     np.testing.assert_array_equal(w[:, 0], np.r_[np.zeros(length - most), np.ones(most)])
     g1 = fk(sk.parents, r, pos)[1]
     assert np.abs(g1[-most:, toes[0]][:, horizontal] - b_still[0, 0][horizontal]).max() < 0.005 * body
+    # A gap of 8 frames: held over half of it less SEAM_TOE_GAP frames.
+    short = gliding_left_toe(m, 0.8, length=8)
+    results = lock_both(sk, chains, short[7], short[8], up, a_feet, b_feet, fps, a_toes=a_toes, b_toes=b_toes, **kw)
+    np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+    np.testing.assert_array_equal(results["numba"][1], results["numpy"][1])
+    np.testing.assert_array_equal(results["numpy"][1][:, 0], np.r_[np.ones(3), np.zeros(5)])
     # The body rises out of the contact height from frame 3: the toe is held over frames 0-2 only.
     risen = pos.copy()
     risen[3:, 0, up] += 0.06 * body

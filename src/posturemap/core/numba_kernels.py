@@ -617,7 +617,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
     seam whose foot no run holds there stays on its spot while the new frames keep it low, at most
-    toe_most frames, toe_gap frames free before a held one (``SEAM_TOE_S``, ``SEAM_TOE_GAP``;
+    toe_most frames and half the gap less toe_gap, toe_gap frames free before a held one (``SEAM_TOE_S``, ``SEAM_TOE_GAP``;
     ``posturemap.synth.feet._hold_seam_toes``).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
@@ -777,7 +777,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 if not planted or on[first]:
                     continue
                 n = 0
-                while n < min(toe_most, n_l):
+                while n < min(toe_most, (n_l - toe_gap) // 2):
                     f = n if side == 0 else n_l - 1 - n
                     if on[f] or gpos[f, toe, up] >= tf + height_tol:
                         break

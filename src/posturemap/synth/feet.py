@@ -461,17 +461,18 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most):
     """A toe planted at a seam stays on its spot while the new frames keep it low, in place: from
     A's end (``a_toe_on``, its spot ``a_toe_spot``), when its first new frame is not held, the frames
-    ``low`` (L,) up to the first that is not, at most ``most`` of them, hold the ankle where the
-    toe stays on the spot (``toe`` (L, 3) the toe's horizontal place about the ankle); at least
-    ``SEAM_TOE_GAP`` frames are left free before a frame held already, for the offsets to pass
-    between the two spots. The same back from B's start, after A's."""
+    ``low`` (L,) up to the first that is not, at most ``most`` of them and half the gap less
+    ``SEAM_TOE_GAP`` frames, hold the ankle where the toe stays on the spot (``toe`` (L, 3) the
+    toe's horizontal place about the ankle); at least ``SEAM_TOE_GAP`` frames are left free before
+    a frame held already, for the offsets to pass between the two spots (held through a short gap,
+    a toe jumped to B's spot at B's seam). The same back from B's start, after A's."""
     length = len(weight)
     forward = np.arange(length)
     for on, spot, frames in ((a_toe_on, a_toe_spot, forward), (b_toe_on, b_toe_spot, forward[::-1])):
         if not on or length == 0 or weight[frames[0]] > 0:
             continue
         n = 0
-        while n < min(most, length) and low[frames[n]] and weight[frames[n]] == 0:
+        while n < min(most, (length - SEAM_TOE_GAP) // 2) and low[frames[n]] and weight[frames[n]] == 0:
             n += 1
         held = np.flatnonzero(weight[frames] > 0)
         if len(held):
