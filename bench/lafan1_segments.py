@@ -17,7 +17,8 @@ The map and its motion library are trained on every segment of subjects 1-4 (the
 settings and seed); gaps are made in subject 5's segments (``--test-subject``), as the bench
 does (10 past and 10 future frames of context, windows every 40 frames, at the bench's
 durations: 5, 15, 30 and 45 frames at 30 fps, that is 10, 30, 60 and 90 at 60). It runs at the
-segments' own 60 fps and again with every segment resampled to 30 fps (``--fps``). Printed
+segments' own 60 fps and again with every segment resampled to 30 fps and to film's 24 fps
+(``--fps``; the durations' frames rounded at 24: 4, 12, 24 and 36). Printed
 next to each other: L2Q, L2P, NPSS and MPJPE of SLERP, the spline, inertialization, ``damped``,
 the paper's ``upm``, the previous default (``upm-valid`` + foot lock) and the default (``auto``
 + foot lock), every method's foot skate with the truth's, and the default per motion (the
@@ -27,7 +28,7 @@ Nothing is copied: the files are read where they are (the licence forbids sharin
 
 Usage::
 
-    python bench/lafan1_segments.py --lafan DIR [--test-subject subject5] [--fps native,30] [--doc PATH] [--json PATH] [--seed S]
+    python bench/lafan1_segments.py --lafan DIR [--test-subject subject5] [--fps native,30,24] [--doc PATH] [--json PATH] [--seed S]
 """
 
 from __future__ import annotations
@@ -143,7 +144,7 @@ def main(argv=None) -> int:
     p = report_parser(__doc__.split("\n")[0])
     p.add_argument("--lafan", required=True, help="directory of the segments' BVH files (lafan1_filtered_60fps)")
     p.add_argument("--test-subject", default="subject5", help="the performer whose segments get the gaps")
-    p.add_argument("--fps", default="native,30", help="comma-separated rates: 'native' (as recorded) or fps")
+    p.add_argument("--fps", default="native,30,24", help="comma-separated rates: 'native' (as recorded) or fps")
     args = p.parse_args(argv)
     rates = tuple(None if r.strip() == "native" else float(r) for r in args.fps.split(","))
     result = run(Path(args.lafan), args.test_subject, rates, args.seed)
