@@ -1108,17 +1108,23 @@ def gliding_left_toe(m, speed: float, length: int = 30):
     return sk, up, chains, toes, body, length, m.fps, rots, pos, step
 
 
+def glide_context(sk, up, chains, toes, rots, pos, step):
+    """A glide's global positions, its toes' floor (their lowest) and A's last two and B's first
+    two ankle positions continuing the glide: ``(gpos, floor, a_feet, b_feet)``."""
+    gpos0 = fk(sk.parents, rots, pos)[1]
+    ankles = [c[2] for c in chains]
+    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
+    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    return gpos0, gpos0[:, toes, up].min(), a_feet, b_feet
+
+
 def test_foot_lock_lifts_a_slow_dragged_toe_to_the_library_clearance(sample_clips):
     # The body glides at 0.75 leg lengths per second, the left toe on the floor: the fixed rule asks
     # for 0.0067 leg lengths there, a library whose toes keep 0.02 at that speed asks for that, and
     # the lock (compiled and numpy alike) lifts the toe to it.
     m = sample_clips["walk"]
     sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.75)
-    gpos0 = fk(sk.parents, rots, pos)[1]
-    floor = gpos0[:, toes, up].min()
-    ankles = [c[2] for c in chains]
-    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
-    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    gpos0, floor, a_feet, b_feet = glide_context(sk, up, chains, toes, rots, pos, step)
     curve = np.full(len(feet.CLEAR_BINS) - 1, 0.02)
     rr = round(CLEAR_S * fps)
     mid = slice(2 * rr, length - 2 * rr)
@@ -1142,11 +1148,7 @@ def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(s
     # out of the contact height is let go there.
     m = sample_clips["walk"]
     sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.8)
-    gpos0 = fk(sk.parents, rots, pos)[1]
-    floor = gpos0[:, toes, up].min()
-    ankles = [c[2] for c in chains]
-    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
-    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
+    gpos0, floor, a_feet, b_feet = glide_context(sk, up, chains, toes, rots, pos, step)
     a_toes = gpos0[0, toes] - np.array([2.0, 1.0])[:, None, None] * step
     b_toes = gpos0[-1, toes] + np.array([1.0, 2.0])[:, None, None] * step
     a_toes[0, 0] = a_toes[1, 0]  # the left toe still at A's end: planted
@@ -1197,11 +1199,8 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     # (numba_kernels._toe_lift inside lock_legs) does what the numpy reference does.
     m = sample_clips["walk"]
     sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 2.5)
-    grot0, gpos0 = fk(sk.parents, rots, pos)
-    floor = gpos0[:, toes, up].min()
+    gpos0, floor, a_feet, b_feet = glide_context(sk, up, chains, toes, rots, pos, step)
     ankles = [c[2] for c in chains]
-    a_feet = gpos0[0, ankles] - np.array([2.0, 1.0])[:, None, None] * step
-    b_feet = gpos0[-1, ankles] + np.array([1.0, 2.0])[:, None, None] * step
     results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, body=body, toe_floor=floor, toes=toes)
     assert not results["numpy"][1].any() and not results["numba"][1].any()
     np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
