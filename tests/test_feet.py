@@ -355,16 +355,31 @@ def test_a_toe_planted_at_a_seam_is_held_while_the_new_frames_keep_it_low():
     np.testing.assert_array_equal(w, np.r_[np.ones(4), np.zeros(length - 10), np.ones(6)])  # B's: at most 6
     w, target = lock(False, True, 2)
     np.testing.assert_array_equal(w, np.r_[np.zeros(length - 2), np.ones(2)])
-    # Low all through: each seam's toe held over half the gap at most, SEAM_TOE_GAP frames between
-    # (held through, A's toe jumped to B's spot at B's seam).
+    np.testing.assert_allclose(target[-2:] + toe[-2:], np.tile(b_toe, (2, 1)))
+    # Low all through: each seam's toe held over (L - SEAM_TOE_GAP) // 2 frames at most, SEAM_TOE_GAP
+    # frames between (held through, A's toe jumped to B's spot at B's seam).
     low[:] = True
     w, target = lock(True, True, length)
     half = (length - feet.SEAM_TOE_GAP) // 2
     np.testing.assert_array_equal(w, np.r_[np.ones(half), np.zeros(feet.SEAM_TOE_GAP), np.ones(half)])
     np.testing.assert_allclose(target[-half:] + toe[-half:], np.tile(b_toe, (half, 1)))
+    # With a catch-up speed: each hold ends where its offset can pass on to the next held frame's
+    # (B's to A's last held one; A's to nothing at B's seam) at that speed at most.
+    catch = 3.0
+    w, target, _ = lock_weights_and_targets(h, horiz, False, a_spot, False, b_spot, 0.0, 1.0, toe=toe,
+                                            toe_seams=(True, a_toe, True, b_toe, low, length, catch))
+    held = np.flatnonzero(w > 0)
+    a_last = held[held < length // 2].max()
+    b_first = held[held >= length // 2].min()
+    assert a_last + 1 <= half and 0 < length - b_first < half  # B's shorter than without the catch
+    offset = target - horiz
+    assert np.linalg.norm(offset[a_last]) <= catch * (length - a_last)
+    assert np.linalg.norm(offset[b_first] - offset[a_last]) <= catch * (b_first - a_last)
+    # One frame more of B's hold would pass on faster than that.
+    longer = np.linalg.norm(b_toe - toe[b_first - 1] - horiz[b_first - 1] - offset[a_last])
+    assert longer > catch * (b_first - 1 - a_last)
     low[:] = False
     low[:4] = low[-7:] = True
-    np.testing.assert_allclose(target[-2:] + toe[-2:], np.tile(b_toe, (2, 1)))
     # A run of the segment's contacts from frame 3: A's toe held 3 - SEAM_TOE_GAP frames only.
     on = np.zeros(length, dtype=bool)
     on[3:8] = True
@@ -896,7 +911,8 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
     g_all = fk(sk.parents, m.rotations, m.positions)[1]
     rng = np.random.default_rng(7)
     length = 30
-    weights_seen, moved_in_air = [], []
+    toe_j = leg_toes(sk)
+    weights_seen, moved_in_air, toe_held = [], [], 0
     for trial in range(20):
         start = int(rng.integers(2, len(m) - length - 2))
         axis = rng.normal(size=(length, sk.num_joints, 3))
@@ -908,6 +924,13 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
             a_feet = g_all[start - 2: start, ankles] + rng.normal(scale=0.3, size=(2, len(ankles), 3))
             b_feet = g_all[start + length: start + length + 2, ankles] + rng.normal(scale=0.3, size=(2, len(ankles), 3))
             contacts = rng.random((length, len(chains))) < 0.7 if given_contacts else None
+            # The toes of the same frames, A's planted in odd trials, B's in every third.
+            a_toes = g_all[start - 2: start, toe_j] + rng.normal(scale=0.3, size=(2, len(toe_j), 3))
+            b_toes = g_all[start + length: start + length + 2, toe_j] + rng.normal(scale=0.3, size=(2, len(toe_j), 3))
+            if trial % 2:
+                a_toes[0] = a_toes[1]
+            if trial % 3 == 0:
+                b_toes[1] = b_toes[0]
         else:
             # Standing on both feet all through, A's spot and B's a little apart: held on A's
             # spot, a step to B's in the middle (lifted), held on B's.
@@ -918,6 +941,10 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
             contacts = np.ones((length, len(chains)), dtype=bool) if given_contacts else None
             if trial % 4 == 1:  # B's feet a third of a leg away: the run to B's spot is locked partly
                 b_feet = b_feet + leg_length(sk, chains) / 3 * (np.arange(3) == (up + 1) % 3)
+            a_toes = np.repeat(g_all[start: start + 1, toe_j], 2, axis=0)
+            b_toes = a_toes + (b_feet - a_feet)
+        # The toes' floor given (the context's) or not (found in the new frames), in turn.
+        toe_floor = None if trial % 2 == 0 else float(g_all[start - 2: start + length + 2, toe_j, up].min())
         rots = quat.mul(m.rotations[frames], quat.from_axis_angle(axis, angle))
         pos = m.positions[frames].copy()
 
@@ -925,17 +952,21 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
             return fk(sk.parents, r, pos)
 
         out = []
+        kw = dict(toe_floor=toe_floor, a_toes=a_toes, b_toes=b_toes)
         for backend in ("numpy", "numba"):
             r = rots.copy()
             if backend == "numpy":
                 with kernels.numpy_backend():
                     assert feet._compiled() is None
-                    w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts)
+                    w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts, **kw)
+                    no_toes = feet.lock_feet(sk, chains, rots.copy(), pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts,
+                                             toe_floor=toe_floor)
             else:
                 assert feet._compiled() is jit
-                w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts)
+                w = feet.lock_feet(sk, chains, r, pos, gpos_fn, up, a_feet, b_feet, m.fps, contacts, **kw)
             out.append((r, w))
         (r_np, w_np), (r_nb, w_nb) = out
+        toe_held += int(np.sum((w_np > 0) & (no_toes == 0)))
         np.testing.assert_allclose(w_nb, w_np, atol=1e-12)
         np.testing.assert_allclose(r_nb, r_np, atol=IK_ATOL)
         weights_seen.append(w_np)
@@ -945,6 +976,7 @@ def test_compiled_foot_lock_matches_the_numpy_reference(sample_clips, given_cont
     # Not a vacuous comparison: feet were locked, partly locked (a far spot) and left free; with
     # the given contacts' many short runs, legs were also moved in the air between runs.
     assert np.sum(w == 1.0) > 20 and np.sum((w > 0) & (w < 1)) > 20 and np.sum(w == 0) > 20
+    assert toe_held > 10  # frames held by a seam's planted toe alone
     if given_contacts:
         assert np.concatenate(moved_in_air).sum() > 20
 
@@ -1002,7 +1034,7 @@ def test_clearance_lift_raises_a_fast_toe_near_the_floor_smoothly_and_only_while
     # Continuous: it falls over 2r + 1 frames into the held run, and rises from A's seam on a
     # smoothstep over CLEAR_FADE_S (its steepest slope 1.5 / fade of the lift): half of it in the
     # first new frame at 30 fps, all of it from the second.
-    fade = max(1, round(CLEAR_FADE_S * fps))
+    fade = max(2, round(CLEAR_FADE_S * fps))
     assert fade == 2
     assert np.max(np.abs(np.diff(lift[r:]))) <= need / (2 * r + 1) + 1e-9
     assert np.max(np.abs(np.diff(np.concatenate([[0.0], lift[:r + 1]])))) <= 1.5 * need / fade + 1e-9
@@ -1178,7 +1210,7 @@ def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(s
     np.testing.assert_array_equal(w[:, 0], np.r_[np.zeros(length - most), np.ones(most)])
     g1 = fk(sk.parents, r, pos)[1]
     assert np.abs(g1[-most:, toes[0]][:, horizontal] - b_still[0, 0][horizontal]).max() < 0.005 * body
-    # A gap of 8 frames: held over half of it less SEAM_TOE_GAP frames.
+    # A gap of 8 frames: held over (8 - SEAM_TOE_GAP) // 2 = 3 frames.
     short = gliding_left_toe(m, 0.8, length=8)
     results = lock_both(sk, chains, short[7], short[8], up, a_feet, b_feet, fps, a_toes=a_toes, b_toes=b_toes, **kw)
     np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)

@@ -590,7 +590,8 @@ def _stance_windows(moves, length, step, least):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, toes, toe_floor, clear, clear_lo, clear_hi, curve_v,
-              curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap, weights):
+              curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap, toe_catch,
+              weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -617,8 +618,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
     seam whose foot no run holds there stays on its spot while the new frames keep it low, at most
-    toe_most frames and half the gap less toe_gap, toe_gap frames free before a held one (``SEAM_TOE_S``, ``SEAM_TOE_GAP``;
-    ``posturemap.synth.feet._hold_seam_toes``).
+    toe_most frames and ``(L - toe_gap) // 2``, toe_gap frames free before a held one, and no
+    longer than lets its offset pass on to the next held frame's at toe_catch per frame (length
+    unit; ``SEAM_TOE_S``, ``SEAM_TOE_GAP``, ``SEAM_TOE_CATCH``; ``posturemap.synth.feet._hold_seam_toes``).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -782,11 +784,23 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     if on[f] or gpos[f, toe, up] >= tf + height_tol:
                         break
                     n += 1
-                for i in range(n_l):  # toe_gap frames free before a frame held already
+                after = n_l  # the next frame held already (n_l: the other seam, where the offset is 0)
+                for i in range(n_l):
                     f = i if side == 0 else n_l - 1 - i
                     if on[f]:
-                        n = min(n, max(i - toe_gap, 0))
+                        after = i
                         break
+                n = min(n, max(after - toe_gap, 0))  # toe_gap frames free before it
+                ga, gb = 0.0, 0.0
+                if after < n_l:
+                    f = after if side == 0 else n_l - 1 - after
+                    ga, gb = target[f, 0] - gpos[f, ankle, a_], target[f, 1] - gpos[f, ankle, b_]
+                while n > 0:  # the offset passes on to that frame's at most toe_catch per frame
+                    f = n - 1 if side == 0 else n_l - n
+                    oa, ob = sa - gpos[f, toe, a_] - ga, sb - gpos[f, toe, b_] - gb
+                    if math.sqrt(oa * oa + ob * ob) <= toe_catch * (after - n + 1):
+                        break
+                    n -= 1
                 for i in range(n):
                     f = i if side == 0 else n_l - 1 - i
                     on[f] = True

@@ -38,7 +38,9 @@ in-between frames are made:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
    before and after it. A toe planted at a seam whose foot no run holds there (the heel up, or
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
-   low, up to ``SEAM_TOE_S``: otherwise it slid off in the first frames;
+   low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
+   ``SEAM_TOE_CATCH`` (the foot is not thrown across in a few frames): otherwise it slid off in
+   the first frames;
 4. a swinging foot clears the floor: while it is in the air, its toe (where the foot has a toe
    joint: :func:`posturemap.core.joints.leg_toes`) is kept at least
    ``TOE_CLEAR`` leg lengths above the floor once it moves at ``CLEAR_SPEED[1]`` leg lengths per
@@ -97,9 +99,10 @@ CLEAR_HEIGHTS = np.linspace(0.0, 0.1, 51)
 CLEAR_PERCENTILE = 10.0
 CLEAR_MIN_SAMPLES = 30  # a speed bin with fewer toe samples takes the slower bin's height
 CLEAR_S = 0.1  # seconds: the lift reaches its height this long before the shortfall and leaves it after
-CLEAR_FADE_S = 0.05  # seconds: a swinging toe's lift fades to nothing over this at each seam
+CLEAR_FADE_S = 0.05  # seconds (at least two frames): a swinging toe's lift fades in over this at each seam
 SEAM_TOE_S = 0.2  # seconds: a toe planted at a seam is held there at most this long while the new frames keep it low
 SEAM_TOE_GAP = 2  # frames left free between a seam's held toe and a run held after it (the offsets pass between)
+SEAM_TOE_CATCH = 1.0  # leg lengths per second: the most a released toe's offset passes on at (it ends its hold sooner)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -285,7 +288,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
     held frames' each give a lift, the mean over ``[t - r, t + r]`` of the largest deficit within
     ``r`` of each frame: at least the deficit at every frame, rising and falling linearly over
     ``2r`` frames. Near the seams each is faded to 0 on a smoothstep from frame -1 and frame L, so
-    A's and B's frames are not moved: over ``CLEAR_FADE_S`` (at least one frame) for the free
+    A's and B's frames are not moved: over ``CLEAR_FADE_S`` (at least two frames) for the free
     frames' (over ``r + 1`` frames, the toes of the first and last tenth of a gap skated three
     times the truth's on LaFAN1 at 30 fps; the toes' vertical acceleration at the seams stays
     within the real motion's), over ``2r + 1`` for the
@@ -306,7 +309,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
         return np.zeros(length)
     r = max(1, round(CLEAR_S * fps))
     lift = np.zeros(length)
-    for frames, fade in ((free, float(max(1, round(CLEAR_FADE_S * fps)))), (~free, 2.0 * r + 1.0)):
+    for frames, fade in ((free, float(max(2, round(CLEAR_FADE_S * fps)))), (~free, 2.0 * r + 1.0)):
         part = np.where(frames, deficit, 0.0)
         if not part.any():
             continue
@@ -388,9 +391,10 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
 
-    ``toe_seams`` ``(a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most)``, with ``toe``: a toe
-    planted at a seam (the heel may be up) stays on its spot while ``low`` (L,) says the new frames
-    keep it low, at most ``most`` frames (:func:`_hold_seam_toes`).
+    ``toe_seams`` ``(a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most[, catch])``, with
+    ``toe``: a toe planted at a seam (the heel may be up) stays on its spot while ``low`` (L,) says
+    the new frames keep it low, at most ``most`` frames, and no longer than lets its offset pass
+    on at ``catch`` per frame (:func:`_hold_seam_toes`).
 
     ``toe`` (L, 3), when given: per frame the toe's horizontal place relative to the ankle. A
     held foot then turns about its toe, not its ankle: the target moves back by how far the toe
@@ -454,18 +458,22 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
             first, last = (run_toe[0], run_toe[-1]) if from_a or to_b else (run_toe[(n - 1) // 2],) * 2
             target[start:stop] -= run_toe - (first + ref[:, None] * (last - first))
     if toe_seams is not None and toe is not None:
-        _hold_seam_toes(weight, target, toe, *toe_seams)
+        _hold_seam_toes(weight, target, toe, *toe_seams, horiz=horiz)
     return weight, target, raised
 
 
-def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most):
+def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most, catch=np.inf,
+                    horiz=None):
     """A toe planted at a seam stays on its spot while the new frames keep it low, in place: from
     A's end (``a_toe_on``, its spot ``a_toe_spot``), when its first new frame is not held, the frames
-    ``low`` (L,) up to the first that is not, at most ``most`` of them and half the gap less
-    ``SEAM_TOE_GAP`` frames, hold the ankle where the toe stays on the spot (``toe`` (L, 3) the
-    toe's horizontal place about the ankle); at least ``SEAM_TOE_GAP`` frames are left free before
-    a frame held already, for the offsets to pass between the two spots (held through a short gap,
-    a toe jumped to B's spot at B's seam). The same back from B's start, after A's."""
+    ``low`` (L,) up to the first that is not, at most ``most`` of them and ``(L - SEAM_TOE_GAP) // 2``
+    (so that two seams' holds leave that many frames between them), hold the ankle where the toe
+    stays on the spot (``toe`` (L, 3) the toe's horizontal place about the ankle); at least
+    ``SEAM_TOE_GAP`` frames are left free before a frame held already (held through a short gap,
+    a toe jumped to B's spot at B's seam). The same back from B's start, after A's. With ``horiz``
+    (L, 3), the ankle's place: the hold ends early enough for its offset to pass to the next held
+    frame's (or to nothing at the other seam) at most ``catch`` per frame (length unit), so that
+    the foot is not thrown across in the few frames between two spots."""
     length = len(weight)
     forward = np.arange(length)
     for on, spot, frames in ((a_toe_on, a_toe_spot, forward), (b_toe_on, b_toe_spot, forward[::-1])):
@@ -475,8 +483,13 @@ def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_s
         while n < min(most, (length - SEAM_TOE_GAP) // 2) and low[frames[n]] and weight[frames[n]] == 0:
             n += 1
         held = np.flatnonzero(weight[frames] > 0)
-        if len(held):
-            n = min(n, max(int(held[0]) - SEAM_TOE_GAP, 0))
+        after = length if len(held) == 0 else int(held[0])  # the next held frame; `length`: the other seam
+        n = min(n, max(after - SEAM_TOE_GAP, 0))
+        if horiz is not None:
+            goal = np.zeros(3) if after == length else target[frames[after]] - horiz[frames[after]]
+            while n > 0 and np.linalg.norm(spot - toe[frames[n - 1]] - horiz[frames[n - 1]] - goal) > catch * (
+                    after - n + 1):
+                n -= 1
         hold = frames[:n]
         weight[hold] = 1.0
         target[hold] = spot - toe[hold]
@@ -571,8 +584,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     two (B as aligned; a leg without a toe joint: its ankle). A toe planted at a seam (within
     ``CONTACT_HEIGHT`` of the toes' floor, slower than ``CONTACT_SPEED``), whose foot the first new
     frame (the last, at B) does not hold, stays on its spot while the new frames keep it that low,
-    at most ``SEAM_TOE_S``: a heel rises from a planted toe, and a retrieved segment's toe, in
-    another phase of its step, slid off it at once.
+    at most ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on to the next
+    held frame's at ``SEAM_TOE_CATCH``: a heel rises from a planted toe, and a retrieved segment's
+    toe, in another phase of its step, slid off it at once.
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
@@ -600,13 +614,13 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
-                      max(1, round(CLEAR_S * fps)), float(max(1, round(CLEAR_FADE_S * fps))), a_floor, b_floor,
+                      max(1, round(CLEAR_S * fps)), float(max(2, round(CLEAR_FADE_S * fps))), a_floor, b_floor,
                       STAND_STEP * body,
                       np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
                       else np.ascontiguousarray(a_toes, dtype=float),
                       np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
                       else np.ascontiguousarray(b_toes, dtype=float),
-                      round(SEAM_TOE_S * fps), SEAM_TOE_GAP, weights)
+                      round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -642,7 +656,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
             b_t = (b_toes[0, leg, up] < tf + height_tol
                    and np.linalg.norm((b_toes[1, leg] - b_toes[0, leg]) * flat) < speed_tol)
             toe_seams = (a_t, a_toes[1, leg] * flat, b_t, b_toes[0, leg] * flat,
-                         gpos[:, toes[leg], up] < tf + height_tol, round(SEAM_TOE_S * fps))
+                         gpos[:, toes[leg], up] < tf + height_tol, round(SEAM_TOE_S * fps),
+                         SEAM_TOE_CATCH * body / fps)
         if not np.isnan(moves[leg]):  # interpolated and planted at both seams: held through, one step
             on = np.ones(length, dtype=bool)
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
