@@ -586,7 +586,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     frame (the last, at B) does not hold, stays on its spot while the new frames keep it that low,
     at most ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on to the next
     held frame's at ``SEAM_TOE_CATCH``: a heel rises from a planted toe, and a retrieved segment's
-    toe, in another phase of its step, slid off it at once.
+    toe, in another phase of its step, slid off it at once. Without ``toe_floor``, that test's
+    floor is the leg's lowest of its own four seam toes (a toe held still in the air then counts
+    as planted: the engine always gives the context's floor).
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
