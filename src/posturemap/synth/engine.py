@@ -277,23 +277,23 @@ class TransitionEngine:
         the toes' floor from A's last and B's first ``FLOOR_S`` seconds, and the map's motion
         library's toe clearance (:attr:`~posturemap.synth.library.MotionLibrary.clearance`, where
         it has one); returns the lock weights."""
-        a_end, b_start = req.a_end, req.b_start
-        # A's frames a_end - 1, a_end and B's b_start, b_start + 1 (repeated at a clip's end): slices where they can be
-        a_feet = ta.feet[a_end - 1: a_end + 1] if a_end > 0 else ta.feet[[0, 0]]
-        b_feet = tb.feet[b_start: b_start + 2] if b_start + 1 < len(tb.feet) else tb.feet[[b_start, b_start]]
-        b_feet = rotate_about_up(b_feet, dtheta, self._up) + shift
+        a_end, b_start, up = req.a_end, req.b_start, self._up
+        # A's frames a_end - 1, a_end and B's b_start, b_start + 1 (repeated at a clip's end):
+        # slices where they can be; the ankles and the toes of those frames.
+        ia = slice(a_end - 1, a_end + 1) if a_end > 0 else [0, 0]
+        ib = slice(b_start, b_start + 2) if b_start + 1 < len(tb.feet) else [b_start, b_start]
+        a_feet, a_toes = ta.feet[ia], ta.toes[ia]
+        b_feet = rotate_about_up(tb.feet[ib], dtheta, up) + shift
+        b_toes = rotate_about_up(tb.toes[ib], dtheta, up) + shift
         # The toes' floor: their lowest over A's last FLOOR_S seconds and B's first (B's heights
         # moved with B): a stance in any gait, so a held foot's toe under it is lifted out.
         na, nb = round(FLOOR_S * ta.motion.fps) + 1, round(FLOOR_S * tb.motion.fps) + 1
         end_a, start_b = slice(max(a_end + 1 - na, 0), a_end + 1), slice(b_start, b_start + nb)
-        rise = shift[self._up].item()
-        toe_floor = min(ta.lowest_toe[end_a].min().item(), tb.lowest_toe[start_b].min().item() + rise)
+        rise = shift[up].item()
+        toe_floor = min(ta.toes[end_a, :, up].min().item(), tb.toes[start_b, :, up].min().item() + rise)
         # Whether a foot is planted at a seam: against that clip's own floor, its lowest ankle there.
-        seam_floors = (ta.feet[end_a, :, self._up].min().item(), tb.feet[start_b, :, self._up].min().item() + rise)
+        seam_floors = (ta.feet[end_a, :, up].min().item(), tb.feet[start_b, :, up].min().item() + rise)
         library = getattr(self.model, "library_", None)
-        a_toes = ta.toes[a_end - 1: a_end + 1] if a_end > 0 else ta.toes[[0, 0]]
-        b_toes = tb.toes[b_start: b_start + 2] if b_start + 1 < len(tb.toes) else tb.toes[[b_start, b_start]]
-        b_toes = rotate_about_up(b_toes, dtheta, self._up) + shift
         return lock_feet(self.skeleton, self._legs, out_r, out_p, self._fk, self._up, a_feet, b_feet,
                          ta.motion.fps, contacts, self._leg_length, toe_floor, self._toes, seam_floors,
                          None if library is None else library.clearance, a_toes, b_toes)

@@ -32,10 +32,8 @@ class Track:
     rots : (F, J, 4) local rotations, with the root's replaced by its tilt
     features : (F, D) posture vectors for a map, or None
     feet : (F, n_legs, 3) global ankle positions (for foot locking)
-    lowest_toe : (F,) global height of the lowest toe (:func:`posturemap.core.joints.leg_toes`; inf
-        without legs), for the foot lock's floor
-    toes : (F, n_legs, 3) global positions of each leg's toe (its ankle where it has none), for
-        the foot lock's planted toes at the seams
+    toes : (F, n_legs, 3) global positions of each leg's toe (:func:`posturemap.core.joints.leg_toes`:
+        its ankle where it has none), for the foot lock's floor and its planted toes at the seams
     """
 
     motion: Motion
@@ -44,7 +42,6 @@ class Track:
     rots: np.ndarray
     features: np.ndarray | None
     feet: np.ndarray
-    lowest_toe: np.ndarray
     toes: np.ndarray
 
 
@@ -78,15 +75,13 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
     rots[:, root] = tilt
     feats = space.encode(motion) if space is not None else None
     chains = leg_chains(motion.skeleton)
-    feet, lowest_toe = np.zeros((len(motion), 0, 3)), np.full(len(motion), np.inf)
-    toes = feet
+    feet = toes = np.zeros((len(motion), 0, 3))
     if chains:
         grot_all, gpos_all = np.empty(motion.rotations.shape), np.empty(motion.positions.shape)
         kernels.fk(motion.skeleton.parents, motion.rotations, motion.positions, grot_all, gpos_all)
         feet = gpos_all[:, [c[2] for c in chains]]
         toes = gpos_all[:, leg_toes(motion.skeleton, chains)]
-        lowest_toe = toes[..., up].min(axis=1)
-    return Track(motion, gpos, heading, rots, feats, feet, lowest_toe, toes)
+    return Track(motion, gpos, heading, rots, feats, feet, toes)
 
 
 def alignment(a: Track, b: Track, a_end: int, b_start: int, length: int, up: int) -> tuple[float, np.ndarray]:
