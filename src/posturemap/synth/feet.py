@@ -309,7 +309,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
         return np.zeros(length)
     r = max(1, round(CLEAR_S * fps))
     lift = np.zeros(length)
-    for frames, fade in ((free, float(max(2, round(CLEAR_FADE_S * fps)))), (~free, 2.0 * r + 1.0)):
+    for frames, fade in ((free, _fade_frames(fps)), (~free, 2.0 * r + 1.0)):
         part = np.where(frames, deficit, 0.0)
         if not part.any():
             continue
@@ -559,6 +559,21 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
     return offset
 
 
+def _planted(seam, next_to_it, floor: float, up: int, height_tol: float, speed_tol: float) -> bool:
+    """Whether a foot joint at a seam frame (3,) is planted: within ``height_tol`` of ``floor`` and
+    moved less than ``speed_tol`` horizontally from the frame next to it (3,) (A's one before, B's
+    one after)."""
+    step = seam - next_to_it
+    step[up] = 0.0
+    return bool(seam[up] < floor + height_tol and np.linalg.norm(step) < speed_tol)
+
+
+def _fade_frames(fps: float) -> float:
+    """The frames over which a swinging toe's lift fades in at each seam: ``CLEAR_FADE_S``, at
+    least two."""
+    return float(max(2, round(CLEAR_FADE_S * fps)))
+
+
 def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b_feet, fps: float,
               contacts=None, body: float | None = None, toe_floor=None, toes=None, seam_floors=None,
               clearance: np.ndarray | None = None, a_toes=None, b_toes=None) -> np.ndarray:
@@ -611,18 +626,15 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         # second version on that call, a hitch of 10-40 ms.
         planted = (np.zeros((0, len(chains)), dtype=bool) if contacts is None
                    else np.ascontiguousarray(contacts, dtype=bool))
+        seam_toes = ((np.zeros((0, len(chains), 3)),) * 2 if a_toes is None or b_toes is None
+                     else (np.ascontiguousarray(a_toes, dtype=float), np.ascontiguousarray(b_toes, dtype=float)))
         jit.lock_legs(sk.parents, legs, rots, grot, gpos, up, np.ascontiguousarray(a_feet, dtype=float),
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
                       STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
-                      max(1, round(CLEAR_S * fps)), float(max(2, round(CLEAR_FADE_S * fps))), a_floor, b_floor,
-                      STAND_STEP * body,
-                      np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
-                      else np.ascontiguousarray(a_toes, dtype=float),
-                      np.zeros((0, len(chains), 3)) if a_toes is None or b_toes is None
-                      else np.ascontiguousarray(b_toes, dtype=float),
-                      round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps, weights)
+                      max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
+                      *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -632,10 +644,10 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     for leg, (thigh, shin, ankle) in enumerate(chains):
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
         floor = min(context_h.min(), gpos[:, ankle, up].min())
-        a_on = (a_feet[1, leg, up] < (floor if np.isnan(a_floor) else a_floor) + height_tol
-                and np.linalg.norm((a_feet[1, leg] - a_feet[0, leg]) * flat) < speed_tol)
-        b_on = (b_feet[0, leg, up] < (floor if np.isnan(b_floor) else b_floor) + height_tol
-                and np.linalg.norm((b_feet[1, leg] - b_feet[0, leg]) * flat) < speed_tol)
+        a_on = _planted(a_feet[1, leg], a_feet[0, leg], floor if np.isnan(a_floor) else a_floor, up, height_tol,
+                        speed_tol)
+        b_on = _planted(b_feet[0, leg], b_feet[1, leg], floor if np.isnan(b_floor) else b_floor, up, height_tol,
+                        speed_tol)
         seams.append((floor, a_on, b_on))
         move = np.linalg.norm((b_feet[0, leg] - a_feet[1, leg]) * flat)
         if (contacts is None and a_on and b_on and move <= MAX_DRIFT[1] * body  # one step's way at most
@@ -653,10 +665,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         toe_seams = None  # the toe planted at each seam (low and slow), its spot, the new frames' low toes
         if a_toes is not None and b_toes is not None:
             tf = toe_floor if toe_floor != np.inf else min(a_toes[:, leg, up].min(), b_toes[:, leg, up].min())
-            a_t = (a_toes[1, leg, up] < tf + height_tol
-                   and np.linalg.norm((a_toes[1, leg] - a_toes[0, leg]) * flat) < speed_tol)
-            b_t = (b_toes[0, leg, up] < tf + height_tol
-                   and np.linalg.norm((b_toes[1, leg] - b_toes[0, leg]) * flat) < speed_tol)
+            a_t = _planted(a_toes[1, leg], a_toes[0, leg], tf, up, height_tol, speed_tol)
+            b_t = _planted(b_toes[0, leg], b_toes[1, leg], tf, up, height_tol, speed_tol)
             toe_seams = (a_t, a_toes[1, leg] * flat, b_t, b_toes[0, leg] * flat,
                          gpos[:, toes[leg], up] < tf + height_tol, round(SEAM_TOE_S * fps),
                          SEAM_TOE_CATCH * body / fps)
