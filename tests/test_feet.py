@@ -1112,6 +1112,32 @@ def test_toe_height_counts_give_the_least_height_real_toes_keep_at_each_speed():
     np.testing.assert_array_equal(feet.clearance_curve(few), 0.0)
 
 
+def test_a_toe_lifting_off_counts_as_still_where_it_stands_at_any_frame_rate():
+    # slower_step: each frame's shorter step, so a toe on the floor at lift-off or touch-down
+    # moves 0 there (the central difference would give it half the swing's first step).
+    x = np.zeros((8, 1, 3))
+    x[4:, 0, 0] = np.arange(1, 5) * 0.1
+    np.testing.assert_allclose(feet.slower_step(x)[:, 0], [0, 0, 0, 0, 0.1, 0.1, 0.1, 0.1])
+    assert feet.slower_step(x[:1]).shape == (1, 1) and feet.slower_step(x[:1])[0, 0] == 0.0
+    # A walk's toe: 0.4 s still on the floor, 0.4 s swinging at 1.2 leg lengths per second up
+    # to 0.06 leg lengths, and so on. At 24 and at 60 fps no sample on the floor counts as
+    # moving (the swing's count in the 1.0-1.5 bin, a few in slower bins where a swing starts
+    # between two frames); by central differences the floor's samples at lift-off and touch-down
+    # would count at half the swing's speed.
+    body, up = 0.9, 1
+    for fps in (24.0, 60.0):
+        t = np.arange(round(4.0 * fps)) / fps
+        phase = (t % 0.8) / 0.4  # < 1 standing, 1..2 swinging
+        swing = np.clip(phase - 1.0, 0.0, 1.0)
+        toes = np.zeros((len(t), 1, 3))
+        toes[:, 0, 0] = 0.48 * body * (np.floor(t / 0.8) + swing)
+        toes[:, 0, up] = 0.06 * body * np.sin(np.pi * swing)
+        counts = feet.toe_height_counts(toes, up, fps, body)
+        assert counts[:, 0].sum() == 0 and counts[2].sum() > counts.sum() / 2, fps
+        central = np.linalg.norm(np.gradient(toes * [1, 0, 1], axis=0), axis=-1)[:, 0] * fps / body
+        assert np.any((central >= feet.CLEAR_BINS[0]) & (toes[:, 0, up] == 0.0)), fps
+
+
 def test_clearance_need_is_the_rule_raised_by_the_library_curve():
     curve = np.array([0.004, 0.012, 0.017, 0.015, 0.025, 0.034])
     speeds = np.array([0.1, 0.375, 0.75, 1.25, 2.0, 3.25, 6.0, 9.0])

@@ -139,12 +139,17 @@ def test_the_library_counts_its_toes_heights_and_the_lock_takes_its_clearance(mo
     assert len(seen) == 1 and seen[0] is lib.clearance
 
 
-def test_a_map_file_without_toe_counts_loads_with_the_fixed_clearance(model, tmp_path):
+@pytest.mark.parametrize("older", [None, "library_toe_counts"])
+def test_a_map_file_without_toe_counts_loads_with_the_fixed_clearance(model, tmp_path, older):
     # Map files written before the library counted its toes load; the lock then keeps to TOE_CLEAR.
+    # So do those whose counts measured the toes' speed by central differences (their member's
+    # older name): such counts would read a lower curve than the lock's speeds ask of it.
     path = tmp_path / "old.npz"
     model.save(path)
     with np.load(path, allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files if k != "library_toe_counts"}
+        arrays = {k: z[k] for k in z.files if k != "library_toe_step_counts"}
+        if older:
+            arrays[older] = z["library_toe_step_counts"]
     np.savez(path, **arrays)
     back = PostureMap.load(path)
     assert back.library_.toe_counts is None and back.library_.clearance is None
@@ -557,9 +562,9 @@ def test_a_damaged_library_is_refused(model, tmp_path, damage):
     elif damage == "ints":
         arrays["library_pose"] = arrays["library_pose"].astype(np.int64)
     elif damage == "toe-counts":
-        arrays["library_toe_counts"] = arrays["library_toe_counts"] - 0.5  # not whole, some negative
+        arrays["library_toe_step_counts"] = arrays["library_toe_step_counts"] - 0.5  # not whole, some negative
     elif damage == "toe-shape":
-        arrays["library_toe_counts"] = arrays["library_toe_counts"][:, :-1]
+        arrays["library_toe_step_counts"] = arrays["library_toe_step_counts"][:, :-1]
     else:
         del arrays["library_rots"]
     np.savez(path, **arrays)

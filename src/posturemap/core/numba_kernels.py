@@ -521,10 +521,12 @@ def _toe_lift(gpos, toe, up, offset, raised, held, toe_floor, clear, clear_lo, c
         deficit[1, t] = 0.0
         need = 0.0  # a held foot's toe (or one frame, without a speed) needs the floor only
         if not held[t] and n_l > 1:
-            lo, hi = max(t - 1, 0), min(t + 1, n_l - 1)
-            da = (gpos[hi, toe, a_] + offset[hi, 0] - gpos[lo, toe, a_] - offset[lo, 0]) / (hi - lo)
-            db = (gpos[hi, toe, b_] + offset[hi, 1] - gpos[lo, toe, b_] - offset[lo, 1]) / (hi - lo)
-            v = math.sqrt(da * da + db * db)
+            v = np.inf  # the shorter of the frame's two steps (slower_step)
+            for lo in (t - 1, t):
+                if 0 <= lo and lo + 1 < n_l:
+                    da = gpos[lo + 1, toe, a_] + offset[lo + 1, 0] - gpos[lo, toe, a_] - offset[lo, 0]
+                    db = gpos[lo + 1, toe, b_] + offset[lo + 1, 1] - gpos[lo, toe, b_] - offset[lo, 1]
+                    v = min(v, math.sqrt(da * da + db * db))
             need = clear * min(max((v - clear_lo) / (clear_hi - clear_lo), 0.0), 1.0)
             if clear > 0.0 and curve_v.shape[0] > 0:
                 need = max(need, np.interp(v, curve_v, curve_h))

@@ -12,7 +12,8 @@ A map file is a ZIP archive of ``.npy`` members (``numpy.savez``), read here wit
   ``c{c}_witness (n,)``, ``c{c}_period (d,)``, where ``d`` is the number of the class's
   active dimensions;
 - ``library_*``: the motion library's per-frame arrays, and its toes' height counts by speed
-  (``library_toe_counts``, absent from files written before them; shapes and values checked by
+  (``library_toe_step_counts``, absent from files written before them, whose
+  ``library_toe_counts`` measured speeds otherwise and is not read; shapes and values checked by
   :meth:`posturemap.synth.library.MotionLibrary.from_parts`).
 
 :func:`read` checks, in this order and before the next step reads anything: the path is a

@@ -199,10 +199,26 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
 
 
+def slower_step(x: np.ndarray) -> np.ndarray:
+    """How far points move at each frame: per frame of ``x`` (F, ..., 3) the shorter of its two
+    steps, to the frame before and to the frame after (the one step at either end; 0 for a
+    single frame), shape (F, ...).
+
+    A foot that lifts off or touches down at a frame stands still on one side of it; the
+    central difference gives it half the next step, more of the swing's speed the lower the
+    frame rate (with it, a toe's least height at 0.5-1 leg lengths per second read 0.012 leg
+    lengths from LaFAN1 at 24 fps and 0.016 at 60: the lift asked less of a toe the fewer the
+    frames; so, 0.023 and 0.020)."""
+    if len(x) < 2:
+        return np.zeros(x.shape[:-1])
+    step = np.linalg.norm(np.diff(x, axis=0), axis=-1)
+    return np.concatenate([step[:1], np.minimum(step[1:], step[:-1]), step[-1:]])
+
+
 def toe_height_counts(toes: np.ndarray, up: int, fps: float, body: float) -> np.ndarray:
     """How high one clip's toes are at each speed: counts (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS)
-    - 1) of toe samples by horizontal speed (leg lengths per second, central differences as
-    :func:`clearance_lift` measures them) and height above the floor under them (leg lengths; the
+    - 1) of toe samples by horizontal speed (leg lengths per second, each frame's shorter step,
+    :func:`slower_step`, as :func:`clearance_lift` measures it) and height above the floor under them (leg lengths; the
     floor of a frame is the lowest of the toes within ``FLOOR_S`` seconds of it, as the lock's
     floor is a stance's lowest toe; heights above the last bin count in it). Speeds outside
     ``CLEAR_BINS`` are not counted. ``toes`` (F, K, 3): the toe joints' global positions.
@@ -218,7 +234,7 @@ def toe_height_counts(toes: np.ndarray, up: int, fps: float, body: float) -> np.
     height = np.clip((h - floor[:, None]) / body, 0.0, CLEAR_HEIGHTS[-1] * (1.0 - 1e-9))
     flat = np.ones(3)
     flat[up] = 0.0
-    speed = np.linalg.norm(np.gradient(toes * flat, axis=0), axis=-1) * fps / body
+    speed = slower_step(toes * flat) * fps / body
     counts += np.histogram2d(speed.ravel(), height.ravel(), bins=(np.asarray(CLEAR_BINS), CLEAR_HEIGHTS))[0]
     return counts
 
@@ -279,7 +295,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
 
     ``toe`` (L, 3) the toe's positions over the new frames, ``free`` (L,) bool the frames where the
     foot is not held, ``floor`` the floor's height for this toe. In a free frame the toe's
-    horizontal speed (central differences, one-sided at the ends) asks for ``body`` times
+    horizontal speed (its shorter step, :func:`slower_step`) asks for ``body`` times
     :func:`clearance_need` (``clear``: ``TOE_CLEAR``, 0 for the ankle of a foot without a toe
     joint; ``curve``: a library's :func:`clearance_curve`, or None) above the floor; a
     held foot's toe asks for the floor itself (a retrieved stance can put it a few centimetres
@@ -301,8 +317,7 @@ def clearance_lift(toe: np.ndarray, free: np.ndarray, floor: float, up: int, bod
         return np.zeros(0)
     flat = np.ones(3)
     flat[up] = 0.0
-    step = np.gradient(toe * flat, axis=0) if length > 1 else np.zeros((1, 3))
-    speed = np.linalg.norm(step, axis=-1) * fps / body
+    speed = slower_step(toe * flat) * fps / body
     need = body * clearance_need(speed, clear, curve)
     deficit = np.maximum(np.where(free, need, 0.0) - (toe[:, up] - floor), 0.0)
     if not deficit.any():

@@ -20,9 +20,10 @@ Per library frame (all training clips, one after another; ``clip_start`` marks t
   first stage, as an IVF index of a nearest-neighbour library is.
 
 And for the whole library, ``toe_counts``: its toes' heights above the floor by speed
-(:func:`posturemap.synth.feet.toe_height_counts`, summed over the clips), from which
-:attr:`MotionLibrary.clearance` says how high its swinging toes keep (the foot lock lifts a
-swinging toe that hangs lower; None for a skeleton without toes or a map file written before).
+(:func:`posturemap.synth.feet.toe_height_counts`, summed over the clips; saved as
+``toe_step_counts``), from which :attr:`MotionLibrary.clearance` says how high its swinging toes
+keep (the foot lock lifts a swinging toe that hangs lower; None for a skeleton without toes or a
+map file written before them: its counts, by central differences, are not read).
 
 Every clip is also searched played backwards (``reverse``, on by default): time-reversed real
 motion, the same postures and contacts travelled the other way, so that a library of forward
@@ -40,7 +41,7 @@ import numpy as np
 
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length, leg_toes
 from ..core.skeleton import Skeleton, fk
-from .feet import CLEAR_BINS, CLEAR_HEIGHTS, clearance_curve, toe_height_counts
+from .feet import CLEAR_BINS, CLEAR_HEIGHTS, clearance_curve, slower_step, toe_height_counts
 
 INDEX_CLASS = 1  # the map whose winners index the library ("global": thighs, upper arms)
 FLOOR_PERCENTILE = 5.0  # a clip's floor under each ankle: this percentile of its heights
@@ -108,8 +109,7 @@ def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.nda
     floor = np.percentile(h, FLOOR_PERCENTILE, axis=0)
     flat = np.ones(3)
     flat[up] = 0.0
-    step = np.linalg.norm(np.diff(ankles * flat, axis=0), axis=-1) * fps
-    speed = np.concatenate([step[:1], np.minimum(step[1:], step[:-1]), step[-1:]]) if len(step) else np.zeros_like(h)
+    speed = slower_step(ankles * flat) * fps
     return (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
 
 
@@ -219,7 +219,7 @@ class MotionLibrary:
         out["clip_start"] = self.clip_start[: self.num_recorded_clips + 1]
         out["lower"], out["upper"] = self.lower, self.upper
         if self.toe_counts is not None:
-            out["toe_counts"] = self.toe_counts
+            out["toe_step_counts"] = self.toe_counts
         return out
 
     def joined(self, other: "MotionLibrary") -> "MotionLibrary":
@@ -305,14 +305,16 @@ class MotionLibrary:
         reverse = meta.get("reverse", True)
         if not isinstance(reverse, bool):
             raise ValueError("library 'reverse' is not true or false")
-        counts = arrays.get("toe_counts")  # absent from map files written before it
+        # Absent from map files written before it; a file's older ``toe_counts`` (speeds by central
+        # differences, :func:`posturemap.synth.feet.slower_step`) is not read: such a map keeps the rule.
+        counts = arrays.get("toe_step_counts")
         if counts is not None:
             shape = (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS) - 1)
             if counts.shape != shape:
-                raise ValueError(f"library toe_counts has shape {counts.shape}, expected {shape}")
+                raise ValueError(f"library toe_step_counts has shape {counts.shape}, expected {shape}")
             if counts.dtype.kind not in "iuf" or not np.all(np.isfinite(counts)) or np.any(counts < 0) \
                     or np.any(counts != np.round(counts)):
-                raise ValueError("library toe_counts are not counts")
+                raise ValueError("library toe_step_counts are not counts")
             counts = counts.astype(np.float64)
         return cls(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, reverse=reverse,
                    toe_counts=counts, **out)
