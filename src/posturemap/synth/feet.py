@@ -218,10 +218,10 @@ def slower_step(x: np.ndarray) -> np.ndarray:
 def toe_height_counts(toes: np.ndarray, up: int, fps: float, body: float) -> np.ndarray:
     """How high one clip's toes are at each speed: counts (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS)
     - 1) of toe samples by horizontal speed (leg lengths per second, each frame's shorter step,
-    :func:`slower_step`, as :func:`clearance_lift` measures it) and height above the floor under them (leg lengths; the
-    floor of a frame is the lowest of the toes within ``FLOOR_S`` seconds of it, as the lock's
-    floor is a stance's lowest toe; heights above the last bin count in it). Speeds outside
-    ``CLEAR_BINS`` are not counted. ``toes`` (F, K, 3): the toe joints' global positions.
+    :func:`slower_step`, as :func:`clearance_lift` measures it) and height above the floor under
+    them (leg lengths; the floor of a frame is the lowest of the toes within ``FLOOR_S`` seconds
+    of it, as the lock's floor is a stance's lowest toe; heights above the last bin count in it).
+    Speeds outside ``CLEAR_BINS`` are not counted. ``toes`` (F, K, 3): the toe joints' global positions.
     Counts of several clips add up (a library's: :func:`clearance_curve`)."""
     counts = np.zeros((len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS) - 1))
     if len(toes) < 2 or toes.shape[1] == 0:
