@@ -1138,6 +1138,26 @@ def test_a_toe_lifting_off_counts_as_still_where_it_stands_at_any_frame_rate():
         assert np.any((central >= feet.CLEAR_BINS[0]) & (toes[:, 0, up] == 0.0)), fps
 
 
+def test_a_toe_lifting_off_asks_no_lift_where_it_still_stands():
+    # A free toe on the floor for ten frames, then swinging off at 2 leg lengths per second
+    # 0.05 leg lengths up (above what the rule asks at that speed): the lift measures each
+    # frame's shorter step, so the last frame on the floor (still on one side) asks nothing and
+    # nothing is lifted. By the central difference that frame would move at 1 leg length per
+    # second on the floor, and be lifted.
+    body, fps, up, n = 0.9, 24.0, 1, 20
+    toe = np.zeros((n, 3))
+    toe[10:, 0] = np.arange(1, n - 9) * 2.0 * body / fps
+    toe[10:, up] = 0.05 * body
+    free = np.ones(n, dtype=bool)
+    np.testing.assert_array_equal(feet.clearance_lift(toe, free, 0.0, up, body, fps), 0.0)
+    assert feet.clearance_need(np.array([1.0]), TOE_CLEAR)[0] > 0.0  # what the central difference would ask
+    # The same toe dragged along the floor asks for its clearance from its first moving frame.
+    dragged = toe.copy()
+    dragged[:, up] = 0.0
+    lift = feet.clearance_lift(dragged, free, 0.0, up, body, fps)
+    assert lift[12:-3].min() > 0.02 * body
+
+
 def test_clearance_need_is_the_rule_raised_by_the_library_curve():
     curve = np.array([0.004, 0.012, 0.017, 0.015, 0.025, 0.034])
     speeds = np.array([0.1, 0.375, 0.75, 1.25, 2.0, 3.25, 6.0, 9.0])

@@ -306,7 +306,7 @@ class MotionLibrary:
         if not isinstance(reverse, bool):
             raise ValueError("library 'reverse' is not true or false")
         # Absent from map files written before it; a file's older ``toe_counts`` (speeds by central
-        # differences, :func:`posturemap.synth.feet.slower_step`) is not read: such a map keeps the rule.
+        # differences, not each frame's shorter step) is not read: such a map keeps the rule.
         counts = arrays.get("toe_step_counts")
         if counts is not None:
             shape = (len(CLEAR_BINS) - 1, len(CLEAR_HEIGHTS) - 1)
