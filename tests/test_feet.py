@@ -1218,6 +1218,21 @@ def test_foot_lock_lifts_a_slow_dragged_toe_to_the_library_clearance(sample_clip
     assert np.all(heights["library"] < 0.021 * body)  # lifted to it, not beyond
 
 
+def test_the_planted_test_of_a_seam_is_the_same_compiled():
+    # numba_kernels._planted (the lock's seam test of ankles and toes) against feet._planted, on
+    # random seams near both thresholds.
+    from posturemap.core import numba_kernels
+
+    rng = np.random.default_rng(11)
+    for _ in range(500):
+        up = int(rng.integers(3))
+        x = rng.normal(0.0, 1.0, (2, 3, 3))
+        leg, seam = int(rng.integers(3)), int(rng.integers(2))
+        floor, height_tol, speed_tol = rng.normal(), abs(rng.normal()), abs(rng.normal()) * 2
+        want = feet._planted(x[seam, leg].copy(), x[1 - seam, leg].copy(), floor, up, height_tol, speed_tol)
+        assert numba_kernels._planted(x, seam, 1 - seam, leg, up, floor, height_tol, speed_tol) == want
+
+
 def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(sample_clips):
     # The body glides at 0.8 leg lengths per second (too fast for the ankle to count as planted),
     # the left toe low: at A's end that toe stood still. The lock holds it on its spot for

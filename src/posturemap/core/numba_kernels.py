@@ -565,6 +565,16 @@ def _carried(g, grot, t, top, joint):
 
 
 @nb.njit(**_OPTS)
+def _planted(x, seam, near, leg, up, floor, height_tol, speed_tol):
+    """:func:`posturemap.synth.feet._planted` of leg ``leg``'s joint in ``x`` (2, n, 3): frame
+    ``seam`` within ``height_tol`` of ``floor``, moved less than ``speed_tol`` horizontally from frame
+    ``near``."""
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    da, db = x[seam, leg, a_] - x[near, leg, a_], x[seam, leg, b_] - x[near, leg, b_]
+    return x[seam, leg, up] < floor + height_tol and math.sqrt(da * da + db * db) < speed_tol
+
+
+@nb.njit(**_OPTS)
 def _stance_windows(moves, length, step, least):
     """:func:`posturemap.synth.feet.stance_windows`: (n, 2) ``(k0, k)`` per leg, -1 for none."""
     n = moves.shape[0]
@@ -638,12 +648,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         floor = min(min(a_feet[0, leg, up], a_feet[1, leg, up]), min(b_feet[0, leg, up], b_feet[1, leg, up]))
         for t in range(n_l):
             floor = min(floor, gpos[t, ankle, up])
-        da, db = a_feet[1, leg, a_] - a_feet[0, leg, a_], a_feet[1, leg, b_] - a_feet[0, leg, b_]
         fa = floor if math.isnan(a_floor) else a_floor
         fb = floor if math.isnan(b_floor) else b_floor
-        a_ons[leg] = a_feet[1, leg, up] < fa + height_tol and math.sqrt(da * da + db * db) < speed_tol
-        da, db = b_feet[1, leg, a_] - b_feet[0, leg, a_], b_feet[1, leg, b_] - b_feet[0, leg, b_]
-        b_ons[leg] = b_feet[0, leg, up] < fb + height_tol and math.sqrt(da * da + db * db) < speed_tol
+        a_ons[leg] = _planted(a_feet, 1, 0, leg, up, fa, height_tol, speed_tol)
+        b_ons[leg] = _planted(b_feet, 0, 1, leg, up, fb, height_tol, speed_tol)
         floors[leg] = floor
         da, db = b_feet[0, leg, a_] - a_feet[1, leg, a_], b_feet[0, leg, b_] - a_feet[1, leg, b_]
         move = math.sqrt(da * da + db * db)
@@ -771,12 +779,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 tf = min(min(a_toes[0, leg, up], a_toes[1, leg, up]), min(b_toes[0, leg, up], b_toes[1, leg, up]))
             for side in range(2):
                 if side == 0:
-                    da, db = a_toes[1, leg, a_] - a_toes[0, leg, a_], a_toes[1, leg, b_] - a_toes[0, leg, b_]
-                    planted = a_toes[1, leg, up] < tf + height_tol and math.sqrt(da * da + db * db) < speed_tol
+                    planted = _planted(a_toes, 1, 0, leg, up, tf, height_tol, speed_tol)
                     sa, sb, first = a_toes[1, leg, a_], a_toes[1, leg, b_], 0
                 else:
-                    da, db = b_toes[1, leg, a_] - b_toes[0, leg, a_], b_toes[1, leg, b_] - b_toes[0, leg, b_]
-                    planted = b_toes[0, leg, up] < tf + height_tol and math.sqrt(da * da + db * db) < speed_tol
+                    planted = _planted(b_toes, 0, 1, leg, up, tf, height_tol, speed_tol)
                     sa, sb, first = b_toes[0, leg, a_], b_toes[0, leg, b_], n_l - 1
                 if not planted or on[first]:
                     continue
