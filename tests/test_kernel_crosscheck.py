@@ -798,7 +798,7 @@ ELSEWHERE = {
     "test_retrieval.py::test_compiled_replay_of_a_match_equals_the_numpy_steps": ("retrieval_numba:replay_part",),
     "test_retrieval.py::test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays": (
         "retrieval_numba:spliced", "retrieval_numba:_replay_half"),
-    "test_retrieval.py::test_a_fully_confident_transition_takes_the_open_columns_from_slerp": (
+    "test_retrieval.py::test_a_fully_confident_transition_takes_the_open_columns_from_spline": (
         "retrieval_numba:open_columns",),
     "test_retrieval.py::test_compiled_gather_matches_the_numpy_steps": (
         "retrieval_numba:gather", "retrieval_numba:_frames_of_nearest"),

@@ -1544,20 +1544,23 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
     assert lifted_with < lifted_without < 0.5 * without, (lifted_with, lifted_without, without)
 
 
-def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, clips):
+def test_a_fully_confident_transition_takes_the_open_columns_from_spline(model, clips):
     # With every part retrieved at full confidence, the engine does not run a whole fallback:
-    # it SLERPs the joints above the root and LERPs the local translations alone. They must be
-    # the slerp method's. A library clip (its own frames match exactly), whose joint above the
-    # root turns slowly and whose joints' translations drift, so that both columns move.
+    # it makes the joints above the root and the local translations alone, as cubic Hermites
+    # from A's last frame and rate to B's first. They must be the spline method's. A library
+    # clip (its own frames match exactly), whose joint above the root turns ever faster and
+    # whose joints' translations drift ever faster, so that both columns move and their rates
+    # differ at the two seams (a LERP, the slerp method's, then differs).
     walk = clips["walk_normal_001"]
     eng = TransitionEngine(model)
     top = int(eng._chain[0])
     assert len(eng._chain) == 1 and top != eng._root  # Bandai: a reference joint above the hips
     rots, pos = walk.rotations.copy(), walk.positions.copy()
     n = len(walk)
-    rots[:, top] = quat.mul(quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.002 * np.arange(n)), rots[:, top])
+    frames = np.arange(n)
+    rots[:, top] = quat.mul(quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), 1e-5 * frames**2), rots[:, top])
     others = np.flatnonzero(np.arange(walk.skeleton.num_joints) != eng._root)
-    pos[:, others] += 0.01 * np.arange(n)[:, None, None]
+    pos[:, others] += 1e-4 * (frames**2)[:, None, None]
     eng.add("walk", Motion(walk.skeleton, rots, pos, walk.fps))
     checked = 0
     for (a_end, b_start, length), align in itertools.product(((40, 71, 30), (90, 136, 45), (150, 166, 15)),
@@ -1566,13 +1569,37 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_slerp(model, c
         r, p = (x.copy() for x in eng.generate("walk", "walk", method="retrieval", **kw))
         if eng.last["retrieval"]["confidence"] < 1.0:
             continue
-        r_ref, p_ref = eng.generate("walk", "walk", method="slerp", **kw)
+        r_ref, p_ref = eng.generate("walk", "walk", method="spline", **kw)
         np.testing.assert_allclose(p[:, others], p_ref[:, others], rtol=0, atol=1e-9)
         gap = np.minimum(np.abs(r[:, top] - r_ref[:, top]), np.abs(r[:, top] + r_ref[:, top])).max()
         assert gap < 1e-12, gap  # the same quaternions (up to sign)
         assert quat.angle_between(r[0, top], r[-1, top]) > 0.01  # the column moves: a real check
+        r_lin, p_lin = eng.generate("walk", "walk", method="slerp", **kw)
+        assert np.abs(p[:, others] - p_lin[:, others]).max() > 0.01  # not the LERP
         checked += 1 + 10 * align
     assert checked >= 22  # at least two gaps with B fixed and two with B moved
+
+
+def test_a_reference_joint_that_carries_the_trajectory_keeps_its_speed_through_the_seams(model, clips):
+    # run_normal_001's joint_Root moves with the runner (8.7 cm a frame); walk_normal_001's stays
+    # at the origin, behind where A ends. The open columns' joint_Root must leave A at A's speed
+    # and reach B at rest, not turn back at A's seam. Nothing else drives joint_Root.
+    from posturemap.synth import engine as engine_module
+    run, walk = clips["run_normal_001"], clips["walk_normal_001"]
+    eng = TransitionEngine(model)
+    eng.add("run", run)
+    eng.add("walk", walk)
+    top = int(eng._chain[0])
+    ta, tb = eng.tracks["run"], eng.tracks["walk"]
+    a_end, b_start, length = 12, 162, 30
+    _, pos = engine_module._open_columns(eng, ta, tb, a_end, b_start, length)
+    path = np.concatenate([run.positions[a_end - 1: a_end + 1, top], pos[:, top], walk.positions[b_start:
+                                                                                               b_start + 2, top]])
+    acc = np.linalg.norm(np.diff(path, 2, axis=0), axis=-1)
+    assert np.linalg.norm(np.diff(run.positions[:a_end + 1, top], 2, axis=0), axis=-1).max() < 0.05
+    assert acc.max() < 3.0, acc.round(2)  # LERPed: 12.1 at A's seam
+    np.testing.assert_allclose(pos[0, top] - run.positions[a_end, top],
+                               run.positions[a_end, top] - run.positions[a_end - 1, top], atol=1.5)
 
 
 def test_a_shared_dict_serves_one_transition_and_starts_afresh_for_another(engine):

@@ -587,28 +587,36 @@ def _valid_frames(eng, seam, inputs, ref, req, fps, keys, context):
 
 
 def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, length: int):
-    """What a fully retrieved transition leaves open, as ``slerp`` makes it: the rotations of
-    the joints above the root (L, J, 4; only those set) and the local translations (L, J, 3)."""
-    basis = linear_basis(length)
+    """What a fully retrieved transition leaves open, as ``spline`` makes it: the rotations of
+    the joints above the root (L, J, 4; only those set) and the local translations (L, J, 3),
+    each a cubic Hermite from A's last frame and rate to B's first. A reference joint that carries
+    a clip's trajectory (four Bandai clips; a game rig's root bone) keeps its speed through the
+    seams: LERPed, it turned back at once where B's stands elsewhere (run into walk: 12 cm per
+    frame squared at A's seam, against at most 0.01 along A)."""
+    basis = hermite_basis(length)
     chain = eng._chain
+    a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
     jit = retrieval._compiled()
     if jit is not None:  # the steps below in one call (the matrix products as sums: within 1e-13)
         rots = np.empty((length, eng.skeleton.num_joints, 4)) if len(chain) else np.empty((0, 0, 4))
         pos = np.empty((length, eng.skeleton.num_joints, 3))
-        jit.open_columns(chain, ta.rots, tb.rots, a_end, b_start, ta.motion.positions, tb.motion.positions, basis,
-                         rots, pos)
+        jit.open_columns(chain, ta.rots, tb.rots, a_prev, a_end, b_start, b_next, ta.motion.positions,
+                         tb.motion.positions, basis, rots, pos)
         return (rots if len(chain) else None), pos
     rots = None
     if len(chain):
         ref = tb.rots[b_start, chain]
-        seam = np.empty((2, len(chain), 3))
-        kernels.log_relative(np.stack([ta.rots[a_end, chain], ref]), ref, seam)
+        seam = np.empty((4, len(chain), 3))
+        kernels.log_relative(np.stack([ta.rots[a_prev, chain], ta.rots[a_end, chain], ref, tb.rots[b_next, chain]]),
+                             ref, seam)
+        rates = np.stack([seam[1], seam[1] - seam[0], seam[2], seam[3] - seam[2]])
         rots = np.empty((length, eng.skeleton.num_joints, 4))
         part = np.empty((length, len(chain), 4))
-        kernels.exp_relative((basis @ seam.reshape(2, -1)).reshape(length, len(chain), 3), ref, part)
+        kernels.exp_relative((basis @ rates.reshape(4, -1)).reshape(length, len(chain), 3), ref, part)
         rots[:, chain] = part
-    seam = np.stack([ta.motion.positions[a_end].ravel(), tb.motion.positions[b_start].ravel()])
-    return rots, (basis @ seam).reshape(length, -1, 3)
+    pa, pb = ta.motion.positions[a_end], tb.motion.positions[b_start]
+    seam = np.stack([pa, pa - ta.motion.positions[a_prev], pb, tb.motion.positions[b_next] - pb])
+    return rots, (basis @ seam.reshape(4, -1)).reshape(length, -1, 3)
 
 
 def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):
@@ -631,12 +639,12 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             res = spliced(rt, ta, tb, a_end, b_start, length, req.alpha, shared, beat=found.confidence[0])
         if res is None and found is not None:
             res = retrieval.replay(rt, found, skip_unconfident=True)
-    # The fallback where confidence is short of full; otherwise SLERP/LERP gives what the
+    # The fallback where confidence is short of full; otherwise a cubic Hermite gives what the
     # retrieved parts leave open (joints above the root, local translations).
     fallback = retrieval.fallback_method(length, ta.motion.fps)
     if res is not None and min(res.confidence) >= 1.0:
         # Every part retrieved: only the joints above the root and the local translations are
-        # left open, SLERPed and LERPed as the slerp method does (its other columns would be
+        # left open, made as the spline method makes them (its other columns would be
         # overwritten), without running the whole method.
         rots_fb, pos_fb = _open_columns(eng, ta, tb, a_end, b_start, length)
         fb_last = None  # B's place and the report come from the retrieval alone

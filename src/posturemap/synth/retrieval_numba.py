@@ -1063,25 +1063,28 @@ def spliced(rots, clip_start, clip_of, clip_end, s_a0, e_a0, s_a1, e_a1, s_b0, e
 
 
 @nb.njit(**_OPTS)
-def open_columns(chain, a_rots, b_rots, a_end, b_start, a_positions, b_positions, basis, rots, pos):
-    """What a fully retrieved transition leaves open, as the slerp method makes it
+def open_columns(chain, a_rots, b_rots, a_prev, a_end, b_start, b_next, a_positions, b_positions, basis, rots, pos):
+    """What a fully retrieved transition leaves open, as the spline method makes it
     (:func:`posturemap.synth.engine._open_columns`): the rotations of the joints ``chain`` above the
-    root into their columns of ``rots`` (L, J, 4), SLERPed from A's frame ``a_end`` to B's
-    ``b_start`` by the linear ``basis`` (L, 2), and every joint's local translation into
-    ``pos`` (L, J, 3), LERPed alike (``basis[t, 0] a + basis[t, 1] b``)."""
+    root into their columns of ``rots`` (L, J, 4), and every joint's local translation into
+    ``pos`` (L, J, 3), each the cubic Hermite ``basis`` (L, 4) from A's frame ``a_end`` (its rate
+    from ``a_prev``) to B's ``b_start`` (its rate to ``b_next``): rotations as rotation vectors
+    about B's, translations as they are."""
     n_l, n_c = basis.shape[0], chain.shape[0]
     if n_c:
-        q, ref = np.empty((2, n_c, 4)), np.empty((n_c, 4))
+        q, ref = np.empty((4, n_c, 4)), np.empty((n_c, 4))
         for m in range(n_c):
-            q[0, m], ref[m] = a_rots[a_end, chain[m]], b_rots[b_start, chain[m]]
-            q[1, m] = ref[m]
-        seam = np.empty((2, n_c, 3))
+            ref[m] = b_rots[b_start, chain[m]]
+            q[0, m], q[1, m] = a_rots[a_prev, chain[m]], a_rots[a_end, chain[m]]
+            q[2, m], q[3, m] = ref[m], b_rots[b_next, chain[m]]
+        seam = np.empty((4, n_c, 3))
         log_relative(q, ref, seam)
         lin = np.empty((n_l, n_c, 3))
         for t in range(n_l):
             for m in range(n_c):
                 for c in range(3):
-                    lin[t, m, c] = basis[t, 0] * seam[0, m, c] + basis[t, 1] * seam[1, m, c]
+                    lin[t, m, c] = (basis[t, 0] * seam[1, m, c] + basis[t, 1] * (seam[1, m, c] - seam[0, m, c])
+                                    + basis[t, 2] * seam[2, m, c] + basis[t, 3] * (seam[3, m, c] - seam[2, m, c]))
         part = np.empty((n_l, n_c, 4))
         exp_relative(lin, ref, part)
         for t in range(n_l):
@@ -1090,4 +1093,6 @@ def open_columns(chain, a_rots, b_rots, a_end, b_start, a_positions, b_positions
     for t in range(n_l):
         for j in range(pos.shape[1]):
             for c in range(3):
-                pos[t, j, c] = basis[t, 0] * a_positions[a_end, j, c] + basis[t, 1] * b_positions[b_start, j, c]
+                pa, pb = a_positions[a_end, j, c], b_positions[b_start, j, c]
+                pos[t, j, c] = (basis[t, 0] * pa + basis[t, 1] * (pa - a_positions[a_prev, j, c]) + basis[t, 2] * pb
+                                + basis[t, 3] * (b_positions[b_next, j, c] - pb))
