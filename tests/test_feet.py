@@ -707,16 +707,19 @@ def test_soft_ik_bends_the_knee_smoothly_near_full_reach():
     assert knee[0.05].min() > 0  # never fully straight
 
 
-@pytest.mark.parametrize("step, lift", [(9, 8.0), (9, 100.0), (40, 8.0), (0, 8.0)])
-def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift):
+@pytest.mark.parametrize("step, lift, shuffle", [(9, 8.0, 0.0), (9, 100.0, 0.0), (40, 8.0, 0.0), (0, 8.0, 0.0),
+                                                  (9, 100.0, 4.0), (9, 8.0, 40.0)])
+def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     # Planted at A's end, all through the gap and at B's start, on two different spots: the foot
-    # holds A's spot, steps (target moving monotonically, lifted on a half sine no higher than
-    # `lift` and half the step's length) and holds B's spot; it never jumps.
+    # holds A's spot, steps (target moving monotonically, lifted on a squared sine no higher than
+    # `lift` and half of the way beyond `shuffle`, easing off the floor and onto it) and holds
+    # B's spot; it never jumps. A way shorter than `shuffle` slides: the same target, no lift.
     length = 20
     h = np.zeros(length)
     horiz = np.zeros((length, 3))
     a_spot, b_spot = np.array([0.0, 0, 0]), np.array([30.0, 0, 4.0])
-    w, target, raised = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, 0.0, 1.0, step=step, lift=lift)
+    w, target, raised = lock_weights_and_targets(h, horiz, True, a_spot, True, b_spot, 0.0, 1.0, step=step, lift=lift,
+                                                 shuffle=shuffle)
     assert np.all(w == 1)
     k = min(step, length - 2)
     k0 = (length - k) // 2
@@ -729,9 +732,14 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift):
     moves = np.linalg.norm(np.diff(target, axis=0), axis=1)
     assert moves.max() <= dist * 1.5 / (k + 1) + 1e-9
     assert not raised[:k0].any() and not raised[k0 + k:].any()
-    if k:
-        assert raised.max() == pytest.approx(min(lift, dist / 2), rel=0.05)
+    high = min(lift, max(dist - shuffle, 0.0) / 2)
+    if k and high > 0:
+        assert raised.max() == pytest.approx(high, rel=0.05)
         assert np.all(raised[k0: k0 + k] > 0)
+        rise = np.diff(np.r_[0.0, raised[k0: k0 + k], 0.0])  # from the last frame on the floor to the next
+        assert abs(rise[0]) < 0.5 * np.abs(rise).max() and abs(rise[-1]) < 0.5 * np.abs(rise).max()
+    else:
+        assert not raised.any()
 
 
 def test_stance_windows_give_each_moving_foot_its_own_part_of_the_gap_farthest_first():
@@ -1283,6 +1291,41 @@ def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(s
     results = lock_both(sk, chains, rots, risen, up, a_feet, b_feet, fps, a_toes=a_toes, b_toes=b_toes, **kw)
     np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
     np.testing.assert_array_equal(results["numpy"][1][:, 0], np.r_[np.ones(3), np.zeros(length - 3)])
+
+
+def test_a_toe_planted_at_as_end_stays_put_after_a_short_run_there(sample_clips):
+    # The glide above, but A's left ankle stands still at A's end and the given contacts hold it
+    # over the first one or two new frames (no longer than the lift's fade at the seam): the toe
+    # is then held where the run left it, up to SEAM_TOE_S more frames, instead of being swept
+    # away low over the floor at once (its lift crammed into the seam's fade bent a straight
+    # knee: bow into dance). A run of three frames is past the fade: nothing is held after it.
+    # Compiled and numpy alike.
+    m = sample_clips["walk"]
+    sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.8)
+    gpos0, floor, a_feet, b_feet = glide_context(sk, up, chains, toes, rots, pos, step)
+    a_feet[0, 0] = a_feet[1, 0]  # the left ankle still at A's end: planted
+    a_toes = gpos0[0, toes] - np.array([2.0, 1.0])[:, None, None] * step
+    b_toes = gpos0[-1, toes] + np.array([1.0, 2.0])[:, None, None] * step
+    a_toes[0, 0] = a_toes[1, 0]  # and its toe
+    most = round(feet.SEAM_TOE_S * fps)
+    fade = feet._fade_frames(fps)
+    assert fade == 2 and most == 6
+    horizontal = np.arange(3) != up
+    kw = dict(body=body, toe_floor=floor, toes=toes, a_toes=a_toes, b_toes=b_toes)
+    for run in (1, 2, 3):
+        contacts = np.zeros((length, len(chains)), dtype=bool)
+        contacts[:run, 0] = True
+        results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, **kw)
+        np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
+        np.testing.assert_array_equal(results["numba"][1], results["numpy"][1])
+        r, w = results["numpy"]
+        held = run + most if run <= fade else run
+        np.testing.assert_array_equal(w[:, 0] > 0, np.arange(length) < held, err_msg=f"run {run}")
+        g1 = fk(sk.parents, r, pos)[1][:, toes[0]][:, horizontal]
+        if run <= fade:  # the toe stays where the run left it
+            assert np.abs(g1[run: held] - g1[run - 1]).max() < 0.005 * body, run
+        else:  # let go with the run, it moves off with the body (its offset carried off smoothly)
+            assert np.linalg.norm(g1[run + most - 1] - g1[run - 1]) > 2 * np.linalg.norm(step), run
 
 
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):

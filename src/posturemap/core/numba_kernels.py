@@ -625,11 +625,13 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
     interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
     ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them)
-    step one after another (:func:`posturemap.synth.feet.stance_windows`); weights (L, n) out.
+    step one after another (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step
+    lifts the foot (half of the rest of its way, ``lift`` at most); weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
-    seam whose foot no run holds there stays on its spot while the new frames keep it low, at most
+    seam whose foot no run holds there (or a run of at most clear_fade frames, then from where it
+    leaves the toe) stays on its spot while the new frames keep it low, at most
     toe_most frames and ``(L - toe_gap) // 2``, toe_gap frames free before a held one, and no
     longer than lets its offset pass on to the next held frame's at toe_catch per frame (length
     unit; ``SEAM_TOE_S``, ``SEAM_TOE_GAP``, ``SEAM_TOE_CATCH``; ``posturemap.synth.feet._hold_seam_toes``).
@@ -738,7 +740,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     ya, yb, stepping = ea + (xa - ea) * (reach / far), eb + (xb - eb) * (reach / far), True
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
-            high = min(lift, 0.5 * math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2))
+            high = min(lift, 0.5 * max(math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2) - stand, 0.0))
             mid = (start + stop - 1) // 2
             ma, mb = gpos[mid, ankle, a_], gpos[mid, ankle, b_]
             # The foot turns about its toe, held where it was at the spot's frame: the toe's place
@@ -759,7 +761,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                         uu = (i - k0 + 1) / (k + 1.0)
                         ss = uu * uu * (3.0 - 2.0 * uu)
                         sa, sb, ref = xa + ss * (ya - xa), xb + ss * (yb - xb), ss
-                        raised[u] = high * math.sin(math.pi * uu)
+                        raised[u] = high * math.sin(math.pi * uu) ** 2
                 elif from_a:
                     sa, sb, ref = xa, xb, 0.0
                 elif to_b:
@@ -780,36 +782,45 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
             for side in range(2):
                 if side == 0:
                     planted = _planted(a_toes, 1, 0, leg, up, tf, height_tol, speed_tol)
-                    sa, sb, first = a_toes[1, leg, a_], a_toes[1, leg, b_], 0
+                    sa, sb = a_toes[1, leg, a_], a_toes[1, leg, b_]
                 else:
                     planted = _planted(b_toes, 0, 1, leg, up, tf, height_tol, speed_tol)
-                    sa, sb, first = b_toes[0, leg, a_], b_toes[0, leg, b_], n_l - 1
-                if not planted or on[first]:
+                    sa, sb = b_toes[0, leg, a_], b_toes[0, leg, b_]
+                if not planted:
                     continue
-                n = 0
-                while n < min(toe_most, (n_l - toe_gap) // 2):
+                n0 = 0  # the frames a run holds from the seam: the toe stays where the run leaves it
+                while n0 < n_l and on[n0 if side == 0 else n_l - 1 - n0]:
+                    n0 += 1
+                if n0 == n_l or n0 > clear_fade:  # after a longer run the lift is not cut short at the seam
+                    continue
+                if n0 > 0:
+                    f = n0 - 1 if side == 0 else n_l - n0
+                    sa = target[f, 0] + gpos[f, toe, a_] - gpos[f, ankle, a_]
+                    sb = target[f, 1] + gpos[f, toe, b_] - gpos[f, ankle, b_]
+                n = n0
+                while n < min(n0 + toe_most, (n_l - toe_gap) // 2):
                     f = n if side == 0 else n_l - 1 - n
                     if on[f] or gpos[f, toe, up] >= tf + height_tol:
                         break
                     n += 1
                 after = n_l  # the next frame held already (n_l: the other seam, where the offset is 0)
-                for i in range(n_l):
+                for i in range(n0, n_l):
                     f = i if side == 0 else n_l - 1 - i
                     if on[f]:
                         after = i
                         break
-                n = min(n, max(after - toe_gap, 0))  # toe_gap frames free before it
+                n = min(n, max(after - toe_gap, n0))  # toe_gap frames free before it
                 ga, gb = 0.0, 0.0
                 if after < n_l:
                     f = after if side == 0 else n_l - 1 - after
                     ga, gb = target[f, 0] - gpos[f, ankle, a_], target[f, 1] - gpos[f, ankle, b_]
-                while n > 0:  # the offset passes on to that frame's at most toe_catch per frame
+                while n > n0:  # the offset passes on to that frame's at most toe_catch per frame
                     f = n - 1 if side == 0 else n_l - n
                     oa, ob = sa - gpos[f, toe, a_] - ga, sb - gpos[f, toe, b_] - gb
                     if math.sqrt(oa * oa + ob * ob) <= toe_catch * (after - n + 1):
                         break
                     n -= 1
-                for i in range(n):
+                for i in range(n0, n):
                     f = i if side == 0 else n_l - 1 - i
                     on[f] = True
                     weight[f] = 1.0

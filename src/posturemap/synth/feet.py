@@ -40,7 +40,9 @@ in-between frames are made:
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
    low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
    ``SEAM_TOE_CATCH`` (the foot is not thrown across in a few frames): otherwise it slid off in
-   the first frames;
+   the first frames. So does one whose run from the seam ends within the swinging toe's lift fade
+   there (``CLEAR_FADE_S``), from where the run leaves it: the foot rolls off its toe instead of
+   sweeping it away low, a sweep whose lift, crammed into that fade, bent a straight knee at once;
 4. a swinging foot clears the floor: while it is in the air, its toe (where the foot has a toe
    joint: :func:`posturemap.core.joints.leg_toes`) is kept at least
    ``TOE_CLEAR`` leg lengths above the floor once it moves at ``CLEAR_SPEED[1]`` leg lengths per
@@ -82,7 +84,8 @@ STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, o
 #               where the foot lands or lifts off far from it), and of a run let go at a seam
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): interpolated feet planted at both seams whose spots lie
-#                    farther apart than this step one after another (stance_windows)
+#                    farther apart than this step one after another (stance_windows); a step lifts the
+#                    foot by half of its way beyond this (STEP_LIFT at most): a shorter shift slides
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
@@ -383,7 +386,7 @@ def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
                              speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None,
-                             toe_seams=None):
+                             toe_seams=None, shuffle=0.0):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -401,15 +404,18 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
-    with a smoothstep while the foot rises by ``lift`` (at most half the step's length) on a
-    half sine and comes down on B's spot. The lift (L,) is added to the ankle's height.
+    with a smoothstep while the foot rises by ``lift`` (at most half of the step's length beyond
+    ``shuffle``) on a squared sine and comes down on B's spot. The lift (L,) is added to the
+    ankle's height.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
 
-    ``toe_seams`` ``(a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most[, catch])``, with
-    ``toe``: a toe planted at a seam (the heel may be up) stays on its spot while ``low`` (L,) says
-    the new frames keep it low, at most ``most`` frames, and no longer than lets its offset pass
-    on at ``catch`` per frame (:func:`_hold_seam_toes`).
+    ``toe_seams`` ``(a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most[, catch[, after_run]])``,
+    with ``toe``: a toe planted at a seam (the heel may be up) stays on its spot while ``low`` (L,)
+    says the new frames keep it low, at most ``most`` frames, and no longer than lets its offset
+    pass on at ``catch`` per frame; after a run of at most ``after_run`` frames from the seam, where
+    the run leaves it (:func:`_hold_seam_toes`). ``shuffle``: a step lifts the foot by half of its
+    way beyond this (:func:`_step`).
 
     ``toe`` (L, 3), when given: per frame the toe's horizontal place relative to the ankle. A
     held foot then turns about its toe, not its ankle: the target moves back by how far the toe
@@ -454,13 +460,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         spot = np.empty((n, 3))
         ref = np.zeros(n)  # where the spot is between the run's first spot and its last, 0 to 1
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
-            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window)
+            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
-            ref = _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift)
+            ref = _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift,
+                        None, shuffle)
         elif from_a:
             spot[:] = a_spot
         elif to_b and 0 < step <= n - 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
-            ref = _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift)
+            ref = _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift,
+                        None, shuffle)
         elif to_b:
             spot[:] = b_spot
             ref[:] = 1.0
@@ -478,34 +486,47 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
 
 def _hold_seam_toes(weight, target, toe, a_toe_on, a_toe_spot, b_toe_on, b_toe_spot, low, most, catch=np.inf,
-                    horiz=None):
+                    after_run=0, horiz=None):
     """A toe planted at a seam stays on its spot while the new frames keep it low, in place: from
     A's end (``a_toe_on``, its spot ``a_toe_spot``), when its first new frame is not held, the frames
     ``low`` (L,) up to the first that is not, at most ``most`` of them and ``(L - SEAM_TOE_GAP) // 2``
     (so that two seams' holds leave that many frames between them), hold the ankle where the toe
     stays on the spot (``toe`` (L, 3) the toe's horizontal place about the ankle); at least
     ``SEAM_TOE_GAP`` frames are left free before a frame held already (held through a short gap,
-    a toe jumped to B's spot at B's seam). The same back from B's start, after A's. With ``horiz``
-    (L, 3), the ankle's place: the hold ends early enough for its offset to pass to the next held
-    frame's (or to nothing at the other seam) at most ``catch`` per frame (length unit), so that
-    the foot is not thrown across in the few frames between two spots."""
+    a toe jumped to B's spot at B's seam). Where a run holds the foot from the seam for at most
+    ``after_run`` frames, the toe is held the same way after the run, where the run leaves it
+    (``most`` more frames at most): the foot lifts off its toe, as it does when the heel is up at
+    the seam. Let go with the run, the toe swept away low over the floor at once, and the lift
+    that clears it, faded in over the seam's ``CLEAR_FADE_S``, bent a straight knee in a frame or
+    two (bow into dance: the knee 5.6 cm per frame squared at A's seam, the bow at most 0.01).
+    The same back from B's start, after A's. With ``horiz`` (L, 3), the ankle's place: the hold
+    ends early enough for its offset to pass to the next held frame's (or to nothing at the other
+    seam) at most ``catch`` per frame (length unit), so that the foot is not thrown across in the
+    few frames between two spots."""
     length = len(weight)
     forward = np.arange(length)
     for on, spot, frames in ((a_toe_on, a_toe_spot, forward), (b_toe_on, b_toe_spot, forward[::-1])):
-        if not on or length == 0 or weight[frames[0]] > 0:
+        if not on or length == 0:
             continue
-        n = 0
-        while n < min(most, (length - SEAM_TOE_GAP) // 2) and low[frames[n]] and weight[frames[n]] == 0:
+        n0 = 0  # the frames a run holds from the seam: the toe stays where the run leaves it
+        while n0 < length and weight[frames[n0]] > 0:
+            n0 += 1
+        if n0 == length or n0 > after_run:
+            continue
+        if n0 > 0:
+            spot = target[frames[n0 - 1]] + toe[frames[n0 - 1]]
+        n = n0
+        while n < min(n0 + most, (length - SEAM_TOE_GAP) // 2) and low[frames[n]] and weight[frames[n]] == 0:
             n += 1
-        held = np.flatnonzero(weight[frames] > 0)
+        held = np.flatnonzero(weight[frames[n0:]] > 0) + n0
         after = length if len(held) == 0 else int(held[0])  # the next held frame; `length`: the other seam
-        n = min(n, max(after - SEAM_TOE_GAP, 0))
+        n = min(n, max(after - SEAM_TOE_GAP, n0))
         if horiz is not None:
             goal = np.zeros(3) if after == length else target[frames[after]] - horiz[frames[after]]
-            while n > 0 and np.linalg.norm(spot - toe[frames[n - 1]] - horiz[frames[n - 1]] - goal) > catch * (
+            while n > n0 and np.linalg.norm(spot - toe[frames[n - 1]] - horiz[frames[n - 1]] - goal) > catch * (
                     after - n + 1):
                 n -= 1
-        hold = frames[:n]
+        hold = frames[n0:n]
         weight[hold] = 1.0
         target[hold] = spot - toe[hold]
 
@@ -516,11 +537,15 @@ def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
 
 
 def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float,
-          window=None) -> np.ndarray:
+          window=None, shuffle: float = 0.0) -> np.ndarray:
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
-    k0 + k - 1`` instead. Returns how far the step has gone at each frame (n,), 0 to 1."""
+    k0 + k - 1`` instead. The foot rises on a squared sine (no vertical speed at either end; on a
+    half sine it rose from rest in one frame) to ``lift`` at most and half of the way beyond
+    ``shuffle`` (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor;
+    lifted by half of the whole way, the lock's steps cost 5-frame gaps 5% of their L2P on the
+    held-out styles). Returns how far the step has gone at each frame (n,), 0 to 1."""
     n = len(spot)
     if window is None:
         k = max(0, min(step, n - 2))
@@ -534,7 +559,8 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
         u = np.arange(1, k + 1) / (k + 1.0)
         share[k0: k0 + k] = u * u * (3 - 2 * u)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
-        raised[k0: k0 + k] = min(lift, 0.5 * float(np.linalg.norm(last - first))) * np.sin(np.pi * u)
+        high = min(lift, 0.5 * max(float(np.linalg.norm(last - first)) - shuffle, 0.0))
+        raised[k0: k0 + k] = high * np.sin(np.pi * u) ** 2
     return share
 
 
@@ -616,7 +642,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     frame (the last, at B) does not hold, stays on its spot while the new frames keep it that low,
     at most ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on to the next
     held frame's at ``SEAM_TOE_CATCH``: a heel rises from a planted toe, and a retrieved segment's
-    toe, in another phase of its step, slid off it at once. Without ``toe_floor``, that test's
+    toe, in another phase of its step, slid off it at once. So does a toe whose foot a run holds
+    there for no longer than the lift's fade at the seam (``CLEAR_FADE_S``), after the run. Without ``toe_floor``, that test's
     floor is the leg's lowest of its own four seam toes (a toe held still in the air then counts
     as planted: the engine always gives the context's floor).
 
@@ -684,14 +711,15 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
             b_t = _planted(b_toes[0, leg], b_toes[1, leg], tf, up, height_tol, speed_tol)
             toe_seams = (a_t, a_toes[1, leg] * flat, b_t, b_toes[0, leg] * flat,
                          gpos[:, toes[leg], up] < tf + height_tol, round(SEAM_TOE_S * fps),
-                         SEAM_TOE_CATCH * body / fps)
+                         SEAM_TOE_CATCH * body / fps, int(_fade_frames(fps)))
         if not np.isnan(moves[leg]):  # interpolated and planted at both seams: held through, one step
             on = np.ones(length, dtype=bool)
         weight, target, raised = lock_weights_and_targets(h, horiz, a_on, a_feet[1, leg] * flat, b_on,
                                                           b_feet[0, leg] * flat, floor, height_tol, speed, speed_tol,
                                                           on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
                                                           None if windows[leg, 0] < 0 else windows[leg],
-                                                          (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams)
+                                                          (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams,
+                                                          STAND_STEP * body)
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
