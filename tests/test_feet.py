@@ -434,7 +434,8 @@ def test_a_held_foot_turns_about_its_toe():
     np.testing.assert_allclose(ts[k0 + 6:] + toe[k0 + 6:], np.tile(b_spot + toe[-1], (length - k0 - 6, 1)),
                                atol=1e-12)
     moved = np.linalg.norm(np.diff(ts + toe, axis=0), axis=1)
-    assert moved.max() <= np.linalg.norm(b_spot + toe[-1] - a_spot - toe[0]) * 1.5 / 7 + 1e-9  # no jump
+    # No jump: a smoothstep over the step's middle (1 - 2 STEP_LAG) of its 7 intervals.
+    assert moved.max() <= np.linalg.norm(b_spot + toe[-1] - a_spot - toe[0]) * 1.5 / (7 * (1 - 2 * feet.STEP_LAG)) + 1e-9
 
 
 def test_swing_offsets_carry_the_runs_corrections_smoothly():
@@ -572,7 +573,8 @@ def test_a_run_held_to_one_seam_steps_there_when_it_lands_far_and_lets_go_where_
     k0 = 5 + (15 - step) // 2
     np.testing.assert_array_equal(target[5:k0], np.tile([10.0, 0, 0], (k0 - 5, 1)))
     np.testing.assert_array_equal(target[k0 + step:], np.tile(b_spot, (length - k0 - step, 1)))
-    assert np.all(np.diff(target[k0 - 1: k0 + step + 1, 0]) > 0)
+    travel = np.diff(target[k0 - 1: k0 + step + 1, 0])
+    assert np.all(travel >= 0) and travel[step // 2] > 0  # on its way, rising and coming down in place
     assert np.all(raised[k0: k0 + step] > 0) and raised.max() <= 4.0 and not raised[:k0].any()
     # Within the reach, or without room for a step, B's spot all through, as before.
     for kw in ({"reach": 40.0}, {"reach": 10.0, "step": 14}):
@@ -711,9 +713,10 @@ def test_soft_ik_bends_the_knee_smoothly_near_full_reach():
                                                   (9, 100.0, 4.0), (9, 8.0, 40.0)])
 def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     # Planted at A's end, all through the gap and at B's start, on two different spots: the foot
-    # holds A's spot, steps (target moving monotonically, lifted on a squared sine no higher than
-    # `lift` and half of the way beyond `shuffle`, easing off the floor and onto it) and holds
-    # B's spot; it never jumps. A way shorter than `shuffle` slides: the same target, no lift.
+    # holds A's spot, steps (lifted on a squared sine no higher than `lift` and half of the way
+    # beyond `shuffle`, easing off the floor and onto it; the target moving monotonically, in
+    # the step's middle only: the foot rises and comes down in place) and holds B's spot; it never
+    # jumps. A way shorter than `shuffle` slides: the same target, no lift.
     length = 20
     h = np.zeros(length)
     horiz = np.zeros((length, 3))
@@ -728,9 +731,16 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     along = (target - a_spot) @ (b_spot - a_spot) / np.sum((b_spot - a_spot) ** 2)
     assert np.all(np.diff(along) >= 0) and along[0] == 0 and along[-1] == 1
     dist = np.linalg.norm(b_spot - a_spot)
-    # The largest move in one frame: a smoothstep over k + 1 intervals moves at most 1.5 / (k + 1).
+    # The largest move in one frame: a smoothstep over the middle (1 - 2 STEP_LAG) (k + 1) intervals
+    # moves at most 1.5 / ((k + 1) (1 - 2 STEP_LAG)); the first and last STEP_LAG of the step stay.
     moves = np.linalg.norm(np.diff(target, axis=0), axis=1)
-    assert moves.max() <= dist * 1.5 / (k + 1) + 1e-9
+    assert moves.max() <= dist * 1.5 / ((k + 1) * (1 - 2 * feet.STEP_LAG)) + 1e-9
+    u = np.arange(1, k + 1) / (k + 1.0)
+    np.testing.assert_array_equal(target[k0: k0 + k][u <= feet.STEP_LAG], np.tile(a_spot, ((u <= feet.STEP_LAG).sum(), 1)))
+    np.testing.assert_array_equal(target[k0: k0 + k][u >= 1 - feet.STEP_LAG],
+                                  np.tile(b_spot, ((u >= 1 - feet.STEP_LAG).sum(), 1)))
+    if k >= 3:
+        assert 0 < along[k0 + k // 2] < 1  # it does travel in the middle
     assert not raised[:k0].any() and not raised[k0 + k:].any()
     high = min(lift, max(dist - shuffle, 0.0) / 2)
     if k and high > 0:
@@ -836,13 +846,14 @@ def _pair_engine(bandai_files, a_name: str, b_name: str):
 def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
     # Transitions from a bow to a walk, B placed to continue A: between two frames where a foot
     # is fully locked it moves at most as fast as the step's smoothstep allows (1.5 / (step + 1)
-    # of the largest A-to-B distance the lock accepts; the step is shorter where both feet step
+    # / (1 - 2 STEP_LAG) of the largest A-to-B distance the lock accepts, the foot travelling in
+    # the step's middle only; the step is shorter where both feet step
     # in turn, each in half the gap). Without the step (STEP_S = 0, as before it existed) a foot
     # planted at both seams jumps from A's spot to B's in one frame.
     e, a, b = _pair_engine(bandai_files, "bow_normal_001", "walk_normal_001")
     ankles = [c[2] for c in e._legs]
     leg = leg_length(a.skeleton)
-    bound = MAX_DRIFT[1] * leg * 1.5 / (min(round(STEP_S * a.fps), 20 // 2 - 2) + 1)
+    bound = MAX_DRIFT[1] * leg * 1.5 / (min(round(STEP_S * a.fps), 20 // 2 - 2) + 1) / (1 - 2 * feet.STEP_LAG)
 
     def worst_held_move():
         rng = np.random.default_rng(3)

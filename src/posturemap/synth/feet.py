@@ -83,6 +83,8 @@ MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while 
 STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, or a seam's spot and
 #               where the foot lands or lifts off far from it), and of a run let go at a seam
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
+STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fifth, comes down in place
+#                  over the last, and travels in between (travelling from the first frame, low, it slid)
 STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): interpolated feet planted at both seams whose spots lie
 #                    farther apart than this step one after another (stance_windows); a step lifts the
 #                    foot by half of its way beyond this (STEP_LIFT at most): a shorter shift slides
@@ -404,8 +406,9 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
-    with a smoothstep while the foot rises by ``lift`` (at most half of the step's length beyond
-    ``shuffle``) on a squared sine and comes down on B's spot. The lift (L,) is added to the
+    with a smoothstep (in place over the step's first and last ``STEP_LAG``) while the foot rises
+    by ``lift`` (at most half of the step's length beyond ``shuffle``) on a squared sine and comes
+    down on B's spot. The lift (L,) is added to the
     ankle's height.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
@@ -541,8 +544,9 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
-    k0 + k - 1`` instead. The foot rises on a squared sine (no vertical speed at either end; on a
-    half sine it rose from rest in one frame) to ``lift`` at most and half of the way beyond
+    k0 + k - 1`` instead. The foot travels on a smoothstep between the step's first and last
+    ``STEP_LAG`` and rises on a squared sine over the whole step (no vertical speed at either end;
+    on a half sine it rose from rest in one frame) to ``lift`` at most and half of the way beyond
     ``shuffle`` (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor;
     lifted by half of the whole way, the lock's steps cost 5-frame gaps 5% of their L2P on the
     held-out styles). Returns how far the step has gone at each frame (n,), 0 to 1."""
@@ -557,7 +561,8 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     spot[:k0], spot[k0 + k:] = first, last
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
-        share[k0: k0 + k] = u * u * (3 - 2 * u)
+        v = np.clip((u - STEP_LAG) / (1.0 - 2.0 * STEP_LAG), 0.0, 1.0)
+        share[k0: k0 + k] = v * v * (3 - 2 * v)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
         high = min(lift, 0.5 * max(float(np.linalg.norm(last - first)) - shuffle, 0.0))
         raised[k0: k0 + k] = high * np.sin(np.pi * u) ** 2
@@ -673,7 +678,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         jit.lock_legs(sk.parents, legs, rots, grot, gpos, up, np.ascontiguousarray(a_feet, dtype=float),
                       np.ascontiguousarray(b_feet, dtype=float), body, height_tol, speed_tol, planted,
                       MAX_DRIFT[0], MAX_DRIFT[1], IK_EPS, SOFT_REACH, KNEE_HINGE, round(STEP_S * fps),
-                      STEP_LIFT * body, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
+                      STEP_LIFT * body, STEP_LAG, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps, weights)
