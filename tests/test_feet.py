@@ -435,7 +435,8 @@ def test_a_held_foot_turns_about_its_toe():
                                atol=1e-12)
     moved = np.linalg.norm(np.diff(ts + toe, axis=0), axis=1)
     # No jump: a smoothstep over the step's middle (1 - 2 STEP_LAG) of its 7 intervals.
-    assert moved.max() <= np.linalg.norm(b_spot + toe[-1] - a_spot - toe[0]) * 1.5 / (7 * (1 - 2 * feet.STEP_LAG)) + 1e-9
+    way = np.linalg.norm(b_spot + toe[-1] - a_spot - toe[0])
+    assert moved.max() <= way * 1.5 / (7 * (1 - 2 * feet.STEP_LAG)) + 1e-9
 
 
 def test_swing_offsets_carry_the_runs_corrections_smoothly():
@@ -736,9 +737,9 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     moves = np.linalg.norm(np.diff(target, axis=0), axis=1)
     assert moves.max() <= dist * 1.5 / ((k + 1) * (1 - 2 * feet.STEP_LAG)) + 1e-9
     u = np.arange(1, k + 1) / (k + 1.0)
-    np.testing.assert_array_equal(target[k0: k0 + k][u <= feet.STEP_LAG], np.tile(a_spot, ((u <= feet.STEP_LAG).sum(), 1)))
-    np.testing.assert_array_equal(target[k0: k0 + k][u >= 1 - feet.STEP_LAG],
-                                  np.tile(b_spot, ((u >= 1 - feet.STEP_LAG).sum(), 1)))
+    rising, landing = u <= feet.STEP_LAG, u >= 1 - feet.STEP_LAG
+    np.testing.assert_array_equal(target[k0: k0 + k][rising], np.tile(a_spot, (rising.sum(), 1)))
+    np.testing.assert_array_equal(target[k0: k0 + k][landing], np.tile(b_spot, (landing.sum(), 1)))
     if k >= 3:
         assert 0 < along[k0 + k // 2] < 1  # it does travel in the middle
     assert not raised[:k0].any() and not raised[k0 + k:].any()

@@ -602,9 +602,8 @@ def _stance_windows(moves, length, step, least):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
-              curve_v,
-              curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap, toe_catch,
-              weights):
+              curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
+              toe_catch, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -616,8 +615,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     and lift (length unit): the step between two spots of one run (A's and B's, or a seam's and
     where the foot lands or lifts off far from it) and the frames let go at a seam whose foot moves,
     step_lag the share of a step's frames at each end where the foot rises or comes down in place
-    (``STEP_LAG``); toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes' lowest in the context
-    (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
+    (``STEP_LAG``); toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes'
+    lowest in the context (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame), curve_v/curve_h (length unit
     per frame / length unit: a library's clearance by speed, empty for none) and clear_r (frames):
     the swinging toe's clearance (``TOE_CLEAR``, ``CLEAR_SPEED``, ``CLEAR_S`` of

@@ -408,8 +408,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
     with a smoothstep (in place over the step's first and last ``STEP_LAG``) while the foot rises
     by ``lift`` (at most half of the step's length beyond ``shuffle``) on a squared sine and comes
-    down on B's spot. The lift (L,) is added to the
-    ankle's height.
+    down on B's spot. The lift (L,) is added to the ankle's height.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
 
@@ -648,9 +647,9 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     at most ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on to the next
     held frame's at ``SEAM_TOE_CATCH``: a heel rises from a planted toe, and a retrieved segment's
     toe, in another phase of its step, slid off it at once. So does a toe whose foot a run holds
-    there for no longer than the lift's fade at the seam (``CLEAR_FADE_S``), after the run. Without ``toe_floor``, that test's
-    floor is the leg's lowest of its own four seam toes (a toe held still in the air then counts
-    as planted: the engine always gives the context's floor).
+    there for no longer than the lift's fade at the seam (``CLEAR_FADE_S``), after the run.
+    Without ``toe_floor``, that test's floor is the leg's lowest of its own four seam toes (a toe
+    held still in the air then counts as planted: the engine always gives the context's floor).
 
     Returns the lock weights (L, n_legs): 1 where a foot is held on its spot, the fraction of the
     way to it where the spot is far from the foot (``MAX_DRIFT``), 0 in the air (where the runs'
