@@ -1305,20 +1305,27 @@ def test_a_toe_planted_at_as_end_stays_put_through_the_lock_compiled_and_numpy(s
     np.testing.assert_array_equal(results["numpy"][1][:, 0], np.r_[np.ones(3), np.zeros(length - 3)])
 
 
-def test_a_toe_planted_at_as_end_stays_put_after_a_short_run_there(sample_clips):
-    # The glide above, but A's left ankle stands still at A's end and the given contacts hold it
-    # over the first one or two new frames (no longer than the lift's fade at the seam): the toe
-    # is then held where the run left it, up to SEAM_TOE_S more frames, instead of being swept
-    # away low over the floor at once (its lift crammed into the seam's fade bent a straight
-    # knee: bow into dance). A run of three frames is past the fade: nothing is held after it.
-    # Compiled and numpy alike.
+@pytest.mark.parametrize("seam", ["a", "b"])
+def test_a_toe_planted_at_a_seam_stays_put_after_a_short_run_there(sample_clips, seam):
+    # The glide above, but the left ankle stands still at the seam (A's end, or B's start) and the
+    # given contacts hold it over the gap's first (last) one or two frames, no longer than the
+    # lift's fade at the seam: the toe is then held where the run left it, up to SEAM_TOE_S more
+    # frames, instead of being swept away low over the floor at once (its lift crammed into the
+    # seam's fade bent a straight knee: bow into dance). Where the run leaves it, not the seam's
+    # own toe spot, which is put 0.02 leg lengths aside here. A run of three frames is past the
+    # fade: nothing is held after it. Compiled and numpy alike.
     m = sample_clips["walk"]
     sk, up, chains, toes, body, length, fps, rots, pos, step = gliding_left_toe(m, 0.8)
     gpos0, floor, a_feet, b_feet = glide_context(sk, up, chains, toes, rots, pos, step)
-    a_feet[0, 0] = a_feet[1, 0]  # the left ankle still at A's end: planted
     a_toes = gpos0[0, toes] - np.array([2.0, 1.0])[:, None, None] * step
     b_toes = gpos0[-1, toes] + np.array([1.0, 2.0])[:, None, None] * step
-    a_toes[0, 0] = a_toes[1, 0]  # and its toe
+    aside = 0.02 * body * (np.arange(3) == (up + 1) % 3)
+    if seam == "a":
+        a_feet[0, 0] = a_feet[1, 0]  # the left ankle still at A's end: planted
+        a_toes[:, 0] = a_toes[1, 0] + aside  # and its toe, a little aside
+    else:
+        b_feet[1, 0] = b_feet[0, 0]
+        b_toes[:, 0] = b_toes[0, 0] + aside
     most = round(feet.SEAM_TOE_S * fps)
     fade = feet._fade_frames(fps)
     assert fade == 2 and most == 6
@@ -1326,18 +1333,22 @@ def test_a_toe_planted_at_as_end_stays_put_after_a_short_run_there(sample_clips)
     kw = dict(body=body, toe_floor=floor, toes=toes, a_toes=a_toes, b_toes=b_toes)
     for run in (1, 2, 3):
         contacts = np.zeros((length, len(chains)), dtype=bool)
-        contacts[:run, 0] = True
+        order = np.arange(length) if seam == "a" else np.arange(length)[::-1]  # frames from the seam on
+        contacts[order[:run], 0] = True
         results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, **kw)
         np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
         np.testing.assert_array_equal(results["numba"][1], results["numpy"][1])
         r, w = results["numpy"]
         held = run + most if run <= fade else run
-        np.testing.assert_array_equal(w[:, 0] > 0, np.arange(length) < held, err_msg=f"run {run}")
-        g1 = fk(sk.parents, r, pos)[1][:, toes[0]][:, horizontal]
-        if run <= fade:  # the toe stays where the run left it
-            assert np.abs(g1[run: held] - g1[run - 1]).max() < 0.005 * body, run
+        np.testing.assert_array_equal(w[order, 0] > 0, np.arange(length) < held, err_msg=f"run {run}")
+        g1 = fk(sk.parents, r, pos)[1][order, toes[0]][:, horizontal]  # from the seam on
+        left = g1[run - 1]  # where the run leaves the toe
+        if run <= fade:  # the toe stays there
+            assert np.abs(g1[run: held] - left).max() < 0.005 * body, run
+            seam_spot = (a_toes[1, 0] if seam == "a" else b_toes[0, 0])[horizontal]
+            assert np.linalg.norm(left - seam_spot) > 0.01 * body  # not the seam's own spot
         else:  # let go with the run, it moves off with the body (its offset carried off smoothly)
-            assert np.linalg.norm(g1[run + most - 1] - g1[run - 1]) > 2 * np.linalg.norm(step), run
+            assert np.linalg.norm(g1[run + most - 1] - left) > 2 * np.linalg.norm(step), run
 
 
 def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):

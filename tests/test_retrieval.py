@@ -9,6 +9,7 @@ match at B monotonically, and the library survives the map file.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import json
@@ -1544,7 +1545,8 @@ def test_a_splice_plants_the_feet_between_different_motions(engine, clips, monke
     assert lifted_with < lifted_without < 0.5 * without, (lifted_with, lifted_without, without)
 
 
-def test_a_fully_confident_transition_takes_the_open_columns_from_spline(model, clips):
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_a_fully_confident_transition_takes_the_open_columns_from_spline(model, clips, backend):
     # With every part retrieved at full confidence, the engine does not run a whole fallback:
     # it makes the joints above the root and the local translations alone, as cubic Hermites
     # from A's last frame and rate to B's first. They must be the spline method's. A library
@@ -1563,6 +1565,14 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_spline(model, 
     pos[:, others] += 1e-4 * (frames**2)[:, None, None]
     eng.add("walk", Motion(walk.skeleton, rots, pos, walk.fps))
     checked = 0
+    with kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext():
+        assert (retrieval._compiled() is None) == (backend == "numpy")
+        checked = _open_columns_match_spline(eng, top, others)
+    assert checked >= 22  # at least two gaps with B fixed and two with B moved
+
+
+def _open_columns_match_spline(eng, top, others) -> int:
+    checked = 0
     for (a_end, b_start, length), align in itertools.product(((40, 71, 30), (90, 136, 45), (150, 166, 15)),
                                                              (False, True)):
         kw = dict(length=length, a_end=a_end, b_start=b_start, align=align, foot_lock=False)
@@ -1577,10 +1587,11 @@ def test_a_fully_confident_transition_takes_the_open_columns_from_spline(model, 
         r_lin, p_lin = eng.generate("walk", "walk", method="slerp", **kw)
         assert np.abs(p[:, others] - p_lin[:, others]).max() > 0.01  # not the LERP
         checked += 1 + 10 * align
-    assert checked >= 22  # at least two gaps with B fixed and two with B moved
+    return checked
 
 
-def test_a_reference_joint_that_carries_the_trajectory_keeps_its_speed_through_the_seams(model, clips):
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_a_reference_joint_that_carries_the_trajectory_keeps_its_speed_through_the_seams(model, clips, backend):
     # run_normal_001's joint_Root moves with the runner (8.7 cm a frame); walk_normal_001's stays
     # at the origin, behind where A ends. The open columns' joint_Root must leave A at A's speed
     # and reach B at rest, not turn back at A's seam. Nothing else drives joint_Root.
@@ -1592,7 +1603,9 @@ def test_a_reference_joint_that_carries_the_trajectory_keeps_its_speed_through_t
     top = int(eng._chain[0])
     ta, tb = eng.tracks["run"], eng.tracks["walk"]
     a_end, b_start, length = 12, 162, 30
-    _, pos = engine_module._open_columns(eng, ta, tb, a_end, b_start, length)
+    with kernels.numpy_backend() if backend == "numpy" else contextlib.nullcontext():
+        assert (retrieval._compiled() is None) == (backend == "numpy")
+        _, pos = engine_module._open_columns(eng, ta, tb, a_end, b_start, length)
     path = np.concatenate([run.positions[a_end - 1: a_end + 1, top], pos[:, top], walk.positions[b_start:
                                                                                                b_start + 2, top]])
     acc = np.linalg.norm(np.diff(path, 2, axis=0), axis=-1)
