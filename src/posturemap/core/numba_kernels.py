@@ -575,6 +575,12 @@ def _planted(x, seam, near, leg, up, floor, height_tol, speed_tol):
 
 
 @nb.njit(**_OPTS)
+def _from_seam(i, side, n_l):
+    """The new frame ``i`` frames from a seam: from A's end (side 0) or back from B's start (1)."""
+    return i if side == 0 else n_l - 1 - i
+
+
+@nb.njit(**_OPTS)
 def _stance_windows(moves, length, step, least):
     """:func:`posturemap.synth.feet.stance_windows`: (n, 2) ``(k0, k)`` per leg, -1 for none."""
     n = moves.shape[0]
@@ -791,39 +797,39 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 if not planted:
                     continue
                 n0 = 0  # the frames a run holds from the seam: the toe stays where the run leaves it
-                while n0 < n_l and on[n0 if side == 0 else n_l - 1 - n0]:
+                while n0 < n_l and on[_from_seam(n0, side, n_l)]:
                     n0 += 1
                 if n0 == n_l or n0 > clear_fade:  # after a longer run the lift is not cut short at the seam
                     continue
                 if n0 > 0:
-                    f = n0 - 1 if side == 0 else n_l - n0
+                    f = _from_seam(n0 - 1, side, n_l)
                     sa = target[f, 0] + gpos[f, toe, a_] - gpos[f, ankle, a_]
                     sb = target[f, 1] + gpos[f, toe, b_] - gpos[f, ankle, b_]
                 n = n0
                 while n < min(n0 + toe_most, (n_l - toe_gap) // 2):
-                    f = n if side == 0 else n_l - 1 - n
+                    f = _from_seam(n, side, n_l)
                     if on[f] or gpos[f, toe, up] >= tf + height_tol:
                         break
                     n += 1
                 after = n_l  # the next frame held already (n_l: the other seam, where the offset is 0)
                 for i in range(n0, n_l):
-                    f = i if side == 0 else n_l - 1 - i
+                    f = _from_seam(i, side, n_l)
                     if on[f]:
                         after = i
                         break
                 n = min(n, max(after - toe_gap, n0))  # toe_gap frames free before it
                 ga, gb = 0.0, 0.0
                 if after < n_l:
-                    f = after if side == 0 else n_l - 1 - after
+                    f = _from_seam(after, side, n_l)
                     ga, gb = target[f, 0] - gpos[f, ankle, a_], target[f, 1] - gpos[f, ankle, b_]
                 while n > n0:  # the offset passes on to that frame's at most toe_catch per frame
-                    f = n - 1 if side == 0 else n_l - n
+                    f = _from_seam(n - 1, side, n_l)
                     oa, ob = sa - gpos[f, toe, a_] - ga, sb - gpos[f, toe, b_] - gb
                     if math.sqrt(oa * oa + ob * ob) <= toe_catch * (after - n + 1):
                         break
                     n -= 1
                 for i in range(n0, n):
-                    f = i if side == 0 else n_l - 1 - i
+                    f = _from_seam(i, side, n_l)
                     on[f] = True
                     weight[f] = 1.0
                     target[f, 0] = sa - (gpos[f, toe, a_] - gpos[f, ankle, a_])
