@@ -606,6 +606,82 @@ def test_alignment_makes_b_continue_a(clips, a, b, a_end, b_start, length, model
     assert abs(wrap(head_o[i1] - head_o[i0] - 0.5 * (w_a + w_b) * d)) < 1e-6
 
 
+def rechained(m: Motion, q0, p0) -> Motion:
+    """The clip with its reference node (joint_Root) held at rotation ``q0`` and translation ``p0``
+    and Hips carrying the motion: every joint from Hips down where it was."""
+    top, hips = 0, m.skeleton.index("Hips")
+    rots, pos = m.rotations.copy(), m.positions.copy()
+    gq = quat.mul(rots[:, top], rots[:, hips])
+    gp = pos[:, top] + quat.mul_vec(rots[:, top], pos[:, hips])
+    rots[:, top], pos[:, top] = q0, p0
+    inv = quat.inv(rots[:, top])
+    rots[:, hips], pos[:, hips] = quat.mul(inv, gq), quat.mul_vec(inv, gp - pos[:, top])
+    return Motion(m.skeleton, rots, pos, m.fps)
+
+
+def ground_offset(g: np.ndarray) -> np.ndarray:
+    """Horizontal distance (F,) from joint_Root to the point of the floor under Hips."""
+    d = g[:, 0] - g[:, 1]
+    d[:, UP] = 0.0
+    return np.linalg.norm(d, axis=1)
+
+
+@pytest.mark.parametrize("method", ["auto", "slerp", "damped"])
+def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, model, method):
+    # run_normal_001's and walk-back_normal_001's joint_Root run with the body, 3-8 cm from the
+    # floor under Hips (root motion, as a game rig's root bone): B is placed with it, and the new
+    # frames take it there, smoothly and near the body.
+    ca, cb = clips[RUN], clips[BACK]
+    engine = TransitionEngine(model)
+    assert engine.add("run", ca).chain_moves and engine.add("back", cb).chain_moves
+    assert not engine.add("walk", clips[WALK]).chain_moves
+    a_end, b_start, length = 15, 5, 20
+    i1 = a_end + 1 + length
+    out = transition(ca, cb, model, length=length, a_end=a_end, b_start=b_start, method=method)
+    g = out.global_positions()
+    # The body is where it is when the same motion is carried by Hips alone under a fixed node.
+    still = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
+    ref = transition(rechained(ca, *still), rechained(cb, *still), model, length=length, a_end=a_end,
+                     b_start=b_start, method=method).global_positions()
+    assert np.abs(g[:, 1:] - ref[:, 1:]).max() < 1e-4
+    # B as recorded below its root bone: placed whole.
+    hips = ca.skeleton.index("Hips")
+    assert np.abs(np.abs(np.sum(out.rotations[i1:, hips] * cb.rotations[b_start:, hips], axis=-1)) - 1).max() < 1e-9
+    assert np.abs(out.positions[i1:, hips] - cb.positions[b_start:, hips]).max() < 1e-6
+    np.testing.assert_allclose(ground_offset(g)[i1:], ground_offset(cb.global_positions())[b_start:], atol=1e-6)
+    # Through the gap the root bone keeps near the body (it ran 250-430 cm off before; a plain
+    # cubic from seam to seam, 70 cm on a dash into a backward walk) and moves more smoothly
+    # than the pelvis over the floor.
+    seams = max(ground_offset(g)[a_end], ground_offset(g)[i1])
+    assert ground_offset(g)[a_end + 1: i1].max() < seams + 12.0
+    floor = g[:, 1].copy()
+    floor[:, UP] = 0.0
+    acc = lambda p: np.linalg.norm(np.diff(p, 2, axis=0), axis=1)
+    assert acc(g[:, 0]).max() <= acc(floor).max()
+
+
+def test_a_fixed_reference_node_stays_put_and_placement_says_how_b_moved(clips, model):
+    # walk_normal_001's joint_Root stays at the origin: B's stays where it is, and the root is
+    # placed under it. engine.placement gives that as one joint's change (the studio page's),
+    # also under a node that is turned and moved (a Z-up file's conversion node).
+    turned = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
+    for b, moves in ((clips[WALK], False), (rechained(clips[WALK], *turned), False), (clips[BACK], True)):
+        engine = TransitionEngine(model)
+        engine.add("a", clips[RUN])
+        engine.add("b", b)
+        engine.generate("a", "b", length=20, a_end=15, b_start=5, method="spline")
+        placed = engine.continuation("b", 5)
+        if not moves:
+            assert np.array_equal(placed.rotations[:, 0], b.rotations[5:, 0])
+            assert np.array_equal(placed.positions[:, 0], b.positions[5:, 0])
+        joint, q, t = engine.placement("b", engine.last["dtheta"], engine.last["shift"])
+        assert joint == (0 if moves else b.skeleton.index("Hips"))
+        rots, pos = b.rotations[5:].copy(), b.positions[5:].copy()
+        rots[:, joint], pos[:, joint] = quat.mul(q, rots[:, joint]), quat.mul_vec(q, pos[:, joint]) + t
+        shown = Motion(b.skeleton, rots, pos, b.fps).global_positions()
+        assert np.abs(shown - placed.global_positions()).max() < 1e-6
+
+
 def test_alignment_faces_b_the_way_a_walks(clips, model):
     # Walk and run both go straight ahead. Aligned, the runner keeps the walker's direction of
     # travel (within 15 degrees) and starts about 21 frames of travel ahead of the walker;

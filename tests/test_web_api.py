@@ -83,12 +83,10 @@ def assemble(client, d, skeleton) -> Motion:
     a_end, b_start = d["params"]["a_end"], d["params"]["b_start"]
     rb, pb = rb[b_start:].copy(), pb[b_start:].copy()
     al = d["alignment"]
-    axis = np.zeros(3)
-    axis[al["up"]] = 1.0
-    turn = quat.from_axis_angle(axis, np.array(al["turn"]))
+    turn = np.array(al["rotation"])[[3, 0, 1, 2]]
     top = bones.index(al["joint"])
     rb[:, top] = quat.mul(turn, rb[:, top])
-    pb[:, top] = quat.mul_vec(turn, pb[:, top]) + np.array(al["shift"])
+    pb[:, top] = quat.mul_vec(turn, pb[:, top]) + np.array(al["translation"])
     rots = np.concatenate([ra[: a_end + 1], rt, rb])
     pos = np.concatenate([pa[: a_end + 1], pt, pb])
     assert len(rots) == d["frames"]
@@ -263,11 +261,21 @@ def test_export_matches_transition_on_bandai(bandai):
             ref = transition(clips["bow_normal_001"], clips["walk_normal_001"], model, length=24, alpha=0.4,
                              a_end=100, b_start=20, method=method)
             assert np.allclose(m.global_positions(), ref.global_positions(), atol=1e-3)
-            # The page's assembly: B's turn and shift go on joint_Root (the top of Hips' chain),
-            # the export's on Hips; every joint from Hips down lands in the same place.
-            assert d["alignment"]["joint"] == "joint_Root"
-            shown = assemble(c, d, m.skeleton).global_positions()[:, 1:]
-            assert np.abs(shown - ref.global_positions()[:, 1:]).max() < 1e-2, method
+            # The page's assembly: walk_normal_001's joint_Root stays at the origin (a reference
+            # node), so B's placement goes on Hips under it; every joint lands where the export
+            # puts it, joint_Root too.
+            assert d["alignment"]["joint"] == "Hips"
+            shown = assemble(c, d, m.skeleton).global_positions()
+            assert np.abs(shown - ref.global_positions()).max() < 1e-2, method
+        # run_normal_001's joint_Root runs with the body (root motion): B's placement goes on it.
+        body = {"a": "walk_normal_001", "b": "run_normal_001", "a_end": 150, "b_start": 2, "length": 20}
+        d = post(c, body).json()
+        assert d["alignment"]["joint"] == "joint_Root"
+        assert d["alignment"]["rotation"] == pytest.approx(
+            [0, np.sin(d["alignment"]["turn"] / 2), 0, np.cos(d["alignment"]["turn"] / 2)], abs=1e-9)
+        ref = transition(clips["walk_normal_001"], clips["run_normal_001"], model, length=20, a_end=150, b_start=2)
+        shown = assemble(c, d, ref.skeleton).global_positions()
+        assert np.abs(shown - ref.global_positions()).max() < 1e-2
         sk = c.get("/api/clips").json()["skeleton"]
         assert sk["up"] == 1 and sk["names"][sk["root"]] == "Hips"
 

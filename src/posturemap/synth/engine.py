@@ -76,7 +76,7 @@ from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
-from .trajectory import Track, aligned, alignment, make_track, rotate_about_up
+from .trajectory import Track, aligned, alignment, carry_chain, make_track, placement, rotate_about_up
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
@@ -150,11 +150,13 @@ class TransitionEngine:
         """The up axis (0, 1 or 2) of the clips."""
         return int(self._up)
 
-    @property
-    def alignment_joint(self) -> int:
-        """The joint that alignment turns and moves: the top of the root's chain (the root itself
-        unless the skeleton has a reference node above it)."""
-        return int(self._chain[0]) if len(self._chain) else int(self._root)
+    def placement(self, b: str, turn: float, shift: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """How :meth:`continuation` places clip ``b`` (turned by ``turn`` radians about up, moved by
+        ``shift``), as one joint's local change ``(joint, q (4,), t (3,))``: that joint's local
+        rotation ``r`` and translation ``p`` become ``q r`` and ``q p + t`` on each of B's frames
+        (:func:`posturemap.synth.trajectory.placement`: the top of a chain that carries root motion,
+        else the root)."""
+        return placement(self._track("b", b), self._chain, self._root, self._up, turn, shift)
 
     def fork(self) -> TransitionEngine:
         """Another engine for another thread: its own buffers and caches, the same clips, map and
@@ -269,7 +271,13 @@ class TransitionEngine:
         req = TransitionRequest.of(request, **fields).resolved(len(ta.gpos), len(tb.gpos))
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
-        return _RUN[req.method](self, ta, tb, a, b, req)
+        out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
+        if req.align and tb.chain_moves:
+            # B's chain carries root motion (a game rig's root bone): B is placed with it, and
+            # the new frames take it there.
+            carry_chain(ta, tb, req.a_end, req.b_start, out_r, out_p, self._chain, self._root, self._up,
+                        self.last["dtheta"], self.last["shift"])
+        return out_r, out_p
 
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
         """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with

@@ -15,9 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import kernels, quat
-from ..core.joints import leg_chains, leg_toes
+from ..core.joints import ancestors, leg_chains, leg_toes
 from ..core.motion import Motion, up_vector
 from ..learn.features import root_global
+from .bases import hermite_basis
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,6 +35,8 @@ class Track:
     feet : (F, n_legs, 3) global ankle positions (for foot locking)
     toes : (F, n_legs, 3) global positions of each leg's toe (:func:`posturemap.core.joints.leg_toes`:
         its ankle where it has none), for the foot lock's floor and its planted toes at the seams
+    chain_moves : whether a joint above the root moves in the clip (:func:`chain_moves`): it then
+        carries the clip's root motion and is placed with the body, where a fixed one stays put
     """
 
     motion: Motion
@@ -43,6 +46,7 @@ class Track:
     features: np.ndarray | None
     feet: np.ndarray
     toes: np.ndarray
+    chain_moves: bool = False
 
 
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
@@ -66,6 +70,29 @@ def rotate_about_up(v: np.ndarray, angle, up: int) -> np.ndarray:
     return out
 
 
+# A joint above the root is fixed when it turns by under CHAIN_TURN radians and moves by under
+# CHAIN_SHIFT times the skeleton's longest bone over the clip (a BVH's six decimals are far below).
+CHAIN_TURN = 1e-4
+CHAIN_SHIFT = 1e-4
+
+
+def chain_moves(motion: Motion, chain) -> bool:
+    """Whether any joint of ``chain`` (the root's ancestors) turns or moves over the clip.
+
+    Such a joint carries root motion, as a game rig's root bone does (and four bandai1 clips'
+    ``joint_Root``): B is placed with it, and the new frames take it there (:func:`carry_chain`). A
+    fixed one is a reference node (the other 170 bandai1 clips' ``joint_Root``), a place in
+    the world that stays where it is.
+    """
+    chain = np.asarray(chain, dtype=np.int64)
+    if not len(chain) or len(motion) < 2:
+        return False
+    q, p = motion.rotations[:, chain], motion.positions[:, chain]
+    cos_half = np.abs(np.sum(q * q[:1], axis=-1))  # |cos| of half the turn from the first frame
+    bone = float(np.linalg.norm(motion.skeleton.offsets, axis=1).max(initial=0.0))
+    return bool(cos_half.min() < math.cos(0.5 * CHAIN_TURN) or np.abs(p - p[:1]).max() > CHAIN_SHIFT * max(bone, 1e-9))
+
+
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
     """Split a clip into trajectory and posture (see :class:`Track`)."""
     grot, gpos = root_global(motion, root)
@@ -81,7 +108,8 @@ def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None)
         kernels.fk(motion.skeleton.parents, motion.rotations, motion.positions, grot_all, gpos_all)
         feet = gpos_all[:, [c[2] for c in chains]]
         toes = gpos_all[:, leg_toes(motion.skeleton, chains)]
-    return Track(motion, gpos, heading, rots, feats, feet, toes)
+    moves = chain_moves(motion, ancestors(motion.skeleton.parents, root))
+    return Track(motion, gpos, heading, rots, feats, feet, toes, moves)
 
 
 def alignment(a: Track, b: Track, a_end: int, b_start: int, length: int, up: int) -> tuple[float, np.ndarray]:
@@ -108,11 +136,88 @@ def aligned(track: Track, start: int, dtheta: float, shift: np.ndarray, chain: n
             up: int) -> Motion:
     """Frames ``start:`` of a clip, turned by ``dtheta`` about up and moved by ``shift``.
 
-    ``chain`` holds the root's ancestors (top first), whose rotations carry the heading.
+    ``chain`` holds the root's ancestors (top first), whose rotations carry the heading. Where
+    they move in the clip (:attr:`Track.chain_moves`: root motion) the top of the chain is
+    turned and moved with the body; where they are fixed (a reference node) they stay where
+    they are and the root is placed under them.
     """
     m = track.motion
     rots = track.rots[start:].copy()
     positions = m.positions[start:].copy()
+    if track.chain_moves and len(chain):
+        top = int(chain[0])
+        rots[:, top] = quat.mul(quat.from_axis_angle(up_vector(up), np.array(dtheta)), rots[:, top])
+        positions[:, top] = rotate_about_up(positions[:, top], dtheta, up) + shift
     gpos = rotate_about_up(track.gpos[start:], dtheta, up) + shift
     kernels.compose_root(chain, root, up, rots, positions, gpos, track.heading[start:] + dtheta)
     return Motion(m.skeleton, rots, positions, m.fps)
+
+
+def _chain_end(chain, rots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotation and position of the lowest joint of ``chain`` (top first; the top has no
+    parent) from local ``rots (N, J, 4)`` and ``positions (N, J, 3)``."""
+    q, p = rots[:, chain[0]], positions[:, chain[0]]
+    for c in chain[1:]:
+        p = p + quat.mul_vec(q, positions[:, c])
+        q = quat.mul(q, rots[:, c])
+    return q, p
+
+
+def placement(track: Track, chain, root: int, up: int, dtheta: float, shift) -> tuple[int, np.ndarray, np.ndarray]:
+    """How :func:`aligned` places the clip, as one joint's local change: ``(joint, q (4,), t (3,))``
+    with ``joint``'s local rotation ``r`` and translation ``p`` becoming ``q r`` and ``q p + t``
+    on every frame (the joints below it as they are).
+
+    That joint is the top of the chain where the chain moves (or the root, without a chain), with
+    ``q`` the turn by ``dtheta`` about up and ``t`` = ``shift``; under a fixed chain it is the
+    root, with that turn and shift seen from the chain's frame.
+    """
+    turn = quat.from_axis_angle(up_vector(up), np.array(float(dtheta)))
+    shift = np.asarray(shift, dtype=float)
+    if not len(chain) or track.chain_moves:
+        return (int(chain[0]) if len(chain) else int(root)), turn, shift.copy()
+    m = track.motion
+    cq, cp = _chain_end(chain, m.rotations[:1], m.positions[:1])
+    cq_inv = quat.inv(cq[0])
+    q = quat.mul(cq_inv, quat.mul(turn, cq[0]))
+    t = quat.mul_vec(cq_inv, quat.mul_vec(turn, cp[0]) + shift - cp[0])
+    return int(root), q, t
+
+
+def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray, positions: np.ndarray, chain,
+                root: int, up: int, dtheta: float, shift) -> None:
+    """The top of the root's chain through new frames ``rots (L, J, 4)``, ``positions (L, J, 3)``
+    (in place) where B is placed to continue A (turned by ``dtheta`` about up, moved by
+    ``shift``) and B's chain carries root motion (:attr:`Track.chain_moves`), so that the top is
+    placed with B: a cubic Hermite from A's last frame and rate to B's first, as the ``spline``
+    method's; from a clip whose chain moves too, bent as the body's path bends (from a fixed
+    one the top starts away from the body). The bend is the body's ground point's departure
+    from its own Hermite between the seams, fitted by ``s^2 (1-s)^2 (c0 + c1 s)`` over the gap's
+    time ``s``: a smooth bump that keeps the seams' places and rates and leaves out the body's
+    sway from step to step (a root bone moves smoothly). The root keeps its global turn and
+    place: its local ones are made again under the new chain.
+    """
+    top = int(chain[0])
+    a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
+    cq, cp = _chain_end(chain, rots, positions)
+    gq, gp = quat.mul(cq, rots[:, root]), cp + quat.mul_vec(cq, positions[:, root])
+    seam_q = np.concatenate([ta.motion.rotations[[a_prev, a_end], top], tb.motion.rotations[[b_start, b_next], top]])
+    seam_p = np.concatenate([ta.motion.positions[[a_prev, a_end], top], tb.motion.positions[[b_start, b_next], top]])
+    seam_q[2:] = quat.mul(quat.from_axis_angle(up_vector(up), np.array(float(dtheta))), seam_q[2:])
+    seam_p[2:] = rotate_about_up(seam_p[2:], float(dtheta), up) + np.asarray(shift, dtype=float)
+    basis = hermite_basis(len(rots))
+    ref = seam_q[2]
+    logs = quat.log(quat.mul(quat.inv(ref), seam_q))
+    rots[:, top] = quat.mul(ref, quat.exp(basis @ np.stack([logs[1], logs[1] - logs[0], logs[2], logs[3] - logs[2]])))
+    positions[:, top] = basis @ np.stack([seam_p[1], seam_p[1] - seam_p[0], seam_p[2], seam_p[3] - seam_p[2]])
+    if ta.chain_moves:
+        ground = np.concatenate([ta.gpos[[a_prev, a_end]], rotate_about_up(tb.gpos[[b_start, b_next]], float(dtheta),
+                                                                           up) + np.asarray(shift, dtype=float)])
+        bend = gp - basis @ np.stack([ground[1], ground[1] - ground[0], ground[2], ground[3] - ground[2]])
+        bend[:, up] = 0.0
+        s = np.arange(1, len(rots) + 1) / (len(rots) + 1.0)
+        bump = (s * s * (1.0 - s) ** 2)[:, None] * np.stack([np.ones_like(s), s], axis=1)
+        positions[:, top] += bump @ np.linalg.lstsq(bump, bend, rcond=None)[0]
+    cq, cp = _chain_end(chain, rots, positions)
+    cq_inv = quat.inv(cq)
+    rots[:, root], positions[:, root] = quat.mul(cq_inv, gq), quat.mul_vec(cq_inv, gp - cp)

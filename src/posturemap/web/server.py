@@ -29,11 +29,14 @@ order (x, y, z, w), and a ``<bone>.position`` track for each joint whose local t
 Bone names are the joint names made safe for three.js's ``PropertyBinding`` (``bones`` in the
 skeleton). Positions are in the clips' own length unit.
 
-``alignment`` is ``{joint, up, turn, shift}``: on each of B's frames the joint ``joint`` (the top
-of the root joint's chain) is turned by ``turn`` radians about the axis ``up`` (0, 1, 2 for x, y,
-z): its rotation is premultiplied by that turn and its translation turned, then ``shift`` is
-added to the translation. The export writes the same change into the root joint instead; the
-world pose of every joint from the root down is the same.
+``alignment`` is ``{joint, up, turn, shift, rotation, translation}``: B is turned by ``turn``
+radians about the axis ``up`` (0, 1, 2 for x, y, z), then moved by ``shift``. On each of B's
+frames that is one joint's change: the local rotation of ``joint`` is premultiplied by
+``rotation`` (x, y, z, w) and its local translation turned by it, then ``translation`` is added.
+``joint`` is the top of the root joint's chain where that chain moves in B (it carries root
+motion, as a game rig's root bone does; ``rotation`` is then the turn and ``translation`` the
+shift), and the root joint otherwise (a fixed reference node above it stays where it is). The
+export holds the same frames.
 
 Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
 :data:`~posturemap.web.guards.MAX_BODY` bytes 413, a body not sent within :data:`~posturemap.web.guards.BODY_TIMEOUT` seconds 408, a POST

@@ -280,8 +280,8 @@ class Studio:
 
         Returns rotations (L, J, 4) and positions (L, J, 3) of the new frames, the engine's
         ``last``, the map's keyed joints (or None), B's part (a Motion, turned and moved when
-        ``align``; only ``with_b``, else None) and the alignment ``(top joint, up axis, turn,
-        shift)``.
+        ``align``; only ``with_b``, else None) and the alignment ``(joint, up axis, turn, shift,
+        q, t)`` (:meth:`~posturemap.synth.engine.TransitionEngine.placement`).
         """
         with self._lock:
             pool = self._pool
@@ -307,11 +307,11 @@ class Studio:
             else:
                 turn, shift = 0.0, np.zeros(3)
             b_part = engine.continuation(p.b, req.b_start, req.align) if with_b else None
-            top = engine.alignment_joint
+            joint, q, t = engine.placement(p.b, turn, shift)
             up = engine.up
         finally:
             pool.put(engine)
-        return rots, pos, last, keyed_joints, b_part, (top, up, turn, shift)
+        return rots, pos, last, keyed_joints, b_part, (joint, up, turn, shift, q, t)
 
     def generate(self, p: Params):
         """The whole result as one Motion: A[0..a_end], the new frames, then B's part."""
@@ -324,11 +324,13 @@ class Studio:
         """The answer to ``POST /api/transition``: the new frames as tracks, plus how to join them.
 
         The result is A's frames 0..a_end, the ``inbetween`` frames, then B's frames b_start..
-        with ``alignment`` applied: the joint ``alignment.joint`` (the top of the root's chain)
-        turned by ``turn`` radians about the up axis, then moved by ``shift``. Clip frames come
+        with ``alignment`` applied: B turned by ``turn`` radians about the up axis, then moved by
+        ``shift``, which on each of B's frames premultiplies the local rotation of the joint
+        ``alignment.joint`` by ``rotation`` and turns its local translation by it, then adds
+        ``translation``. Clip frames come
         from ``GET /api/clip/{name}``, so an answer stays small however long the clips are.
         """
-        rots, pos, last, keyed_joints, _, (top, up, turn, shift) = self._new_frames(p)
+        rots, pos, last, keyed_joints, _, (joint, up, turn, shift, q, t) = self._new_frames(p)
         t0, t1 = p.request.a_end + 1, p.request.a_end + p.request.length
         fps = float(self.clips[p.a].fps)
         frames = p.request.a_end + 1 + p.request.length + len(self.clips[p.b]) - p.request.b_start
@@ -354,8 +356,9 @@ class Studio:
             **({"retrieval": last["retrieval"], "method_used": last.get("method", p.request.method)}
                if "retrieval" in last else {}),
             "source": {"a": [0, p.request.a_end], "b": [p.request.b_start, len(self.clips[p.b]) - 1]},
-            "alignment": {"joint": self.bones[top], "up": up, "turn": round(turn, 9),
-                          "shift": np.round(shift, 6).tolist()},
+            "alignment": {"joint": self.bones[joint], "up": up, "turn": round(turn, 9),
+                          "shift": np.round(shift, 6).tolist(), "rotation": np.round(q[[1, 2, 3, 0]], 9).tolist(),
+                          "translation": np.round(t, 6).tolist()},
             "inbetween": self.tracks(rots, pos, fps),
         }
 

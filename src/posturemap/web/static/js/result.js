@@ -28,9 +28,10 @@ export function assemble(res, ca, cb) {
   const nb = res.inbetween.frames, na = res.params.a_end + 1, b0 = res.params.b_start;
   const n = res.frames, nB = n - na - nb;
   const mid = framesOf(res.inbetween);
+  // B's placement is one joint's change (the root's, or a root bone's that carries root motion).
   const al = res.alignment, top = skel.bones.indexOf(al.joint);
-  const turn = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3().setComponent(al.up, 1), al.turn);
-  const shift = new THREE.Vector3().fromArray(al.shift);
+  const turn = new THREE.Quaternion().fromArray(al.rotation);
+  const shift = new THREE.Vector3().fromArray(al.translation);
   const q = new THREE.Quaternion(), v = new THREE.Vector3();
   const tracks = [];
   for (let j = 0; j < J; j++) {
