@@ -628,7 +628,7 @@ def ground_offset(g: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("method", ["auto", "slerp", "damped"])
 def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, model, method):
-    # run_normal_001's and walk-back_normal_001's joint_Root run with the body, 3-8 cm from the
+    # run_normal_001's and walk-back_normal_001's joint_Root run with the body, 0-6 cm from the
     # floor under Hips (root motion, as a game rig's root bone): B is placed with it, and the new
     # frames take it there, smoothly and near the body.
     ca, cb = clips[RUN], clips[BACK]
@@ -643,14 +643,14 @@ def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, mod
     still = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
     ref = transition(rechained(ca, *still), rechained(cb, *still), model, length=length, a_end=a_end,
                      b_start=b_start, method=method).global_positions()
-    assert np.abs(g[:, 1:] - ref[:, 1:]).max() < 1e-4
+    assert np.abs(g[:, 1:] - ref[:, 1:]).max() < 1e-5
     # B as recorded below its root bone: placed whole.
     hips = ca.skeleton.index("Hips")
     assert np.abs(np.abs(np.sum(out.rotations[i1:, hips] * cb.rotations[b_start:, hips], axis=-1)) - 1).max() < 1e-9
     assert np.abs(out.positions[i1:, hips] - cb.positions[b_start:, hips]).max() < 1e-6
     np.testing.assert_allclose(ground_offset(g)[i1:], ground_offset(cb.global_positions())[b_start:], atol=1e-6)
-    # Through the gap the root bone keeps near the body (it ran 250-430 cm off before; a plain
-    # cubic from seam to seam, 70 cm on a dash into a backward walk) and moves more smoothly
+    # Through the gap the root bone keeps near the body (before, B's stayed where B was recorded,
+    # metres off; a plain cubic from seam to seam strays 32 cm here) and moves more smoothly
     # than the pelvis over the floor.
     seams = max(ground_offset(g)[a_end], ground_offset(g)[i1])
     assert ground_offset(g)[a_end + 1: i1].max() < seams + 12.0
