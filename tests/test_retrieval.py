@@ -25,7 +25,7 @@ from posturemap.core import kernels, quat
 from posturemap.synth import retrieval
 from posturemap.core.joints import key_joints, leg_toes
 from posturemap.learn.model import MapFileError, PostureMap
-from posturemap.core.motion import Motion
+from posturemap.core.motion import Motion, concatenate
 from posturemap.core.skeleton import fk
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.request import RequestError
@@ -372,6 +372,27 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     fb_r, fb_p = eng.generate("run", "run", length=30, a_end=40, b_start=71, align=False,
                               method=retrieval.fallback_method(30, 30.0))
     assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
+
+
+@pytest.mark.parametrize("a, a_end, b, b_start, length", [
+    ("walk-left_normal_001", 6, "dash_normal_001", 9, 60), ("walk_happy_001", 93, "dash_normal_001", 10, 60)])
+def test_partly_confident_legs_leave_the_gap_at_bs_velocity(model, clips, a, a_end, b, b_start, length):
+    # The legs a third confident (or less): the root's path is the blend of the retrieved one and
+    # the fallback's, which place B turned far apart. Each ends at B's velocity turned its own way;
+    # their blend, at a shorter one turned between, so the root jerked at B's seam by 2.8-3.5 cm
+    # a frame (LaFAN1's sidesteps into a jog: 46 cm/s into 306 cm/s). Now the root leaves the gap
+    # at B's own velocity, placed: the change at the seam within B's own first frames'.
+    eng = TransitionEngine(model)
+    eng.add("a", clips[a])
+    eng.add("b", clips[b])
+    r, p = eng.generate("a", "b", length=length, a_end=a_end, b_start=b_start, method="retrieval", foot_lock=False)
+    assert 0.0 < eng.last["retrieval"]["parts"]["lower"]["confidence"] < 0.5
+    out = concatenate([clips[a][: a_end + 1], Motion(clips[a].skeleton, r.copy(), p.copy(), clips[a].fps),
+                       eng.continuation("b", b_start)])
+    hips = out.global_positions()[:, clips[a].skeleton.index("Hips")]
+    change = np.linalg.norm(np.diff(hips, 2, axis=0), axis=1)  # change[t]: the velocity's at frame t + 1
+    seam = a_end + length  # the velocity's change at B's first frame
+    assert change[seam] <= change[seam + 1: seam + 6].max()
 
 
 def test_a_related_library_is_confident_for_the_legs(engine, clips):

@@ -62,7 +62,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core import kernels
+from ..core import kernels, quat
 from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
@@ -76,7 +76,7 @@ from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
-from .trajectory import Track, aligned, alignment, carry_chain, make_track, placement, rotate_about_up
+from .trajectory import Track, aligned, alignment, carry_chain, chain_end, make_track, placement, rotate_about_up
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
@@ -700,8 +700,10 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             end_fb = rotate_about_up(g0, fb_last["dtheta"], eng._up) + fb_last["shift"]
             end = rotate_about_up(g0, dtheta, eng._up) + shift
             turn = dtheta - fb_last["dtheta"]
+            res_dtheta = dtheta
             dtheta = fb_last["dtheta"] + c * (turn - TWO_PI * round(turn / TWO_PI))
             shift = end_fb + c * (end - end_fb) - rotate_about_up(g0, dtheta, eng._up)
+            _meet_b_velocity(eng, tb, b_start, out_r, out_p, c, res_dtheta, fb_last["dtheta"], dtheta)
         # The retrieved segment's planted feet whenever its legs count at all: a leg blended with
         # the fallback's glides, and the lock's own detection (low and slow) finds no contact in
         # it. Held-out dashes at 45 frames (the legs 0.3-0.4 confident in some windows) skated
@@ -711,6 +713,31 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p
+
+
+def _meet_b_velocity(eng: TransitionEngine, tb: Track, b_start: int, out_r, out_p, c: float, turn_res: float,
+                     turn_fb: float, turn: float) -> None:
+    """The root of a trajectory blended between the retrieved one and the fallback's (legs
+    ``c`` confident) leaves the gap at B's own velocity where B is placed.
+
+    Each ends at B's velocity turned as it places B (``turn_res``, ``turn_fb``); their blend ends
+    at the blend of those two vectors, which is shorter and turned otherwise than B's velocity
+    turned by the blended ``turn`` where the two placements turn B far apart (LaFAN1: sidesteps
+    into a jog, 46 cm/s into 306 cm/s at B's first frame). The difference is added over B's
+    velocity offset curve (:func:`posturemap.synth.retrieval.offset_curves`: from nothing
+    ``blend_frames`` before B's seam to its whole at the seam), in the frame of the root's parent.
+    """
+    up = eng._up
+    v_b = tb.gpos[min(b_start + 1, len(tb.gpos) - 1)] - tb.gpos[b_start]
+    miss = rotate_about_up(v_b, float(turn), up) - c * rotate_about_up(v_b, float(turn_res), up) \
+        - (1.0 - c) * rotate_about_up(v_b, float(turn_fb), up)
+    length = len(out_p)
+    curve = retrieval.offset_curves(np.arange(1, length + 1), length + 1.0,
+                                    retrieval.blend_frames(True, tb.motion.fps))[3]
+    offset = curve[:, None] * miss[None]
+    if len(eng._chain):  # the root's translation is in its parent's frame
+        offset = quat.mul_vec(quat.inv(chain_end(eng._chain, out_r, out_p)[0]), offset)
+    out_p[:, eng._root] += offset
 
 
 _KEYS = {"upm": _paper_key, "upm-path": _path_key, "upm-valid": _valid_key}

@@ -153,7 +153,7 @@ def aligned(track: Track, start: int, dtheta: float, shift: np.ndarray, chain: n
     return Motion(m.skeleton, rots, positions, m.fps)
 
 
-def _chain_end(chain, rots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def chain_end(chain, rots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Global rotation and position of the lowest joint of ``chain`` (top first; the top has no
     parent) from local ``rots (N, J, 4)`` and ``positions (N, J, 3)``."""
     q, p = rots[:, chain[0]], positions[:, chain[0]]
@@ -177,7 +177,7 @@ def placement(track: Track, chain, root: int, up: int, dtheta: float, shift) -> 
     if not len(chain) or track.chain_moves:
         return (int(chain[0]) if len(chain) else int(root)), turn, shift.copy()
     m = track.motion
-    cq, cp = _chain_end(chain, m.rotations[:1], m.positions[:1])
+    cq, cp = chain_end(chain, m.rotations[:1], m.positions[:1])
     cq_inv = quat.inv(cq[0])
     q = quat.mul(cq_inv, quat.mul(turn, cq[0]))
     t = quat.mul_vec(cq_inv, quat.mul_vec(turn, cp[0]) + shift - cp[0])
@@ -199,7 +199,7 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
     """
     top = int(chain[0])
     a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
-    cq, cp = _chain_end(chain, rots, positions)
+    cq, cp = chain_end(chain, rots, positions)
     gq, gp = quat.mul(cq, rots[:, root]), cp + quat.mul_vec(cq, positions[:, root])
     seam_q = np.concatenate([ta.motion.rotations[[a_prev, a_end], top], tb.motion.rotations[[b_start, b_next], top]])
     seam_p = np.concatenate([ta.motion.positions[[a_prev, a_end], top], tb.motion.positions[[b_start, b_next], top]])
@@ -218,6 +218,6 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
         s = np.arange(1, len(rots) + 1) / (len(rots) + 1.0)
         bump = (s * s * (1.0 - s) ** 2)[:, None] * np.stack([np.ones_like(s), s], axis=1)
         positions[:, top] += bump @ np.linalg.lstsq(bump, bend, rcond=None)[0]
-    cq, cp = _chain_end(chain, rots, positions)
+    cq, cp = chain_end(chain, rots, positions)
     cq_inv = quat.inv(cq)
     rots[:, root], positions[:, root] = quat.mul(cq_inv, gq), quat.mul_vec(cq_inv, gp - cp)
