@@ -19,11 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from posturemap.core import quat
 from posturemap.io import bvh
 from posturemap.learn.model import PostureMap
 from posturemap.synth.request import DEFAULT_METHOD, KEYED
 from posturemap.web.server import create_app, running
 from posturemap.web.studio import LOOPBACK_HOSTS
+from rigkit import under_node
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -213,6 +215,30 @@ def test_export_downloads_the_shown_result(studio, clips):
         drawn = np.array(studio.js(f"__studio.jointPositions({f})"))
         assert np.abs(drawn - exported[f]).max() < 0.05, f"frame {f}"
     assert studio.errors == []
+
+
+def test_the_page_draws_b_placed_under_a_turned_node_as_the_export_holds_it(browser, clips):
+    # joint_Root held a quarter turn about X and off the origin (a Z-up file's conversion node),
+    # Hips carrying the motion, but in run_normal_001, whose joint_Root moves (root motion): the
+    # page applies the placement the server names, on Hips or on joint_Root, as the export does.
+    node = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
+    held = {n: (m if n == "run_normal_001" else under_node(m, *node)) for n, m in clips.items()}
+    order = ["bow_normal_001"] + [n for n in held if n != "bow_normal_001"]
+    model = PostureMap(seed=0).fit([held[n] for n in order], order)
+    with running(create_app(held, model, allowed_hosts=LOOPBACK_HOSTS)) as url:
+        studio = Page(browser, url)
+        try:
+            for a, b in (("run_normal_001", "walk_normal_001"), ("walk_normal_001", "run_normal_001")):
+                studio.choose(a, b, a_end=15, b_start=3, length=24)
+                with studio.page.expect_download() as info:
+                    studio.page.click("#export")
+                exported = bvh.loads(Path(info.value.path()).read_bytes()).global_positions()
+                for f in range(len(exported)):
+                    drawn = np.array(studio.js(f"__studio.jointPositions({f})"))
+                    assert np.abs(drawn - exported[f]).max() < 0.05, (a, b, f)
+            assert studio.errors == []
+        finally:
+            studio.close()
 
 
 def test_traversal_and_malformed_requests_get_4xx(studio, base_url):

@@ -30,6 +30,7 @@ from posturemap.synth import periodic
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
 from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
+from rigkit import topped, under_node
 
 UP = 1  # Bandai dataset 1 is Y up (data README): the checks below use the known axis
 WALK, RUN, BOW, DANCE, BACK = ("walk_normal_001", "run_normal_001", "bow_normal_001",
@@ -606,19 +607,6 @@ def test_alignment_makes_b_continue_a(clips, a, b, a_end, b_start, length, model
     assert abs(wrap(head_o[i1] - head_o[i0] - 0.5 * (w_a + w_b) * d)) < 1e-6
 
 
-def rechained(m: Motion, q0, p0) -> Motion:
-    """The clip with its reference node (joint_Root) held at rotation ``q0`` and translation ``p0``
-    and Hips carrying the motion: every joint from Hips down where it was."""
-    top, hips = 0, m.skeleton.index("Hips")
-    rots, pos = m.rotations.copy(), m.positions.copy()
-    gq = quat.mul(rots[:, top], rots[:, hips])
-    gp = pos[:, top] + quat.mul_vec(rots[:, top], pos[:, hips])
-    rots[:, top], pos[:, top] = q0, p0
-    inv = quat.inv(rots[:, top])
-    rots[:, hips], pos[:, hips] = quat.mul(inv, gq), quat.mul_vec(inv, gp - pos[:, top])
-    return Motion(m.skeleton, rots, pos, m.fps)
-
-
 def ground_offset(g: np.ndarray) -> np.ndarray:
     """Horizontal distance (F,) from joint_Root to the point of the floor under Hips."""
     d = g[:, 0] - g[:, 1]
@@ -633,15 +621,15 @@ def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, mod
     # frames take it there, smoothly and near the body.
     ca, cb = clips[RUN], clips[BACK]
     engine = TransitionEngine(model)
-    assert engine.add("run", ca).chain_moves and engine.add("back", cb).chain_moves
-    assert not engine.add("walk", clips[WALK]).chain_moves
+    assert engine.add("run", ca).carrier == 0 and engine.add("back", cb).carrier == 0
+    assert engine.add("walk", clips[WALK]).carrier == -1
     a_end, b_start, length = 15, 5, 20
     i1 = a_end + 1 + length
     out = transition(ca, cb, model, length=length, a_end=a_end, b_start=b_start, method=method)
     g = out.global_positions()
     # The body is where it is when the same motion is carried by Hips alone under a fixed node.
     still = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
-    ref = transition(rechained(ca, *still), rechained(cb, *still), model, length=length, a_end=a_end,
+    ref = transition(under_node(ca, *still), under_node(cb, *still), model, length=length, a_end=a_end,
                      b_start=b_start, method=method).global_positions()
     assert np.abs(g[:, 1:] - ref[:, 1:]).max() < 1e-5
     # B as recorded below its root bone: placed whole.
@@ -658,6 +646,57 @@ def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, mod
     floor[:, UP] = 0.0
     acc = lambda p: np.linalg.norm(np.diff(p, 2, axis=0), axis=1)
     assert acc(g[:, 0]).max() <= acc(floor).max()
+    # It turns from A's heading to B's placed one evenly: no frame takes a fifth of the way.
+    turn = out.rotations[:, 0]
+    step = quat.angle_between(turn[1:], turn[:-1])
+    assert step.max() <= quat.angle_between(turn[a_end], turn[i1]) / 5 + 1e-9
+
+
+def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):
+    # A conversion node (a quarter turn about X, off the origin) above the moving joint_Root: the
+    # node stays where it is, and joint_Root and the body go where they go without it.
+    node = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
+    ca, cb = clips[RUN], clips[BACK]
+    ta, tb = topped(ca, *node), topped(cb, *node)
+    model = PostureMap(seed=0).fit([ca, cb], ["run", "back"])
+    topped_model = PostureMap(seed=0).fit([ta, tb], ["run", "back"])
+    for method in ("spline", "auto"):
+        kw = dict(length=20, a_end=15, b_start=5, method=method)
+        ref = transition(ca, cb, model, **kw).global_positions()
+        out = transition(ta, tb, topped_model, **kw)
+        np.testing.assert_allclose(out.rotations[:, 0], np.broadcast_to(node[0], (len(out), 4)), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(out.positions[:, 0], np.broadcast_to(node[1], (len(out), 3)), rtol=0, atol=1e-9)
+        assert np.abs(out.global_positions()[:, 1:] - ref).max() < 1e-4, method
+    engine = TransitionEngine(topped_model)
+    engine.add("a", ta)
+    engine.add("b", tb)
+    engine.generate("a", "b", length=20, a_end=15, b_start=5)
+    joint, q, t = engine.placement("b", engine.last["dtheta"], engine.last["shift"])
+    assert joint == 1  # joint_Root, under the node
+    rots, pos = tb.rotations[5:].copy(), tb.positions[5:].copy()
+    rots[:, 1], pos[:, 1] = quat.mul(q, rots[:, 1]), quat.mul_vec(q, pos[:, 1]) + t
+    shown = Motion(tb.skeleton, rots, pos, tb.fps).global_positions()
+    assert np.abs(shown - engine.continuation("b", 5).global_positions()).max() < 1e-6
+
+
+def test_a_single_frame_b_on_a_root_motion_rig_is_placed_with_its_root_bone(clips, model):
+    # One frame shows no root motion: it takes the rig's, which the run shows (a pose to reach).
+    ca, pose = clips[RUN], clips[BACK][5:6]
+    engine = TransitionEngine(model)
+    assert engine.add("pose", pose).carrier == -1
+    out = transition(ca, pose, model, length=20, a_end=15)
+    g = out.global_positions()
+    assert ground_offset(g)[-1] == pytest.approx(ground_offset(pose.global_positions())[0], abs=1e-6)
+    assert ground_offset(g)[16:-1].max() < 15.0  # it stayed at B's recorded place, 200 cm off
+
+
+def test_a_node_stored_at_float32_is_fixed(clips):
+    walk = clips[WALK]
+    rots = walk.rotations.copy()
+    rots[:, 0] = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.array(2.0)).astype(np.float32)
+    assert np.sum(rots[0, 0] ** 2) < 1.0 - 1e-8  # shorter than a unit at double precision
+    engine = TransitionEngine()
+    assert engine.add("walk", Motion(walk.skeleton, rots, walk.positions, walk.fps)).carrier == -1
 
 
 def test_a_fixed_reference_node_stays_put_and_placement_says_how_b_moved(clips, model):
@@ -665,7 +704,7 @@ def test_a_fixed_reference_node_stays_put_and_placement_says_how_b_moved(clips, 
     # placed under it. engine.placement gives that as one joint's change (the studio page's),
     # also under a node that is turned and moved (a Z-up file's conversion node).
     turned = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
-    for b, moves in ((clips[WALK], False), (rechained(clips[WALK], *turned), False), (clips[BACK], True)):
+    for b, moves in ((clips[WALK], False), (under_node(clips[WALK], *turned), False), (clips[BACK], True)):
         engine = TransitionEngine(model)
         engine.add("a", clips[RUN])
         engine.add("b", b)

@@ -36,6 +36,7 @@ from posturemap.web import server, studio
 from posturemap.web.guards import MAX_BODY
 from posturemap.web.server import create_app
 from posturemap.web.studio import LOOPBACK_HOSTS, MAX_LENGTH
+from rigkit import under_node
 
 
 @pytest.fixture(scope="module")
@@ -278,6 +279,26 @@ def test_export_matches_transition_on_bandai(bandai):
         assert np.abs(shown - ref.global_positions()).max() < 1e-2
         sk = c.get("/api/clips").json()["skeleton"]
         assert sk["up"] == 1 and sk["names"][sk["root"]] == "Hips"
+
+
+def test_the_page_places_b_under_a_turned_node_as_the_export_does(bandai):
+    # joint_Root fixed a quarter turn about X and off the origin (a Z-up file's conversion node):
+    # B's placement, seen from the node, goes on Hips; run_normal_001 keeps its moving joint_Root,
+    # which takes the placement itself. Every joint of the page's assembly lands where the export
+    # puts it, B placed or not.
+    node = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
+    clips = {n: (m if n == "run_normal_001" else under_node(m, *node)) for n, m in bandai.items()}
+    model = PostureMap(seed=0).fit(list(clips.values()), list(clips))
+    with TestClient(create_app(clips, model), raise_server_exceptions=False) as c:
+        for a, b, joint in (("bow_normal_001", "walk_normal_001", "Hips"), ("walk_normal_001", "run_normal_001", "joint_Root"),
+                            ("run_normal_001", "walk_normal_001", "Hips")):
+            for align in (True, False):
+                body = {"a": a, "b": b, "a_end": min(100, len(clips[a]) - 1), "b_start": 3, "length": 20, "align": align}
+                d = post(c, body).json()
+                assert d["alignment"]["joint"] == joint
+                exported = bvh.loads(post(c, body, "/api/export").content)
+                shown = assemble(c, d, exported.skeleton).global_positions()
+                assert np.abs(shown - exported.global_positions()).max() < 1e-2, (a, b, align)
 
 
 def test_server_trained_map_lines_clips_up_on_bandai(bandai):

@@ -154,9 +154,18 @@ class TransitionEngine:
         """How :meth:`continuation` places clip ``b`` (turned by ``turn`` radians about up, moved by
         ``shift``), as one joint's local change ``(joint, q (4,), t (3,))``: that joint's local
         rotation ``r`` and translation ``p`` become ``q r`` and ``q p + t`` on each of B's frames
-        (:func:`posturemap.synth.trajectory.placement`: the top of a chain that carries root motion,
-        else the root)."""
-        return placement(self._track("b", b), self._chain, self._root, self._up, turn, shift)
+        (:func:`posturemap.synth.trajectory.placement`: the joint above the root that carries
+        root motion, else the root)."""
+        track = self._track("b", b)
+        return placement(track, self._chain, self._root, self._up, turn, shift, self._carrier(track))
+
+    def _carrier(self, track: Track) -> int:
+        """Which joint of the root's chain carries ``track``'s root motion (:attr:`Track.carrier`);
+        a single frame shows none, so it takes the rig's, as the first clip of several frames added
+        shows it (a pose to reach on a root-motion rig is placed with its root bone)."""
+        if len(track.gpos) > 1:
+            return track.carrier
+        return next((t.carrier for t in self.tracks.values() if len(t.gpos) > 1), -1)
 
     def fork(self) -> TransitionEngine:
         """Another engine for another thread: its own buffers and caches, the same clips, map and
@@ -186,7 +195,7 @@ class TransitionEngine:
             raise RequestError("turn", "no transition made yet to take B's place from: give turn and shift")
         turn = self.last["dtheta"] if turn is None else turn
         shift = self.last["shift"] if shift is None else shift
-        return aligned(track, b_start, turn, shift, self._chain, self._root, self._up)
+        return aligned(track, b_start, turn, shift, self._chain, self._root, self._up, self._carrier(track))
 
     def warm_up(self, methods=("auto",)) -> int:
         """Prepare for a game loop: switch to the compiled kernels (:func:`posturemap.core.kernels.compiled`;
@@ -272,11 +281,12 @@ class TransitionEngine:
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
         out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
-        if req.align and tb.chain_moves:
+        b_carrier = self._carrier(tb)
+        if req.align and b_carrier >= 0:
             # B's chain carries root motion (a game rig's root bone): B is placed with it, and
             # the new frames take it there.
             carry_chain(ta, tb, req.a_end, req.b_start, out_r, out_p, self._chain, self._root, self._up,
-                        self.last["dtheta"], self.last["shift"])
+                        self.last["dtheta"], self.last["shift"], self._carrier(ta), b_carrier)
         return out_r, out_p
 
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
