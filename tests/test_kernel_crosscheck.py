@@ -11,6 +11,7 @@ lists the compiled functions of the kernel modules (and of any other module that
 from __future__ import annotations
 
 import importlib
+import itertools
 import re
 import types
 from pathlib import Path
@@ -24,6 +25,7 @@ from posturemap.core import kernels, quat
 from posturemap.core.skeleton import fk as fk_reference
 from posturemap.io import bvh
 from posturemap.synth import retrieval
+from posturemap.synth.bases import hermite_basis
 
 NK = kernels.compiled()  # posturemap.core.numba_kernels
 from posturemap.synth import retrieval_numba as RN  # noqa: E402 - needs numba loaded first
@@ -733,6 +735,48 @@ def compiled_functions() -> set[str]:
 
     found |= {f"bvh:{f.name}" for f in dataclasses.fields(BVH_KERNELS)}
     return found
+
+
+@crosschecks("retrieval_numba:carry_chain", "retrieval_numba:_chain_world", "retrieval_numba:_seam_carrier")
+def test_compiled_carry_chain_matches_the_numpy_steps(bandai_paths):
+    # A root bone that carries root motion (run_normal_001's and walk-back_normal_001's
+    # joint_Root), on its own and under a fixed node turned and moved, bent with the body's path
+    # or not, through random new frames at random seams, turns and shifts.
+    from posturemap.core.joints import ancestors
+    from posturemap.core.motion import root_index, up_axis
+    from posturemap.learn.features import root_global, upright_rest
+    from posturemap.synth import trajectory
+    from rigkit import topped
+
+    clips = [bvh.read(p) for p in bandai_paths(["run_normal_001", "walk-back_normal_001"]).values()]
+    node = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.array(-np.pi / 2)), np.array([30.0, 5.0, -20.0])
+    rng = np.random.default_rng(7)
+    checked = 0
+    for rig in (clips, [topped(m, *node) for m in clips]):
+        root, up = root_index(rig[0]), up_axis(rig[0])
+        chain = np.array(ancestors(rig[0].skeleton.parents, root), dtype=np.int64)
+        rest = upright_rest(root_global(rig[0], root)[0], up)
+        ta, tb = (trajectory.make_track(m, root, up, rest) for m in rig)
+        assert ta.carrier == tb.carrier == len(chain) - 1
+        for length, a_carrier in itertools.product((1, 7, 40), (-1, ta.carrier)):
+            rots = random_quats(rng, (length, rig[0].skeleton.num_joints))
+            pos = rng.normal(scale=30.0, size=(length, rig[0].skeleton.num_joints, 3))
+            a_end, b_start = int(rng.integers(0, len(ta.gpos))), int(rng.integers(0, len(tb.gpos)))
+            dtheta, shift = float(rng.uniform(-np.pi, np.pi)), rng.normal(scale=100.0, size=3)
+            ref_r, ref_p, given = rots.copy(), pos.copy(), pos.copy()
+            trajectory.carry_chain(ta, tb, a_end, b_start, ref_r, ref_p, chain, root, up, dtheta, shift, a_carrier,
+                                   tb.carrier)
+            bump, solve = (trajectory.bend_fit(length, ta.motion.fps) if a_carrier >= 0
+                           else (np.zeros((length, 0)), np.zeros((0, length))))
+            RN.carry_chain(rots, pos, chain, tb.carrier, root, ta.motion.rotations, ta.motion.positions, ta.gpos,
+                           max(a_end - 1, 0), a_end, tb.motion.rotations, tb.motion.positions, tb.gpos, b_start,
+                           min(b_start + 1, len(tb.gpos) - 1), up, dtheta, shift, hermite_basis(length), bump, solve)
+            same_rotation(rots, ref_r, atol=1e-10)
+            np.testing.assert_allclose(pos, ref_p, rtol=0, atol=1e-8)
+            carrier = chain[tb.carrier]
+            assert np.abs(pos[:, carrier] - given[:, carrier]).max() > 1.0  # the bone was carried
+            checked += 1
+    assert checked == 12
 
 
 @crosschecks("retrieval_numba:_prefetch_row")

@@ -17,7 +17,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..core.numba_kernels import _FAST, _mul, exp_relative, fk, log_relative, slerp
+from ..core.numba_kernels import _FAST, _mul, _rotate, exp_relative, fk, log_relative, slerp
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -1096,3 +1096,108 @@ def open_columns(chain, a_rots, b_rots, a_prev, a_end, b_start, b_next, a_positi
                 pa, pb = a_positions[a_end, j, c], b_positions[b_start, j, c]
                 pos[t, j, c] = (basis[t, 0] * pa + basis[t, 1] * (pa - a_positions[a_prev, j, c]) + basis[t, 2] * pb
                                 + basis[t, 3] * (b_positions[b_next, j, c] - pb))
+
+
+@nb.njit(**_OPTS)
+def _chain_world(rots, positions, f, chain, upto):
+    """Global rotation (w, x, y, z) and position of ``chain[upto - 1]`` at frame ``f`` of local
+    ``rots``/``positions`` (``chain`` top first, its top without a parent; ``upto`` at least 1)."""
+    j = chain[0]
+    w, x, y, z = rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3]
+    px, py, pz = positions[f, j, 0], positions[f, j, 1], positions[f, j, 2]
+    for m in range(1, upto):
+        c = chain[m]
+        dx, dy, dz = _rotate(w, x, y, z, positions[f, c, 0], positions[f, c, 1], positions[f, c, 2])
+        px, py, pz = px + dx, py + dy, pz + dz
+        w, x, y, z = _mul(w, x, y, z, rots[f, c, 0], rots[f, c, 1], rots[f, c, 2], rots[f, c, 3])
+    return w, x, y, z, px, py, pz
+
+
+@nb.njit(**_OPTS)
+def _seam_carrier(rots, positions, f, chain, upto, turn, shift, sq, sp, row):
+    """The carrier's world at frame ``f`` into row ``row`` of ``sq`` (4, 1, 4) and ``sp`` (4, 3),
+    turned by the quaternion ``turn`` (4,) and moved by ``shift`` (3,)."""
+    w, x, y, z, px, py, pz = _chain_world(rots, positions, f, chain, upto)
+    w, x, y, z = _mul(turn[0], turn[1], turn[2], turn[3], w, x, y, z)
+    px, py, pz = _rotate(turn[0], turn[1], turn[2], turn[3], px, py, pz)
+    sq[row, 0, 0], sq[row, 0, 1], sq[row, 0, 2], sq[row, 0, 3] = w, x, y, z
+    sp[row, 0], sp[row, 1], sp[row, 2] = px + shift[0], py + shift[1], pz + shift[2]
+
+
+@nb.njit(**_OPTS)
+def carry_chain(rots, positions, chain, k, root, a_rots, a_positions, a_gpos, a_prev, a_end, b_rots, b_positions,
+                b_gpos, b_start, b_next, up, dtheta, shift, basis, bump, solve):
+    """:func:`posturemap.synth.trajectory.carry_chain` in one call (its numpy steps the
+    reference): the joint ``chain[k]`` from A's frame ``a_end`` (rate from ``a_prev``) to B's
+    ``b_start`` (rate to ``b_next``), B's turned by ``dtheta`` about axis ``up`` and moved by
+    ``shift``, a cubic Hermite ``basis`` (L, 4) in the world, bent by ``bump`` (L, T) times
+    ``solve`` (T, L) applied to the root's ground path's departure from its own Hermite (no bend
+    where T is 0), under the fixed joints ``chain[:k]``; the root's local turn and place made
+    again so that its global ones stay."""
+    n_l, n_c = basis.shape[0], chain.shape[0]
+    j = chain[k]
+    gq, gp = np.empty((n_l, 4)), np.empty((n_l, 3))
+    for t in range(n_l):
+        w, x, y, z, px, py, pz = _chain_world(rots, positions, t, chain, n_c)
+        dx, dy, dz = _rotate(w, x, y, z, positions[t, root, 0], positions[t, root, 1], positions[t, root, 2])
+        gp[t, 0], gp[t, 1], gp[t, 2] = px + dx, py + dy, pz + dz
+        gq[t, 0], gq[t, 1], gq[t, 2], gq[t, 3] = _mul(w, x, y, z, rots[t, root, 0], rots[t, root, 1],
+                                                      rots[t, root, 2], rots[t, root, 3])
+    still, none = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3)
+    turn = np.zeros(4)
+    turn[0] = math.cos(0.5 * dtheta)
+    turn[1 + up] = math.sin(0.5 * dtheta)
+    sq, sp = np.empty((4, 1, 4)), np.empty((4, 3))
+    _seam_carrier(a_rots, a_positions, a_prev, chain, k + 1, still, none, sq, sp, 0)
+    _seam_carrier(a_rots, a_positions, a_end, chain, k + 1, still, none, sq, sp, 1)
+    _seam_carrier(b_rots, b_positions, b_start, chain, k + 1, turn, shift, sq, sp, 2)
+    _seam_carrier(b_rots, b_positions, b_next, chain, k + 1, turn, shift, sq, sp, 3)
+    ref = sq[2].copy()
+    logs = np.empty((4, 1, 3))
+    log_relative(sq, ref, logs)
+    lin, new_p = np.empty((n_l, 1, 3)), np.empty((n_l, 3))
+    for t in range(n_l):
+        for c in range(3):
+            lin[t, 0, c] = (basis[t, 0] * logs[1, 0, c] + basis[t, 1] * (logs[1, 0, c] - logs[0, 0, c])
+                            + basis[t, 2] * logs[2, 0, c] + basis[t, 3] * (logs[3, 0, c] - logs[2, 0, c]))
+            new_p[t, c] = (basis[t, 0] * sp[1, c] + basis[t, 1] * (sp[1, c] - sp[0, c]) + basis[t, 2] * sp[2, c]
+                           + basis[t, 3] * (sp[3, c] - sp[2, c]))
+    new_q = np.empty((n_l, 1, 4))
+    exp_relative(lin, ref, new_q)
+    n_b = bump.shape[1]
+    if n_b:
+        ground = np.empty((4, 3))
+        for c in range(3):
+            ground[0, c], ground[1, c] = a_gpos[a_prev, c], a_gpos[a_end, c]
+        for row, f in ((2, b_start), (3, b_next)):
+            vx, vy, vz = _rotate(turn[0], turn[1], turn[2], turn[3], b_gpos[f, 0], b_gpos[f, 1], b_gpos[f, 2])
+            ground[row, 0], ground[row, 1], ground[row, 2] = vx + shift[0], vy + shift[1], vz + shift[2]
+        bend = np.zeros((n_l, 3))
+        for t in range(n_l):
+            for c in range(3):
+                if c != up:
+                    bend[t, c] = gp[t, c] - (basis[t, 0] * ground[1, c] + basis[t, 1] * (ground[1, c] - ground[0, c])
+                                             + basis[t, 2] * ground[2, c] + basis[t, 3] * (ground[3, c] - ground[2, c]))
+        coef = np.zeros((n_b, 3))
+        for i in range(n_b):
+            for t in range(n_l):
+                for c in range(3):
+                    coef[i, c] += solve[i, t] * bend[t, c]
+        for t in range(n_l):
+            for i in range(n_b):
+                for c in range(3):
+                    new_p[t, c] += bump[t, i] * coef[i, c]
+    for t in range(n_l):
+        w, x, y, z = new_q[t, 0, 0], new_q[t, 0, 1], new_q[t, 0, 2], new_q[t, 0, 3]
+        px, py, pz = new_p[t, 0], new_p[t, 1], new_p[t, 2]
+        if k > 0:  # into the frame of the fixed joints above it
+            fw, fx, fy, fz, fpx, fpy, fpz = _chain_world(rots, positions, t, chain, k)
+            w, x, y, z = _mul(fw, -fx, -fy, -fz, w, x, y, z)
+            px, py, pz = _rotate(fw, -fx, -fy, -fz, px - fpx, py - fpy, pz - fpz)
+        rots[t, j, 0], rots[t, j, 1], rots[t, j, 2], rots[t, j, 3] = w, x, y, z
+        positions[t, j, 0], positions[t, j, 1], positions[t, j, 2] = px, py, pz
+        cw, cx, cy, cz, cpx, cpy, cpz = _chain_world(rots, positions, t, chain, n_c)
+        rots[t, root, 0], rots[t, root, 1], rots[t, root, 2], rots[t, root, 3] = _mul(
+            cw, -cx, -cy, -cz, gq[t, 0], gq[t, 1], gq[t, 2], gq[t, 3])
+        positions[t, root, 0], positions[t, root, 1], positions[t, root, 2] = _rotate(
+            cw, -cx, -cy, -cz, gp[t, 0] - cpx, gp[t, 1] - cpy, gp[t, 2] - cpz)

@@ -221,6 +221,12 @@ def _bend_fit(length: int, terms: int) -> tuple[np.ndarray, np.ndarray]:
     return bump, solve
 
 
+def bend_fit(length: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`carry_chain`'s bump over ``length`` new frames at ``fps`` (two terms, one more per
+    :data:`BEND_PIECE_S` seconds of gap) and its least-squares solver (read-only)."""
+    return _bend_fit(int(length), 2 + int((length + 1.0) / (BEND_PIECE_S * fps)))
+
+
 def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray, positions: np.ndarray, chain,
                 root: int, up: int, dtheta: float, shift, a_carrier: int, b_carrier: int) -> None:
     """The joint of the root's chain that carries B's root motion (``b_carrier``, at least 0:
@@ -258,7 +264,7 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
         ground = np.concatenate([ta.gpos[ia], rotate_about_up(tb.gpos[ib], float(dtheta), up) + shift])
         bend = gp - basis @ np.stack([ground[1], ground[1] - ground[0], ground[2], ground[3] - ground[2]])
         bend[:, up] = 0.0
-        bump, solve = _bend_fit(len(rots), 2 + int((len(rots) + 1.0) / (BEND_PIECE_S * ta.motion.fps)))
+        bump, solve = bend_fit(len(rots), ta.motion.fps)
         new_p += bump @ (solve @ bend)
     if len(fixed):  # into the frame of the fixed joints above it
         fq, fp = chain_end(fixed, rots, positions)
