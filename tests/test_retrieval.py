@@ -22,7 +22,7 @@ import pytest
 from posturemap.io import bvh
 from posturemap import cli
 from posturemap.core import kernels, quat
-from posturemap.synth import retrieval
+from posturemap.synth import retrieval, trajectory
 from posturemap.core.joints import key_joints, leg_toes
 from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion, concatenate
@@ -365,13 +365,26 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     bows = PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED))
     eng = TransitionEngine(bows)
     eng.add("run", clips["run_proud_001"])
-    rots, pos = eng.generate("run", "run", length=30, a_end=40, b_start=71, align=False, method="retrieval")
-    rots, pos = rots.copy(), pos.copy()
+    kw = dict(length=30, a_end=40, b_start=71, align=False, foot_lock=False)
+    rots, pos = eng.generate("run", "run", method="retrieval", **kw)
     info = eng.last["retrieval"]
     assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[1]
-    fb_r, fb_p = eng.generate("run", "run", length=30, a_end=40, b_start=71, align=False,
-                              method=retrieval.fallback_method(30, 30.0))
-    assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
+    assert_the_fallback(eng, "run", rots.copy(), pos.copy(), kw)
+
+
+def assert_the_fallback(eng, name, rots, pos, kw):
+    """``rots``/``pos``, made in ``name``'s gap with fields ``kw`` (B fixed, no foot lock), are the
+    fallback's (``damped`` at this length), but for the root over the floor: B stays where it is,
+    so the root runs on the seams' own path (the spline's)."""
+    assert retrieval.fallback_method(kw["length"], 30.0) == "damped"
+    fb_r, fb_p = eng.generate(name, name, **{**kw, "method": "damped"})
+    root, others = eng._root, np.arange(eng.skeleton.num_joints) != eng._root
+    assert np.array_equal(rots, fb_r) and np.array_equal(pos[:, others], fb_p[:, others])
+    track = eng.tracks[name]
+    path = trajectory.seam_path(track, track, kw["a_end"], kw["b_start"], kw["length"], UP)
+    np.testing.assert_allclose(pos[:, root, [0, 2]], path[:, [0, 2]], rtol=0, atol=1e-9)
+    assert np.array_equal(pos[:, root, UP], fb_p[:, root, UP])
+    assert np.abs(pos[:, root, [0, 2]] - fb_p[:, root, [0, 2]]).max() > 1e-3  # not damped's own path
 
 
 @pytest.mark.parametrize("a, a_end, b, b_start, length", [
@@ -800,10 +813,10 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     # A bow (the feet stay put): the parts fall back to interpolation and say so.
     eng = TransitionEngine(model)
     eng.add("bow", clips["bow_happy_001"])
-    r, p = (x.copy() for x in eng.generate("bow", "bow", length=30, a_end=20, b_start=51, align=False, method="retrieval"))
+    kw = dict(length=30, a_end=20, b_start=51, align=False, foot_lock=False)
+    r, p = (x.copy() for x in eng.generate("bow", "bow", method="retrieval", **kw))
     assert eng.last["retrieval"]["confidence"] == 0.0
-    fb = eng.generate("bow", "bow", length=30, a_end=20, b_start=51, align=False, method=retrieval.fallback_method(30, 30.0))
-    assert np.array_equal(r, fb[0]) and np.array_equal(p, fb[1])
+    assert_the_fallback(eng, "bow", r, p, kw)
 
 
 def test_a_gap_that_must_travel_is_not_a_standing_gesture(model, clips):

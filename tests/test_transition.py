@@ -26,7 +26,7 @@ from posturemap.core.skeleton import fk
 from posturemap.synth.bases import (DAMPED_PEAK, DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis, reach_parts)
-from posturemap.synth import periodic
+from posturemap.synth import periodic, trajectory
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
 from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
@@ -719,6 +719,32 @@ def test_a_fixed_reference_node_stays_put_and_placement_says_how_b_moved(clips, 
         rots[:, joint], pos[:, joint] = quat.mul(q, rots[:, joint]), quat.mul_vec(q, pos[:, joint]) + t
         shown = Motion(b.skeleton, rots, pos, b.fps).global_positions()
         assert np.abs(shown - placed.global_positions()).max() < 1e-6
+
+
+def test_the_seams_path_follows_a_curving_walk():
+    # A root walking a circle of 1.5 m radius at 1.5 m/s (30 fps), swaying 3 cm from side to
+    # side at the step's rate: over a 1.5 s gap the seams' path (the fallback's root where B
+    # stays) keeps to the arc within 10 cm, where the straight line between the seams, which
+    # damped's root follows after its first 0.05 s, cuts 40 cm into it.
+    from types import SimpleNamespace
+
+    fps, radius, speed = 30.0, 150.0, 150.0
+    t = np.arange(200) / fps
+    angle = speed * t / radius
+    arc = np.stack([radius * np.sin(angle), np.zeros_like(t), radius * (1.0 - np.cos(angle))], axis=1)
+    side = np.stack([-np.sin(angle), np.zeros_like(t), np.cos(angle)], axis=1)
+    gpos = arc + 3.0 * np.sin(2 * np.pi * 1.8 * t)[:, None] * side
+    track = SimpleNamespace(gpos=gpos)
+    a_end, length = 60, 44
+    b_start = a_end + length + 1
+    path = trajectory.seam_path(track, track, a_end, b_start, length, UP)
+    assert np.all(path[:, UP] == 0.0)
+    s = np.linspace(0.0, 1.0, length + 2)[1:-1, None]
+    chord = (1.0 - s) * gpos[a_end] + s * gpos[b_start]
+    gap = slice(a_end + 1, b_start)
+    off = lambda p: np.linalg.norm((p - arc[gap])[:, [0, 2]], axis=1).max()
+    assert off(chord) > 35.0
+    assert off(path) < 10.0
 
 
 def test_alignment_faces_b_the_way_a_walks(clips, model):
