@@ -17,8 +17,9 @@ real motion:
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back by
-    confidence to ``damped`` (``spline`` on gaps under 0.6 s, where the upper body fades into
-    it; :mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
+    confidence to ``damped`` (its root, where B stays where it is, on the seams' own path, the
+    spline's; ``spline`` on gaps under 0.6 s, where the upper body fades into it;
+    :mod:`posturemap.synth.retrieval`). ``alpha`` weighs the match at A's
     end (0: continue A's motion) against the match at B's start (1: arrive in B's motion).
 ``upm`` (paper)
     Key posture from the four class maps: per class, the neuron nearest the ``alpha``-blend of
