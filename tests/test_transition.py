@@ -652,6 +652,37 @@ def test_a_root_bone_that_carries_root_motion_is_placed_with_the_body(clips, mod
     assert step.max() <= quat.angle_between(turn[a_end], turn[i1]) / 5 + 1e-9
 
 
+def test_in_betweening_that_falls_back_keeps_a_root_bone_on_the_bodys_course(clips, model, monkeypatch):
+    # The legs not retrieved at all (confidence forced to 0): in in-betweening the fallback's root
+    # runs on the seams' path, and walk-back_normal_001's joint_Root, which carries its root
+    # motion, takes the spline's course with it instead of damped's straight one.
+    from posturemap.synth import retrieval
+
+    back = clips[BACK]
+    # joint_Root bowed 20 cm sideways over the clip (Hips under it where it was): a curved course.
+    rots, pos = back.rotations.copy(), back.positions.copy()
+    bow = np.zeros((len(back), 3))
+    bow[:, 0] = 20.0 * np.sin(np.pi * np.arange(len(back)) / (len(back) - 1))
+    pos[:, 0] += bow
+    pos[:, 1] -= quat.mul_vec(quat.inv(rots[:, 0]), bow)
+    back = Motion(back.skeleton, rots, pos, back.fps)
+    monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.0, 0.0])
+    kw = dict(length=20, a_end=5, b_start=26, align=False, foot_lock=False)
+    engine = TransitionEngine(model)
+    engine.add("back", back)
+    rots, pos = (x.copy() for x in engine.generate("back", "back", method="retrieval", **kw))
+    assert engine.last["retrieval"]["confidence"] == 0.0
+    spline_r, spline_p = (x.copy() for x in engine.generate("back", "back", method="spline", **kw))
+    np.testing.assert_allclose(pos[:, 0], spline_p[:, 0], rtol=0, atol=1e-9)
+    same_rotation = np.abs(np.sum(rots[:, 0] * spline_r[:, 0], axis=-1))
+    np.testing.assert_allclose(same_rotation, 1.0, rtol=0, atol=1e-12)
+    damped_p = engine.generate("back", "back", method="damped", **kw)[1]
+    assert np.abs(damped_p[:, 0] - spline_p[:, 0]).max() > 1.0  # a course of its own
+    out = concatenate([back[:6], Motion(back.skeleton, rots, pos, back.fps), back[26:]])
+    off = ground_offset(out.global_positions()) - ground_offset(back.global_positions())
+    assert np.abs(off[6:26]).max() < 5.0  # off the body by what the clip's own bone is, within 5 cm
+
+
 def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):
     # A conversion node (a quarter turn about X, off the origin) above the moving joint_Root: the
     # node stays where it is, and joint_Root and the body go where they go without it.
