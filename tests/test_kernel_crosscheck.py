@@ -766,8 +766,7 @@ def test_compiled_carry_chain_matches_the_numpy_steps(bandai_paths):
             ref_r, ref_p, given = rots.copy(), pos.copy(), pos.copy()
             trajectory.carry_chain(ta, tb, a_end, b_start, ref_r, ref_p, chain, root, up, dtheta, shift, a_carrier,
                                    tb.carrier)
-            bump, solve = (trajectory.bend_fit(length, ta.motion.fps) if a_carrier >= 0
-                           else (np.zeros((length, 0)), np.zeros((0, length))))
+            bump, solve = trajectory.bend_fit(length, ta.motion.fps, bent=a_carrier >= 0)
             RN.carry_chain(rots, pos, chain, tb.carrier, root, ta.motion.rotations, ta.motion.positions, ta.gpos,
                            max(a_end - 1, 0), a_end, tb.motion.rotations, tb.motion.positions, tb.gpos, b_start,
                            min(b_start + 1, len(tb.gpos) - 1), up, dtheta, shift, hermite_basis(length), bump, solve)

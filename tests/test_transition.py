@@ -659,12 +659,15 @@ def test_in_betweening_that_falls_back_keeps_a_root_bone_on_the_bodys_course(cli
     from posturemap.synth import retrieval
 
     back = clips[BACK]
-    # joint_Root bowed 20 cm sideways over the clip (Hips under it where it was): a curved course.
+    # joint_Root bowed 20 cm sideways over the clip and turning up to 0.3 rad with it (Hips under
+    # it where it was): a curved course.
     rots, pos = back.rotations.copy(), back.positions.copy()
-    bow = np.zeros((len(back), 3))
-    bow[:, 0] = 20.0 * np.sin(np.pi * np.arange(len(back)) / (len(back) - 1))
-    pos[:, 0] += bow
-    pos[:, 1] -= quat.mul_vec(quat.inv(rots[:, 0]), bow)
+    arc = np.sin(np.pi * np.arange(len(back)) / (len(back) - 1))
+    gq, gp = quat.mul(rots[:, 0], rots[:, 1]), pos[:, 0] + quat.mul_vec(rots[:, 0], pos[:, 1])
+    rots[:, 0] = quat.mul(quat.from_axis_angle(up_vec(), 0.3 * arc), rots[:, 0])
+    pos[:, 0, 0] += 20.0 * arc
+    inv = quat.inv(rots[:, 0])
+    rots[:, 1], pos[:, 1] = quat.mul(inv, gq), quat.mul_vec(inv, gp - pos[:, 0])
     back = Motion(back.skeleton, rots, pos, back.fps)
     monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.0, 0.0])
     kw = dict(length=20, a_end=5, b_start=26, align=False, foot_lock=False)
@@ -676,8 +679,13 @@ def test_in_betweening_that_falls_back_keeps_a_root_bone_on_the_bodys_course(cli
     np.testing.assert_allclose(pos[:, 0], spline_p[:, 0], rtol=0, atol=1e-9)
     same_rotation = np.abs(np.sum(rots[:, 0] * spline_r[:, 0], axis=-1))
     np.testing.assert_allclose(same_rotation, 1.0, rtol=0, atol=1e-12)
-    damped_p = engine.generate("back", "back", method="damped", **kw)[1]
+    damped_r, damped_p = engine.generate("back", "back", method="damped", **kw)
     assert np.abs(damped_p[:, 0] - spline_p[:, 0]).max() > 1.0  # a course of its own
+    # The body keeps the fallback's turn: only its place over the floor moves with the root.
+    hips = back.skeleton.index("Hips")
+    body = fk(back.skeleton.parents, rots, pos)[0][:, hips]
+    fallback = fk(back.skeleton.parents, damped_r, damped_p)[0][:, hips]
+    np.testing.assert_allclose(np.abs(np.sum(body * fallback, axis=-1)), 1.0, rtol=0, atol=1e-9)
     out = concatenate([back[:6], Motion(back.skeleton, rots, pos, back.fps), back[26:]])
     off = ground_offset(out.global_positions()) - ground_offset(back.global_positions())
     assert np.abs(off[6:26]).max() < 5.0  # off the body by what the clip's own bone is, within 5 cm

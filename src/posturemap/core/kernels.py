@@ -24,6 +24,7 @@ import types
 import numpy as np
 
 from . import quat
+from .skeleton import chain_world
 from .skeleton import fk as _fk_reference
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
@@ -106,10 +107,7 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
     g = quat.mul(quat.from_axis_angle(axis, np.asarray(heading, dtype=float)), rots[:, root])
     p = np.asarray(gpos, dtype=float)
     if len(chain):
-        prot, ppos = rots[:, chain[0]], positions[:, chain[0]]
-        for c in chain[1:]:
-            ppos = ppos + quat.mul_vec(prot, positions[:, c])
-            prot = quat.mul(prot, rots[:, c])
+        prot, ppos = chain_world(chain, rots, positions)
         g = quat.mul(quat.inv(prot), g)
         p = quat.mul_vec(quat.inv(prot), p - ppos)
     rots[:, root] = g

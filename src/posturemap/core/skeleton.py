@@ -133,6 +133,17 @@ class Skeleton:
                    d.get("euler_style", "wrapped"))
 
 
+def chain_world(chain, rots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotation and position (..., 4), (..., 3) of the last joint of ``chain`` (joint
+    indices, top first, the top without a parent) from local ``rots (..., J, 4)`` and
+    ``positions (..., J, 3)``."""
+    q, p = rots[..., chain[0], :], positions[..., chain[0], :]
+    for c in chain[1:]:
+        p = p + quat.mul_vec(q, positions[..., c, :])
+        q = quat.mul(q, rots[..., c, :])
+    return q, p
+
+
 def fk(parents: np.ndarray, rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Forward kinematics for all frames at once.
 

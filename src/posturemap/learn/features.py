@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import quat
-from ..core.joints import subtree_mask
+from ..core.joints import ancestors, subtree_mask
+from ..core.skeleton import chain_world
 from ..errors import UserError
 from ..core.motion import Motion, root_index, up_axis, up_vector
 
@@ -251,16 +252,8 @@ class FeatureSpace:
 
 def root_global(motion: Motion, root: int) -> tuple[np.ndarray, np.ndarray]:
     """Global rotation (F, 4) and position (F, 3) of joint ``root`` through its ancestors."""
-    parents = motion.skeleton.parents
-    chain = [root]
-    while parents[chain[-1]] >= 0:
-        chain.append(int(parents[chain[-1]]))
-    rot = motion.rotations[:, chain[-1]].copy()
-    pos = motion.positions[:, chain[-1]].copy()
-    for j in reversed(chain[:-1]):
-        pos = pos + quat.mul_vec(rot, motion.positions[:, j])
-        rot = quat.mul(rot, motion.rotations[:, j])
-    return rot, pos
+    rot, pos = chain_world(ancestors(motion.skeleton.parents, root) + [root], motion.rotations, motion.positions)
+    return rot.copy(), pos.copy()
 
 
 def upright_rest(grot: np.ndarray, up: int) -> np.ndarray:

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..core import kernels, quat
 from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
+from ..core.skeleton import chain_world
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
 from ..learn.features import TWO_PI, root_global, upright_rest
@@ -77,7 +78,7 @@ from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
-from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, chain_end, make_track, placement,
+from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
                          rotate_about_up, seam_path)
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
@@ -172,7 +173,7 @@ class TransitionEngine:
                         shift, a_carrier, b_carrier)
             return
         length = len(out_r)
-        bump, solve = bend_fit(length, ta.motion.fps) if a_carrier >= 0 else _no_bend(length)
+        bump, solve = bend_fit(length, ta.motion.fps, bent=a_carrier >= 0)
         a_end, b_start = req.a_end, req.b_start
         jit.carry_chain(out_r, out_p, self._chain, b_carrier, self._root, ta.motion.rotations, ta.motion.positions,
                         ta.gpos, max(a_end - 1, 0), a_end, tb.motion.rotations, tb.motion.positions, tb.gpos, b_start,
@@ -768,25 +769,12 @@ def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         return
     # The joints above the root take the same course (a root bone keeps to the body; on LaFAN1 at
     # 2 s it strayed 28 cm from it in the median on damped's own, and erred 21 cm): their spline's.
-    cq, cp = chain_end(chain, rots, pos)
-    g = cp + quat.mul_vec(cq, pos[:, r])
-    g[:, flat] = path[:, flat]
+    gq, gp = chain_world(chain.tolist() + [r], rots, pos)
+    gp[:, flat] = path[:, flat]
     chain_r, chain_p = _open_columns(eng, ta, tb, a_end, b_start, len(pos))
     for j in chain.tolist():
         rots[:, j], pos[:, j] = chain_r[:, j], chain_p[:, j]
-    cq_new, cp_new = chain_end(chain, rots, pos)
-    rots[:, r] = quat.mul(quat.inv(cq_new), quat.mul(cq, rots[:, r]))
-    pos[:, r] = quat.mul_vec(quat.inv(cq_new), g - cp_new)
-
-
-@lru_cache(maxsize=64)
-def _no_bend(length: int) -> tuple[np.ndarray, np.ndarray]:
-    """An empty bump and solver for the compiled carry_chain (no bend), read-only as
-    :func:`posturemap.synth.trajectory.bend_fit`'s are: one compiled version serves both."""
-    bump, solve = np.zeros((length, 0)), np.zeros((0, length))
-    bump.setflags(write=False)
-    solve.setflags(write=False)
-    return bump, solve
+    put_root(chain, r, rots, pos, gq, gp)
 
 
 def _meet_b_velocity(eng: TransitionEngine, tb: Track, b_start: int, out_r, out_p, c: float, turn_res: float,
@@ -809,7 +797,7 @@ def _meet_b_velocity(eng: TransitionEngine, tb: Track, b_start: int, out_r, out_
     curve = retrieval._hermite_offsets_cached(length, retrieval.blend_frames(True, tb.motion.fps))[3]
     offset = curve[:, None] * miss[None]
     if len(eng._chain):  # the root's translation is in its parent's frame
-        offset = quat.mul_vec(quat.inv(chain_end(eng._chain, out_r, out_p)[0]), offset)
+        offset = quat.mul_vec(quat.inv(chain_world(eng._chain, out_r, out_p)[0]), offset)
     out_p[:, eng._root] += offset
 
 

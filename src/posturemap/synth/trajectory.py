@@ -18,6 +18,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..core.joints import ancestors, leg_chains, leg_toes
 from ..core.motion import Motion, up_vector
+from ..core.skeleton import chain_world
 from ..learn.features import root_global
 from .bases import hermite_basis
 
@@ -188,16 +189,6 @@ def aligned(track: Track, start: int, dtheta: float, shift: np.ndarray, chain: n
     return Motion(m.skeleton, rots, positions, m.fps)
 
 
-def chain_end(chain, rots: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Global rotation and position of the lowest joint of ``chain`` (top first; the top has no
-    parent) from local ``rots (N, J, 4)`` and ``positions (N, J, 3)``."""
-    q, p = rots[:, chain[0]], positions[:, chain[0]]
-    for c in chain[1:]:
-        p = p + quat.mul_vec(q, positions[:, c])
-        q = quat.mul(q, rots[:, c])
-    return q, p
-
-
 def _seen_from(fixed, motion: Motion, up: int, dtheta: float, shift) -> tuple[np.ndarray, np.ndarray]:
     """The turn by ``dtheta`` about up and the move by ``shift`` of the world, as a change
     ``(q, t)`` of the local rotation and translation of a joint whose ancestors are the fixed
@@ -206,7 +197,7 @@ def _seen_from(fixed, motion: Motion, up: int, dtheta: float, shift) -> tuple[np
     shift = np.asarray(shift, dtype=float)
     if not len(fixed):
         return turn, shift.copy()
-    cq, cp = chain_end(fixed, motion.rotations[:1], motion.positions[:1])
+    cq, cp = chain_world(fixed, motion.rotations[:1], motion.positions[:1])
     cq_inv = quat.inv(cq[0])
     return quat.mul(cq_inv, quat.mul(turn, cq[0])), quat.mul_vec(cq_inv, quat.mul_vec(turn, cp[0]) + shift - cp[0])
 
@@ -222,9 +213,7 @@ def placement(track: Track, chain, root: int, up: int, dtheta: float, shift,
     ``dtheta`` about up and the move by ``shift``, seen from the fixed joints above it.
     """
     k = track.carrier if carrier is None else carrier
-    if not len(chain):
-        return int(root), *_seen_from(chain, track.motion, up, dtheta, shift)
-    if k >= 0:
+    if k >= 0 and len(chain):
         return int(chain[k]), *_seen_from(chain[:k], track.motion, up, dtheta, shift)
     return int(root), *_seen_from(chain, track.motion, up, dtheta, shift)
 
@@ -234,17 +223,21 @@ def _bend_fit(length: int, terms: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`carry_chain`'s bump, ``s^2 (1-s)^2`` times Legendre polynomials of degree under
     ``terms`` at the new frames' times ``s``, and its least-squares solver (read-only)."""
     s = np.arange(1, length + 1) / (length + 1.0)
-    bump = (s * s * (1.0 - s) ** 2)[:, None] * np.polynomial.legendre.legvander(2.0 * s - 1.0, terms - 1)
-    solve = np.linalg.pinv(bump)
+    if terms:
+        bump = (s * s * (1.0 - s) ** 2)[:, None] * np.polynomial.legendre.legvander(2.0 * s - 1.0, terms - 1)
+        solve = np.linalg.pinv(bump)
+    else:
+        bump, solve = np.zeros((length, 0)), np.zeros((0, length))
     bump.setflags(write=False)
     solve.setflags(write=False)
     return bump, solve
 
 
-def bend_fit(length: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
+def bend_fit(length: int, fps: float, bent: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """:func:`carry_chain`'s bump over ``length`` new frames at ``fps`` (two terms, one more per
-    :data:`BEND_PIECE_S` seconds of gap) and its least-squares solver (read-only)."""
-    return _bend_fit(int(length), 2 + int((length + 1.0) / (BEND_PIECE_S * fps)))
+    :data:`BEND_PIECE_S` seconds of gap) and its least-squares solver (read-only); not ``bent``,
+    empty ones (no terms: the compiled carry then bends nothing)."""
+    return _bend_fit(int(length), 2 + int((length + 1.0) / (BEND_PIECE_S * fps)) if bent else 0)
 
 
 def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray, positions: np.ndarray, chain,
@@ -268,11 +261,10 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
     j, fixed, upto = int(chain[k]), chain[:k], chain[: k + 1]
     a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
     shift = np.asarray(shift, dtype=float)
-    cq, cp = chain_end(chain, rots, positions)
-    gq, gp = quat.mul(cq, rots[:, root]), cp + quat.mul_vec(cq, positions[:, root])
+    gq, gp = chain_world(list(chain) + [root], rots, positions)
     ia, ib = [a_prev, a_end], [b_start, b_next]
-    aq, ap = chain_end(upto, ta.motion.rotations[ia], ta.motion.positions[ia])
-    bq, bp = chain_end(upto, tb.motion.rotations[ib], tb.motion.positions[ib])
+    aq, ap = chain_world(upto, ta.motion.rotations[ia], ta.motion.positions[ia])
+    bq, bp = chain_world(upto, tb.motion.rotations[ib], tb.motion.positions[ib])
     bq = quat.mul(quat.from_axis_angle(up_vector(up), np.array(float(dtheta))), bq)
     bp = rotate_about_up(bp, float(dtheta), up) + shift
     seam_q, seam_p = np.concatenate([aq, bq]), np.concatenate([ap, bp])
@@ -287,10 +279,16 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
         bump, solve = bend_fit(len(rots), ta.motion.fps)
         new_p += bump @ (solve @ bend)
     if len(fixed):  # into the frame of the fixed joints above it
-        fq, fp = chain_end(fixed, rots, positions)
+        fq, fp = chain_world(fixed, rots, positions)
         fq_inv = quat.inv(fq)
         new_q, new_p = quat.mul(fq_inv, new_q), quat.mul_vec(fq_inv, new_p - fp)
     rots[:, j], positions[:, j] = new_q, new_p
-    cq, cp = chain_end(chain, rots, positions)
+    put_root(chain, root, rots, positions, gq, gp)
+
+
+def put_root(chain, root: int, rots: np.ndarray, positions: np.ndarray, gq: np.ndarray, gp: np.ndarray) -> None:
+    """The root's local rotation and translation (in place) that put it at global ``gq`` (N, 4),
+    ``gp`` (N, 3) under its ancestors ``chain`` (top first, at least one) as they now are."""
+    cq, cp = chain_world(chain, rots, positions)
     cq_inv = quat.inv(cq)
     rots[:, root], positions[:, root] = quat.mul(cq_inv, gq), quat.mul_vec(cq_inv, gp - cp)
