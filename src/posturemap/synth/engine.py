@@ -79,7 +79,7 @@ from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
 from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
-                         rotate_about_up, seam_path)
+                         rotate_about_up, seam_path, through_seams)
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
@@ -647,14 +647,12 @@ def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         seam = np.empty((4, len(chain), 3))
         kernels.log_relative(np.stack([ta.rots[a_prev, chain], ta.rots[a_end, chain], ref, tb.rots[b_next, chain]]),
                              ref, seam)
-        rates = np.stack([seam[1], seam[1] - seam[0], seam[2], seam[3] - seam[2]])
         rots = np.empty((length, eng.skeleton.num_joints, 4))
         part = np.empty((length, len(chain), 4))
-        kernels.exp_relative((basis @ rates.reshape(4, -1)).reshape(length, len(chain), 3), ref, part)
+        kernels.exp_relative(through_seams(seam, length), ref, part)
         rots[:, chain] = part
-    pa, pb = ta.motion.positions[a_end], tb.motion.positions[b_start]
-    seam = np.stack([pa, pa - ta.motion.positions[a_prev], pb, tb.motion.positions[b_next] - pb])
-    return rots, (basis @ seam.reshape(4, -1)).reshape(length, -1, 3)
+    return rots, through_seams(np.stack([ta.motion.positions[a_prev], ta.motion.positions[a_end],
+                                         tb.motion.positions[b_start], tb.motion.positions[b_next]]), length)
 
 
 def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):

@@ -106,6 +106,14 @@ def chain_carrier(motion: Motion, chain) -> int:
     return -1
 
 
+def through_seams(rows: np.ndarray, length: int) -> np.ndarray:
+    """The cubic Hermite (length, ...) through the new frames from A's last value and rate to B's
+    first: ``rows`` (4, ...) hold A's frame before its last, its last, B's first and the one after
+    (``spline``'s rows; :func:`posturemap.synth.bases.hermite_basis`)."""
+    rates = np.stack([rows[1], rows[1] - rows[0], rows[2], rows[3] - rows[2]])
+    return np.tensordot(hermite_basis(length), rates, axes=1)
+
+
 def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: int) -> np.ndarray:
     """The root's place over the floor through ``length`` new frames between A's frame ``a_end``
     and B's ``b_start`` where B stays where it is (in-betweening): (length, 3), the up
@@ -120,9 +128,9 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
     """
     flat = [i for i in range(3) if i != up]
     a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
-    pa, pb = ta.gpos[a_end, flat], tb.gpos[b_start, flat]
     out = np.zeros((length, 3))
-    out[:, flat] = hermite_basis(length) @ np.stack([pa, pa - ta.gpos[a_prev, flat], pb, tb.gpos[b_next, flat] - pb])
+    out[:, flat] = through_seams(np.stack([ta.gpos[a_prev], ta.gpos[a_end], tb.gpos[b_start], tb.gpos[b_next]]),
+                                 length)[:, flat]
     return out
 
 
@@ -267,16 +275,14 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
     bq, bp = chain_world(upto, tb.motion.rotations[ib], tb.motion.positions[ib])
     bq = quat.mul(quat.from_axis_angle(up_vector(up), np.array(float(dtheta))), bq)
     bp = rotate_about_up(bp, float(dtheta), up) + shift
-    seam_q, seam_p = np.concatenate([aq, bq]), np.concatenate([ap, bp])
-    basis = hermite_basis(len(rots))
-    logs = quat.log(quat.mul(quat.inv(seam_q[2]), seam_q))
-    new_q = quat.mul(seam_q[2], quat.exp(basis @ np.stack([logs[1], logs[1] - logs[0], logs[2], logs[3] - logs[2]])))
-    new_p = basis @ np.stack([seam_p[1], seam_p[1] - seam_p[0], seam_p[2], seam_p[3] - seam_p[2]])
+    seam_q, length = np.concatenate([aq, bq]), len(rots)
+    new_q = quat.mul(seam_q[2], quat.exp(through_seams(quat.log(quat.mul(quat.inv(seam_q[2]), seam_q)), length)))
+    new_p = through_seams(np.concatenate([ap, bp]), length)
     if a_carrier >= 0:
         ground = np.concatenate([ta.gpos[ia], rotate_about_up(tb.gpos[ib], float(dtheta), up) + shift])
-        bend = gp - basis @ np.stack([ground[1], ground[1] - ground[0], ground[2], ground[3] - ground[2]])
+        bend = gp - through_seams(ground, length)
         bend[:, up] = 0.0
-        bump, solve = bend_fit(len(rots), ta.motion.fps)
+        bump, solve = bend_fit(length, ta.motion.fps)
         new_p += bump @ (solve @ bend)
     if len(fixed):  # into the frame of the fixed joints above it
         fq, fp = chain_world(fixed, rots, positions)
