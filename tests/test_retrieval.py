@@ -300,19 +300,27 @@ def test_partly_confident_legs_still_plant_the_segments_feet(engine, clips, monk
         assert np.all(step[both] < 1.0), (leg, step[both].max())
 
 
-def test_the_upper_body_follows_the_legs_over_twice_their_range():
-    conf = retrieval.confidences
-    lo, hi = retrieval.CONF_RANGE
-    ulo, uhi = retrieval.UPPER_CONF_RANGE
-    assert ulo >= hi  # another style's arms are far: much of it is posture, which the offsets carry
+def test_the_upper_body_follows_the_legs_and_is_full_up_to_twice_their_distance():
+    for align in (False, True):
+        assert_the_confidences(align)
+
+
+def assert_the_confidences(align):
+    def conf(distance, still, upper, both=True):
+        return retrieval.confidences(distance, still, upper, both, align)
+
+    lo, hi = retrieval.CONF_RANGE[align]
+    ulo, uhi = retrieval.UPPER_CONF_RANGE[align]
+    # Another style's arms are far: much of it is posture, which the offsets carry.
+    assert ulo == 2 * lo and uhi >= hi
     # Legs: by their match distance (full below CONF_RANGE[0], none above [1]), times still.
     assert conf([lo, 0.0], 1.0, 1.0) == [1.0, 1.0]
     assert conf([hi + 1, 0.0], 1.0, 1.0) == [0.0, 0.0]  # the arms follow: an unrelated library
     assert conf([0.0, 0.0], 0.0, 1.0) == [0.0, 0.0]  # standing still: interpolated
     legs = [conf([d, 0.0], 1.0, 1.0)[0] for d in np.linspace(lo - 2, hi + 2, 30)]
     assert legs[0] == 1.0 and legs[-1] == 0.0 and np.all(np.diff(legs) <= 0)
-    # The upper body over UPPER_CONF_RANGE: at a distance the legs would not accept, full.
-    assert conf([hi, 0.0], 1.0, 1.0)[0] == 0.0 and conf([0.0, ulo], 1.0, 1.0)[1] == 1.0
+    # The upper body over UPPER_CONF_RANGE: at a distance the legs accept only in part, full.
+    assert conf([ulo, 0.0], 1.0, 1.0)[0] < 1.0 and conf([0.0, ulo], 1.0, 1.0)[1] == 1.0
     ups = [conf([0.0, d], 1.0, 1.0)[1] for d in np.linspace(ulo - 2, uhi + 2, 30)]
     assert ups[0] == 1.0 and ups[-1] == 0.0 and np.all(np.diff(ups) <= 0) and 0 < ups[15] < 1
     # ... in full while the legs are at least UPPER_FOLLOWS confident, less below, times `upper`.
@@ -323,6 +331,10 @@ def test_the_upper_body_follows_the_legs_over_twice_their_range():
     # A splice's halves are matched at one seam each: both parts over the legs' range, times still.
     assert conf([0.0, hi + 1], 1.0, 1.0, both=False) == [1.0, 0.0]
     assert conf([0.0, 0.0], 1.0, 0.5, both=False) == [1.0, 0.5]
+    if not align:  # in-betweening takes more of a far match, and less of a near one, than between clips
+        between = retrieval.CONF_RANGE[True]
+        assert conf([between[1], 0.0], 1.0, 1.0)[0] > 0.0 == retrieval.confidences([between[1], 0.0], 1.0, 1.0, True, True)[0]
+        assert conf([between[0], 0.0], 1.0, 1.0)[0] < 1.0 == retrieval.confidences([between[0], 0.0], 1.0, 1.0, True, True)[0]
 
 
 def test_offset_curves_put_the_ends_exactly_on_a_and_b():
@@ -361,15 +373,35 @@ def test_inbetweening_keeps_b_exactly_and_lands_the_root_on_it(model, clips):
 
 
 # -- confidence and fallback ------------------------------------------------------------------
+def twisted(m: Motion) -> Motion:
+    """``m`` with its thighs and shins twisted 90 degrees about their bones (Bandai's bones lie
+    along their joints' x axes): legs still upright, in postures no walk or run comes near."""
+    r = m.rotations.copy()
+    for name in ("UpperLeg_L", "UpperLeg_R", "LowerLeg_L", "LowerLeg_R"):
+        j = m.skeleton.index(name)
+        r[:, j] = quat.mul(r[:, j], quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2))
+    return Motion(m.skeleton, r, m.positions, m.fps)
+
+
 def test_an_unrelated_library_falls_back_to_interpolation(clips):
-    bows = PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED))
-    eng = TransitionEngine(bows)
+    # In-betweening ramps the confidence over a wide range of match distances (a bow's legs for
+    # a run's, 30 degrees apart, are still 0.45 confident): bows on twisted legs are beyond it.
+    eng = TransitionEngine(PostureMap(seed=0).fit([twisted(clips[n]) for n in UNRELATED], list(UNRELATED)))
     eng.add("run", clips["run_proud_001"])
     kw = dict(length=30, a_end=40, b_start=71, align=False, foot_lock=False)
     rots, pos = eng.generate("run", "run", method="retrieval", **kw)
     info = eng.last["retrieval"]
-    assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[1]
+    assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[False][1]
     assert_the_fallback(eng, "run", rots.copy(), pos.copy(), kw)
+    # Between clips the range is narrower: the bows themselves are too far for a run.
+    bows = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED)))
+    bows.add("run", clips["run_proud_001"])
+    kw = dict(length=30, a_end=40, b_start=71, foot_lock=False)
+    rots, pos = bows.generate("run", "run", method="retrieval", **kw)
+    info = bows.last["retrieval"]
+    assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[True][1]
+    fb_r, fb_p = bows.generate("run", "run", method="damped", **kw)
+    assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
 
 def assert_the_fallback(eng, name, rots, pos, kw):
