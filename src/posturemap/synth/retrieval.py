@@ -37,9 +37,10 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
 5. **falls back** by confidence (:func:`confidences`): the match distance, the RMS difference of
    the part's joint rotations between the segment and A / B at the seams (degrees per joint, the
-   larger seam), over 12-24 degrees for the legs, times how much the root moves at the seams or,
-   in in-betweening, must travel across the gap (:func:`still_weight`: standing gestures are
-   interpolated); over twice that for the upper body, which follows the legs and, on short gaps,
+   larger seam), over 12-24 degrees for the legs between clips and 8-48 in in-betweening, times
+   how much the root moves at the seams or, in in-betweening, must travel across the gap
+   (:func:`still_weight`: standing gestures are interpolated); full up to twice the legs' full
+   distance, none above 48 degrees, for the upper body, which follows the legs and, on short gaps,
    fades with :func:`upper_weight` (there the arms come from the fallback, which matches the
    seams' velocities); where a part's confidence is 0 it is the interpolating fallback
    (:func:`fallback_method`), at 1 the retrieved motion, in between a per-joint SLERP of the two.
