@@ -307,7 +307,7 @@ def test_the_upper_body_follows_the_legs_and_is_full_up_to_twice_their_distance(
 
 def assert_the_confidences(align):
     def conf(distance, still, upper, both=True):
-        return retrieval.confidences(distance, still, upper, both, align)
+        return retrieval.confidences(distance, still, upper, both, align=align)
 
     lo, hi = retrieval.CONF_RANGE[align]
     ulo, uhi = retrieval.UPPER_CONF_RANGE[align]
@@ -332,9 +332,11 @@ def assert_the_confidences(align):
     assert conf([0.0, hi + 1], 1.0, 1.0, both=False) == [1.0, 0.0]
     assert conf([0.0, 0.0], 1.0, 0.5, both=False) == [1.0, 0.5]
     if not align:  # in-betweening takes more of a far match, and less of a near one, than between clips
-        between = retrieval.CONF_RANGE[True]
-        assert conf([between[1], 0.0], 1.0, 1.0)[0] > 0.0 == retrieval.confidences([between[1], 0.0], 1.0, 1.0, True, True)[0]
-        assert conf([between[0], 0.0], 1.0, 1.0)[0] < 1.0 == retrieval.confidences([between[0], 0.0], 1.0, 1.0, True, True)[0]
+        near, far = retrieval.CONF_RANGE[True]
+        assert retrieval.confidences([far, 0.0], 1.0, 1.0, align=True)[0] == 0.0
+        assert conf([far, 0.0], 1.0, 1.0)[0] > 0.0
+        assert retrieval.confidences([near, 0.0], 1.0, 1.0, align=True)[0] == 1.0
+        assert conf([near, 0.0], 1.0, 1.0)[0] < 1.0
 
 
 def test_offset_curves_put_the_ends_exactly_on_a_and_b():
@@ -384,8 +386,15 @@ def twisted(m: Motion) -> Motion:
 
 
 def test_an_unrelated_library_falls_back_to_interpolation(clips):
-    # In-betweening ramps the confidence over a wide range of match distances (a bow's legs for
-    # a run's, 30 degrees apart, are still 0.45 confident): bows on twisted legs are beyond it.
+    # In-betweening ramps the confidence over a wide range of match distances: a bow's legs for
+    # a run's, 30 degrees apart, are still partly confident there ...
+    bows = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED)))
+    bows.add("run", clips["run_proud_001"])
+    bows.generate("run", "run", method="retrieval", length=30, a_end=40, b_start=71, align=False, foot_lock=False)
+    legs = bows.last["retrieval"]["parts"]["lower"]
+    assert retrieval.CONF_RANGE[True][1] < legs["distance"] < retrieval.CONF_RANGE[False][1]
+    assert 0.0 < legs["confidence"] < 1.0
+    # ... and bows on twisted legs are beyond it.
     eng = TransitionEngine(PostureMap(seed=0).fit([twisted(clips[n]) for n in UNRELATED], list(UNRELATED)))
     eng.add("run", clips["run_proud_001"])
     kw = dict(length=30, a_end=40, b_start=71, align=False, foot_lock=False)
@@ -394,14 +403,12 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[False][1]
     assert_the_fallback(eng, "run", rots.copy(), pos.copy(), kw)
     # Between clips the range is narrower: the bows themselves are too far for a run.
-    bows = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED)))
-    bows.add("run", clips["run_proud_001"])
     kw = dict(length=30, a_end=40, b_start=71, foot_lock=False)
-    rots, pos = bows.generate("run", "run", method="retrieval", **kw)
+    rots, pos = (x.copy() for x in bows.generate("run", "run", method="retrieval", **kw))  # buffers
     info = bows.last["retrieval"]
     assert info["confidence"] == 0.0 and info["parts"]["lower"]["distance"] > retrieval.CONF_RANGE[True][1]
     fb_r, fb_p = bows.generate("run", "run", method="damped", **kw)
-    assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
+    assert fb_r is not rots and np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
 
 def assert_the_fallback(eng, name, rots, pos, kw):

@@ -37,10 +37,11 @@ A transition fills the frames ``t = 1 .. L`` between A's end (``t = 0``) and B's
    swing (:func:`posturemap.synth.feet.lock_feet` with the segment's contacts);
 5. **falls back** by confidence (:func:`confidences`): the match distance, the RMS difference of
    the part's joint rotations between the segment and A / B at the seams (degrees per joint, the
-   larger seam), over 12-24 degrees for the legs between clips and 8-48 in in-betweening, times
-   how much the root moves at the seams or, in in-betweening, must travel across the gap
-   (:func:`still_weight`: standing gestures are interpolated); full up to twice the legs' full
-   distance, none above 48 degrees, for the upper body, which follows the legs and, on short gaps,
+   larger seam), over 12-24 degrees for the legs between clips and 8-48 in in-betweening
+   (``align=False``), times how much the root moves at the seams or, in in-betweening, must
+   travel across the gap (:func:`still_weight`: standing gestures are interpolated); full up to
+   twice the legs' full distance, none above 48 degrees, for the upper body, which follows the
+   legs and, on short gaps,
    fades with :func:`upper_weight` (there the arms come from the fallback, which matches the
    seams' velocities); where a part's confidence is 0 it is the interpolating fallback
    (:func:`fallback_method`), at 1 the retrieved motion, in between a per-joint SLERP of the two.
@@ -775,7 +776,7 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0)
     return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
 
 
-def confidences(distance, still: float, upper: float, both: bool = True, align: bool = True) -> list[float]:
+def confidences(distance, still: float, upper: float, both: bool = True, *, align: bool) -> list[float]:
     """The confidence (0..1) of each body part of a match, from its match distances (degrees,
     :meth:`Retriever.seam_distances`), :func:`still_weight` and :func:`upper_weight`.
 
@@ -791,34 +792,16 @@ def confidences(distance, still: float, upper: float, both: bool = True, align: 
     the upper body).
 
     In in-betweening (``align`` False: B fixed, both seams from one performance) the ramps are
-    wide: a typical match (12-20 degrees on Bandai's held-out clips, 12-17 on LaFAN1's other
-    performers) is 0.7-0.9 confident, and ``damped``, the fallback, takes the rest. Real motion
-    from another performance and the interpolation of this performance's own seams err in
-    different ways, and their blend errs less than either where neither is sure; full
-    confidence is kept for a segment that nearly continues the seams. Until this release both
-    modes ramped the legs over 12-24 degrees and the upper body over 24-48 (twice the legs',
-    which had taken the six-split mean of the bench's protocol from 0.728x to 0.696x SLERP's
-    L2Q at 30 and 45 frames). L2Q / L2P against SLERP's, before -> now: the six Bandai splits
-    (the bench's two hold-outs and the four of ``docs/results.md``) at 15 / 30 / 45 frames
-    0.559 / 0.593 / 0.660 -> 0.556 / 0.584 / 0.655 and 0.482 / 0.559 / 0.635 -> 0.471 / 0.546 /
-    0.625, no split worse in any cell; LaFAN1's subject 5 at 60 fps (a library of subjects
-    1-4), 0.5 / 1 / 1.5 s, 0.574 / 0.745 / 0.822 -> 0.547 / 0.715 / 0.793 and 0.505 / 0.611 /
-    0.619 -> 0.461 / 0.587 / 0.620; CMU 01_01 at 1.5 s L2P 0.679 -> 0.611. The feet slide a
-    little more where more of the fallback is blended into the legs (LaFAN1 at 24 fps and
-    1.5 s 1.37 -> 1.51 cm/s, the truth's 1.02), and since the fallback runs in nearly every
-    gap, a 30-frame in-between takes 0.74 ms instead of 0.60 (median, held-out contents).
-    Legs over 12-48 degrees kept the skate there (1.39 cm/s) but gained less (LaFAN1's L2P at
-    1.5 s 0.636), over 8-40 gained as much and skated more (1.60); 8-48 for both parts, or the
-    upper body over 24-96, gained less on held-out styles. A library of two bows for runs,
-    walks and dashes (far from it, 18-45 degrees) stays near SLERP: L2Q / L2P at 45 frames
-    1.001 / 1.076x -> 1.022 / 1.045x.
-
-    Between clips (``align`` True) the ramps stay 12-24 and 24-48 degrees: there the fallback
-    interpolates between two different motions, a weaker guess than real motion, and the wide
-    ramps gave mixed results: the bench's cross-clip pairs skated less (held-out styles / contents
-    1.68 / 1.47 -> 1.59 / 1.39 cm/s) in poses further from the library's (validity 1.181 / 1.401
-    -> 1.199 / 1.408), and a run into a backward walk (tests/test_transition.py's seams) changed
-    its velocity at B 2.04x as much as around the seam (1.94x before; the test's bound is 2).
+    wide, 8-48 degrees for the legs and 16-48 for the upper body: a typical match (12-20 degrees
+    on Bandai's held-out clips, 11-17 on LaFAN1's other performers) is 0.7-0.9 confident, and
+    ``damped``, the fallback, takes the rest. Real motion from another performance and the
+    interpolation of this performance's own seams err in different ways, and their blend errs
+    less than either where neither is sure; full confidence is kept for a segment that nearly
+    continues the seams. Between clips (``align`` True) the ramps stay 12-24 and 24-48 degrees:
+    there the fallback interpolates between two different motions, a weaker guess than real
+    motion, and the wide ramps gave mixed results. The measurements (every Bandai split, LaFAN1,
+    CMU, a library far from the clips, the ramps tried and not kept) are in
+    ``docs/retrieval.md``, "Wide ramps in in-betweening".
     """
     def ramp(x, lo, hi):
         return min(max((hi - x) / (hi - lo), 0.0), 1.0)
@@ -1288,7 +1271,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = confidences(dist, still, upper_weight(length, fps), seam == "both", align)
+    conf = confidences(dist, still, upper_weight(length, fps), seam == "both", align=align)
     return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights)
 
 
