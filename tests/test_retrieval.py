@@ -285,6 +285,7 @@ def test_partly_confident_legs_still_plant_the_segments_feet(engine, clips, monk
     name, a_end, b_start = "run_proud_001", 40, 71  # a run: blended with the fallback, its feet glide
     kw = dict(length=30, a_end=a_end, b_start=b_start, align=False, method="retrieval", foot_lock=True)
     engine.generate(name, name, **kw)
+    assert engine.last["retrieval"]["parts"]["lower"]["distance"] < retrieval.CONTACTS_WITHIN
     full = engine.last["planted"] >= 1.0
     assert full.sum() > 10
     conf = retrieval.confidences
@@ -385,7 +386,7 @@ def twisted(m: Motion) -> Motion:
     return Motion(m.skeleton, r, m.positions, m.fps)
 
 
-def test_an_unrelated_library_falls_back_to_interpolation(clips):
+def test_an_unrelated_library_falls_back_to_interpolation(clips, monkeypatch):
     # In-betweening ramps the confidence over a wide range of match distances: a bow's legs for
     # a run's, 30 degrees apart, are still partly confident there ...
     bows = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED)))
@@ -394,6 +395,12 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips):
     legs = bows.last["retrieval"]["parts"]["lower"]
     assert retrieval.CONF_RANGE[True][1] < legs["distance"] < retrieval.CONF_RANGE[False][1]
     assert 0.0 < legs["confidence"] < 1.0
+    # A bow's planted feet are not a run's: beyond CONTACTS_WITHIN the lock finds them itself.
+    given = []
+    lock = bows._lock_feet
+    monkeypatch.setattr(bows, "_lock_feet", lambda *a: given.append(a[-1]) or lock(*a))
+    bows.generate("run", "run", method="retrieval", length=30, a_end=40, b_start=71, align=False)
+    assert legs["distance"] > retrieval.CONTACTS_WITHIN and given == [None]
     # ... and bows on twisted legs are beyond it.
     eng = TransitionEngine(PostureMap(seed=0).fit([twisted(clips[n]) for n in UNRELATED], list(UNRELATED)))
     eng.add("run", clips["run_proud_001"])

@@ -734,11 +734,17 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             dtheta = fb_last["dtheta"] + c * (turn - TWO_PI * round(turn / TWO_PI))
             shift = end_fb + c * (end - end_fb) - rotate_about_up(g0, dtheta, eng._up)
             _meet_b_velocity(eng, tb, b_start, out_r, out_p, c, res_dtheta, fb_last["dtheta"], dtheta)
-        # The retrieved segment's planted feet whenever its legs count at all: a leg blended with
-        # the fallback's glides, and the lock's own detection (low and slow) finds no contact in
-        # it. Held-out dashes at 45 frames (the legs 0.3-0.4 confident in some windows) skated
+        # The retrieved segment's planted feet wherever its legs count and lie within
+        # CONTACTS_WITHIN degrees of the seams: a leg blended with the fallback glides, and the
+        # lock's own detection (low and slow) finds no contact in it. Held-out dashes at 45 frames
+        # (their legs 16-20 degrees away, 0.3-0.4 confident under the ramp of that time) skated
         # 9.1 cm/s with the segment's contacts from a confidence of 0.5 only, 4.8 so (truth 2.9).
-        contacts = res.contacts if res.confidence[0] > 0.0 else None
+        # Farther, the blended leg moves more like the interpolation, whose feet the lock finds
+        # and holds itself: LaFAN1 in-betweening at 24 fps and 1.5 s skated 1.51 cm/s with the
+        # segment's contacts at every distance, 1.41 so (truth 1.02; docs/retrieval.md).
+        legs = res.info["parts"]["lower"]
+        contacts = (res.contacts if res.confidence[0] > 0.0 and legs["distance"] < retrieval.CONTACTS_WITHIN
+                    else None)
         eng.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)

@@ -81,6 +81,9 @@ LIBRARY_FPS = 30.0
 CONF_RANGE = {False: (8.0, 48.0), True: (12.0, 24.0)}
 UPPER_CONF_RANGE = {False: (16.0, 48.0), True: (24.0, 48.0)}  # the upper body's, likewise
 UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
+# The foot lock holds the retrieved segment's planted feet where its legs lie within this match
+# distance (degrees; between clips, the end of their ramp); beyond, it finds them itself.
+CONTACTS_WITHIN = 24.0
 FALLBACK = "damped"
 FALLBACK_SHORT = ("spline", 0.6)  # gaps shorter than this many seconds fall back to this method
 W_VEL = 1.0  # weight of velocities against positions in the match
