@@ -166,6 +166,35 @@ def test_slerp_agrees(jit, t):
     np.testing.assert_allclose(quat.angle_between(outs[1], b), (1 - t) * whole, atol=1e-6)
 
 
+@pytest.mark.parametrize("t", [0.0, 0.5, 1.0])
+def test_turn_toward_agrees_and_turns_the_last_joint_only(jit, t):
+    rng = np.random.default_rng(11)
+    n, j_count = 40, 7
+    rots, other = random_quats(rng, (n, j_count)), random_quats(rng, (n, j_count))
+    chain = np.array([0, 2, 3, 5], dtype=np.int64)  # joint 5 under 3 under 2 under 0
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        r = rots.copy()
+        impl.turn_toward(chain, r, other, t)
+        outs.append(r)
+    assert np.all(quat.angle_between(outs[0], outs[1]) < 1e-6)
+    for j in range(j_count - 2):  # the ancestors and every other joint stay, to the bit
+        np.testing.assert_array_equal(outs[1][:, j], rots[:, j])
+    np.testing.assert_array_equal(outs[1][:, 6], rots[:, 6])
+
+    def world(r):
+        g = r[:, chain[0]]
+        for c in chain[1:]:
+            g = quat.mul(g, r[:, c])
+        return g
+
+    own, goal, got = world(rots), world(other), world(outs[1])
+    whole = quat.angle_between(own, goal)
+    assert whole.min() > 0.1
+    np.testing.assert_allclose(quat.angle_between(own, got), t * whole, atol=1e-6)
+    np.testing.assert_allclose(quat.angle_between(got, goal), (1 - t) * whole, atol=1e-6)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_transitions_agree_across_backends(sample_clips, method):
     a, b = sample_clips["walk"], sample_clips["run"]

@@ -301,6 +301,41 @@ def test_partly_confident_legs_still_plant_the_segments_feet(engine, clips, monk
         assert np.all(step[both] < 1.0), (leg, step[both].max())
 
 
+def test_inbetweening_steadies_the_head_halfway_to_the_fallbacks(engine, clips, monkeypatch):
+    # B fixed: the head's orientation in the world goes HEAD_GAZE of the way from the retrieved
+    # one to the fallback's (damped, at 30 frames), its ancestors and every other joint as they
+    # were; between clips it stays the retrieved one. (Confidences at 0.8 of the match's.)
+    sk = engine.skeleton
+    rt = retrieval.Retriever(engine, engine.model.library_)
+    head = int(rt.head_chain[-1])
+    assert sk.names[head] == "Head" and rt.upper_mask[head]
+    name, a_end, b_start = "run_proud_001", 40, 71
+    kw = dict(length=30, a_end=a_end, b_start=b_start, foot_lock=False)
+    def world(r):
+        return fk(sk.parents, r, np.zeros(r.shape[:-1] + (3,)))[0][:, head]
+    out = {}
+    conf = retrieval.confidences
+    for gaze in (0.0, retrieval.HEAD_GAZE):
+        monkeypatch.setattr(retrieval, "HEAD_GAZE", gaze)
+        for align in (False, True):
+            with monkeypatch.context() as m:  # between clips this match is full: make it partial
+                m.setattr(retrieval, "confidences", lambda *a, **k: [0.8 * c for c in conf(*a, **k)])
+                out[gaze, align] = engine.generate(name, name, method="retrieval", align=align, **kw)[0].copy()
+            got = [engine.last["retrieval"]["parts"][p]["confidence"] for p in ("lower", "upper")]
+            assert 0.0 < min(got) < 1.0 and got[1] > 0.0  # the fallback runs
+    damped = engine.generate(name, name, method="damped", align=False, **kw)[0]
+    np.testing.assert_array_equal(out[0.0, True], out[retrieval.HEAD_GAZE, True])
+    own, steadied = out[0.0, False], out[retrieval.HEAD_GAZE, False]
+    others = np.arange(sk.num_joints) != head
+    np.testing.assert_array_equal(own[:, others], steadied[:, others])
+    whole = quat.angle_between(world(own), world(damped))
+    assert whole.max() > np.radians(3.0)
+    np.testing.assert_allclose(quat.angle_between(world(own), world(steadied)), retrieval.HEAD_GAZE * whole,
+                               atol=1e-6)
+    np.testing.assert_allclose(quat.angle_between(world(steadied), world(damped)),
+                               (1 - retrieval.HEAD_GAZE) * whole, atol=1e-6)
+
+
 def test_the_upper_body_follows_the_legs_and_is_full_up_to_twice_their_distance():
     for align in (False, True):
         assert_the_confidences(align)

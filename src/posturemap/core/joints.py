@@ -269,6 +269,12 @@ def head_below(parents: np.ndarray, hand_a: int, hand_b: int, excluded: np.ndarr
     return int(j)
 
 
+def head_joint(sk: Skeleton) -> int:
+    """The head among :func:`key_joints`' upper joints (its last, when found by name or as the
+    top of the neck chain); -1 where the skeleton names no head and no two hands."""
+    return _key_joints(sk)[2]
+
+
 def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Joints matched by retrieval: ``lower`` (ankles, knees) and ``upper`` (wrists, head).
 
@@ -279,6 +285,11 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     hands but not its head (Rigify's ``DEF-spine.006``) gets the top of its neck chain
     (:func:`head_below`); where a skeleton has no such names, the leaves outside the legs.
     """
+    lower, upper, _ = _key_joints(sk)
+    return lower, upper
+
+
+def _key_joints(sk: Skeleton):
     from .motion import root_index
 
     chains = leg_chains(sk)
@@ -302,7 +313,7 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     if not upper:  # no names: the leaves outside the legs
         leaves = [j for j in range(sk.num_joints) if not sk.children(j) and j not in leg_joints]
         upper = leaves[:3]
-    return np.array(lower, dtype=np.int64), np.array(upper, dtype=np.int64)
+    return np.array(lower, dtype=np.int64), np.array(upper, dtype=np.int64), (head[0] if head else -1)
 
 
 def part_masks(sk: Skeleton, root: int) -> tuple[np.ndarray, np.ndarray]:

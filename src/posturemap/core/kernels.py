@@ -29,7 +29,7 @@ from .skeleton import fk as _fk_reference
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
-       "project_to_map", "key_from_blend", "slerp")
+       "project_to_map", "key_from_blend", "slerp", "turn_toward")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
 
@@ -117,6 +117,19 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
 def slerp(a, b, t, out):
     """``out[i]`` = :func:`posturemap.core.quat.slerp` from ``a[i]`` to ``b[i]`` (M, 4) at the fraction ``t``."""
     out[...] = quat.slerp(a, b, t)
+
+
+def turn_toward(chain, rots, other, t):
+    """The last joint of ``chain`` (joint indices, top first, the top without a parent) turned in
+    place in ``rots (N, J, 4)`` so that its global rotation goes the fraction ``t`` of the short
+    arc from its own toward its global rotation in ``other (N, J, 4)``; its ancestors stay, the
+    joints under it follow."""
+    j = chain[-1]
+    up_own, up_other = rots[:, chain[0]], other[:, chain[0]]
+    for c in chain[1:-1]:
+        up_own, up_other = quat.mul(up_own, rots[:, c]), quat.mul(up_other, other[:, c])
+    own = quat.mul(up_own, rots[:, j])
+    rots[:, j] = quat.mul(quat.inv(up_own), quat.slerp(own, quat.mul(up_other, other[:, j]), t))
 
 
 def fk(parents, rots, positions, grot, gpos):

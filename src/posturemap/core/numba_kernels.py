@@ -940,6 +940,33 @@ def slerp(a, b, t, out):
 
 
 @nb.njit(**_OPTS)
+def turn_toward(chain, rots, other, t):
+    """The last joint of ``chain`` (top first, the top without a parent) turned in place in
+    ``rots (N, J, 4)`` so that its global rotation goes the fraction ``t`` of the short arc from
+    its own toward its global rotation in ``other`` (:func:`posturemap.core.kernels.turn_toward`,
+    the reference)."""
+    j = chain[-1]
+    k = chain.shape[0]
+    one = np.empty((1, 4))
+    two = np.empty((1, 4))
+    for n in range(rots.shape[0]):
+        c = chain[0]
+        a = (rots[n, c, 0], rots[n, c, 1], rots[n, c, 2], rots[n, c, 3])
+        b = (other[n, c, 0], other[n, c, 1], other[n, c, 2], other[n, c, 3])
+        for i in range(1, k - 1):
+            c = chain[i]
+            a = _mul(a[0], a[1], a[2], a[3], rots[n, c, 0], rots[n, c, 1], rots[n, c, 2], rots[n, c, 3])
+            b = _mul(b[0], b[1], b[2], b[3], other[n, c, 0], other[n, c, 1], other[n, c, 2], other[n, c, 3])
+        own = _mul(a[0], a[1], a[2], a[3], rots[n, j, 0], rots[n, j, 1], rots[n, j, 2], rots[n, j, 3])
+        goal = _mul(b[0], b[1], b[2], b[3], other[n, j, 0], other[n, j, 1], other[n, j, 2], other[n, j, 3])
+        for i in range(4):
+            one[0, i], two[0, i] = own[i], goal[i]
+        slerp(one, two, t, one)
+        q = _mul(a[0], -a[1], -a[2], -a[3], one[0, 0], one[0, 1], one[0, 2], one[0, 3])
+        rots[n, j, 0], rots[n, j, 1], rots[n, j, 2], rots[n, j, 3] = q
+
+
+@nb.njit(**_OPTS)
 def _group_energy(rows, c0, c1, step):
     """The mean squared velocity and acceleration of the columns ``c0:c1`` of ``rows`` (summed
     over the columns; 0, 0 with fewer than 3 samples): :func:`posturemap.synth.bases.damped_time_scales`'s."""

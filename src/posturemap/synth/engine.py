@@ -746,6 +746,10 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         contacts = (res.contacts if res.confidence[0] > 0.0 and legs["distance"] < retrieval.CONTACTS_WITHIN
                     else None)
         eng.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
+        # The head steadied (retrieval.HEAD_GAZE): half its turn in the world the fallback's.
+        head = eng._retriever.head_chain
+        if not align and fb_last is not None and res.confidence[1] > 0.0 and len(head) > 1:
+            kernels.turn_toward(head, out_r, rots_fb, retrieval.HEAD_GAZE)
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p

@@ -57,7 +57,7 @@ import numpy as np
 
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
-from ..core.joints import part_masks, upper_tops
+from ..core.joints import ancestors, head_joint, part_masks, upper_tops
 from .request import AUTO_SHORT_S
 from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
@@ -80,6 +80,10 @@ LIBRARY_FPS = 30.0
 # in-betweening (B fixed: align False) and between clips (align True). See confidences.
 CONF_RANGE = {False: (8.0, 48.0), True: (12.0, 24.0)}
 UPPER_CONF_RANGE = {False: (16.0, 48.0), True: (24.0, 48.0)}  # the upper body's, likewise
+# In in-betweening the head's orientation in the world goes this far from the retrieved one toward
+# the fallback's: a person steadies the head where they look, which the seams tell better than
+# another performance does (docs/retrieval.md, "The head steadied").
+HEAD_GAZE = 0.5
 UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
 # The foot lock holds the retrieved segment's planted feet where its legs lie within this match
 # distance (degrees; between clips, the end of their ramp); beyond, it finds them itself.
@@ -156,6 +160,10 @@ class Retriever:
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
         self.upper_tops = upper_tops(sk.parents, engine._root, self.lower_mask, self.upper_mask)  # see lift_upper
+        # The head and its ancestors, top first, where the upper body holds a head (see HEAD_GAZE).
+        head = head_joint(sk)
+        self.head_chain = (np.array(ancestors(sk.parents, head) + [head], dtype=np.int64)
+                           if head >= 0 and self.upper_mask[head] else np.zeros(0, dtype=np.int64))
         # The library's own key joints: its features were computed for them when it was built.
         self.keys = np.concatenate([library.lower, library.upper]).astype(np.int64)
         self.kl = len(library.lower)
