@@ -23,7 +23,7 @@ from posturemap.io import bvh
 from posturemap import cli
 from posturemap.core import kernels, quat
 from posturemap.synth import retrieval, trajectory
-from posturemap.core.joints import key_joints, leg_toes
+from posturemap.core.joints import foot_joints, key_joints, leg_toes
 from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion, concatenate
 from posturemap.core.skeleton import fk
@@ -469,7 +469,7 @@ def assert_the_fallback(eng, name, rots, pos, kw):
 
 
 @pytest.mark.parametrize("a, a_end, b, b_start, length", [
-    ("walk-left_normal_001", 6, "dash_normal_001", 9, 60), ("walk_happy_001", 93, "dash_normal_001", 10, 60)])
+    ("walk-left_normal_001", 30, "dash_normal_001", 9, 60), ("walk_happy_001", 30, "dash_normal_001", 9, 60)])
 def test_partly_confident_legs_leave_the_gap_at_bs_velocity(model, clips, a, a_end, b, b_start, length):
     # The legs a third confident (or less): the root's path is the blend of the retrieved one and
     # the fallback's, which place B turned far apart. Each ends at B's velocity turned its own way;
@@ -1760,6 +1760,41 @@ def test_a_shared_dict_serves_one_transition_and_starts_afresh_for_another(engin
         retrieval.match(rt, tr, tr, 40, 71, 30, 0.5, True, top_k=0)
 
 
+def test_a_splice_that_lifts_both_feet_off_the_floor_is_not_kept(engine, clips, monkeypatch):
+    # floats(): a held-out walk's own frames stand on the floor; raised by 0.15 leg lengths for
+    # FLOAT_S they float, for a frame less they do not (a run's flight).
+    from posturemap.synth import splice
+
+    tr, a_end, length = engine.tracks["walk_angry_001"], 40, 30
+    b_start = a_end + length + 1
+    rots = tr.rots[a_end + 1: b_start].copy()
+    rots[:, engine._chain] = (1.0, 0.0, 0.0, 0.0)  # as a replay leaves the joints above the root
+    gpos = tr.gpos[a_end + 1: b_start].copy()
+    assert not splice.floats(engine, tr, tr, a_end, b_start, rots, gpos)
+    n = round(splice.FLOAT_S * tr.motion.fps)
+    for frames, floating in ((n, True), (n - 1, False)):
+        raised = gpos.copy()
+        raised[5: 5 + frames, UP] += 0.15 * engine._leg_length
+        assert splice.floats(engine, tr, tr, a_end, b_start, rots, raised) == floating
+    # In a transition from a run into a walk, the splice folded both knees (the lowest foot
+    # 13 cm over both seams'): the single segment is taken instead, its feet within 5 cm.
+    sk, feet = engine.skeleton, foot_joints(engine.skeleton.names)
+    a, a_end, b, b_start = "run_happy_001", 24, "walk_normal_001", 15
+    eng = TransitionEngine(engine.model)
+    for name in (a, b):
+        eng.add(name, clips[name])
+    seams = max(clips[a].global_positions()[a_end, feet, UP].min(), clips[b].global_positions()[b_start, feet, UP].min())
+    lowest = {}
+    for guard in (False, True):
+        with monkeypatch.context() as m:
+            if not guard:
+                m.setattr(splice, "floats", lambda *args: False)
+            r, p = eng.generate(a, b, length=20, a_end=a_end, b_start=b_start, method="retrieval")
+            lowest[guard] = fk(sk.parents, r, p)[1][:, feet, UP].min(axis=1) - seams
+            assert ("splice" in eng.last["retrieval"]) != guard
+    assert lowest[False].max() > 10.0 and lowest[True].max() < 5.0, (lowest[False].max(), lowest[True].max())
+
+
 def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engine):
     # Each half of a splice replays only the frames its blend weight shows, both halves and the
     # splice in one compiled call: the result must be bit for bit the splice of the two halves
@@ -1776,14 +1811,18 @@ def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engi
                                           (5, 0.3, 80, 12)):
         got = splice.spliced(rt, a, b, a_end, b_start, length, alpha)
         first, second = splice.halves(rt, a, b, a_end, b_start, length)
-        if got is None:
-            assert min(first.confidence[0], second.confidence[0]) <= 0.0
+        if min(first.confidence[0], second.confidence[0]) <= 0.0:
+            assert got is None
             continue
         w = splice.splice_weights(length, alpha)
         shown = (0, int(np.flatnonzero(w < 1.0)[-1]) + 1), (int(np.flatnonzero(w > 0.0)[0]), length)
         place = (a.gpos[a_end], float(a.heading[a_end]), b.gpos[b_start], UP)
         steps = splice.splice(retrieval.replay(rt, first, skip_unconfident=True, frames=shown[0]),
                               retrieval.replay(rt, second, skip_unconfident=True, frames=shown[1]), w, *place)
+        floating = splice.floats(engine, a, b, a_end, b_start, steps[0], steps[1])
+        assert (got is None) == floating
+        if floating:
+            continue
         whole = splice.splice(retrieval.replay(rt, first, skip_unconfident=True),
                               retrieval.replay(rt, second, skip_unconfident=True), w, *place)
         for x, y in zip((got.rots, got.gpos, got.heading, got.dtheta, got.shift, got.contacts), steps):
