@@ -51,7 +51,7 @@ def clips(bandai_paths):
 @pytest.fixture(scope="module")
 def base_url(clips):
     """The real server on a free localhost port, with a small map trained here."""
-    # bow first: the map takes its root joint and up axis from its first clip, and
+    # bow first: the map takes its root joint from its first clip (its up axis from most frames), and
     # posturemap.core.motion reads walk_normal_001 as Z-up (it walks far from the origin, where Bandai's
     # joint_Root stays) and run_normal_001's root as joint_Root (which carries its trajectory).
     order = ["bow_normal_001"] + [n for n in clips if n != "bow_normal_001"]

@@ -91,20 +91,45 @@ def test_cli_transition_preview(sample_clips, tmp_path, capsys):
         assert not (tmp_path / "u.bvh").exists()  # checked before anything is written
 
 
+def z_up(m):
+    """The clip turned from Y up to Z up by its top joint (the same rig, the same offsets)."""
+    from posturemap.core import quat
+
+    turn = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)
+    rots, pos = m.rotations.copy(), m.positions.copy()
+    rots[:, 0] = quat.mul(turn, rots[:, 0])
+    pos[:, 0] = quat.mul_vec(turn, pos[:, 0])
+    return dataclasses.replace(m, rotations=rots, positions=pos, source=None)
+
+
+def test_cli_train_warns_of_a_clip_given_twice_or_standing_along_another_axis(sample_clips, tmp_path, capsys):
+    # The map's up axis is the one most frames stand along, not the first clip's: a Z-up clip
+    # first (or one lying on the floor) no longer sets it. Each odd clip gets one warning line.
+    from posturemap.learn.model import PostureMap
+
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    files = {}
+    for name, clip in (("z", z_up(run_)), ("walk", walk), ("run", run_)):
+        files[name] = tmp_path / f"{name}.bvh"
+        bvh.write(files[name], clip)
+    out = tmp_path / "map.npz"
+    code = cli.main(["train", str(files["z"]), str(files["walk"]), str(files["run"]), str(files["walk"]),
+                     "-o", str(out), "--epochs", "1"])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("posturemap:")]
+    assert code == 0
+    assert err == [f"posturemap: warning: {files['walk']}: given twice: its frames count twice in the map",
+                   f"posturemap: warning: {files['z']}: the body stands along Z, most clips' along Y (the map's "
+                   "up axis): lying on the floor, or of another up axis?"], err
+    assert PostureMap.load(str(out)).space_.up == 1
+    assert cli.main(["train", str(files["walk"]), str(files["run"]), "-o", str(out), "--epochs", "1"]) == 0
+    assert not [line for line in capsys.readouterr().err.splitlines() if line.startswith("posturemap:")]
+
+
 def test_cli_transition_warns_of_a_clip_turned_to_another_up_axis(sample_clips, tmp_path, capsys):
     # The same rig turned from Y up to Z up passes the skeleton's check; the map's up axis then
     # turned B about the wrong axis, silently. It is read from the body's extent, which a clip
     # lying on the floor can mislead, so it warns (one line) rather than refuses.
-    from posturemap.core import quat
     from posturemap.learn.model import PostureMap
-
-    turn = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)
-
-    def z_up(m):
-        rots, pos = m.rotations.copy(), m.positions.copy()
-        rots[:, 0] = quat.mul(turn, rots[:, 0])
-        pos[:, 0] = quat.mul_vec(turn, pos[:, 0])
-        return dataclasses.replace(m, rotations=rots, positions=pos, source=None)
 
     walk, run_ = sample_clips["walk"], sample_clips["run"]
     m = tmp_path / "map.npz"

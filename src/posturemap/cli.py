@@ -128,6 +128,7 @@ def _cmd_train(args) -> int:
         print(resampled_note(clips[i][0], clips[i][1].fps, motions[0].fps), file=sys.stderr)
         # Its frames in the library (and in a transition's report) are at that rate: said in its name.
         paths[i] = resampled_name(paths[i], motions[0].fps)
+    _warn_odd_inputs(paths, motions)
     classes = load_class_overrides(args.classes, clips[0][1].skeleton.names) if args.classes else None
     progress = _Progress(args.epochs)
     pm = PostureMap(args.radius, args.neighborhood, args.learning_rate, args.epochs, args.seed,
@@ -143,6 +144,27 @@ def _cmd_train(args) -> int:
           + ", ".join(f"{c} {q['neurons']}" for c, q in info["quality"].items())
           + f"), trained in {info['train_seconds']:.1f} s")
     return 0
+
+
+def _warn_odd_inputs(paths: list[str], motions) -> None:
+    """Warn (on stderr) of a training clip given twice (its frames would count twice in the maps
+    and the library) and of clips whose body stands along another axis than most clips' (the
+    map takes the axis most frames stand along: a clip lying on the floor reads as another axis,
+    a clip of another convention would be mixed up)."""
+    from .core.motion import shared_up_axis
+
+    seen = {}
+    for p in paths:
+        key = os.path.realpath(p)
+        if key in seen:
+            also = "" if seen[key] == p else f" (as {seen[key]})"
+            print(f"posturemap: warning: {p}: given twice{also}: its frames count twice in the map", file=sys.stderr)
+        seen.setdefault(key, p)
+    up, axes = shared_up_axis(motions)
+    for p, a in zip(paths, axes):
+        if a != up:
+            print(f"posturemap: warning: {p}: the body stands along {'XYZ'[a]}, most clips' along {'XYZ'[up]} "
+                  f"(the map's up axis): lying on the floor, or of another up axis?", file=sys.stderr)
 
 
 def _check_output(path: str, inputs=()):

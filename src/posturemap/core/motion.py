@@ -253,6 +253,19 @@ def up_axis(motion: Motion, sample: int = 32) -> int:
     return _up_and_height(motion, sample)[0]
 
 
+def shared_up_axis(motions, sample: int = 32) -> tuple[int, list[int]]:
+    """The up axis of a set of clips of one rig, and each clip's own (:func:`up_axis`).
+
+    The axis most of their frames stand along (the first clip's on a tie): one clip mostly lying
+    on the floor (a fall, a crawl) reads as another axis and must not set the set's."""
+    axes = [up_axis(m, sample) for m in motions]
+    frames = np.zeros(3)
+    for m, a in zip(motions, axes):
+        frames[a] += m.num_frames
+    best = frames.max()
+    return next(a for a in axes if frames[a] == best), axes
+
+
 def body_height(motion: Motion, sample: int = 32) -> float:
     """Median extent of the body (root and descendants) along the up axis, in the clip's unit."""
     return _up_and_height(motion, sample)[1]

@@ -35,7 +35,7 @@ from ..core import quat
 from ..core.joints import ancestors, subtree_mask
 from ..core.skeleton import chain_world
 from ..errors import UserError
-from ..core.motion import Motion, root_index, up_axis, up_vector
+from ..core.motion import Motion, root_index, shared_up_axis, up_vector
 
 CLASSES = ("body", "global", "medium", "detail")
 MODES = ("euler", "logmap")
@@ -290,7 +290,7 @@ def fit_space(motions: list[Motion], mode: str = "logmap", classes: dict[str, st
     first = motions[0]
     sk = first.skeleton
     root = root_index(first)
-    up = up_axis(first)
+    up = shared_up_axis(motions)[0]
     jc = assign_classes(sk, root)
     for name, cls in (classes or {}).items():
         jc[sk.index(name)] = CLASSES.index(cls)
