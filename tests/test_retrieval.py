@@ -1576,7 +1576,7 @@ def test_compiled_segment_times_match_the_numpy_steps(model):
 
     lib = model.library_
     rng = np.random.default_rng(14)
-    # Segments anywhere, also at a clip's first and last frames (the samples before and after clip).
+    # Segments anywhere, also at a clip's first and last frames (the samples before and after the clip).
     s = np.concatenate([rng.integers(0, len(lib) - 50, 40), lib.clip_start[:-1][:5]])
     e = np.minimum(s + rng.integers(0, 45, len(s)), lib.clip_end[s] - 1)
     for d in (6.0, 21.0, 31.0, 46.0):
@@ -1588,8 +1588,28 @@ def test_compiled_segment_times_match_the_numpy_steps(model):
         for g, r in zip(got, ref):
             assert g.dtype == r.dtype
             np.testing.assert_array_equal(g, r)
-        assert np.any(ref[0] == (lib.clip_end[s] - 1)[:, None])  # clamped at a clip's end
+        # Every sample is the lerp of two neighbouring frames of its clip at the time asked, also
+        # one frame outside the clip (extrapolated from its two edge frames: the seams' velocity).
+        np.testing.assert_allclose(ref[0] + ref[2], s[:, None] + t[None] * ((e - s) / d)[:, None], rtol=0, atol=1e-9)
+        assert np.all(ref[1] - ref[0] == 1)
+        assert np.all(ref[0] >= lib.clip_start[lib.clip_of[s]][:, None]) and np.all(ref[1] < lib.clip_end[s][:, None])
+        assert np.any(ref[2] < 0.0) and np.any(ref[2] > 1.0)  # before a clip's start, after its end
         assert np.any(ref[2] == 0.0) and np.any((ref[2] > 0) & (ref[2] < 1))
+
+
+def test_a_segment_at_its_clips_first_frame_keeps_as_velocity_at_the_seam(bandai_paths):
+    # A map of two clips (the command line's without --map): a walk backwards continued by its own
+    # clip's first frames. The sample before the clip's start was held on its first frame, the
+    # segment read as still there, and the seam correction added A's whole velocity to the
+    # segment's own: the root's step jumped from 3.1 to 5.5 cm a frame at A's seam.
+    paths = bandai_paths(["walk-back_normal_001", "walk_normal_001"])
+    a, b = bvh.read(paths["walk-back_normal_001"]), bvh.read(paths["walk_normal_001"])
+    out = transition(a, b, PostureMap(seed=0).fit([a, b], ["a", "b"]), length=20, method="retrieval")
+    hips = out.global_positions()[:, a.skeleton.index("Hips")][:, [0, 2]]
+    step = np.linalg.norm(np.diff(hips, axis=0), axis=1)
+    n = len(a)
+    assert step[n - 2] > 2.5  # A walks backwards at 3 cm a frame
+    assert abs(step[n - 1] - step[n - 2]) < 0.1 * step[n - 2], step[n - 3: n + 2]
 
 
 def test_the_warps_are_read_per_call(engine, clips, monkeypatch):

@@ -904,16 +904,19 @@ def segment_times(lib: MotionLibrary, s: np.ndarray, e: np.ndarray, d: float):
     """Where library segments ``[s, e]`` (K,) are sampled at output times ``t = -1 .. d + 1``.
 
     Returns ``(i0, i1, f)``, each (K, T) with ``T = d + 3``: the library frames on both sides
-    of each sample and the fraction between them; times before the clip's start or after its
-    end hold its first/last frame. The numpy steps of :func:`replay` (its compiled call runs
-    :func:`posturemap.synth.retrieval_numba.segment_times`).
+    of each sample and the fraction between them. A time before the clip's start or after its
+    end (the samples one frame outside a segment at a clip's edge, which only give the seams'
+    velocities) is extrapolated from the clip's first or last two frames: held on the edge
+    frame, the segment read as still there, and the seam correction added A's whole velocity
+    to the segment's own (a walk backwards continued from its clip's first frame, in a map of
+    two clips: the root's step jumped from 3.1 to 5.5 cm a frame at A's seam). The numpy steps
+    of :func:`replay` (its compiled call runs :func:`posturemap.synth.retrieval_numba.segment_times`).
     """
     t = _sample_times(d)
     u = s[:, None] + t[None] * ((e - s) / d)[:, None]
     lo = lib.clip_start[lib.clip_of[s]][:, None]
     hi = (lib.clip_end[s] - 1)[:, None]
-    u = np.clip(u, lo, hi)
-    i0 = np.floor(u).astype(np.int64)
+    i0 = np.minimum(np.maximum(np.floor(u).astype(np.int64), lo), np.maximum(hi - 1, lo))
     return i0, np.minimum(i0 + 1, hi), u - i0
 
 

@@ -872,8 +872,8 @@ def segment_times(clip_start, clip_of, clip_end, s, e, d, t, i0, i1, f):
         hi = clip_end[s[k]] - 1
         step = (e[k] - s[k]) / d
         for j in range(t.shape[0]):
-            u = min(max(s[k] + t[j] * step, lo), hi)
-            a = np.int64(math.floor(u))
+            u = s[k] + t[j] * step  # outside the clip: extrapolated from its two edge frames
+            a = min(max(np.int64(math.floor(u)), lo), max(hi - 1, lo))
             i0[k, j] = a
             i1[k, j] = min(a + 1, hi)
             f[k, j] = u - a
