@@ -907,6 +907,7 @@ ERRORS = {
     "missing frame time": (GOLDEN.split("Frame Time")[0], line_of(GOLDEN, "Frames"), "missing 'Frame Time:'"),
     "joint outside root": (GOLDEN.replace("ROOT Hips", "JOINT Hips"), 2, "JOINT outside any ROOT"),
     "joint without name": (GOLDEN.replace("JOINT Chest", "JOINT"), 6, "without a name"),
+    "joint name twice": (GOLDEN.replace("JOINT Leg", "JOINT Chest"), 20, "'Chest' is used twice (also on line 6)"),
     "offset before brace": (GOLDEN.replace("JOINT Chest\n  {\n", "JOINT Chest\n"), 7, "expected '{'"),
     "end site without offset": (GOLDEN.replace("        OFFSET 4 0 0\n", ""), 16, "End Site without OFFSET"),
     "joint without channels": (GOLDEN.replace("    CHANNELS 3 Xrotation Yrotation Zrotation\n", ""), 18,

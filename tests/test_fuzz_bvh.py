@@ -186,6 +186,8 @@ ERRORS = {
     r"JOINT outside any ROOT": lambda line, m: _tokens(line)[0].upper() == "JOINT",
     r"JOINT inside an End Site": lambda line, m: _tokens(line)[0].upper() == "JOINT",
     r"(ROOT|JOINT) without a name": lambda line, m: len(_tokens(line)) == 1,
+    r"joint name (.+) is used twice \(also on line (\d+)\)": lambda line, m: (
+        _tokens(line)[0].upper() in ("ROOT", "JOINT") and repr(" ".join(_tokens(line)[1:])[:40]) == m[1]),
     r"End Site in the wrong place": lambda line, m: _tokens(line)[0].upper() == "END",
     r"'\{' without a joint": lambda line, m: _tokens(line)[0] == "{",
     r"unexpected text after '\{'": lambda line, m: _tokens(line)[0] == "{" and len(_tokens(line)) > 1,

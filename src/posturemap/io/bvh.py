@@ -169,6 +169,7 @@ def _has_unwrapped_angles(sk: Skeleton, values: np.ndarray) -> bool:
 def _parse_hierarchy(lines, path: str) -> tuple[Skeleton, int]:
     """Parse HIERARCHY up to MOTION; returns the skeleton and the MOTION line number."""
     names, parents, offsets, channels, end_sites = [], [], [], [], []
+    named_at: dict[str, int] = {}  # joint name -> its line
     stack: list[int] = []  # open joints; -2 marks an open End Site
     pending = None  # joint (or End Site) declared, waiting for its "{"
     seen_hierarchy = seen_text = False
@@ -203,7 +204,11 @@ def _parse_hierarchy(lines, path: str) -> tuple[Skeleton, int]:
                 raise BVHError(path, lineno, f"{tokens[0]} without a name")
             if len(names) >= MAX_JOINTS:
                 raise BVHError(path, lineno, f"more than {MAX_JOINTS} joints")
-            names.append(" ".join(tokens[1:]))
+            name = " ".join(tokens[1:])
+            if name in named_at:  # joints are found and written by name: one name, one joint
+                raise BVHError(path, lineno, f"joint name {name[:40]!r} is used twice (also on line {named_at[name]})")
+            named_at[name] = lineno
+            names.append(name)
             parents.append(stack[-1] if stack else -1)
             offsets.append(None)
             channels.append(None)
