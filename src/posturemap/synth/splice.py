@@ -219,8 +219,9 @@ def floats(eng, ta, tb, a_end: int, b_start: int, rots: np.ndarray, gpos: np.nda
     the lowest foot over 10 cm above the real frames' around the gap, came from 14 (7) splices
     and 2 (1) single segments; with this check 2 (3) and 3 (1). A run's flight, a few frames
     with both feet up, stays under the duration. The height-weighted skate rewards a foot in
-    the air: it rose from 1.47 to 1.61 cm/s (styles 1.68 -> 1.83; the real frames' 3.0 / 3.6),
-    pose validity and jerk came closer to the real frames' (docs/retrieval.md, "Splicing").
+    the air: on the bench's pairs it rose from 1.47 to 1.59 cm/s (styles 1.68 -> 1.82; the real
+    frames' 3.0 / 3.6), pose validity and jerk came closer to the real frames' (docs/retrieval.md,
+    "Splicing").
     """
     legs = eng._legs
     if not legs:
