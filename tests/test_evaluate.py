@@ -258,8 +258,8 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     results, _, settings = quick
     holds = results["holdouts"]
     assert list(holds) == list(evaluate.HOLDOUTS)
-    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "penetration_cm", "naturalness", "validity",
-            "jerk"}
+    keys = {"l2q", "l2p", "npss", "mpjpe_cm", "skate", "contact_skate", "penetration_cm", "float_cm", "naturalness",
+            "validity", "jerk"}
     for name, hold in holds.items():
         inb = hold["inbetween"]
         lengths = evaluate.CMU_LENGTHS if name == "cmu" else LENGTHS
@@ -273,7 +273,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
                 assert len(scores["per_window"]["naturalness"]) == inb["windows"]
         for n in map(str, lengths):
             t = inb["truth"][n]
-            assert {"skate", "penetration_cm", "naturalness", "validity", "jerk"} <= set(t)
+            assert {"skate", "penetration_cm", "float_cm", "naturalness", "validity", "jerk"} <= set(t)
             assert t["naturalness"] > 0  # the truth is never compared with its own frames
             assert all(inb["methods"][m][n]["l2q"] > 0 and inb["methods"][m][n]["mpjpe_cm"] > 0
                        for m in METHODS)
@@ -288,6 +288,7 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     assert cross["pairs"] == settings.pairs and set(cross["methods"]) == set(METHODS)
     assert all(p["a"] != p["b"] for p in cross["pair_list"])
     assert all(math.isfinite(v) for v in _finite_numbers(cross["methods"]))
+    assert all(v["float_cm"] >= 0 and 0 <= v["floats_over_10cm"] <= cross["pairs"] for v in cross["methods"].values())
     assert holds["cmu"]["cross_clip"] is None  # one test clip
     assert set(results["speed"]["latency"]) == set(METHODS) - {"zero-velocity"}
     assert all(v["median_us"] > 0 for v in results["speed"]["latency"].values())

@@ -184,6 +184,34 @@ def test_floor_penetration_keeps_the_contexts_floor():
     assert metrics.floor_penetration(pos[None], up, np.ones(5, dtype=bool), slice(1, 4))[0] == 0.0
 
 
+def test_foot_float_measures_both_feet_above_what_the_context_shows():
+    up = 1
+    # Two foot joints over 6 frames; frames 0 and 5 are context. In the context the lower joint
+    # reaches 3 cm at most (a flight); in the gap both rise, the lower to 20 cm at frame 2.
+    pos = np.zeros((6, 2, 3))
+    pos[:, 0, up] = [0.0, 8.0, 20.0, 30.0, 1.0, 3.0]
+    pos[:, 1, up] = [5.0, 12.0, 25.0, 2.0, 9.0, 40.0]  # frame 3: this foot is down, the other up
+    context = np.array([True, False, False, False, False, True])
+    got = metrics.foot_float(pos[None], up, context, slice(1, 5))
+    assert got.shape == (1,)
+    assert got[0] == pytest.approx(20.0 - 3.0)
+    # One foot down in every gap frame: nothing, however high the other swings.
+    down = pos.copy()
+    down[1:5, 1, up] = 0.5
+    assert metrics.foot_float(down[None], up, context, slice(1, 5))[0] == 0.0
+    # Moved up or down as a whole, the window scores the same (the context says where the floor is).
+    assert metrics.foot_float((pos + np.array([0.0, 50.0, 0.0]))[None], up, context, slice(1, 5))[0] == \
+        pytest.approx(got[0])
+    # The height-weighted skate of the same gap falls as its feet rise: it cannot see this.
+    fps, height = 30.0, 5.0
+    moving = pos.copy()
+    moving[:, :, 0] = np.arange(6)[:, None] * 3.0  # both feet sliding 3 cm a frame
+    grounded = moving.copy()
+    grounded[1:5, :, up] = 0.0
+    assert metrics.weighted_skate(moving[None], fps, up, height)[0] < metrics.weighted_skate(grounded[None], fps, up,
+                                                                                               height)[0]
+
+
 def test_bench_penetration_takes_the_floor_from_the_context_frames_only():
     from types import SimpleNamespace
 

@@ -242,6 +242,22 @@ def floor_penetration(pos: np.ndarray, up: int, context: np.ndarray, frames: sli
     return depth.mean(axis=-1)
 
 
+def foot_float(pos: np.ndarray, up: int, context: np.ndarray, frames: slice) -> np.ndarray:
+    """How far feet leave the floor together: per window, the most the lowest foot joint rises
+    over ``frames`` above the highest it reaches over the ``context`` frames (0 where never).
+
+    pos : ndarray (..., T, K, 3), global positions of K foot joints over a window of T frames
+    up : up axis; context : bool (T,), the real frames around a gap; frames : the frames scored
+
+    Returns ndarray (...,) in the unit of ``pos``. A run's flight in the context raises the bar by
+    its own height. The height-weighted skate (:func:`weighted_skate`) weighs a foot by its
+    closeness to the ground, so feet held in the air lower it: this measure shows them.
+    """
+    low = pos[..., up].min(axis=-1)  # (..., T): the lowest foot joint per frame
+    bar = low[..., np.asarray(context, dtype=bool)].max(axis=-1)
+    return np.maximum(low[..., frames].max(axis=-1) - bar, 0.0)
+
+
 def motion_features(gpos: np.ndarray, grot: np.ndarray, root: int, up: int, fps: float) -> np.ndarray:
     """Pose and velocity of every frame after the first, in the character's own frame.
 

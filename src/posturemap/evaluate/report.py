@@ -159,6 +159,9 @@ METRIC_TITLES = {
                    "truth row for reference; lower is more natural)",
     "penetration_cm": "Floor penetration (cm: the deepest foot joint under the floor, the lowest foot joint in the "
                       "context frames, averaged over the gap's frames; truth row for reference)",
+    "float_cm": "Feet off the floor (cm: per window, how far the lowest foot joint rises in the gap above the highest "
+                "it reaches in the context frames, 0 where never; the height-weighted skate lowers for feet in the "
+                "air, this shows them; truth row for reference)",
     "contact_skate": "Secondary: contact-based foot skate (cm/s over detected contact steps only; blind to a foot "
                      "sliding above the contact height)",
     "validity": "Pose validity (mean distance to the nearest training posture, feature units; truth row for reference)",
@@ -261,10 +264,15 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
     if cc:
         r.append(f"### Transitions between different clips ({cc['pairs']} seeded random pairs of test clips, "
                  f"length {cc['length']}, align=True)\n")
-        keys = ("skate", "contact_skate", "validity", "validity_p95", "jerk")
-        body = [[m] + [cc["methods"][m][k] for k in keys] for m in methods]
-        body.append(["real frames at the seams"] + [cc["reference"][k] for k in keys])
-        _table(r, ["method", "skate cm/s", "contact skate cm/s", "validity", "validity p95", "jerk cm/s^3"], body)
+        keys = ("skate", "float_cm", "floats_over_10cm", "contact_skate", "validity", "validity_p95", "jerk")
+        body = [[m] + [cc["methods"][m].get(k) for k in keys] for m in methods]
+        body.append(["real frames at the seams"] + [cc["reference"].get(k) for k in keys])
+        _table(r, ["method", "skate cm/s", "feet off the floor cm", "of them over 10 cm", "contact skate cm/s",
+                   "validity", "validity p95", "jerk cm/s^3"], body)
+        r.append("Feet off the floor: per transition, how far the lowest foot joint rises in the new frames above "
+                 "the highest it reaches in the real frames around them (A's last 10, B's first 10), the mean; "
+                 "then the number of transitions where that is over 10 cm. The height-weighted skate weighs a foot "
+                 "by its closeness to the ground, so feet held in the air lower it; this column shows them.\n")
 
 
 def markdown(results: dict) -> str:

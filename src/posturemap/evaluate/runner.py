@@ -23,7 +23,7 @@ from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, M
                        SPLIT_METHODS, STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS,
                        TEST_CONTENTS, TEST_STYLES, VARIANTS, Settings, Split, _log, load_split, make_windows,
                        random_pairs, window_starts)
-from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, global_windows, natural_reference,
+from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, foot_float, global_windows, natural_reference,
                       naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
                       score_truth, skate_scores, truth_globals, window_features)
 from .report import jsonable
@@ -353,7 +353,10 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         _, gp = global_windows(rots, pos, parents)
         skate, contact = skate_scores(ctx, gp, steps)
         valid = metrics.pose_validity(window_features(ctx, rots[:, sl], pos[:, sl]), ctx.index)
-        out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact, "validity": float(valid.mean()),
+        up = foot_float(ctx, gp, length) * ctx.cm
+        out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact,
+                             "float_cm": float(up.mean()), "floats_over_10cm": int(np.sum(up > 10.0)),
+                             "validity": float(valid.mean()),
                              "validity_p95": float(np.percentile(valid, 95)),
                              "jerk": metrics.jerk(gp[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm}
     # Reference: the real frames on both sides of the seams (10 of A, 10 of B, separately).

@@ -78,6 +78,15 @@ def penetration(ctx: Context, gpos: np.ndarray, length: int) -> np.ndarray:
     return metrics.floor_penetration(gpos[:, :, ctx.feet], ctx.up, context, slice(N_PAST, N_PAST + length))
 
 
+def foot_float(ctx: Context, gpos: np.ndarray, length: int) -> np.ndarray:
+    """Feet off the floor in windows of global positions (N, N_PAST + L + N_FUTURE, J, 3), per
+    window (N,), in the clip's unit (:func:`metrics.foot_float`: how far the lowest foot joint
+    rises in the gap above the highest it reaches in the context frames)."""
+    context = np.ones(gpos.shape[1], dtype=bool)
+    context[N_PAST: N_PAST + length] = False
+    return metrics.foot_float(gpos[:, :, ctx.feet], ctx.up, context, slice(N_PAST, N_PAST + length))
+
+
 def natural_frames(length: int) -> np.ndarray:
     """Indices of the (at most :data:`NATURAL_FRAMES`) evenly spaced frames naturalness compares."""
     return np.unique(np.round(np.linspace(0, length - 1, min(length, NATURAL_FRAMES))).astype(np.int64))
@@ -184,6 +193,7 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "mpjpe_cm": (np.linalg.norm(pg_p[:, sl] - tg_p[:, sl], axis=-1).mean(axis=(1, 2)) * ctx.cm).tolist(),
         "skate": skate.tolist(),
         "penetration_cm": (penetration(ctx, pg_p, length) * ctx.cm).tolist(),
+        "float_cm": (foot_float(ctx, pg_p, length) * ctx.cm).tolist(),
     }
     out = {
         "l2q": metrics.l2q(p_rot[:, sl], t_rot[:, sl]),
@@ -195,6 +205,7 @@ def score_inbetween(ctx: Context, truth_r, truth_p, pred_r, pred_p, length: int,
         "skate": float(skate.mean()),
         "contact_skate": contact,
         "penetration_cm": float(np.mean(per_window["penetration_cm"])),
+        "float_cm": float(np.mean(per_window["float_cm"])),
         "validity": None if valid is None else float(valid.mean()),
         "validity_p95": None if valid is None else float(np.percentile(valid, 95)),
         "jerk": metrics.jerk(pg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
@@ -227,11 +238,13 @@ def score_truth(ctx: Context, truth_r, truth_p, length: int, natural=None) -> di
     valid = (None if ctx.index is None
              else metrics.pose_validity(window_features(ctx, truth_r[:, sl], truth_p[:, sl]), ctx.index))
     pen = penetration(ctx, tg_p, length) * ctx.cm
+    up = foot_float(ctx, tg_p, length) * ctx.cm
     out = {"skate": float(skate.mean()), "contact_skate": contact, "penetration_cm": float(pen.mean()),
+           "float_cm": float(up.mean()),
            "validity": None if valid is None else float(valid.mean()),
            "validity_p95": None if valid is None else float(np.percentile(valid, 95)),
            "jerk": metrics.jerk(tg_p[:, N_PAST - 3: N_PAST + length + 3], ctx.fps) * ctx.cm,
-           "per_window": {"skate": skate.tolist(), "penetration_cm": pen.tolist()}}
+           "per_window": {"skate": skate.tolist(), "penetration_cm": pen.tolist(), "float_cm": up.tolist()}}
     if natural is not None:
         out["naturalness"] = float(np.mean(natural))
         out["per_window"]["naturalness"] = np.asarray(natural).tolist()
