@@ -51,7 +51,10 @@ lowest foot joint over the window, over the L + 1 frame steps from the last past
 frame to the first future-context frame; no contact detection), with the older contact-based
 measure as a secondary column (``contact_skate``); floor penetration
 (:func:`posturemap.evaluate.metrics.floor_penetration`, cm: the deepest foot joint under the
-floor, the lowest foot joint in the context frames, averaged over the gap); naturalness
+floor, the lowest foot joint in the context frames, averaged over the gap); feet off the floor
+(:func:`posturemap.evaluate.metrics.foot_float`, cm: how far the lowest foot joint rises in the
+gap above the highest it reaches in the context frames, which the height-weighted skate cannot
+see; between clips also the count of transitions over 10 cm); naturalness
 (:func:`naturalness_fn`: each
 rebuilt window's distance to its nearest real window of the same length among the test clips,
 which no library has seen, leaving out windows that overlap its own frames; z-scored pose and
