@@ -802,7 +802,7 @@ def _meet_b_velocity(eng: TransitionEngine, tb: Track, b_start: int, out_r, out_
     miss = rotate_about_up(v_b, float(turn), up) - c * rotate_about_up(v_b, float(turn_res), up) \
         - (1.0 - c) * rotate_about_up(v_b, float(turn_fb), up)
     length = len(out_p)
-    curve = retrieval._hermite_offsets_cached(length, retrieval.blend_frames(True, tb.motion.fps))[3]
+    curve = retrieval._hermite_offsets_cached(length, retrieval.blend_frames(tb.motion.fps))[3]
     offset = curve[:, None] * miss[None]
     if len(eng._chain):  # the root's translation is in its parent's frame
         offset = quat.mul_vec(quat.inv(chain_world(eng._chain, out_r, out_p)[0]), offset)

@@ -258,7 +258,7 @@ def _spliced_compiled(jit, rt, first, second, w: np.ndarray, frames):
                          e_b1, np.array([first.confidence[1] <= 0.0, second.confidence[1] <= 0.0]), d,
                          _sample_times(d), rt.part_joints[0], rt.part_joints[1], rt.open_joints, ta.rots, tb.rots,
                          np.array(first.ia), np.array(first.ib),
-                         _hermite_offsets_cached(length, blend_frames(True, ta.motion.fps)),
+                         _hermite_offsets_cached(length, blend_frames(ta.motion.fps)),
                          np.array(frames, dtype=np.int64), lib.gpos, lib.heading, lib.contacts, ta.gpos, ta.heading,
                          tb.gpos, tb.heading, rt.engine._up, w, rots, gpos, heading,
                          shift, contacts, rt.engine._root, rt.upper_tops, retrieval.UPPER_LIFT)
