@@ -742,8 +742,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # Farther, the blended leg moves more like the interpolation, whose feet the lock finds
         # and holds itself: LaFAN1 in-betweening at 24 fps and 1.5 s skated 1.51 cm/s with the
         # segment's contacts at every distance, 1.41 so (truth 1.02; docs/retrieval.md).
-        legs = res.info["parts"]["lower"]
-        contacts = (res.contacts if res.confidence[0] > 0.0 and legs["distance"] < retrieval.CONTACTS_WITHIN
+        contacts = (res.contacts if res.confidence[0] > 0.0 and res.distance[0] < retrieval.CONTACTS_WITHIN
                     else None)
         eng.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
         # The head steadied (retrieval.HEAD_GAZE): half its turn in the world the fallback's.

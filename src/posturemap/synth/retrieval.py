@@ -1174,12 +1174,13 @@ def bend_paths(traj: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.ndar
 
 
 class Result:
-    """What one retrieval transition made: frames, B's alignment, contacts and the report."""
+    """What one retrieval transition made: frames, B's alignment, contacts and the report; per
+    body part the confidence and the match distance (degrees, unrounded: the report rounds it)."""
 
-    def __init__(self, rots, gpos, heading, dtheta, shift, contacts, info, confidence):
+    def __init__(self, rots, gpos, heading, dtheta, shift, contacts, info, confidence, distance):
         self.rots, self.gpos, self.heading = rots, gpos, heading
         self.dtheta, self.shift = dtheta, shift
-        self.contacts, self.info, self.confidence = contacts, info, confidence
+        self.contacts, self.info, self.confidence, self.distance = contacts, info, confidence, distance
 
 
 @dataclass
@@ -1349,7 +1350,7 @@ def replay(rt: Retriever, m: Match, blend: float | None = None, skip_unconfident
             gpos, heading, dtheta, shift = root_trajectory(lib, i0, i1, f, ta, tb, ia, ib, m.align, up, curves)
             # The nearest recorded frame of the first segment (its samples lie inside its clip).
             contacts = lib.contacts[np.round(i0[0, 2:-2] + f[0, 2:-2]).astype(np.int64)]
-    return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence)
+    return Result(out, gpos, heading, dtheta, shift, contacts, m.info, m.confidence, m.distance)
 
 
 _NO_TOPS = np.zeros(0, dtype=np.int64)
