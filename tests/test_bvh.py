@@ -757,8 +757,14 @@ def test_motion_validates_shapes():
         Motion(g.skeleton, g.rotations[:, :3], g.positions, 25.0)
     with pytest.raises(ValueError):
         Motion(g.skeleton, g.rotations, g.positions[:2], 25.0)
-    with pytest.raises(ValueError):
-        Motion(g.skeleton, g.rotations, g.positions, 0.0)
+    # A frame rate outside the reader's range (frame times of 0.1 ms to 10 s) is refused where
+    # the Motion is made: a gap's frame counts come from it (inf overflowed, 1e-9 Hz asked for
+    # terabytes).
+    for fps in (0.0, -30.0, float("nan"), float("inf"), 1e-9, 0.099, 10001.0):
+        with pytest.raises(ValueError, match="fps must be from 0.1 to 10000"):
+            Motion(g.skeleton, g.rotations, g.positions, fps)
+    for fps in (0.1, 10000.0):
+        assert Motion(g.skeleton, g.rotations, g.positions, fps).fps == fps
 
 
 def test_skeleton_dict_round_trip():

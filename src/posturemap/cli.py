@@ -466,6 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("resample", help="write a BVH clip at another frame rate (rotations SLERPed, translations LERPed)")
     s.add_argument("input", metavar="IN.bvh")
+    # core.motion's MIN_FPS and MAX_FPS (numpy is not imported to check options)
     s.add_argument("--fps", type=_checked(float, lambda v: 0.1 <= v <= 10000.0, "a frame rate in [0.1, 10000]"),
                    required=True, help="the new frame rate (frames per second)")
     s.add_argument("-o", "--output", required=True, metavar="OUT",

@@ -11,6 +11,9 @@ from . import quat
 from .skeleton import Skeleton, fk
 
 AXES = "XYZ"
+# The frame rates a clip may have (frames per second): a frame time from 0.1 ms to 10 s, as the
+# BVH reader accepts; beyond, a gap's frame counts (seconds times fps) are meaningless or huge.
+MIN_FPS, MAX_FPS = 0.1, 10000.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,8 +46,8 @@ class Motion:
             raise ValueError(f"rotations must be (F, {j}, 4), got {self.rotations.shape}")
         if self.positions.shape != self.rotations.shape[:2] + (3,):
             raise ValueError(f"positions must be (F, {j}, 3), got {self.positions.shape}")
-        if not self.fps > 0:
-            raise ValueError(f"fps must be positive, got {self.fps}")
+        if not MIN_FPS <= self.fps <= MAX_FPS:
+            raise ValueError(f"fps must be from {MIN_FPS:g} to {MAX_FPS:g}, got {self.fps}")
         if self.source is not None and (self.source.ndim != 2 or len(self.source) != len(self.rotations)):
             raise ValueError(f"source must be (F, C) with F = {len(self.rotations)}, got {self.source.shape}")
 

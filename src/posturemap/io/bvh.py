@@ -29,7 +29,7 @@ import numpy as np
 from ..core import quat
 from ..errors import UserError
 from .fileio import read_regular, write_bytes_atomic  # noqa: F401 - write_bytes_atomic kept here for callers
-from ..core.motion import Motion
+from ..core.motion import MAX_FPS, MIN_FPS, Motion
 from ..core.skeleton import POSITION_CHANNELS, ROTATION_CHANNELS, Skeleton
 
 MAX_JOINTS = 10_000
@@ -37,7 +37,7 @@ MAX_DEPTH = MAX_JOINTS  # joints on one chain from a root (the parser keeps its 
 MAX_VALUES = 500_000_000  # frames * channels; beyond this a file is not motion capture
 MAX_FILE_BYTES = 2 << 30  # 2 GiB: larger files are refused before reading
 MAX_ABS_VALUE = 1e9  # a channel or offset value beyond this (in any unit) is not a pose: refused
-MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-4, 10.0  # seconds: 10 kHz .. 0.1 Hz
+MIN_FRAME_TIME, MAX_FRAME_TIME = 1.0 / MAX_FPS, 1.0 / MIN_FPS  # seconds: 10 kHz .. 0.1 Hz (core.motion)
 
 _CHANNEL_NAMES = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}  # any case
 # The line breaks of str.splitlines(), so that line numbers match what editors show.
