@@ -765,6 +765,22 @@ def test_motion_validates_shapes():
             Motion(g.skeleton, g.rotations, g.positions, fps)
     for fps in (0.1, 10000.0):
         assert Motion(g.skeleton, g.rotations, g.positions, fps).fps == fps
+    from posturemap.synth.engine import transition
+
+    # Other real dtypes become float64 (the kernels' type): float32 from a game engine gives
+    # the same transition as float64; complex numbers are refused.
+    for dtype in (np.float32, np.float16, np.int64, np.longdouble):
+        m = Motion(g.skeleton, g.rotations.astype(dtype), g.positions.astype(dtype), 25.0)
+        assert m.rotations.dtype == m.positions.dtype == np.float64
+        assert np.array_equal(m.rotations, g.rotations.astype(dtype).astype(np.float64))
+    m32 = Motion(g.skeleton, g.rotations.astype(np.float32), g.positions.astype(np.float32), 25.0)
+    m64 = Motion(g.skeleton, m32.rotations.copy(), m32.positions.copy(), 25.0)
+    r32, r64 = transition(m32, m32, length=6, method="spline"), transition(m64, m64, length=6, method="spline")
+    assert np.array_equal(r32.rotations, r64.rotations) and np.array_equal(r32.positions, r64.positions)
+    with pytest.raises(ValueError, match="rotations must be real numbers"):
+        Motion(g.skeleton, g.rotations.astype(complex), g.positions, 25.0)
+    with pytest.raises(ValueError, match="positions must be real numbers"):
+        Motion(g.skeleton, g.rotations, g.positions.astype(object), 25.0)
 
 
 def test_skeleton_dict_round_trip():

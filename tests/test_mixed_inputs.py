@@ -99,6 +99,11 @@ def test_the_engine_and_the_map_name_what_is_missing(sample_clips, walk_map):
         TransitionEngine(PostureMap())
     with pytest.raises(ValueError, match="not fitted"):
         PostureMap().save("never.npz")
+    for use in (PostureMap().score, PostureMap().predict, PostureMap().encode):
+        with pytest.raises(ValueError, match="not fitted"):
+            use(walk)
+    with pytest.raises(TypeError, match="model must be a PostureMap"):
+        TransitionEngine("map.npz")
     assert not os.path.exists("never.npz")
     with pytest.raises(TypeError, match="Motion objects"):
         PostureMap().fit(["walk.bvh"])

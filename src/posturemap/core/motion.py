@@ -41,6 +41,16 @@ class Motion:
     source: np.ndarray | None = None
 
     def __post_init__(self):
+        # The kernels take float64: other real dtypes (float32 from a game engine, integers) are
+        # converted here, once; complex or non-numeric arrays are refused.
+        for name in ("rotations", "positions"):
+            a = np.asarray(getattr(self, name))
+            if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+                raise ValueError(f"{name} must be real numbers, got dtype {a.dtype}")
+            if a.dtype != np.float64:
+                object.__setattr__(self, name, a.astype(np.float64))
+            elif a is not getattr(self, name):
+                object.__setattr__(self, name, a)
         j = self.skeleton.num_joints
         if self.rotations.ndim != 3 or self.rotations.shape[1:] != (j, 4):
             raise ValueError(f"rotations must be (F, {j}, 4), got {self.rotations.shape}")

@@ -188,6 +188,7 @@ class PostureMap:
     def predict(self, motion: Motion) -> np.ndarray:
         """The winning neuron of each frame in each class map: int array (F, 4), columns in
         :data:`~posturemap.learn.features.CLASSES` order."""
+        self.require_fitted()
         parts = self.space_.split(self.encode(motion))
         return np.stack([m.predict(x) for m, x in zip(self.maps_, parts)], axis=1)
 
@@ -195,6 +196,7 @@ class PostureMap:
         """How well the maps cover ``motions`` (a Motion or a list): minus the mean distance of
         their postures to the nearest neuron, in map radii, averaged over the four classes
         (higher is better, 0 when every posture is a neuron; above -1 means within one radius)."""
+        self.require_fitted()
         motions = [motions] if isinstance(motions, Motion) else list(motions)
         parts = self.space_.split(np.concatenate([self.encode(m) for m in motions]))
         return -float(np.mean([m.quantization_error(x) / m.radius_ for m, x in zip(self.maps_, parts)]))
@@ -211,6 +213,7 @@ class PostureMap:
     def encode(self, motion: Motion) -> np.ndarray:
         """Full posture vectors of a motion with this map's skeleton, (F, D); a
         :class:`UserError` for a clip of no frames or with a NaN or infinite value."""
+        self.require_fitted()
         motion.check_usable("motion")
         self.check_skeleton(motion.skeleton, "motion")
         return self.space_.encode(motion)

@@ -103,6 +103,8 @@ class TransitionEngine:
     def __init__(self, model=None, skeleton=None):
         self.model = model
         if model is not None:
+            if not hasattr(model, "require_fitted"):
+                raise TypeError(f"model must be a PostureMap (or None), got {type(model).__name__}")
             model.require_fitted()
             skeleton = model.skeleton_
         self.skeleton = skeleton
