@@ -26,12 +26,15 @@ class Motion:
     rotations : ndarray, shape (F, J, 4), local rotations (w, x, y, z)
     positions : ndarray, shape (F, J, 3), local translations in the clip's own length unit
         (the bone offset for joints without position channels)
-    fps : float, frames per second
+    fps : float, frames per second, from :data:`MIN_FPS` to :data:`MAX_FPS`
     source : ndarray (F, C) or None; for a motion read from a BVH file, the file's own channel
         values per frame (NaN rows for frames that did not come from a file). The BVH writer
         writes them back for every joint whose pose is unchanged, so that a file read and
         written keeps its own numbers (angles past +-180 degrees included); slicing and
         :func:`concatenate` keep them with their frames
+
+    Rotations and translations of any real dtype (float32 from a game engine, say) are stored
+    as float64, the kernels' type; complex or non-numeric arrays raise ``ValueError``.
     """
 
     skeleton: Skeleton
