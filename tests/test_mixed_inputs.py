@@ -104,6 +104,8 @@ def test_the_engine_and_the_map_name_what_is_missing(sample_clips, walk_map):
             use(walk)
     with pytest.raises(TypeError, match="model must be a PostureMap"):
         TransitionEngine("map.npz")
+    with pytest.raises(TypeError, match="add needs a Motion"):
+        TransitionEngine().add("walk", walk.rotations)
     assert not os.path.exists("never.npz")
     with pytest.raises(TypeError, match="Motion objects"):
         PostureMap().fit(["walk.bvh"])

@@ -127,6 +127,8 @@ class TransitionEngine:
     def add(self, name: str, motion: Motion) -> Track:
         """Prepare a clip under ``name`` (same skeleton as the map, if any; at least one frame,
         every value finite)."""
+        if not isinstance(motion, Motion):
+            raise TypeError(f"add needs a Motion (posturemap.io.bvh.read gives one), got {type(motion).__name__}")
         motion.check_usable(name)
         if self.skeleton is None:
             self.skeleton = motion.skeleton
