@@ -722,6 +722,14 @@ def test_motion_slicing(sample_clips):
     assert m[::10].num_frames == len(range(0, m.num_frames, 10))
     part.positions[:] = 0.0  # a copy: the original is untouched
     assert not np.all(m.positions[10:20] == 0.0)
+    # A frame number outside the clip raises IndexError, so iterating a Motion ends (a clip
+    # given where a list is expected was iterated for ever: each index past the end gave an
+    # empty Motion).
+    for outside in (m.num_frames, -m.num_frames - 1, 10**6):
+        with pytest.raises(IndexError, match="outside the clip"):
+            m[outside]
+    frames = list(m[:7])
+    assert len(frames) == 7 and all(np.array_equal(f.rotations[0], m.rotations[i]) for i, f in enumerate(frames))
 
 
 def test_motion_concatenate(sample_clips):

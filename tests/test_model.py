@@ -130,6 +130,19 @@ def test_fit_is_deterministic(clips):
         np.testing.assert_array_equal(ma.edges_, mb.edges_)
 
 
+def test_fit_and_partial_fit_take_one_motion_as_a_list_of_it(clips):
+    # One Motion where a list is expected is the list of it (iterating it frame by frame had
+    # never ended): the same maps as from [motion], and partial_fit grows them alike.
+    walk, run = clips["walk"], clips["run"]
+    one, listed = PostureMap(seed=1).fit(walk), PostureMap(seed=1).fit([walk])
+    assert one.info_["clips"] == 1
+    one.partial_fit(run)
+    listed.partial_fit([run])
+    assert one.info_["clips"] == listed.info_["clips"] == 2
+    for ma, mb in zip(one.maps_, listed.maps_):
+        np.testing.assert_array_equal(ma.weights_, mb.weights_)
+
+
 def test_fit_euler_mode_is_circular(clips):
     pm = PostureMap(features="euler", radius=0.2).fit(list(clips.values()))
     assert pm.space_.mode == "euler"

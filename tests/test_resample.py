@@ -44,6 +44,15 @@ def test_resample_keeps_the_time_and_the_recorded_frames(sample_clips):
     assert posturemap.resample is resample
 
 
+def test_resample_refuses_a_nan_as_the_other_entry_points_do(sample_clips):
+    # A NaN would pass into every frame interpolated next to it: refused, naming frame and joint.
+    m = sample_clips["walk"]
+    bad = Motion(m.skeleton, m.rotations.copy(), m.positions.copy(), m.fps)
+    bad.rotations[3, 2, 0] = np.nan
+    with pytest.raises(posturemap.errors.UserError, match="NaN or infinite rotation .frame 3"):
+        resample(bad, 60.0)
+
+
 def test_resample_one_frame_and_the_last_frame(sample_clips):
     m = sample_clips["walk"]
     one = resample(m[:1], 60.0)

@@ -83,8 +83,11 @@ class Motion:
         return self.num_frames
 
     def __getitem__(self, index) -> "Motion":
-        """Frames by slice or index array; always returns a Motion (copies the arrays)."""
+        """Frames by slice or index array; always returns a Motion (copies the arrays). A frame
+        number outside the clip raises ``IndexError`` (so that iterating a Motion ends)."""
         if isinstance(index, (int, np.integer)):
+            if not -self.num_frames <= index < self.num_frames:
+                raise IndexError(f"frame {index} is outside the clip ({self.num_frames} frames)")
             index = slice(index, index + 1 if index != -1 else None)
         source = None if self.source is None else self.source[index].copy()
         return Motion(self.skeleton, self.rotations[index].copy(), self.positions[index].copy(), self.fps, source)
@@ -124,7 +127,6 @@ def concatenate(motions: list[Motion]) -> Motion:
                   np.concatenate([m.positions for m in motions]), first.fps, source)
 
 
-MIN_FPS, MAX_FPS = 0.1, 10000.0  # as a BVH frame time of 10 s .. 0.1 ms (posturemap.io.bvh)
 MAX_RESAMPLED_BYTES = 512 << 20  # a resampled motion's rotations and translations (float64); making them
 #                                   takes about 3.5 times as much at its peak (about 1.8 GiB here)
 
@@ -140,13 +142,15 @@ def resample(motion: Motion, fps: float) -> Motion:
     the reader takes), for a motion with no frame, and before allocating anything, for a result
     whose rotations and translations would take more than :data:`MAX_RESAMPLED_BYTES` (512 MiB:
     a 22-joint clip of 435,000 frames, an hour at 120 fps; 1,000 frames at 0.1 fps made 10,000
-    fps would be 100 million).
+    fps would be 100 million); :class:`~posturemap.errors.UserError` for a NaN or infinite
+    rotation or translation.
     """
     fps = float(fps)
     if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
         raise ValueError(f"fps must be a number in [{MIN_FPS:g}, {MAX_FPS:g}], got {fps:g}")
     if motion.num_frames == 0:
         raise ValueError("a motion with no frame has no rate to change")
+    motion.check_usable("motion")  # a NaN would pass into every frame it is interpolated into
     if same_fps(fps, motion.fps):
         return Motion(motion.skeleton, motion.rotations.copy(), motion.positions.copy(), motion.fps,
                       None if motion.source is None else motion.source.copy())

@@ -69,12 +69,14 @@ class PostureMap:
         self.library = library
 
     def fit(self, motions: list[Motion], names: list[str] | None = None, progress=None) -> "PostureMap":
-        """Learn the four class maps from training motions (one skeleton); returns ``self``.
+        """Learn the four class maps from training motions (a list, or one Motion; one
+        skeleton); returns ``self``.
 
         ``progress(class_name, epoch, epochs, n_neurons)`` is called as training advances.
         """
         import time
 
+        motions = [motions] if isinstance(motions, Motion) else list(motions)
         if not motions:
             raise ValueError("no training motions")
         for m in motions:
@@ -134,7 +136,8 @@ class PostureMap:
         return self
 
     def partial_fit(self, motions: list[Motion], names: list[str] | None = None, progress=None) -> "PostureMap":
-        """Grow the fitted maps with more motions (same skeleton and fps); returns ``self``.
+        """Grow the fitted maps with more motions (a list, or one Motion; same skeleton and
+        fps); returns ``self``.
 
         The feature space stays the one ``fit`` chose; each class map grows as
         :meth:`UniformPostureMap.partial_fit` does (neurons adapt, samples beyond the radius
@@ -145,6 +148,7 @@ class PostureMap:
         The quality figures in ``info_`` are then those of the latest call's clips (as
         :meth:`UniformPostureMap.partial_fit` measures them).
         """
+        motions = [motions] if isinstance(motions, Motion) else list(motions)
         if not hasattr(self, "maps_"):
             return self.fit(motions, names, progress)
         if not motions:
