@@ -900,6 +900,34 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     assert_the_fallback(eng, "bow", r, p, kw)
 
 
+def test_legs_stepping_in_place_are_not_a_standing_gesture(model, clips):
+    """A clip "in place" (a game asset's walk whose root stays put): the root stands at both
+    seams, but the legs step about it, faster than STEP_SPEED[1] leg lengths per second; the
+    legs are retrieved, not left to interpolation as a bow's are."""
+    leg, kl = model.library_.leg, 4
+    root = np.array([0.05 * leg, 0.0, 0.05 * leg, 0.0, 90.0])
+    stepping = np.zeros((7, 3))
+    stepping[1] = (0.0, 0.3 * leg, 1.2 * leg)  # a foot swinging forward (its up speed does not count)
+    still = retrieval.Seams(np.zeros((7, 3)), np.zeros((7, 3)), root)
+    steps = retrieval.Seams(np.zeros((7, 3)), stepping, root)
+    assert retrieval.still_weight(still, still, leg, 1, lower=kl) == 0.0
+    assert retrieval.still_weight(still, steps, leg, 1, lower=kl) == 1.0
+    assert retrieval.still_weight(still, steps, leg, 1) == 0.0  # the root's speed alone
+    assert retrieval.still_weight(still, steps, leg, 1, lower=1) == 0.0  # a joint of the upper body moving
+    half = retrieval.Seams(np.zeros((7, 3)), stepping * 0.625, root)  # 0.75 leg lengths a second
+    assert retrieval.still_weight(half, still, leg, 1, lower=kl) == pytest.approx(0.5)
+    # A held-out walk made "in place" (its hips held over one spot): the legs are retrieved.
+    walk = clips[HELD_OUT[0]]
+    hips = walk.skeleton.names.index("Hips")
+    in_place = dataclasses.replace(walk, positions=walk.positions.copy())
+    in_place.positions[:, :hips + 1, 0] = in_place.positions[:1, :hips + 1, 0]
+    in_place.positions[:, :hips + 1, 2] = in_place.positions[:1, :hips + 1, 2]
+    eng = TransitionEngine(model)
+    eng.add("walk", in_place)
+    eng.generate("walk", "walk", length=30, a_end=40, b_start=71, align=False, method="retrieval")
+    assert eng.last["retrieval"]["parts"]["lower"]["confidence"] > 0.5
+
+
 def test_a_gap_that_must_travel_is_not_a_standing_gesture(model, clips):
     """Standing at both seams, but B is two metres away: the character must walk there, so the
     still weight follows the gap's speed and the legs are retrieved rather than gliding."""

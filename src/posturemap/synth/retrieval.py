@@ -95,6 +95,7 @@ W_DISP = 1.0  # root displacement and turn over the gap (in-betweening)
 W_WARP = 2.0  # prefer the natural speed: W_WARP * log(warp)^2
 DISP_SCALE = 0.25  # leg lengths of displacement error that cost as much as one feature std
 STILL_SPEED = (0.2, 0.5)  # leg lengths / s (16-40 cm/s on Bandai): see still_weight
+STEP_SPEED = (0.5, 1.0)  # leg lengths / s of the legs' key joints about the root: stepping in place
 # On gaps from UPPER_TRAVEL_S seconds, while the root travels at a seam (from STILL_SPEED[1]), the
 # upper body's candidates there come from frames whose root travels at least UPPER_TRAVEL times as
 # fast (see Retriever.travelling).
@@ -764,7 +765,7 @@ def horizontal_speed(root: np.ndarray, up: int) -> np.ndarray:
     return np.hypot(root[..., (up + 1) % 3], root[..., (up + 2) % 3])
 
 
-def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0) -> float:
+def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0, lower: int = 0) -> float:
     """How much the character moves: 0 when the root stands still at both seams (its horizontal
     speed at the faster seam below ``STILL_SPEED[0]`` leg lengths per second) and has nowhere to
     go, 1 from ``STILL_SPEED[1]``.
@@ -773,6 +774,18 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0)
     in-betweening the root's distance from A's end to B's start over the gap's duration (0 in
     transitions, where B takes the segment's place). The faster of the seams and the gap counts:
     a character standing at both seams who must cross two metres in between walks there.
+
+    ``lower``: the legs' key joints (the first rows of the seams' ``vel``, about the root in its
+    heading frame). Where they step faster than ``STEP_SPEED`` leg lengths per second at a seam,
+    the legs step about a root that stays: a clip "in place", as game assets often are (a walk
+    whose root never leaves its spot). The weight is then that of the step: 1 from
+    ``STEP_SPEED[1]``. A bow's or a wave's feet stay put, and the root's speed alone decides. In
+    in-betweening of six bandai1 walks and runs made in place (their hips held over one spot; a
+    map of eleven travelling walks and runs, 40 windows of 30 frames), the default's error in
+    the joints' global rotations fell from 1.06 (interpolated, confidence 0) to 0.75, SLERP's
+    1.14; the bench's splits moved within -0.6% to +0.4% L2Q at 45 frames (CMU 01_01 at 60 frames
+    0.519 -> 0.526x SLERP's, LaFAN1's other performers at 1 / 1.5 s 0.713 / 0.790 -> 0.715 /
+    0.792x: more of their standing frames shuffle the feet).
 
     Standing gestures (bows, waves, pointing) are left to interpolation: on the benchmark's
     held-out styles, retrieved standing motion of other styles shuffled the feet and was less
@@ -783,7 +796,12 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0)
     """
     lo, hi = STILL_SPEED
     speed = max(max(float(horizontal_speed(q.root, up)) for q in (qa, qb)), travel) / leg
-    return min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
+    weight = min(max((speed - lo) / (hi - lo), 0.0), 1.0) if hi > lo else 1.0
+    if lower and weight < 1.0:  # legs stepping about a root that stays (a clip "in place")
+        steps = max(float(horizontal_speed(q.vel[:lower], up).max()) for q in (qa, qb)) / leg
+        lo, hi = STEP_SPEED
+        weight = max(weight, min(max((steps - lo) / (hi - lo), 0.0), 1.0))
+    return weight
 
 
 def confidences(distance, still: float, upper: float, both: bool = True, *, align: bool) -> list[float]:
@@ -1266,7 +1284,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         # speed says whether the character must travel (still_weight).
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
         travel = 0.0 if disp is None else math.hypot(*disp[:2]) * fps / d
-        still = still_weight(qa, qb, lib.leg, rt.engine._up, travel)
+        still = still_weight(qa, qb, lib.leg, rt.engine._up, travel, rt.kl)
         shared["seams"] = (qa, qb, gathered, still, disp)
     searched = shared.setdefault("found", {})
     if float(alpha) not in searched:
