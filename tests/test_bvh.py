@@ -791,6 +791,32 @@ def test_motion_validates_shapes():
         Motion(g.skeleton, g.rotations, g.positions.astype(object), 25.0)
 
 
+def test_skeleton_difference_names_the_first_way_two_skeletons_differ(bandai_files, cmu_file):
+    # What a "skeleton differs" error says: the joint count, a joint's name, its parent or its
+    # channels, the first that differs; None for the same skeleton.
+    sk = bvh.read(bandai_files[0]).skeleton
+    assert sk.difference(sk) is None and sk.difference(bvh.read(bandai_files[1]).skeleton) is None
+    cmu = bvh.read(cmu_file).skeleton
+    assert sk.difference(cmu, "the map's") == f"{sk.num_joints} joints, the map's {cmu.num_joints}"
+    names = list(sk.names)
+    names[3] = "Torso"
+    renamed = dataclasses.replace(sk, names=tuple(names))
+    assert renamed.difference(sk) == f"joint 3 is 'Torso', the other's {sk.names[3]!r}"
+    j = sk.names.index("Head")
+    parents = sk.parents.copy()
+    parents[j] = 0
+    moved = dataclasses.replace(sk, parents=parents)
+    assert moved.difference(sk, "its") == f"'Head' hangs from {sk.names[0]!r}, its from {sk.names[sk.parents[j]]!r}"
+    channels = list(sk.channels)
+    channels[j] = ("Zrotation", "Xrotation", "Yrotation")
+    assert dataclasses.replace(sk, channels=tuple(channels)).difference(sk) == (
+        f"'Head' has channels Zrotation Xrotation Yrotation, the other's {' '.join(sk.channels[j])}")
+    # In the command line's error: one line naming the difference.
+    with pytest.raises(UserError, match=r"skeleton differs from the map's \(22 joints, the map's 31\)"):
+        from posturemap.learn.model import PostureMap
+        PostureMap(seed=0).fit([bvh.read(cmu_file)[:60]]).encode(bvh.read(bandai_files[0]))
+
+
 def test_skeleton_dict_round_trip():
     sk = bvh.loads(GOLDEN).skeleton
     back = Skeleton.from_dict(sk.to_dict())

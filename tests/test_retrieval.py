@@ -897,6 +897,11 @@ def test_standing_seams_are_left_to_interpolation(model, clips):
     kw = dict(length=30, a_end=20, b_start=51, align=False, foot_lock=False)
     r, p = (x.copy() for x in eng.generate("bow", "bow", method="retrieval", **kw))
     assert eng.last["retrieval"]["confidence"] == 0.0
+    # The report says why (the command line's line too): not a loose match, a body standing.
+    from posturemap.cli import describe_retrieval
+
+    assert eng.last["retrieval"]["standing"] is True
+    assert "stands still at both seams" in describe_retrieval(eng.last["retrieval"])
     assert_the_fallback(eng, "bow", r, p, kw)
 
 
@@ -926,6 +931,7 @@ def test_legs_stepping_in_place_are_not_a_standing_gesture(model, clips):
     eng.add("walk", in_place)
     eng.generate("walk", "walk", length=30, a_end=40, b_start=71, align=False, method="retrieval")
     assert eng.last["retrieval"]["parts"]["lower"]["confidence"] > 0.5
+    assert "standing" not in eng.last["retrieval"]
 
 
 def test_a_gap_that_must_travel_is_not_a_standing_gesture(model, clips):

@@ -214,7 +214,7 @@ def _cmd_transition(args) -> int:
         _check_output(args.preview, [args.a, args.b])
     a, b = bvh.read(args.a), bvh.read(args.b)
     if not b.skeleton.same_as(a.skeleton):
-        raise UserError(args.b, f"skeleton differs from {args.a} (joints, hierarchy or channels)")
+        raise UserError(args.b, f"skeleton differs from {args.a} ({b.skeleton.difference(a.skeleton, 'its')})")
     why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
     if why:
         raise UserError(args.b, why)
@@ -317,6 +317,9 @@ def describe_retrieval(info) -> str:
     if not info:
         return "  retrieval: no library segment fits; interpolated instead (fallback)"
     if max(r["confidence"] for r in info["parts"].values()) <= 0.0:
+        if info.get("standing"):
+            return ("  retrieval: the body stands still at both seams (a standing gesture, confidence 0); "
+                    "interpolated instead")
         return "  retrieval: the best library segments match too loosely (confidence 0); interpolated instead"
     def source(r):
         return (f"{r['clip']} frames {r['frames'][0]}..{r['frames'][1]}{' (played backwards)' if r['reversed'] else ''} "

@@ -76,6 +76,26 @@ class Skeleton:
         return (self.names == other.names and np.array_equal(self.parents, other.parents)
                 and self.channels == other.channels)
 
+    def difference(self, other: "Skeleton", whose: str = "the other's") -> str | None:
+        """The first way this skeleton's joints, hierarchy or channels differ from ``other``'s, in
+        words (``whose`` names the other), or None where :meth:`same_as` holds."""
+        if self.num_joints != other.num_joints:
+            return f"{self.num_joints} joints, {whose} {other.num_joints}"
+        for j in range(self.num_joints):
+            if self.names[j] != other.names[j]:
+                return f"joint {j} is {self.names[j]!r}, {whose} {other.names[j]!r}"
+        for j in range(self.num_joints):
+            mine, theirs = (int(x.parents[j]) for x in (self, other))
+            if mine != theirs:
+                def parent(sk, p):
+                    return repr(sk.names[p]) if p >= 0 else "no parent"
+                return f"{self.names[j]!r} hangs from {parent(self, mine)}, {whose} from {parent(other, theirs)}"
+        for j in range(self.num_joints):
+            if self.channels[j] != other.channels[j]:
+                return (f"{self.names[j]!r} has channels {' '.join(self.channels[j]) or 'none'}, {whose} "
+                        f"{' '.join(other.channels[j]) or 'none'}")
+        return None
+
     def body_mismatch(self, other: "Skeleton", whose: str = "the other skeleton's") -> str | None:
         """Why clips of this skeleton cannot be mixed with ``other``'s (``whose`` names it in the
         message) though they have the same joints: their bones (the offsets of the joints below the

@@ -88,7 +88,8 @@ class PostureMap:
         for name, m in zip(names, motions):
             m.check_usable(name)
             if not m.skeleton.same_as(first):
-                raise UserError(name, f"skeleton differs from {names[0]} (a map needs one skeleton)")
+                raise UserError(name, f"skeleton differs from {names[0]} ({m.skeleton.difference(first, 'its')}; "
+                                      "a map needs one skeleton)")
             why = m.skeleton.body_mismatch(first, f"{names[0]}'s")
             if why:
                 raise UserError(name, f"{why}: a map needs one unit")
@@ -226,7 +227,8 @@ class PostureMap:
         """A :class:`UserError` on ``where`` unless ``sk`` is the map's skeleton: its joints,
         hierarchy and channels, in the map's unit (:meth:`Skeleton.body_mismatch`)."""
         if not sk.same_as(self.skeleton_):
-            raise UserError(where, "skeleton differs from the map's (joints, hierarchy or channels)")
+            diff = sk.difference(self.skeleton_, "the map's")
+            raise UserError(where, f"skeleton differs from the map's ({diff})")
         why = sk.body_mismatch(self.skeleton_, "the map's")
         if why:
             raise UserError(where, f"{why}: a map holds one unit; rescale the clip or train a map on clips like it")

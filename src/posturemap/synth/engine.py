@@ -134,7 +134,7 @@ class TransitionEngine:
             self.skeleton = motion.skeleton
         whose = "the map's" if self.model is not None else "the other clips'"
         if not motion.skeleton.same_as(self.skeleton):
-            raise UserError(name, f"skeleton differs from {whose} (joints, hierarchy or channels)")
+            raise UserError(name, f"skeleton differs from {whose} ({motion.skeleton.difference(self.skeleton, whose)})")
         why = motion.skeleton.body_mismatch(self.skeleton, whose)
         if why:
             raise UserError(name, why)

@@ -1220,6 +1220,7 @@ class Match:
     confidence: list
     lib: MotionLibrary
     weights: list = field(default_factory=lambda: [None, None])
+    still: float = 1.0  # still_weight: 0 where the body stands at both seams (a standing gesture)
     _info: dict | None = field(default=None, repr=False)
 
     @property
@@ -1241,6 +1242,8 @@ class Match:
                     "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
                     "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
+            if self.still <= 0.0:  # why every part is interpolated, whatever the match distance
+                self._info["standing"] = True
         return self._info
 
 
@@ -1311,7 +1314,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
     conf = confidences(dist, still, upper_weight(length, fps), seam == "both", align=align)
-    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights)
+    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights, still)
 
 
 def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:
