@@ -783,7 +783,7 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0,
     in-betweening of six bandai1 walks and runs made in place (their hips held over one spot; a
     map of eleven travelling walks and runs, 40 windows of 30 frames), the default's error in
     the joints' global rotations fell from 1.06 (interpolated, confidence 0) to 0.75, SLERP's
-    1.14; the bench's splits moved within -0.6% to +0.4% L2Q at 45 frames (CMU 01_01 at 60 frames
+    1.14; the bench's splits moved within -0.2% to +0.4% L2Q at 45 frames (CMU 01_01 at 60 frames
     0.519 -> 0.526x SLERP's, LaFAN1's other performers at 1 / 1.5 s 0.713 / 0.790 -> 0.715 /
     0.792x: more of their standing frames shuffle the feet).
 
