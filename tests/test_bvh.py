@@ -815,6 +815,10 @@ def test_skeleton_difference_names_the_first_way_two_skeletons_differ(bandai_fil
     with pytest.raises(UserError, match=r"skeleton differs from the map's \(22 joints, the map's 31\)"):
         from posturemap.learn.model import PostureMap
         PostureMap(seed=0).fit([bvh.read(cmu_file)[:60]]).encode(bvh.read(bandai_files[0]))
+    from posturemap.web.studio import Studio
+
+    with pytest.raises(UserError, match=r"^cmu: skeleton differs from walk \(31 joints, its 22; the studio needs one"):
+        Studio({"walk": bvh.read(bandai_files[0]), "cmu": bvh.read(cmu_file)[:60]})
 
 
 def test_skeleton_dict_round_trip():

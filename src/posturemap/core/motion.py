@@ -47,12 +47,12 @@ class Motion:
         # The kernels take float64: other real dtypes (float32 from a game engine, integers) are
         # converted here, once; complex or non-numeric arrays are refused.
         for name in ("rotations", "positions"):
-            a = np.asarray(getattr(self, name))
+            given = getattr(self, name)
+            a = np.asarray(given)
             if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
                 raise ValueError(f"{name} must be real numbers, got dtype {a.dtype}")
-            if a.dtype != np.float64:
-                object.__setattr__(self, name, a.astype(np.float64))
-            elif a is not getattr(self, name):
+            a = a.astype(np.float64, copy=False)
+            if a is not given:
                 object.__setattr__(self, name, a)
         j = self.skeleton.num_joints
         if self.rotations.ndim != 3 or self.rotations.shape[1:] != (j, 4):

@@ -193,17 +193,17 @@ class PostureMap:
     def predict(self, motion: Motion) -> np.ndarray:
         """The winning neuron of each frame in each class map: int array (F, 4), columns in
         :data:`~posturemap.learn.features.CLASSES` order."""
-        self.require_fitted()
-        parts = self.space_.split(self.encode(motion))
+        x = self.encode(motion)  # first: it says so when the map is not fitted
+        parts = self.space_.split(x)
         return np.stack([m.predict(x) for m, x in zip(self.maps_, parts)], axis=1)
 
     def score(self, motions) -> float:
         """How well the maps cover ``motions`` (a Motion or a list): minus the mean distance of
         their postures to the nearest neuron, in map radii, averaged over the four classes
         (higher is better, 0 when every posture is a neuron; above -1 means within one radius)."""
-        self.require_fitted()
         motions = [motions] if isinstance(motions, Motion) else list(motions)
-        parts = self.space_.split(np.concatenate([self.encode(m) for m in motions]))
+        x = np.concatenate([self.encode(m) for m in motions])  # encode says so when not fitted
+        parts = self.space_.split(x)
         return -float(np.mean([m.quantization_error(x) / m.radius_ for m, x in zip(self.maps_, parts)]))
 
     def _build_library(self, motions, names):

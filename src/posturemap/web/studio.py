@@ -92,7 +92,8 @@ class Studio:
         self.skeleton = first.skeleton
         for name, m in self.clips.items():
             if not m.skeleton.same_as(self.skeleton):
-                raise UserError(name, f"skeleton differs from {first_name} (the studio needs one skeleton)")
+                raise UserError(name, f"skeleton differs from {first_name} ({m.skeleton.difference(self.skeleton, 'its')}; "
+                                      "the studio needs one skeleton)")
         # One rate, the first clip's (a transition's A and B share one, and so do a map's clips).
         motions, changed = at_one_rate(list(self.clips.values()), names=self.names)
         for i in changed:
