@@ -877,6 +877,7 @@ def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engin
         assert engine.last["method"] == expected
         r2 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False, method=expected,
                              foot_lock=True)[0]
+        assert engine.last["method"] == expected  # an explicit method is named too
         assert np.array_equal(r1, r2)
     report = {}
     transition(clips[name], clips[name], model, length=5, a_end=40, b_start=46, align=False, report=report)

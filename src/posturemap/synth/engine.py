@@ -294,8 +294,8 @@ class TransitionEngine:
         planted feet still (:mod:`posturemap.synth.feet`). Raises :class:`RequestError` for a
         field out of range or a method that needs a map the engine lacks.
 
-        Also sets ``self.last`` (key posture, chosen neurons, alignment, and for retrieval the
-        source segments and confidence) for inspection. The returned arrays are buffers reused
+        Also sets ``self.last`` (the method that ran, key posture, chosen neurons, alignment, and
+        for retrieval the source segments and confidence) for inspection. The returned arrays are buffers reused
         by the next call with the same ``length``.
         """
         ta, tb = self._track("a", a), self._track("b", b)
@@ -306,6 +306,7 @@ class TransitionEngine:
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
         out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
+        self.last.setdefault("method", req.method)  # auto names the method it chose
         b_carrier = self._carrier(tb)
         if req.align and b_carrier >= 0:
             # B's chain carries root motion (a game rig's root bone): B is placed with it, and
@@ -848,7 +849,7 @@ def transition(a: Motion, b: Motion, model=None, request: TransitionRequest | No
     req = req.resolved(len(a), len(b))
     rots, pos = engine.generate("a", "b", req)
     if report is not None:
-        report["method"] = engine.last.get("method", req.method)
+        report["method"] = engine.last["method"]
         if "retrieval" in engine.last:
             report["retrieval"] = engine.last["retrieval"]
     mid = Motion(a.skeleton, rots.copy(), pos.copy(), a.fps)

@@ -354,7 +354,7 @@ class Studio:
             "seams": [p.request.a_end, t1 + 1],
             "key_frame": key["frame"] if key else None,
             "key": key,
-            **({"retrieval": last["retrieval"], "method_used": last.get("method", p.request.method)}
+            **({"retrieval": last["retrieval"], "method_used": last["method"]}
                if "retrieval" in last else {}),
             "source": {"a": [0, p.request.a_end], "b": [p.request.b_start, len(self.clips[p.b]) - 1]},
             "alignment": {"joint": self.bones[joint], "up": up, "turn": round(turn, 9),
