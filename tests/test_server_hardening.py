@@ -49,6 +49,18 @@ def test_issue12_alpha_with_309_digits_is_422(srv):
     assert status == 422
 
 
+def test_a_body_in_utf16_or_naming_a_member_twice_is_400(srv):
+    plain = '{"a": "walk", "b": "run", "length": 10}'
+    twice = '{"a": "walk", "b": "run", "length": 10, "length": 20}'
+    headers = {"Content-Type": "application/json"}
+    status, _ = server_fuzz.request(srv, "POST", "/api/transition", plain.encode(), headers)
+    assert status == 200  # the same request in UTF-8, once
+    status, raw = server_fuzz.request(srv, "POST", "/api/transition", plain.encode("utf-16"), headers)
+    assert status == 400 and "not valid JSON" in json.loads(raw)["error"]
+    status, raw = server_fuzz.request(srv, "POST", "/api/transition", twice.encode(), headers)
+    assert status == 400 and "'length' given twice" in json.loads(raw)["error"]
+
+
 def test_issue12_malformed_requests_get_4xx_and_no_traceback(srv):
     result = server_fuzz.malformed(srv)
     assert result["cross_origin_post"] == 403

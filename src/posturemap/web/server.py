@@ -38,7 +38,8 @@ motion, as a game rig's root bone does; ``rotation`` is then the turn and ``tran
 shift), and the root joint otherwise (a fixed reference node above it stays where it is). The
 export holds the same frames.
 
-Bad input never gives a 500: invalid JSON is 400, an unknown clip 404, a body over
+Bad input never gives a 500: invalid JSON (or not UTF-8, or an object naming a member twice) is
+400, an unknown clip 404, a body over
 :data:`~posturemap.web.guards.MAX_BODY` bytes 413, a body not sent within :data:`~posturemap.web.guards.BODY_TIMEOUT` seconds 408, a POST
 whose ``Content-Type`` is not ``application/json`` 415, headers over :data:`~posturemap.web.guards.MAX_HEADER_BYTES`
 431, wrong types or values out of range 422,
