@@ -1831,13 +1831,12 @@ def test_a_splice_that_lifts_both_feet_off_the_floor_is_not_kept(engine, clips, 
         raised = gpos.copy()
         raised[5: 5 + frames, UP] += 0.15 * engine._leg_length
         assert splice.floats(engine, tr, tr, a_end, b_start, rots, raised) == floating
-    # In a transition from a run into a walk, with the seams' velocity offsets fading over
-    # 0.67 s (retrieval.BLEND_S before it was 0.33 s in transitions too), the splice folded both
-    # knees (the lowest foot 13 cm over both seams'): the single segment is taken instead, its
-    # feet within 5 cm.
-    monkeypatch.setattr(retrieval, "BLEND_S", 0.67)
+    # In a transition from a run into a dash, the splice of the segment that continues the run
+    # and the one that arrives in the dash lifted both feet off the floor for longer than a
+    # flight (the lowest foot up to 15 cm over both seams'): the single segment is taken
+    # instead, its feet within 5 cm.
     sk, feet = engine.skeleton, foot_joints(engine.skeleton.names)
-    a, a_end, b, b_start = "run_happy_001", 24, "walk_normal_001", 15
+    a, a_end, b, b_start = "run_normal_001", 21, "dash_normal_001", 18
     eng = TransitionEngine(engine.model)
     for name in (a, b):
         eng.add(name, clips[name])
@@ -1902,3 +1901,28 @@ def test_the_splice_replays_only_what_it_shows_and_equals_the_whole_replays(engi
         skipped += sum(half.confidence[1] <= 0.0 for half in (first, second))  # an upper body left out
         done += 1
     assert done >= 3 and skipped >= 1
+
+
+def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
+    """A segment of ``n`` library frames replayed over a gap of ``d`` frames plays ``n / d`` as
+    fast as recorded, so its seam velocities are compared at that speed: a clip played 1.2x as
+    fast (resampled, its rate kept) matches its own library frames best at warp 1.2 (the
+    velocities once were divided by the warp, which made such a seam prefer warp 0.85)."""
+    from posturemap.core.motion import resample
+
+    name, speed, k, d = "walk_normal_001", 1.2, 50, 20.0
+    src = clips[name]
+    fast = resample(src, src.fps / speed)
+    fast = Motion(fast.skeleton, fast.rotations, fast.positions, src.fps)  # 1.2x as fast
+    eng = TransitionEngine(model)
+    eng.add("fast", fast)
+    rt = retrieval.Retriever(eng, model.library_)
+    track = eng.tracks["fast"]
+    qa = rt.seams(track, [k - 1, k], 1)  # the fast clip's frame k is the recording's frame 60
+    s = model.library_.library_frame(name, round(k * speed))
+    warps = (0.85, 1.0, speed, 1.33)
+    e = np.array([s + round(w * d) for w in warps])
+    for part in (0, 1):
+        ca, _ = rt.pair_costs(part, np.full(len(e), s), e, qa, qa, d, src.fps)
+        assert np.argmin(ca) == warps.index(speed), (part, ca)
+        assert ca[warps.index(speed)] < 0.25 * ca[warps.index(0.85)], (part, ca)

@@ -480,7 +480,7 @@ class Retriever:
     def _matrices(self):
         """Per part, the weighted matching features of every library frame as two matrices:
         ``P`` (N, Dp) positions (and the root's height) and ``V`` (N, Dv) velocities (and the
-        root's velocity and turning rate), so that a seam costs ``|P - p|^2 + |V / warp - v|^2``."""
+        root's velocity and turning rate), so that a seam costs ``|P - p|^2 + |warp V - v|^2``."""
         lib = self.lib
         return [self.rows(part, lib.pose, lib.vel, lib.root) for part in (0, 1)]
 
@@ -539,8 +539,8 @@ class Retriever:
               disp=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Match costs of segments ``(s, e)`` for ``part`` (0 lower, 1 upper): (total, at A, at B).
 
-        Velocities of the library are compared at the speed they are replayed at: divided by
-        the warp ``(e - s) / lib.fps`` over ``d / fps``.
+        Velocities of the library are compared at the speed they are replayed at: times the
+        warp ``(e - s) / lib.fps`` over ``d / fps`` (a segment longer than the gap plays faster).
         """
         ca, cb = self.pair_costs(part, s, e, qa, qb, d, fps)
         return self.total(part, s, e, ca, cb, d, fps, alpha, disp), ca, cb
@@ -549,7 +549,7 @@ class Retriever:
         """The seam costs of :meth:`costs` alone: at A (``s`` against ``qa``) and at B (``e``
         against ``qb``), velocities at the replayed speed."""
         pm, vm = self.matrices[part]
-        rate = 1.0 / self.warp(s, e, d, fps)
+        rate = self.warp(s, e, d, fps)
         nxt = np.minimum(e + 1, self.lib.clip_end[e] - 1)
         return (seam_costs(pm, vm, s, s, *self.query_vectors(part, qa), rate),
                 seam_costs(pm, vm, e, nxt, *self.query_vectors(part, qb), rate))
@@ -753,7 +753,7 @@ def _warp_terms(d: float, lib_fps: float, fps: float, warps: tuple, w_warp: floa
     them from ``warps``), their warp penalties and speed factors (as :meth:`Retriever.costs`)."""
     ns = np.unique(np.maximum(1, np.round(np.array(warps) * d * (lib_fps / fps))).astype(np.int64))
     rho = (ns / lib_fps) / (d / fps)
-    out = (ns, w_warp * np.log(rho) ** 2, 1.0 / rho)
+    out = (ns, w_warp * np.log(rho) ** 2, rho)
     for a in out:
         a.setflags(write=False)
     return out
