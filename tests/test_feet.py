@@ -524,13 +524,19 @@ def test_a_far_spot_drags_the_foot_of_a_run_too_short_to_step(sample_clips, monk
         moved = np.linalg.norm((ankle - g[:1]) * (1 - (np.arange(3) == up)), axis=-1) / leg
         slide = np.linspace(0.0, 0.6, length)[:-1]
         held = slide <= MAX_DRIFT[0]
+        # The run lets go of its last frames so that the correction passes back to B's foot at
+        # no more than feet.PASS_SPEED (pace_passes): a prefix is kept.
+        kept = w[:-1, 0] > 0
+        n = int(kept.sum())
+        assert kept[:n].all() and 0 < length - 1 - n <= np.ceil(MAX_DRIFT[1] * m.fps / feet.PASS_SPEED)
+        dragged = ~held & kept
         assert np.all(w[:-1][held, 0] == 1) and np.all(moved[:-1][held] < 1e-6)
-        assert np.all(np.diff(w[:-1][~held, 0]) < 0) and np.all(w[:-1][~held, 0] > 0)
+        assert np.all(np.diff(w[:-1][dragged, 0]) < 0) and dragged.sum() >= 5
         # Where the foot is dragged, the correction (slide less what is left of it) grows past the
         # first bound and stays under the second.
         correction = slide - moved[:-1]
-        assert np.all(moved[:-1][~held] > 0) and np.all(np.diff(correction[~held]) > 0)
-        assert np.all(correction[~held] > MAX_DRIFT[0] - 1e-9) and np.all(correction < MAX_DRIFT[1])
+        assert np.all(moved[:-1][dragged] > 0) and np.all(np.diff(correction[dragged]) > 0)
+        assert np.all(correction[dragged] > MAX_DRIFT[0] - 1e-9) and np.all(correction < MAX_DRIFT[1])
 
 
 def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips):
@@ -1420,3 +1426,75 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
         # body glides on, so its ends are dragged and the leg, near its reach, raises the foot).
         on_spot = results["numpy"][1][:, 1] == 1.0
         assert on_spot.sum() >= 2 and np.all(g1[on_spot, toes[1], up] <= ground + 0.001 * body)
+
+
+def test_a_short_stretch_between_far_held_spots_is_widened_and_stepped():
+    # Two held runs, frames 0-4 and 6-11: the first holds A's spot while the motion's foot drifts
+    # 0.3 away from it, the second the foot's own spot; passed in the one free frame between
+    # them, the correction jumped 0.15 a frame twice. At a pace of 0.05 a frame the stretch must
+    # span the correction's change over it: the runs let go of their ends (the longer first),
+    # each keeping its frame at the seam, and the freed frames lift the foot as a step does.
+    length, pace, lift, shuffle = 12, 0.05, 0.08, 0.04
+    held = np.ones(length, dtype=bool)
+    held[5] = False
+    weight = held.astype(float)
+    offset = np.zeros((length, 3))
+    offset[:5, 0] = np.linspace(0.0, 0.3, 5)
+    raised = np.zeros(length)
+    h = np.full(length, 0.1)  # the motion's ankle: level
+    feet.pace_passes(held, weight, offset, raised, h, pace, lift, shuffle)
+    runs = feet.contact_runs(held)
+    assert len(runs) == 2 and runs[0][0] == 0 and runs[1][1] == length
+    p, q = runs[0][1] - 1, runs[1][0]
+    d = offset[p, 0]
+    assert q - p >= d / pace and q - p - 1 < offset[p + 1, 0] / pace  # wide enough, no wider
+    assert (p, q) == (3, 8)  # frames 4, 6 and 7 let go (the longer run first): 0.225 over 5 frames
+    assert np.all(weight[~held] == 0) and np.all(weight[held] == 1)
+    high = min(lift, 0.5 * max(d - shuffle, 0.0))
+    u = (np.arange(p + 1, q) - p) / (q - p)
+    np.testing.assert_allclose(raised[p + 1: q], high * np.sin(np.pi * u) ** 2)
+    assert np.all(raised[held] == 0)
+    # Carried through the widened stretch, no frame passes over twice the pace (the Hermite's
+    # peak, 1.5x its mean, and the run's own rate carried on); through the one frame, 0.15 a
+    # frame.
+    carried = feet.swing_offsets(offset.copy(), runs)[:, 0]
+    assert np.abs(np.diff(carried)).max() <= 2 * pace
+    narrow = np.ones(length, dtype=bool)
+    narrow[5] = False
+    assert np.abs(np.diff(feet.swing_offsets(offset.copy(), feet.contact_runs(narrow))[:, 0])).max() >= 0.15
+    # A stretch the offset passes slowly enough is left as it is; where the motion lifts the
+    # foot already (frame 5, by 0.1), the step adds only what it lacks.
+    for pace2, hh in ((0.15, h), (pace, h + 0.1 * (np.arange(length) == 5))):
+        held2, weight2, raised2 = narrow.copy(), narrow.astype(float), np.zeros(length)
+        feet.pace_passes(held2, weight2, offset, raised2, hh, pace2, lift, shuffle)
+        if pace2 == 0.15:  # 0.3 over two frames
+            assert np.array_equal(held2, narrow) and not raised2.any()
+        else:
+            assert np.array_equal(held2, held)
+            np.testing.assert_allclose(raised2, np.where(np.arange(length) == 5, max(raised[5] - 0.1, 0.0), raised))
+
+
+def test_pace_passes_is_the_same_compiled():
+    # numba_kernels._pace_passes (and _pass_gap) against feet.pace_passes on random runs,
+    # corrections and heights, the ends' stretches (from A's frame -1 and to B's frame L) included.
+    from posturemap.core import numba_kernels
+
+    rng = np.random.default_rng(5)
+    changed = 0
+    for _ in range(400):
+        length = int(rng.integers(1, 30))
+        held = rng.random(length) < rng.uniform(0.3, 0.9)
+        weight = held * rng.uniform(0.5, 1.0, length)
+        offset = np.where(held[:, None], rng.normal(0.0, 0.2, (length, 2)), 0.0)
+        raised = np.where(held, rng.uniform(0.0, 0.05, length), 0.0)
+        up, ankle = 1, 0
+        gpos = rng.normal(0.0, 0.05, (length, 1, 3))
+        pace, lift, stand = float(rng.uniform(0.01, 0.2)), 0.08, 0.04
+        want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand)
+        got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
+        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand)
+        for g, w in zip(got, want):
+            np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
+        changed += not np.array_equal(want[0], held)
+    assert changed > 100

@@ -1926,3 +1926,29 @@ def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
         ca, _ = rt.pair_costs(part, np.full(len(e), s), e, qa, qa, d, src.fps)
         assert np.argmin(ca) == warps.index(speed), (part, ca)
         assert ca[warps.index(speed)] < 0.25 * ca[warps.index(0.85)], (part, ca)
+
+
+def test_a_foot_passed_between_two_held_spots_is_not_snapped_across(engine, clips, monkeypatch):
+    # A run into a tired walk, 8 frames: the splice of A's own continuation into B's arrival
+    # holds one foot on A's spot for three frames and on B's for four, one frame apart, its
+    # corrections 14 and 17 cm in opposite directions. Passed in that frame, the foot moved 24 cm
+    # a frame twice, where A's last and B's first frames step 16 cm at most; the runs now let go
+    # of their ends so that it passes at a walking pace (feet.PASS_SPEED), lifted as a step.
+    from posturemap.synth import feet as feet_module
+
+    a, a_end, b, b_start, length = "run_happy_001", 91, "walk_tired_001", 117, 8
+    eng = TransitionEngine(engine.model)
+    for name in (a, b):
+        eng.add(name, clips[name])
+    sk, ft = engine.skeleton, foot_joints(engine.skeleton.names)
+    inputs = np.concatenate([clips[a].global_positions()[a_end - 10: a_end + 1, ft],
+                             clips[b].global_positions()[b_start: b_start + 11, ft]])
+    steps = np.linalg.norm(np.diff(inputs, axis=0), axis=-1)
+    own = max(steps[:10].max(), steps[11:].max())  # A's last and B's first steps (not across them)
+    peak = {}
+    for pace in (0.0, feet_module.PASS_SPEED):
+        monkeypatch.setattr(feet_module, "PASS_SPEED", pace)
+        r, p = eng.generate(a, b, length=length, a_end=a_end, b_start=b_start, method="retrieval")
+        g = np.concatenate([clips[a].global_positions()[a_end: a_end + 1, ft], fk(sk.parents, r, p)[1][:, ft]])
+        peak[pace] = np.linalg.norm(np.diff(g, axis=0), axis=-1).max()
+    assert peak[0.0] > 1.4 * own and peak[feet_module.PASS_SPEED] < 1.1 * own, (peak, own)

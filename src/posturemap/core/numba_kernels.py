@@ -575,6 +575,64 @@ def _planted(x, seam, near, leg, up, floor, height_tol, speed_tol):
 
 
 @nb.njit(**_OPTS)
+def _pass_gap(offset, p, q, n_l):
+    """How far the offset (L, 2) passes from frame ``p`` to ``q`` (0 at frames -1 and ``n_l``)."""
+    pa = offset[p, 0] if p >= 0 else 0.0
+    pb = offset[p, 1] if p >= 0 else 0.0
+    qa = offset[q, 0] if q < n_l else 0.0
+    qb = offset[q, 1] if q < n_l else 0.0
+    return math.sqrt((qa - pa) ** 2 + (qb - pb) ** 2)
+
+
+@nb.njit(**_OPTS)
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand):
+    """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
+    ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height from ``gpos``."""
+    n_l = on.shape[0]
+    if n_l == 0 or pace <= 0.0:
+        return
+    prev_start, p = -1, -1  # the run before the stretch: its first frame and its last held one
+    t = 0
+    while True:
+        while t < n_l and not on[t]:
+            t += 1
+        q = t
+        stop = t
+        while stop < n_l and on[stop]:
+            stop += 1
+        p0, q0 = p, q
+        d = 0.0
+        while True:
+            d = _pass_gap(offset, p, q, n_l)
+            if q - p >= d / pace:
+                break
+            left = p - prev_start if prev_start >= 0 else 0
+            right = stop - 1 - q if q < n_l else 0
+            if left <= 0 and right <= 0:
+                break
+            if left >= right:
+                on[p] = False
+                weight[p] = 0.0
+                p -= 1
+            else:
+                on[q] = False
+                weight[q] = 0.0
+                q += 1
+        if p != p0 or q != q0:
+            high = min(lift, 0.5 * max(d - stand, 0.0))
+            hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
+            hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
+            base = min(hp, hq)
+            for f in range(p + 1, q):
+                u = (f - p) / float(q - p)
+                raised[f] = max(raised[f], high * math.sin(math.pi * u) ** 2 - max(gpos[f, ankle, up] - base, 0.0))
+        if q0 >= n_l:
+            break
+        prev_start, p = q, stop - 1
+        t = stop
+
+
+@nb.njit(**_OPTS)
 def _from_seam(i, side, n_l):
     """The new frame ``i`` frames from a seam: from A's end (side 0) or back from B's start (1)."""
     return i if side == 0 else n_l - 1 - i
@@ -609,7 +667,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, weights):
+              toe_catch, pace, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -642,6 +700,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     toe_most frames and ``(L - toe_gap) // 2``, toe_gap frames free before a held one, and no
     longer than lets its offset pass on to the next held frame's at toe_catch per frame (length
     unit; ``SEAM_TOE_S``, ``SEAM_TOE_GAP``, ``SEAM_TOE_CATCH``; ``posturemap.synth.feet._hold_seam_toes``).
+    pace (length unit per frame): the fastest a held foot's offset passes between two runs on
+    average (``PASS_SPEED``; ``posturemap.synth.feet.pace_passes``).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -845,6 +905,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 offset[t, 0] *= scale
                 offset[t, 1] *= scale
                 raised[t] *= scale
+        # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
+        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand)
         # Carried through the frames between the runs: cubic Hermite from the value and rate at
         # one run's end (0 at rest on frame -1) to those at the next one's start (0 on frame L).
         prev, vp0, vp1, rp0, rp1 = -1, 0.0, 0.0, 0.0, 0.0

@@ -36,7 +36,11 @@ in-between frames are made:
    foot is in the air, the offset passes smoothly (a cubic with the runs' offsets and their
    rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
-   before and after it. A toe planted at a seam whose foot no run holds there (the heel up, or
+   before and after it. Where a swing is too short for its change of offset at ``PASS_SPEED``
+   (two blended segments, or a splice, whose stances lie one or two frames apart on spots far
+   from each other; a run dragged far from where B puts the foot), the runs let go of their
+   ends until it is not, and the freed frames lift the foot as a step does
+   (:func:`pace_passes`): the foot had jumped 20-25 cm a frame twice. A toe planted at a seam whose foot no run holds there (the heel up, or
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
    low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
    ``SEAM_TOE_CATCH`` (the foot is not thrown across in a few frames): otherwise it slid off in
@@ -108,6 +112,9 @@ CLEAR_FADE_S = 0.05  # seconds (at least two frames): a swinging toe's lift fade
 SEAM_TOE_S = 0.2  # seconds: a toe planted at a seam is held there at most this long while the new frames keep it low
 SEAM_TOE_GAP = 2  # frames left free between a seam's held toe and a run held after it (the offsets pass between)
 SEAM_TOE_CATCH = 1.0  # leg lengths per second: the most a released toe's offset passes on at (it ends its hold sooner)
+PASS_SPEED = 3.0  # leg lengths per second (2.4 m/s on Bandai): the fastest a held foot's correction
+#                   passes between two runs on average (a walking swing's pace); a shorter stretch
+#                   between them is widened by letting go of the runs' ends (pace_passes)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -604,6 +611,58 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
     return offset
 
 
+def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
+                pace: float, lift: float, shuffle: float) -> None:
+    """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
+    frame) allows; in place, before :func:`swing_offsets` carries the offsets through them.
+
+    ``held`` (L,) bool, ``weight`` (L,), ``offset`` (L, k) (the runs' corrections), ``raised`` (L,)
+    the lift, ``h`` (L,) the ankle's height in the motion. A stretch from a run's last held frame
+    ``p`` to the next run's first ``q`` (A's frame -1 or B's frame L, offset 0, at the ends)
+    passes ``d = |offset[q] - offset[p]|`` over ``q - p`` frames; where that is under ``d /
+    pace``, the runs let go of their frames next to the stretch, the longer run first, each
+    keeping one frame. Two real segments blended, or a seam's spot held against a motion that
+    placed the foot elsewhere, can leave a stance broken by two free frames between spots 40 cm
+    apart: the foot jumped 23 cm a frame twice, where a walking swing moves it about 12. A
+    widened stretch lifts the foot as a step of the lock does (``lift``, at most half of the way
+    beyond ``shuffle``, on a squared sine) less what the motion lifts it already.
+    """
+    length = len(held)
+    if length == 0 or pace <= 0:
+        return
+    runs = [list(r) for r in contact_runs(held)]
+    zero = np.zeros(offset.shape[1:])
+    for i in range(len(runs) + 1):
+        p = runs[i - 1][1] - 1 if i > 0 else -1
+        q = runs[i][0] if i < len(runs) else length
+        p0, q0 = p, q
+        while True:
+            d = float(np.linalg.norm((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero)))
+            if q - p >= d / pace:
+                break
+            left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
+            right = runs[i][1] - 1 - q if i < len(runs) else 0
+            if left <= 0 and right <= 0:
+                break
+            if left >= right:
+                held[p], weight[p] = False, 0.0
+                p -= 1
+            else:
+                held[q], weight[q] = False, 0.0
+                q += 1
+        if i > 0:
+            runs[i - 1][1] = p + 1
+        if i < len(runs):
+            runs[i][0] = q
+        if (p, q) == (p0, q0):
+            continue
+        high = min(lift, 0.5 * max(d - shuffle, 0.0))
+        base = min(h[p] if p >= 0 else h[0], h[q] if q < length else h[-1])
+        for f in range(p + 1, q):
+            u = (f - p) / float(q - p)
+            raised[f] = max(raised[f], high * np.sin(np.pi * u) ** 2 - max(h[f] - base, 0.0))
+
+
 def _planted(seam, next_to_it, floor: float, up: int, height_tol: float, speed_tol: float) -> bool:
     """Whether a foot joint at a seam frame (3,) is planted: within ``height_tol`` of ``floor`` and
     moved less than ``speed_tol`` horizontally from the frame next to it (3,) (A's one before, B's
@@ -680,7 +739,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, STEP_LAG, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
-                      *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps, weights)
+                      *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
+                      PASS_SPEED * body / fps, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -733,6 +793,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight[held] *= scale[held]
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
+        pace_passes(held, weight, offset, raised, h, PASS_SPEED * body / fps, STEP_LIFT * body, STAND_STEP * body)
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
         locks.append((offset, raised, held))
