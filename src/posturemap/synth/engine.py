@@ -295,8 +295,8 @@ class TransitionEngine:
         field out of range or a method that needs a map the engine lacks.
 
         Also sets ``self.last`` (the method that ran, key posture, chosen neurons, alignment, and
-        for retrieval the source segments and confidence) for inspection. The returned arrays are buffers reused
-        by the next call with the same ``length``.
+        for retrieval the source segments and confidence) for inspection. The returned arrays
+        are buffers reused by the next call with the same ``length``.
         """
         ta, tb = self._track("a", a), self._track("b", b)
         if not same_fps(ta.motion.fps, tb.motion.fps):

@@ -40,7 +40,8 @@ in-between frames are made:
    (two blended segments, or a splice, whose stances lie one or two frames apart on spots far
    from each other; a run dragged far from where B puts the foot), the runs let go of their
    ends until it is not, and the freed frames lift the foot as a step does
-   (:func:`pace_passes`): the foot had jumped 20-25 cm a frame twice. A toe planted at a seam whose foot no run holds there (the heel up, or
+   (:func:`pace_passes`): the foot had jumped 20-25 cm a frame twice. A toe planted at a seam
+   whose foot no run holds there (the heel up, or
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
    low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
    ``SEAM_TOE_CATCH`` (the foot is not thrown across in a few frames): otherwise it slid off in
@@ -621,9 +622,9 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     ``p`` to the next run's first ``q`` (A's frame -1 or B's frame L, offset 0, at the ends)
     passes ``d = |offset[q] - offset[p]|`` over ``q - p`` frames; where that is under ``d /
     pace``, the runs let go of their frames next to the stretch, the longer run first, each
-    keeping one frame. Two real segments blended, or a seam's spot held against a motion that
-    placed the foot elsewhere, can leave a stance broken by two free frames between spots 40 cm
-    apart: the foot jumped 23 cm a frame twice, where a walking swing moves it about 12. A
+    keeping one frame. A splice of two real segments, or a seam's spot held against a motion
+    that placed the foot elsewhere, can leave one free frame between two held spots 46 cm apart:
+    the foot jumped 23 cm a frame twice, where a walking swing moves it about 12. A
     widened stretch lifts the foot as a step of the lock does (``lift``, at most half of the way
     beyond ``shuffle``, on a squared sine) less what the motion lifts it already.
     """
