@@ -1930,10 +1930,10 @@ def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
 
 def test_a_foot_passed_between_two_held_spots_is_not_snapped_across(engine, clips, monkeypatch):
     # A run into a tired walk, 8 frames: the splice of A's own continuation into B's arrival
-    # holds one foot on A's spot for three frames and on B's for four, one frame apart, its
-    # corrections 14 and 17 cm in opposite directions. Passed in that frame, the foot moved 24 cm
-    # a frame twice, where A's last and B's first frames step 16 cm at most; the runs now let go
-    # of their ends so that it passes at a walking pace (feet.PASS_SPEED), lifted as a step.
+    # holds one foot on A's spot for three frames and on B's for four, one frame apart, with
+    # corrections of 14 and 17 cm. Passed in that frame, the foot moved 24 cm a frame twice,
+    # where A's last and B's first frames step 16 cm at most; the runs now let go of their ends
+    # so that it passes at a walking pace (feet.PASS_SPEED), lifted as a step.
     from posturemap.synth import feet as feet_module
 
     a, a_end, b, b_start, length = "run_happy_001", 91, "walk_tired_001", 117, 8
