@@ -261,3 +261,15 @@ def test_nearest_window_distance_hand_case_with_exclusion():
     # query 0 may only use ref 0 (distance 5, RMS over 2 features); query 1 only ref 2 (sqrt 2).
     np.testing.assert_allclose(metrics.nearest_window_distance(q, ref, exclude),
                                [5.0 / math.sqrt(2), 1.0], atol=1e-12)
+
+
+def test_largest_step_finds_the_one_joint_thrown_across():
+    # Two windows of 6 frames, 3 joints walking at 1 unit a frame; in the second, joint 2 jumps
+    # 5 units between frames 3 and 4. Only the steps inside ``frames`` count.
+    t = np.arange(6, dtype=float)
+    pos = np.zeros((2, 6, 3, 3))
+    pos[..., 0] = t[None, :, None]
+    pos[1, 4:, 2, 2] += 5.0
+    np.testing.assert_allclose(metrics.largest_step(pos, slice(None)), [1.0, np.hypot(1.0, 5.0)])
+    np.testing.assert_allclose(metrics.largest_step(pos, slice(0, 4)), [1.0, 1.0])  # the jump is frame 3 -> 4
+    np.testing.assert_allclose(metrics.largest_step(pos, slice(3, 5)), [1.0, np.hypot(1.0, 5.0)])

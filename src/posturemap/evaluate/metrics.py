@@ -258,6 +258,18 @@ def foot_float(pos: np.ndarray, up: int, context: np.ndarray, frames: slice) -> 
     return np.maximum(low[..., frames].max(axis=-1) - bar, 0.0)
 
 
+def largest_step(pos: np.ndarray, frames: slice) -> np.ndarray:
+    """The largest distance any joint moves from one frame to the next over ``frames``.
+
+    pos : ndarray (..., T, J, 3), global positions; frames : the frames whose steps count (each
+    with the next one inside ``frames``). Returns ndarray (...,) in the unit of ``pos``. A pop (a
+    foot thrown across, a limb snapped to a pose) shows here as a step larger than the motion's
+    own, which means such as the jerk average away over a window.
+    """
+    window = pos[..., frames, :, :]
+    return np.linalg.norm(np.diff(window, axis=-3), axis=-1).max(axis=(-2, -1))
+
+
 def motion_features(gpos: np.ndarray, grot: np.ndarray, root: int, up: int, fps: float) -> np.ndarray:
     """Pose and velocity of every frame after the first, in the character's own frame.
 

@@ -264,15 +264,20 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
     if cc:
         r.append(f"### Transitions between different clips ({cc['pairs']} seeded random pairs of test clips, "
                  f"length {cc['length']}, align=True)\n")
-        keys = ("skate", "float_cm", "floats_over_10cm", "contact_skate", "validity", "validity_p95", "jerk")
+        keys = ("skate", "float_cm", "floats_over_10cm", "contact_skate", "validity", "validity_p95", "jerk",
+                "step_ratio", "steps_over_1_5")
         body = [[m] + [cc["methods"][m].get(k) for k in keys] for m in methods]
         body.append(["real frames at the seams"] + [cc["reference"].get(k) for k in keys])
         _table(r, ["method", "skate cm/s", "feet off the floor cm", "of them over 10 cm", "contact skate cm/s",
-                   "validity", "validity p95", "jerk cm/s^3"], body)
+                   "validity", "validity p95", "jerk cm/s^3", "largest step / real's", "of them over 1.5x"], body)
         r.append("Feet off the floor: per transition, how far the lowest foot joint rises in the new frames above "
                  "the highest it reaches in the real frames around them (A's last 10, B's first 10), the mean; "
                  "then the number of transitions where that is over 10 cm. The height-weighted skate weighs a foot "
-                 "by its closeness to the ground, so feet held in the air lower it; this column shows them.\n")
+                 "by its closeness to the ground, so feet held in the air lower it; this column shows them. "
+                 "Largest step: per transition, the largest distance any joint moves from one frame to the next "
+                 "from A's last frame to B's first, over the largest in those real frames around them, the mean; "
+                 "then the number of transitions where that is over 1.5 (a pop: a foot thrown across, a limb "
+                 "snapped, which the jerk averages away).\n")
 
 
 def markdown(results: dict) -> str:

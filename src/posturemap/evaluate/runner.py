@@ -314,6 +314,9 @@ def sweep(state, windows, truth_r, truth_p, length) -> dict:
     return out
 
 
+POP_FLOOR_LEGS = 5.0  # leg lengths per second (13 cm a frame at 30 fps on Bandai): a brisk walking swing's peak
+
+
 def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     """Foot skate, validity and jerk of transitions between two different test clips."""
     t0 = time.perf_counter()
@@ -347,6 +350,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     sl = slice(N_PAST, N_PAST + length)
     steps = slice(N_PAST - 1, N_PAST + length)
     parents = ctx.skeleton.parents
+    peak = {}  # per method, per pair: the largest step of any joint through the new frames
     for m in METHODS:
         rots = np.stack([s[0] for s in seqs[m]])
         pos = np.stack([s[1] for s in seqs[m]])
@@ -354,6 +358,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         skate, contact = skate_scores(ctx, gp, steps)
         valid = metrics.pose_validity(window_features(ctx, rots[:, sl], pos[:, sl]), ctx.index)
         up = foot_float(ctx, gp, length) * ctx.cm
+        peak[m] = metrics.largest_step(gp, slice(N_PAST - 1, N_PAST + length + 1))  # the seams' steps too
         out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact,
                              "float_cm": float(up.mean()), "floats_over_10cm": int(np.sum(up > 10.0)),
                              "validity": float(valid.mean()),
@@ -362,15 +367,25 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     # Reference: the real frames on both sides of the seams (10 of A, 10 of B, separately).
     real = [(np.stack([p.rotations for p in parts]), np.stack([p.positions for p in parts]))
             for parts in zip(*reference)]
-    skates, contacts, jerks, valids = [], [], [], []
+    skates, contacts, jerks, valids, real_peak = [], [], [], [], []
     for rots, pos in real:
         _, gp = global_windows(rots, pos, parents)
         skate, contact = skate_scores(ctx, gp, slice(0, gp.shape[1] - 1))
+        real_peak.append(metrics.largest_step(gp, slice(None)))
         skates.append(skate.mean())
         contacts.append(contact)
         jerks.append(metrics.jerk(gp, ctx.fps) * ctx.cm)
         valids.append(metrics.pose_validity(window_features(ctx, rots, pos), ctx.index))
     v = np.concatenate(valids)
+    # A transition's largest step over the largest of its own real frames (A's last 10, B's first
+    # 10), or a brisk walking swing's (POP_FLOOR_LEGS leg lengths a second) where those stand
+    # (a standing pair whose B stands elsewhere needs a step): above 1 where the new frames move
+    # some joint faster than either.
+    leg = ctx.skate_height / metrics.SKATE_HEIGHT_LEGS
+    own = np.maximum(np.maximum(real_peak[0], real_peak[1]), POP_FLOOR_LEGS * leg / ctx.fps)
+    for m in METHODS:
+        ratio = peak[m] / np.maximum(own, 1e-12)
+        out["methods"][m].update(step_ratio=float(ratio.mean()), steps_over_1_5=int(np.sum(ratio > 1.5)))
     out["reference"] = {"skate": float(np.mean(skates)), "contact_skate": float(np.mean(contacts)),
                         "validity": float(v.mean()), "validity_p95": float(np.percentile(v, 95)),
                         "jerk": float(np.mean(jerks))}
