@@ -258,13 +258,17 @@ def foot_float(pos: np.ndarray, up: int, context: np.ndarray, frames: slice) -> 
     return np.maximum(low[..., frames].max(axis=-1) - bar, 0.0)
 
 
+POP_FLOOR_LEGS = 5.0  # leg lengths per second (13 cm a frame at 30 fps on Bandai): a brisk walking swing's
+#                       peak step, the least a transition's largest step is compared with (runner.run_cross)
+
+
 def largest_step(pos: np.ndarray, frames: slice) -> np.ndarray:
     """The largest distance any joint moves from one frame to the next over ``frames``.
 
     pos : ndarray (..., T, J, 3), global positions; frames : the frames whose steps count (each
     with the next one inside ``frames``). Returns ndarray (...,) in the unit of ``pos``. A pop (a
     foot thrown across, a limb snapped to a pose) shows here as a step larger than the motion's
-    own, which means such as the jerk average away over a window.
+    own, where a mean over the window such as the jerk averages it away.
     """
     window = pos[..., frames, :, :]
     return np.linalg.norm(np.diff(window, axis=-3), axis=-1).max(axis=(-2, -1))

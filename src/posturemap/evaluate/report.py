@@ -275,7 +275,8 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
                  "then the number of transitions where that is over 10 cm. The height-weighted skate weighs a foot "
                  "by its closeness to the ground, so feet held in the air lower it; this column shows them. "
                  "Largest step: per transition, the largest distance any joint moves from one frame to the next "
-                 "from A's last frame to B's first, over the largest in those real frames around them, the mean; "
+                 "from A's last frame to B's first, over the largest in those real frames around them (or a brisk "
+                 f"walking swing's, {metrics.POP_FLOOR_LEGS:g} leg lengths a second, where those stand), the mean; "
                  "then the number of transitions where that is over 1.5 (a pop: a foot thrown across, a limb "
                  "snapped, which the jerk averages away).\n")
 

@@ -314,9 +314,6 @@ def sweep(state, windows, truth_r, truth_p, length) -> dict:
     return out
 
 
-POP_FLOOR_LEGS = 5.0  # leg lengths per second (13 cm a frame at 30 fps on Bandai): a brisk walking swing's peak
-
-
 def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     """Foot skate, validity and jerk of transitions between two different test clips."""
     t0 = time.perf_counter()
@@ -378,11 +375,11 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         valids.append(metrics.pose_validity(window_features(ctx, rots, pos), ctx.index))
     v = np.concatenate(valids)
     # A transition's largest step over the largest of its own real frames (A's last 10, B's first
-    # 10), or a brisk walking swing's (POP_FLOOR_LEGS leg lengths a second) where those stand
+    # 10), or a brisk walking swing's (metrics.POP_FLOOR_LEGS) where those stand
     # (a standing pair whose B stands elsewhere needs a step): above 1 where the new frames move
     # some joint faster than either.
     leg = ctx.skate_height / metrics.SKATE_HEIGHT_LEGS
-    own = np.maximum(np.maximum(real_peak[0], real_peak[1]), POP_FLOOR_LEGS * leg / ctx.fps)
+    own = np.maximum(np.maximum(real_peak[0], real_peak[1]), metrics.POP_FLOOR_LEGS * leg / ctx.fps)
     for m in METHODS:
         ratio = peak[m] / np.maximum(own, 1e-12)
         out["methods"][m].update(step_ratio=float(ratio.mean()), steps_over_1_5=int(np.sum(ratio > 1.5)))
