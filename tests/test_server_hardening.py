@@ -59,6 +59,13 @@ def test_a_body_in_utf16_or_naming_a_member_twice_is_400(srv):
     assert status == 400 and "not valid JSON" in json.loads(raw)["error"]
     status, raw = server_fuzz.request(srv, "POST", "/api/transition", twice.encode(), headers)
     assert status == 400 and "'length' given twice" in json.loads(raw)["error"]
+    # A byte order mark before UTF-8 is skipped (RFC 8259 allows it); a lone surrogate escaped
+    # in a member's name was a 500 (its error message could not be encoded), now 400.
+    status, _ = server_fuzz.request(srv, "POST", "/api/transition", b"\xef\xbb\xbf" + plain.encode(), headers)
+    assert status == 200
+    lone = '{"a": "walk", "b": "run", "length": 10, "\\ud800": 1}'
+    status, raw = server_fuzz.request(srv, "POST", "/api/transition", lone.encode(), headers)
+    assert status == 400 and "not valid JSON" in json.loads(raw)["error"]
 
 
 def test_issue12_malformed_requests_get_4xx_and_no_traceback(srv):

@@ -84,9 +84,10 @@ async def read_json(request) -> object:
 
     415 unless ``Content-Type: application/json`` (a cross-site form cannot send that without
     the browser asking first), 413 over :data:`MAX_BODY` bytes, 408 when the body takes longer
-    than :data:`BODY_TIMEOUT` seconds, 400 when not valid JSON in UTF-8 (RFC 8259; no other
-    encoding is guessed) or when an object names a member twice; :class:`Disconnected` when the
-    client leaves.
+    than :data:`BODY_TIMEOUT` seconds, 400 when not valid JSON in UTF-8 (RFC 8259; a byte order
+    mark is skipped, no other encoding is guessed, a lone surrogate escaped as ``\ud800`` is
+    refused: no error message could hold it) or when an object names a member twice;
+    :class:`Disconnected` when the client leaves.
     """
     if not _is_json(request.headers.get("content-type", "")):
         raise ApiError(415, "send the body as JSON with 'Content-Type: application/json'")
@@ -100,8 +101,10 @@ async def read_json(request) -> object:
     if not body.strip():
         raise ApiError(400, "empty body: send a JSON object")
     try:
-        return json.loads(bytes(body).decode("utf-8"), parse_constant=_reject_constant,
-                          object_pairs_hook=_unique_keys)
+        value = json.loads(bytes(body).decode("utf-8-sig"), parse_constant=_reject_constant,
+                           object_pairs_hook=_unique_keys)
+        json.dumps(value, ensure_ascii=False).encode("utf-8")  # a lone surrogate escaped as \ud800 is no text
+        return value
     except RecursionError:
         raise ApiError(400, "body is not valid JSON (nested too deeply)") from None
     except (ValueError, UnicodeDecodeError) as e:
