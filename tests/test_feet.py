@@ -525,10 +525,11 @@ def test_a_far_spot_drags_the_foot_of_a_run_too_short_to_step(sample_clips, monk
         slide = np.linspace(0.0, 0.6, length)[:-1]
         held = slide <= MAX_DRIFT[0]
         # The run lets go of its last frames so that the correction passes back to B's foot at
-        # no more than feet.PASS_SPEED (pace_passes): a prefix is kept.
+        # no more than feet.PASS_SPEED and feet.PASS_ACCEL (pace_passes): a prefix is kept.
         kept = w[:-1, 0] > 0
         n = int(kept.sum())
-        assert kept[:n].all() and 0 < length - 1 - n <= np.ceil(MAX_DRIFT[1] * m.fps / feet.PASS_SPEED)
+        most = max(MAX_DRIFT[1] * m.fps / feet.PASS_SPEED, np.sqrt(6.0 * MAX_DRIFT[1] * m.fps**2 / feet.PASS_ACCEL))
+        assert kept[:n].all() and 0 < length - 1 - n <= np.ceil(most)
         dragged = ~held & kept
         assert np.all(w[:-1][held, 0] == 1) and np.all(moved[:-1][held] < 1e-6)
         assert np.all(np.diff(w[:-1][dragged, 0]) < 0) and dragged.sum() >= 5
@@ -539,10 +540,13 @@ def test_a_far_spot_drags_the_foot_of_a_run_too_short_to_step(sample_clips, monk
         assert np.all(correction[dragged] > MAX_DRIFT[0] - 1e-9) and np.all(correction < MAX_DRIFT[1])
 
 
-def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips):
+def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips, monkeypatch):
     # The same sliding stance, in a run long enough for a step: the foot is not dragged but held
     # on A's spot, then steps (lifted) in the run's middle to where it lifts off, moved back
-    # toward A's spot by MAX_DRIFT[0] leg lengths (what the lock holds without dragging).
+    # toward A's spot by MAX_DRIFT[0] leg lengths (what the lock holds without dragging). The
+    # pass from there back to B's foot, in the one free frame, is bounded by the pace only here
+    # (the acceleration's bound lets go of the run's last frames: tested above).
+    monkeypatch.setattr(feet, "PASS_ACCEL", np.inf)
     m = sample_clips["walk"]
     length = 20
     sk, chains, rots, pos, up, a_feet, b_feet, contacts, g, leg, side = sliding_stance(m, length)
@@ -1418,14 +1422,19 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
         results = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, contacts, body=body, toe_floor=given,
                             toes=toes)
         np.testing.assert_allclose(results["numba"][0], results["numpy"][0], atol=IK_ATOL)
-        assert results["numpy"][1][5:25, 1].min() > 0 and not results["numpy"][1][:, 0].any()
+        # Held within frames 5-24, in one run; its dragged ends let go of a frame or two so that
+        # the correction passes on from A's end and back to B's foot within PASS_ACCEL (pace_passes).
+        held = np.flatnonzero(results["numpy"][1][:, 1] > 0)
+        assert 5 <= held[0] <= 7 and 22 <= held[-1] < 25 and np.array_equal(held, np.arange(held[0], held[-1] + 1))
+        assert not results["numpy"][1][:, 0].any()
         g1 = fk(sk.parents, results["numpy"][0], pos)[1]
         assert np.all(g1[mid, toes[0], up] - ground >= TOE_CLEAR * body * u * (1 - 1e-6))
         assert np.all(g1[5:25, toes[1], up] >= ground - 1e-6)
         # Lifted by the shortfall, no more, where the foot stands on its spot (the run's middle; the
-        # body glides on, so its ends are dragged and the leg, near its reach, raises the foot).
+        # body glides on, so its ends are dragged and the leg, near its reach, raises the foot: by
+        # 0.2 cm on the spot's first frame, next to them).
         on_spot = results["numpy"][1][:, 1] == 1.0
-        assert on_spot.sum() >= 2 and np.all(g1[on_spot, toes[1], up] <= ground + 0.001 * body)
+        assert on_spot.sum() >= 2 and np.all(g1[on_spot, toes[1], up] <= ground + 0.003 * body)
 
 
 def test_a_short_stretch_between_far_held_spots_is_widened_and_stepped():
@@ -1474,13 +1483,47 @@ def test_a_short_stretch_between_far_held_spots_is_widened_and_stepped():
             np.testing.assert_allclose(raised2, np.where(np.arange(length) == 5, max(raised[5] - 0.1, 0.0), raised))
 
 
+def test_a_pass_accelerates_no_faster_than_the_bound_and_puts_the_foot_down_for_no_hop():
+    # A foot held on its own spot (frames 0-11), then three frames on a spot 0.3 away (13-15, as a
+    # splice's second segment puts it), then on that spot again up to B (17-39). The pace alone
+    # (1 a frame) leaves the one free frame between the runs. Bounded by an acceleration of 0.01 a
+    # frame squared, 0.3 needs sqrt(6 * 0.3 / 0.01) = 13.4 frames: the runs let go of their ends
+    # (the longer first), and the runs left shorter than three frames go whole: the first, and the
+    # three frames between, which would have put the foot down for a frame between two passes (a
+    # hop). One pass from A's end to the spot, lifted as a step.
+    length, pace, lift, shuffle, accel, least = 40, 1.0, 0.08, 0.04, 0.01, 3
+    held = np.ones(length, dtype=bool)
+    held[[12, 16]] = False
+    weight = held.astype(float)
+    offset = np.zeros((length, 3))
+    offset[13:, 0] = 0.3
+    raised = np.zeros(length)
+    h = np.full(length, 0.1)  # the motion's ankle: level
+    pace_only = [held.copy(), weight.copy(), raised.copy()]
+    feet.pace_passes(pace_only[0], pace_only[1], offset, pace_only[2], h, pace, lift, shuffle)
+    assert np.array_equal(pace_only[0], held) and not pace_only[2].any()
+    feet.pace_passes(held, weight, offset, raised, h, pace, lift, shuffle, accel, least)
+    runs = feet.contact_runs(held)
+    assert runs == [(17, length)] and 17 + 1 >= np.sqrt(6.0 * 0.3 / accel)
+    rise = raised[:17]
+    top = int(np.argmax(rise))
+    assert np.all(np.diff(rise[: top + 1]) > 0) and np.all(np.diff(rise[top:]) < 0)  # one step
+    assert np.all(weight[~held] == 0) and np.all(weight[held] == 1) and np.all(raised[held] == 0)
+    # Carried from A's end to the run (no rate at either end), the correction accelerates within
+    # the bound; through the one free frames, fifteen times as fast.
+    carried = feet.swing_offsets(offset.copy(), runs)[:, 0]
+    narrow = feet.swing_offsets(offset.copy(), feet.contact_runs(pace_only[0]))[:, 0]
+    assert np.abs(np.diff(np.r_[0.0, carried], 2)).max() <= accel
+    assert np.abs(np.diff(narrow, 2)).max() >= 15 * accel
+
+
 def test_pace_passes_is_the_same_compiled():
     # numba_kernels._pace_passes (and _pass_gap) against feet.pace_passes on random runs,
     # corrections and heights, the ends' stretches (from A's frame -1 and to B's frame L) included.
     from posturemap.core import numba_kernels
 
     rng = np.random.default_rng(5)
-    changed = 0
+    changed = dropped = 0
     for _ in range(400):
         length = int(rng.integers(1, 30))
         held = rng.random(length) < rng.uniform(0.3, 0.9)
@@ -1490,11 +1533,15 @@ def test_pace_passes_is_the_same_compiled():
         up, ankle = 1, 0
         gpos = rng.normal(0.0, 0.05, (length, 1, 3))
         pace, lift, stand = float(rng.uniform(0.01, 0.2)), 0.08, 0.04
+        # Half the cases without the acceleration bound and the shortest run (the pace alone).
+        accel, least = ((float(rng.uniform(0.002, 0.05)), int(rng.integers(1, 5))) if rng.random() < 0.5
+                        else (np.inf, 1))
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand)
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand)
+        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand, accel, least)
         for g, w in zip(got, want):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
         changed += not np.array_equal(want[0], held)
-    assert changed > 100
+        dropped += np.isfinite(accel) and len(feet.contact_runs(want[0])) < len(feet.contact_runs(held))
+    assert changed > 100 and dropped > 20

@@ -1928,6 +1928,38 @@ def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
         assert ca[warps.index(speed)] < 0.25 * ca[warps.index(0.85)], (part, ca)
 
 
+def test_a_foot_passed_between_held_spots_sets_off_no_faster_than_a_walking_ankle(engine, clips, monkeypatch):
+    # A happy walk into a tired one, 20 frames: at the pace alone (feet.PASS_SPEED) a held foot's
+    # correction set off from rest in a few frames and came down on a run a frame or two long,
+    # the largest acceleration of any joint 2.7 times the largest in A's last and B's first
+    # frames. Bounded by a walking ankle's acceleration (feet.PASS_ACCEL), with no run left
+    # shorter than feet.PASS_LEAST_S, it is under theirs.
+    from posturemap.synth import feet as feet_module
+
+    a, a_end, b, b_start, length = "walk_tired_001", 205, "walk_happy_001", 176, 20
+    eng = TransitionEngine(engine.model)
+    for name in (a, b):
+        eng.add(name, clips[name])
+    sk = engine.skeleton
+
+    def largest(g):
+        return np.linalg.norm(np.diff(g, 2, axis=0), axis=-1).max()
+
+    own = max(largest(clips[a].global_positions()[a_end - 10: a_end + 1]),
+              largest(clips[b].global_positions()[b_start: b_start + 11]))
+    peak = {}
+    for bound in ("pace", "accel"):
+        if bound == "pace":
+            monkeypatch.setattr(feet_module, "PASS_ACCEL", np.inf)
+            monkeypatch.setattr(feet_module, "PASS_LEAST_S", 0.0)
+        else:
+            monkeypatch.undo()
+        r, p = eng.generate(a, b, length=length, a_end=a_end, b_start=b_start, method="retrieval")
+        g = np.concatenate([clips[a].global_positions()[a_end - 1: a_end + 1], fk(sk.parents, r, p)[1]])
+        peak[bound] = largest(g)
+    assert peak["pace"] > 2.0 * own and peak["accel"] < own, (peak, own)
+
+
 def test_a_foot_passed_between_two_held_spots_is_not_snapped_across(engine, clips, monkeypatch):
     # A run into a tired walk, 8 frames: the splice of A's own continuation into B's arrival
     # holds one foot on A's spot for three frames and on B's for four, one frame apart, with

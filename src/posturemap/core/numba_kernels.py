@@ -585,51 +585,93 @@ def _pass_gap(offset, p, q, n_l):
 
 
 @nb.njit(**_OPTS)
-def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand):
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
     ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height from ``gpos``."""
     n_l = on.shape[0]
     if n_l == 0 or pace <= 0.0:
         return
-    prev_start, p = -1, -1  # the run before the stretch: its first frame and its last held one
+    # The runs [start, stop) and their first lengths; the first stretches (p, q) between them.
+    n_r = 0
+    starts = np.empty(n_l, dtype=np.int64)
+    stops = np.empty(n_l, dtype=np.int64)
     t = 0
-    while True:
-        while t < n_l and not on[t]:
+    while t < n_l:
+        if on[t]:
+            s = t
+            while t < n_l and on[t]:
+                t += 1
+            starts[n_r], stops[n_r] = s, t
+            n_r += 1
+        else:
             t += 1
-        q = t
-        stop = t
-        while stop < n_l and on[stop]:
-            stop += 1
-        p0, q0 = p, q
-        d = 0.0
-        while True:
-            d = _pass_gap(offset, p, q, n_l)
-            if q - p >= d / pace:
-                break
-            left = p - prev_start if prev_start >= 0 else 0
-            right = stop - 1 - q if q < n_l else 0
-            if left <= 0 and right <= 0:
-                break
-            if left >= right:
-                on[p] = False
-                weight[p] = 0.0
-                p -= 1
-            else:
-                on[q] = False
-                weight[q] = 0.0
-                q += 1
-        if p != p0 or q != q0:
-            high = min(lift, 0.5 * max(d - stand, 0.0))
-            hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
-            hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
-            base = min(hp, hq)
-            for f in range(p + 1, q):
-                u = (f - p) / float(q - p)
-                raised[f] = max(raised[f], high * math.sin(math.pi * u) ** 2 - max(gpos[f, ankle, up] - base, 0.0))
-        if q0 >= n_l:
+    lengths = stops[:n_r] - starts[:n_r]
+    first_p = np.empty(n_r + 1, dtype=np.int64)
+    first_q = np.empty(n_r + 1, dtype=np.int64)
+    for i in range(n_r + 1):
+        first_p[i] = stops[i - 1] - 1 if i > 0 else -1
+        first_q[i] = starts[i] if i < n_r else n_l
+    keep = np.ones(n_r, dtype=np.bool_)
+    while True:
+        prev = -1  # the run before the stretch (index), -1 for A's seam
+        for i in range(n_r + 1):
+            if i < n_r and not keep[i]:
+                continue
+            p = stops[prev] - 1 if prev >= 0 else -1
+            q = starts[i] if i < n_r else n_l
+            while True:
+                d = _pass_gap(offset, p, q, n_l)
+                need = d / pace if q - p < 2 else max(d / pace, math.sqrt(6.0 * d / accel))
+                if q - p >= need:
+                    break
+                left = p - starts[prev] if prev >= 0 else 0
+                right = stops[i] - 1 - q if i < n_r else 0
+                if left <= 0 and right <= 0:
+                    break
+                if left >= right:
+                    on[p] = False
+                    weight[p] = 0.0
+                    p -= 1
+                else:
+                    on[q] = False
+                    weight[q] = 0.0
+                    q += 1
+            if prev >= 0:
+                stops[prev] = p + 1
+            if i < n_r:
+                starts[i] = q
+            prev = i
+        short = False
+        for i in range(n_r):
+            if keep[i] and stops[i] - starts[i] < min(least, lengths[i]):
+                short = True
+                keep[i] = False
+                for f in range(starts[i], stops[i]):
+                    on[f] = False
+                    weight[f] = 0.0
+        if not short:
             break
-        prev_start, p = q, stop - 1
-        t = stop
+    prev = -1
+    for i in range(n_r + 1):
+        if i < n_r and not keep[i]:
+            continue
+        p = stops[prev] - 1 if prev >= 0 else -1
+        q = starts[i] if i < n_r else n_l
+        prev = i
+        same = False
+        for k in range(n_r + 1):
+            if first_p[k] == p and first_q[k] == q:
+                same = True
+        if same:
+            continue
+        d = _pass_gap(offset, p, q, n_l)
+        high = min(lift, 0.5 * max(d - stand, 0.0))
+        hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
+        hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
+        base = min(hp, hq)
+        for f in range(p + 1, q):
+            u = (f - p) / float(q - p)
+            raised[f] = max(raised[f], high * math.sin(math.pi * u) ** 2 - max(gpos[f, ankle, up] - base, 0.0))
 
 
 @nb.njit(**_OPTS)
@@ -667,7 +709,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, pace, weights):
+              toe_catch, pace, accel, least, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -701,7 +743,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     longer than lets its offset pass on to the next held frame's at toe_catch per frame (length
     unit; ``SEAM_TOE_S``, ``SEAM_TOE_GAP``, ``SEAM_TOE_CATCH``; ``posturemap.synth.feet._hold_seam_toes``).
     pace (length unit per frame): the fastest a held foot's offset passes between two runs on
-    average (``PASS_SPEED``; ``posturemap.synth.feet.pace_passes``).
+    average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
+    (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
+    ``posturemap.synth.feet.pace_passes``).
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -906,7 +950,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 offset[t, 1] *= scale
                 raised[t] *= scale
         # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
-        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand)
+        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least)
         # Carried through the frames between the runs: cubic Hermite from the value and rate at
         # one run's end (0 at rest on frame -1) to those at the next one's start (0 on frame L).
         prev, vp0, vp1, rp0, rp1 = -1, 0.0, 0.0, 0.0, 0.0

@@ -37,10 +37,12 @@ in-between frames are made:
    rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
    the correction a planted foot needs is spread over the whole swing, not made in a few frames
    before and after it. Where a swing is too short for its change of offset at ``PASS_SPEED``
-   (two blended segments, or a splice, whose stances lie one or two frames apart on spots far
-   from each other; a run dragged far from where B puts the foot), the runs let go of their
-   ends until it is not, and the freed frames lift the foot as a step does
-   (:func:`pace_passes`): the foot had jumped 20-25 cm a frame twice. A toe planted at a seam
+   or ``PASS_ACCEL`` (two blended segments, or a splice, whose stances lie one or two frames
+   apart on spots far from each other; a run dragged far from where B puts the foot), the runs
+   let go of their ends until it is not, a run left shorter than ``PASS_LEAST_S`` goes whole,
+   and the freed frames lift the foot as a step does (:func:`pace_passes`): the foot had jumped
+   20-25 cm a frame twice, then, at the pace alone, set off at three times a walking ankle's
+   acceleration and came down for a frame between two passes. A toe planted at a seam
    whose foot no run holds there (the heel up, or
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
    low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
@@ -116,6 +118,9 @@ SEAM_TOE_CATCH = 1.0  # leg lengths per second: the most a released toe's offset
 PASS_SPEED = 3.0  # leg lengths per second (2.4 m/s on Bandai): the fastest a held foot's correction
 #                   passes between two runs on average (a walking swing's pace); a shorter stretch
 #                   between them is widened by letting go of the runs' ends (pace_passes)
+PASS_ACCEL = 40.0  # leg lengths per second^2: the pass's peak acceleration at most (the 99th percentile
+#                    of walking ankles' accelerations: 38 in bandai1, 54 in LaFAN1)
+PASS_LEAST_S = 0.1  # seconds: a run the widening leaves shorter is let go entirely (no hop between two passes)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -613,50 +618,75 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
 
 
 def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
-                pace: float, lift: float, shuffle: float) -> None:
+                pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1) -> None:
     """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
-    frame) allows; in place, before :func:`swing_offsets` carries the offsets through them.
+    frame) and ``accel`` (per frame squared) allow; in place, before :func:`swing_offsets` carries
+    the offsets through them.
 
     ``held`` (L,) bool, ``weight`` (L,), ``offset`` (L, k) (the runs' corrections), ``raised`` (L,)
     the lift, ``h`` (L,) the ankle's height in the motion. A stretch from a run's last held frame
     ``p`` to the next run's first ``q`` (A's frame -1 or B's frame L, offset 0, at the ends)
     passes ``d = |offset[q] - offset[p]|`` over ``q - p`` frames; where that is under ``d /
-    pace``, the runs let go of their frames next to the stretch, the longer run first, each
-    keeping one frame. A splice of two real segments, or a seam's spot held against a motion
-    that placed the foot elsewhere, can leave one free frame between two held spots 46 cm apart:
-    the foot jumped 23 cm a frame twice, where a walking swing moves it about 12. A
-    widened stretch lifts the foot as a step of the lock does (``lift``, at most half of the way
-    beyond ``shuffle``, on a squared sine) less what the motion lifts it already.
+    pace`` or, with a free frame between, under ``sqrt(6 d / accel)`` (a smoothstep's peak
+    acceleration over ``q - p`` frames is ``6 d / (q - p)^2``), the runs let go of their frames next to the stretch, the
+    longer run first, each keeping one frame. A run left shorter than ``least`` frames (and than
+    it was) is let go entirely, its two stretches one, and the widening runs again. A splice of
+    two real segments, or a seam's spot held against a motion that placed the foot elsewhere, can
+    leave one free frame between two held spots 46 cm apart: the foot jumped 23 cm a frame twice,
+    where a walking swing moves it about 12; passed at that pace over the fewest frames, it
+    still set off at three times the acceleration of a walking ankle, and a run shortened to a
+    frame or two put the foot down between two such passes, a hop. Every stretch that changed
+    lifts the foot as a step of the lock does (``lift``, at most half of the way beyond
+    ``shuffle``, on a squared sine) less what the motion lifts it already.
     """
     length = len(held)
     if length == 0 or pace <= 0:
         return
-    runs = [list(r) for r in contact_runs(held)]
     zero = np.zeros(offset.shape[1:])
-    for i in range(len(runs) + 1):
-        p = runs[i - 1][1] - 1 if i > 0 else -1
-        q = runs[i][0] if i < len(runs) else length
-        p0, q0 = p, q
-        while True:
-            d = float(np.linalg.norm((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero)))
-            if q - p >= d / pace:
-                break
-            left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
-            right = runs[i][1] - 1 - q if i < len(runs) else 0
-            if left <= 0 and right <= 0:
-                break
-            if left >= right:
-                held[p], weight[p] = False, 0.0
-                p -= 1
-            else:
-                held[q], weight[q] = False, 0.0
-                q += 1
-        if i > 0:
-            runs[i - 1][1] = p + 1
-        if i < len(runs):
-            runs[i][0] = q
-        if (p, q) == (p0, q0):
+
+    def gap(p, q):
+        return float(np.linalg.norm((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero)))
+
+    def stretches(runs):
+        ends = [-1] + [stop - 1 for _, stop, *_ in runs]
+        return list(zip(ends, [start for start, *_ in runs] + [length], strict=True))
+
+    runs = [[int(start), int(stop), int(stop - start)] for start, stop in contact_runs(held)]
+    first = set(stretches(runs))
+    while True:
+        for i in range(len(runs) + 1):
+            p = runs[i - 1][1] - 1 if i > 0 else -1
+            q = runs[i][0] if i < len(runs) else length
+            while True:
+                d = gap(p, q)
+                # Next to a seam with no free frame between, the correction is not carried through
+                # frames (the foot is held on both sides): the pace alone, as for a jump.
+                if q - p >= (d / pace if q - p < 2 else max(d / pace, float(np.sqrt(6.0 * d / accel)))):
+                    break
+                left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
+                right = runs[i][1] - 1 - q if i < len(runs) else 0
+                if left <= 0 and right <= 0:
+                    break
+                if left >= right:
+                    held[p], weight[p] = False, 0.0
+                    p -= 1
+                else:
+                    held[q], weight[q] = False, 0.0
+                    q += 1
+            if i > 0:
+                runs[i - 1][1] = p + 1
+            if i < len(runs):
+                runs[i][0] = q
+        short = [r for r in runs if r[1] - r[0] < min(least, r[2])]
+        if not short:
+            break
+        for start, stop, _ in short:
+            held[start: stop], weight[start: stop] = False, 0.0
+        runs = [r for r in runs if r[1] - r[0] >= min(least, r[2])]
+    for p, q in stretches(runs):
+        if (p, q) in first:
             continue
+        d = gap(p, q)
         high = min(lift, 0.5 * max(d - shuffle, 0.0))
         base = min(h[p] if p >= 0 else h[0], h[q] if q < length else h[-1])
         for f in range(p + 1, q):
@@ -741,7 +771,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      PASS_SPEED * body / fps, weights)
+                      PASS_SPEED * body / fps, PASS_ACCEL * body / fps ** 2, max(1, round(PASS_LEAST_S * fps)), weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -794,7 +824,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight[held] *= scale[held]
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
-        pace_passes(held, weight, offset, raised, h, PASS_SPEED * body / fps, STEP_LIFT * body, STAND_STEP * body)
+        pace_passes(held, weight, offset, raised, h, PASS_SPEED * body / fps, STEP_LIFT * body, STAND_STEP * body,
+                    PASS_ACCEL * body / fps ** 2, max(1, round(PASS_LEAST_S * fps)))
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
         locks.append((offset, raised, held))
