@@ -290,9 +290,11 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     assert all(math.isfinite(v) for v in _finite_numbers(cross["methods"]))
     assert all(v["float_cm"] >= 0 and 0 <= v["floats_over_10cm"] <= cross["pairs"] for v in cross["methods"].values())
     assert all(v["step_ratio"] > 0 and 0 <= v["steps_over_1_5"] <= cross["pairs"] for v in cross["methods"].values())
+    assert all(v["accel_ratio"] > 0 and 0 <= v["accels_over_1_5"] <= cross["pairs"] for v in cross["methods"].values())
     # Holding A's last pose and then jumping to B's first moves joints across in one frame:
-    # the largest step of every transition is far over the real frames' own.
-    assert cross["methods"]["zero-velocity"]["step_ratio"] > 1.5
+    # the largest step and acceleration of every transition are far over the real frames' own.
+    zero = cross["methods"]["zero-velocity"]
+    assert zero["step_ratio"] > 1.5 and zero["accel_ratio"] > 1.5 and zero["accels_over_1_5"] == cross["pairs"]
     assert holds["cmu"]["cross_clip"] is None  # one test clip
     assert set(results["speed"]["latency"]) == set(METHODS) - {"zero-velocity"}
     assert all(v["median_us"] > 0 for v in results["speed"]["latency"].values())

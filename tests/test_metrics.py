@@ -273,3 +273,16 @@ def test_largest_step_finds_the_one_joint_thrown_across():
     np.testing.assert_allclose(metrics.largest_step(pos, slice(None)), [1.0, np.hypot(1.0, 5.0)])
     np.testing.assert_allclose(metrics.largest_step(pos, slice(0, 4)), [1.0, 1.0])  # the jump is frame 3 -> 4
     np.testing.assert_allclose(metrics.largest_step(pos, slice(3, 5)), [1.0, np.hypot(1.0, 5.0)])
+
+
+def test_largest_acceleration_finds_the_limb_set_off_at_once():
+    # Two windows of 8 frames, 3 joints walking at 1 unit a frame (no acceleration); in the second,
+    # joint 1 sets off sideways at frame 4 at 2 units a frame: its second difference is 2 at
+    # frame 4 only (frames 3, 4, 5 at 0, 0, 2). Only frames with both neighbours in ``frames`` count.
+    t = np.arange(8, dtype=float)
+    pos = np.zeros((2, 8, 3, 3))
+    pos[..., 0] = t[None, :, None]
+    pos[1, :, 1, 2] = 2.0 * np.maximum(t - 4.0, 0.0)
+    np.testing.assert_allclose(metrics.largest_acceleration(pos, slice(None)), [0.0, 2.0], atol=1e-12)
+    np.testing.assert_allclose(metrics.largest_acceleration(pos, slice(0, 5)), [0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(metrics.largest_acceleration(pos, slice(3, 6)), [0.0, 2.0], atol=1e-12)

@@ -265,11 +265,12 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
         r.append(f"### Transitions between different clips ({cc['pairs']} seeded random pairs of test clips, "
                  f"length {cc['length']}, align=True)\n")
         keys = ("skate", "float_cm", "floats_over_10cm", "contact_skate", "validity", "validity_p95", "jerk",
-                "step_ratio", "steps_over_1_5")
+                "step_ratio", "steps_over_1_5", "accel_ratio", "accels_over_1_5")
         body = [[m] + [cc["methods"][m].get(k) for k in keys] for m in methods]
         body.append(["real frames at the seams"] + [cc["reference"].get(k) for k in keys])
         _table(r, ["method", "skate cm/s", "feet off the floor cm", "of them over 10 cm", "contact skate cm/s",
-                   "validity", "validity p95", "jerk cm/s^3", "largest step / real's", "of them over 1.5x"], body)
+                   "validity", "validity p95", "jerk cm/s^3", "largest step / real's", "of them over 1.5x",
+                   "largest acceleration / real's", "of them over 1.5x"], body)
         r.append("Feet off the floor: per transition, how far the lowest foot joint rises in the new frames above "
                  "the highest it reaches in the real frames around them (A's last 10, B's first 10), the mean; "
                  "then the number of transitions where that is over 10 cm. The height-weighted skate weighs a foot "
@@ -278,7 +279,10 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
                  "from A's last frame to B's first, over the largest in those real frames around them (or a brisk "
                  f"walking swing's, {metrics.POP_FLOOR_LEGS:g} leg lengths a second, where those stand), the mean; "
                  "then the number of transitions where that is over 1.5 (a pop: a foot thrown across, a limb "
-                 "snapped, which the jerk averages away).\n")
+                 "snapped, which the jerk averages away). Largest acceleration: likewise, of any joint at any frame "
+                 "from A's last to B's first, over the largest in the real frames around them (or a walking ankle's "
+                 f"99th percentile, {metrics.POP_ACCEL_LEGS:g} leg lengths a second squared, where those stand): a "
+                 "limb set off or stopped at once, a knee snapped straight.\n")
 
 
 def markdown(results: dict) -> str:

@@ -347,7 +347,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     sl = slice(N_PAST, N_PAST + length)
     steps = slice(N_PAST - 1, N_PAST + length)
     parents = ctx.skeleton.parents
-    peak = {}  # per method, per pair: the largest step of any joint through the new frames
+    peak, jolt = {}, {}  # per method, per pair: the largest step and acceleration of any joint through the new frames
     for m in METHODS:
         rots = np.stack([s[0] for s in seqs[m]])
         pos = np.stack([s[1] for s in seqs[m]])
@@ -356,6 +356,7 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
         valid = metrics.pose_validity(window_features(ctx, rots[:, sl], pos[:, sl]), ctx.index)
         up = foot_float(ctx, gp, length) * ctx.cm
         peak[m] = metrics.largest_step(gp, slice(N_PAST - 1, N_PAST + length + 1))  # the seams' steps too
+        jolt[m] = metrics.largest_acceleration(gp, slice(N_PAST - 2, N_PAST + length + 2))  # and the seams' frames
         out["methods"][m] = {"skate": float(skate.mean()), "contact_skate": contact,
                              "float_cm": float(up.mean()), "floats_over_10cm": int(np.sum(up > 10.0)),
                              "validity": float(valid.mean()),
@@ -364,11 +365,12 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     # Reference: the real frames on both sides of the seams (10 of A, 10 of B, separately).
     real = [(np.stack([p.rotations for p in parts]), np.stack([p.positions for p in parts]))
             for parts in zip(*reference)]
-    skates, contacts, jerks, valids, real_peak = [], [], [], [], []
+    skates, contacts, jerks, valids, real_peak, real_jolt = [], [], [], [], [], []
     for rots, pos in real:
         _, gp = global_windows(rots, pos, parents)
         skate, contact = skate_scores(ctx, gp, slice(0, gp.shape[1] - 1))
         real_peak.append(metrics.largest_step(gp, slice(None)))
+        real_jolt.append(metrics.largest_acceleration(gp, slice(None)))
         skates.append(skate.mean())
         contacts.append(contact)
         jerks.append(metrics.jerk(gp, ctx.fps) * ctx.cm)
@@ -380,9 +382,14 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     # some joint faster than either.
     leg = ctx.skate_height / metrics.SKATE_HEIGHT_LEGS
     own = np.maximum(np.maximum(real_peak[0], real_peak[1]), metrics.POP_FLOOR_LEGS * leg / ctx.fps)
+    # Likewise the largest acceleration (a limb set off or stopped at once), over a walking
+    # ankle's (metrics.POP_ACCEL_LEGS) at least.
+    own_a = np.maximum(np.maximum(real_jolt[0], real_jolt[1]), metrics.POP_ACCEL_LEGS * leg / ctx.fps ** 2)
     for m in METHODS:
         ratio = peak[m] / np.maximum(own, 1e-12)
-        out["methods"][m].update(step_ratio=float(ratio.mean()), steps_over_1_5=int(np.sum(ratio > 1.5)))
+        ratio_a = jolt[m] / np.maximum(own_a, 1e-12)
+        out["methods"][m].update(step_ratio=float(ratio.mean()), steps_over_1_5=int(np.sum(ratio > 1.5)),
+                                 accel_ratio=float(ratio_a.mean()), accels_over_1_5=int(np.sum(ratio_a > 1.5)))
     out["reference"] = {"skate": float(np.mean(skates)), "contact_skate": float(np.mean(contacts)),
                         "validity": float(v.mean()), "validity_p95": float(np.percentile(v, 95)),
                         "jerk": float(np.mean(jerks))}
