@@ -1431,8 +1431,9 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
         assert np.all(g1[mid, toes[0], up] - ground >= TOE_CLEAR * body * u * (1 - 1e-6))
         assert np.all(g1[5:25, toes[1], up] >= ground - 1e-6)
         # Lifted by the shortfall, no more, where the foot stands on its spot (the run's middle; the
-        # body glides on, so its ends are dragged and the leg, near its reach, raises the foot: by
-        # 0.2 cm on the spot's first frame, next to them).
+        # body glides on, so its ends are dragged and the leg, near its reach, raises the foot; and
+        # the swinging toe's clearance, from the free frames before the run, fades out over the
+        # spot's first frame: 0.2 cm there).
         on_spot = results["numpy"][1][:, 1] == 1.0
         assert on_spot.sum() >= 2 and np.all(g1[on_spot, toes[1], up] <= ground + 0.003 * body)
 
@@ -1488,9 +1489,10 @@ def test_a_pass_accelerates_no_faster_than_the_bound_and_puts_the_foot_down_for_
     # splice's second segment puts it), then on that spot again up to B (17-39). The pace alone
     # (1 a frame) leaves the one free frame between the runs. Bounded by an acceleration of 0.01 a
     # frame squared, 0.3 needs sqrt(6 * 0.3 / 0.01) = 13.4 frames: the runs let go of their ends
-    # (the longer first), and the runs left shorter than three frames go whole: the first, and the
-    # three frames between, which would have put the foot down for a frame between two passes (a
-    # hop). One pass from A's end to the spot, lifted as a step.
+    # (the longer first), which leaves the three frames between shorter than three (a foot put
+    # down for a frame between two passes, a hop) and the first run one frame long. The three
+    # frames go whole, the shortest as they came; the first run gets its frames back, and the
+    # last gives up the frames the one pass from the first spot to the second needs, a step.
     length, pace, lift, shuffle, accel, least = 40, 1.0, 0.08, 0.04, 0.01, 3
     held = np.ones(length, dtype=bool)
     held[[12, 16]] = False
@@ -1504,16 +1506,18 @@ def test_a_pass_accelerates_no_faster_than_the_bound_and_puts_the_foot_down_for_
     assert np.array_equal(pace_only[0], held) and not pace_only[2].any()
     feet.pace_passes(held, weight, offset, raised, h, pace, lift, shuffle, accel, least)
     runs = feet.contact_runs(held)
-    assert runs == [(17, length)] and 17 + 1 >= np.sqrt(6.0 * 0.3 / accel)
-    rise = raised[:17]
+    assert runs == [(0, 12), (25, length)]
+    p, q = 11, 25
+    assert q - p >= np.sqrt(6.0 * 0.3 / accel) and q - p - 1 < np.sqrt(6.0 * 0.3 / accel)  # no wider than needed
+    rise = raised[p + 1: q]
     top = int(np.argmax(rise))
     assert np.all(np.diff(rise[: top + 1]) > 0) and np.all(np.diff(rise[top:]) < 0)  # one step
     assert np.all(weight[~held] == 0) and np.all(weight[held] == 1) and np.all(raised[held] == 0)
-    # Carried from A's end to the run (no rate at either end), the correction accelerates within
-    # the bound; through the one free frames, fifteen times as fast.
+    # Carried between the runs (no rate at their ends), the correction accelerates within the
+    # bound; through the one free frames, fifteen times as fast.
     carried = feet.swing_offsets(offset.copy(), runs)[:, 0]
     narrow = feet.swing_offsets(offset.copy(), feet.contact_runs(pace_only[0]))[:, 0]
-    assert np.abs(np.diff(np.r_[0.0, carried], 2)).max() <= accel
+    assert np.abs(np.diff(carried, 2)).max() <= accel
     assert np.abs(np.diff(narrow, 2)).max() >= 15 * accel
 
 

@@ -1929,7 +1929,7 @@ def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
 
 
 def test_a_foot_passed_between_held_spots_sets_off_no_faster_than_a_walking_ankle(engine, clips, monkeypatch):
-    # A happy walk into a tired one, 20 frames: at the pace alone (feet.PASS_SPEED) a held foot's
+    # A tired walk into a happy one, 20 frames: at the pace alone (feet.PASS_SPEED) a held foot's
     # correction set off from rest in a few frames and came down on a run a frame or two long,
     # the largest acceleration of any joint 2.7 times the largest in A's last and B's first
     # frames. Bounded by a walking ankle's acceleration (feet.PASS_ACCEL), with no run left

@@ -605,14 +605,23 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
             n_r += 1
         else:
             t += 1
-    lengths = stops[:n_r] - starts[:n_r]
+    orig_starts = starts[:n_r].copy()
+    orig_stops = stops[:n_r].copy()
+    lengths = orig_stops - orig_starts
+    given = weight.copy()
     first_p = np.empty(n_r + 1, dtype=np.int64)
     first_q = np.empty(n_r + 1, dtype=np.int64)
     for i in range(n_r + 1):
-        first_p[i] = stops[i - 1] - 1 if i > 0 else -1
-        first_q[i] = starts[i] if i < n_r else n_l
+        first_p[i] = orig_stops[i - 1] - 1 if i > 0 else -1
+        first_q[i] = orig_starts[i] if i < n_r else n_l
     keep = np.ones(n_r, dtype=np.bool_)
     while True:
+        # From the runs as they came, less those let go whole (feet.pace_passes).
+        for i in range(n_r):
+            starts[i], stops[i] = orig_starts[i], orig_stops[i]
+            for f in range(orig_starts[i], orig_stops[i]):
+                on[f] = keep[i]
+                weight[f] = given[f] if keep[i] else 0.0
         prev = -1  # the run before the stretch (index), -1 for A's seam
         for i in range(n_r + 1):
             if i < n_r and not keep[i]:
@@ -641,16 +650,13 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
             if i < n_r:
                 starts[i] = q
             prev = i
-        short = False
+        short = -1  # the shortest as it came of the runs left too short, the first on a tie
         for i in range(n_r):
-            if keep[i] and stops[i] - starts[i] < min(least, lengths[i]):
-                short = True
-                keep[i] = False
-                for f in range(starts[i], stops[i]):
-                    on[f] = False
-                    weight[f] = 0.0
-        if not short:
+            if keep[i] and stops[i] - starts[i] < min(least, lengths[i]) and (short < 0 or lengths[i] < lengths[short]):
+                short = i
+        if short < 0:
             break
+        keep[short] = False
     prev = -1
     for i in range(n_r + 1):
         if i < n_r and not keep[i]:

@@ -41,8 +41,8 @@ in-between frames are made:
    apart on spots far from each other; a run dragged far from where B puts the foot), the runs
    let go of their ends until it is not, a run left shorter than ``PASS_LEAST_S`` goes whole,
    and the freed frames lift the foot as a step does (:func:`pace_passes`): the foot had jumped
-   20-25 cm a frame twice, then, at the pace alone, set off at three times a walking ankle's
-   acceleration and came down for a frame between two passes. A toe planted at a seam
+   20-25 cm a frame twice, then, at the pace alone, set off at two to five times a walking
+   ankle's acceleration and came down for a frame between two passes. A toe planted at a seam
    whose foot no run holds there (the heel up, or
    the retrieved segment's foot in another phase) stays on its spot while the new frames keep it
    low, up to ``SEAM_TOE_S`` and half the gap, and no longer than lets its offset pass on at
@@ -628,14 +628,17 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     ``p`` to the next run's first ``q`` (A's frame -1 or B's frame L, offset 0, at the ends)
     passes ``d = |offset[q] - offset[p]|`` over ``q - p`` frames; where that is under ``d /
     pace`` or, with a free frame between, under ``sqrt(6 d / accel)`` (a smoothstep's peak
-    acceleration over ``q - p`` frames is ``6 d / (q - p)^2``), the runs let go of their frames next to the stretch, the
-    longer run first, each keeping one frame. A run left shorter than ``least`` frames (and than
-    it was) is let go entirely, its two stretches one, and the widening runs again. A splice of
-    two real segments, or a seam's spot held against a motion that placed the foot elsewhere, can
-    leave one free frame between two held spots 46 cm apart: the foot jumped 23 cm a frame twice,
-    where a walking swing moves it about 12; passed at that pace over the fewest frames, it
-    still set off at three times the acceleration of a walking ankle, and a run shortened to a
-    frame or two put the foot down between two such passes, a hop. Every stretch that changed
+    acceleration over ``q - p`` frames is ``6 d / (q - p)^2``; the runs' own rates, which the
+    cubic carries into the stretch, come on top), the runs let go of their frames next to the
+    stretch, the longer run first, each keeping one frame. Of the runs left shorter than
+    ``least`` frames (and than they were), the shortest as it came is let go entirely, and the
+    widening starts again from the runs as they came without it, its two stretches one: its
+    neighbours get back the frames they gave up for it. A splice of two real segments, or a seam's spot held against a motion that placed
+    the foot elsewhere, can leave one free frame between two held spots 46 cm apart: the foot
+    jumped 23 cm a frame twice, where a walking swing moves it about 12; passed at that pace over
+    the fewest frames, it still set off at two to five times the acceleration of a walking ankle
+    (46 cm in six frames at 30 fps, 20 cm in five at 60), and a run shortened to a frame or two
+    put the foot down between two such passes, a hop. Every stretch that changed
     lifts the foot as a step of the lock does (``lift``, at most half of the way beyond
     ``shuffle``, on a squared sine) less what the motion lifts it already.
     """
@@ -651,9 +654,20 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
         ends = [-1] + [stop - 1 for _, stop, *_ in runs]
         return list(zip(ends, [start for start, *_ in runs] + [length], strict=True))
 
-    runs = [[int(start), int(stop), int(stop - start)] for start, stop in contact_runs(held)]
-    first = set(stretches(runs))
+    original = [(int(start), int(stop)) for start, stop in contact_runs(held)]
+    first = set(stretches(original))
+    given = weight.copy()
+    dropped: set[int] = set()
     while True:
+        # From the runs as they came, less those let go whole: the frames a dropped run's
+        # neighbours gave up for it are theirs again.
+        runs = []
+        for k, (start, stop) in enumerate(original):
+            keep = k not in dropped
+            held[start: stop] = keep
+            weight[start: stop] = given[start: stop] if keep else 0.0
+            if keep:
+                runs.append([start, stop, k])
         for i in range(len(runs) + 1):
             p = runs[i - 1][1] - 1 if i > 0 else -1
             q = runs[i][0] if i < len(runs) else length
@@ -677,12 +691,11 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
                 runs[i - 1][1] = p + 1
             if i < len(runs):
                 runs[i][0] = q
-        short = [r for r in runs if r[1] - r[0] < min(least, r[2])]
+        short = [(original[k][1] - original[k][0], k) for start, stop, k in runs
+                 if stop - start < min(least, original[k][1] - original[k][0])]
         if not short:
             break
-        for start, stop, _ in short:
-            held[start: stop], weight[start: stop] = False, 0.0
-        runs = [r for r in runs if r[1] - r[0] >= min(least, r[2])]
+        dropped.add(min(short)[1])  # the shortest as it came: a long run shrank for its sake
     for p, q in stretches(runs):
         if (p, q) in first:
             continue
