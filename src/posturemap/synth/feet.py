@@ -633,14 +633,15 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     stretch, the longer run first, each keeping one frame. Of the runs left shorter than
     ``least`` frames (and than they were), the shortest as it came is let go entirely, and the
     widening starts again from the runs as they came without it, its two stretches one: its
-    neighbours get back the frames they gave up for it. A splice of two real segments, or a seam's spot held against a motion that placed
-    the foot elsewhere, can leave one free frame between two held spots 46 cm apart: the foot
-    jumped 23 cm a frame twice, where a walking swing moves it about 12; passed at that pace over
-    the fewest frames, it still set off at two to five times the acceleration of a walking ankle
-    (46 cm in six frames at 30 fps, 20 cm in five at 60), and a run shortened to a frame or two
-    put the foot down between two such passes, a hop. Every stretch that changed
-    lifts the foot as a step of the lock does (``lift``, at most half of the way beyond
-    ``shuffle``, on a squared sine) less what the motion lifts it already.
+    neighbours get back the frames they gave up for it. A splice of two real segments, or a
+    seam's spot held against a motion that placed the foot elsewhere, can leave one free frame
+    between two held spots 46 cm apart: the foot jumped 23 cm a frame twice, where a walking
+    swing moves it about 12; passed at that pace over the fewest frames, it still set off at two
+    to five times the acceleration of a walking ankle (46 cm in six frames at 30 fps, 20 cm in
+    five at 60), and a run shortened to a frame or two put the foot down between two such
+    passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
+    (``lift``, at most half of the way beyond ``shuffle``, on a squared sine) less what the
+    motion lifts it already.
     """
     length = len(held)
     if length == 0 or pace <= 0:
