@@ -380,16 +380,16 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     # 10), or a brisk walking swing's (metrics.POP_FLOOR_LEGS) where those stand
     # (a standing pair whose B stands elsewhere needs a step): above 1 where the new frames move
     # some joint faster than either.
-    leg = ctx.skate_height / metrics.SKATE_HEIGHT_LEGS
-    own = np.maximum(np.maximum(real_peak[0], real_peak[1]), metrics.POP_FLOOR_LEGS * leg / ctx.fps)
     # Likewise the largest acceleration (a limb set off or stopped at once), over a walking
     # ankle's (metrics.POP_ACCEL_LEGS) at least.
-    own_a = np.maximum(np.maximum(real_jolt[0], real_jolt[1]), metrics.POP_ACCEL_LEGS * leg / ctx.fps ** 2)
-    for m in METHODS:
-        ratio = peak[m] / np.maximum(own, 1e-12)
-        ratio_a = jolt[m] / np.maximum(own_a, 1e-12)
-        out["methods"][m].update(step_ratio=float(ratio.mean()), steps_over_1_5=int(np.sum(ratio > 1.5)),
-                                 accel_ratio=float(ratio_a.mean()), accels_over_1_5=int(np.sum(ratio_a > 1.5)))
+    leg = ctx.skate_height / metrics.SKATE_HEIGHT_LEGS
+    for name, found, real_max, floor in (("step", peak, real_peak, metrics.POP_FLOOR_LEGS * leg / ctx.fps),
+                                         ("accel", jolt, real_jolt, metrics.POP_ACCEL_LEGS * leg / ctx.fps**2)):
+        own = np.maximum(np.maximum(real_max[0], real_max[1]), floor)
+        for m in METHODS:
+            ratio = found[m] / np.maximum(own, 1e-12)
+            out["methods"][m].update({f"{name}_ratio": float(ratio.mean()),
+                                      f"{name}s_over_1_5": int(np.sum(ratio > 1.5))})
     out["reference"] = {"skate": float(np.mean(skates)), "contact_skate": float(np.mean(contacts)),
                         "validity": float(v.mean()), "validity_p95": float(np.percentile(v, 95)),
                         "jerk": float(np.mean(jerks))}

@@ -576,8 +576,7 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
         v = np.clip((u - STEP_LAG) / (1.0 - 2.0 * STEP_LAG), 0.0, 1.0)
         share[k0: k0 + k] = v * v * (3 - 2 * v)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
-        high = min(lift, 0.5 * max(float(np.linalg.norm(last - first)) - shuffle, 0.0))
-        raised[k0: k0 + k] = high * np.sin(np.pi * u) ** 2
+        raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle)
     return share
 
 
@@ -700,12 +699,19 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     for p, q in stretches(runs):
         if (p, q) in first:
             continue
-        d = gap(p, q)
-        high = min(lift, 0.5 * max(d - shuffle, 0.0))
         base = min(h[p] if p >= 0 else h[0], h[q] if q < length else h[-1])
-        for f in range(p + 1, q):
-            u = (f - p) / float(q - p)
-            raised[f] = max(raised[f], high * np.sin(np.pi * u) ** 2 - max(h[f] - base, 0.0))
+        free = slice(p + 1, q)
+        raised[free] = np.maximum(raised[free], step_lift(q - p - 1, gap(p, q), lift, shuffle)
+                                  - np.maximum(h[free] - base, 0.0))
+
+
+def step_lift(k: int, way: float, lift: float, shuffle: float) -> np.ndarray:
+    """The lift (k,) of a step over ``k`` frames that moves a foot ``way``: a squared sine
+    (no vertical speed at either end) up to ``lift`` at most and half of the way beyond
+    ``shuffle`` (a shorter shift slides or pivots on the floor); :func:`_step`'s and the steps
+    :func:`pace_passes` makes."""
+    u = np.arange(1, k + 1) / (k + 1.0)
+    return min(lift, 0.5 * max(way - shuffle, 0.0)) * np.sin(np.pi * u) ** 2
 
 
 def _planted(seam, next_to_it, floor: float, up: int, height_tol: float, speed_tol: float) -> bool:
@@ -769,6 +775,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
     a_floor, b_floor = (np.nan, np.nan) if seam_floors is None else (float(seam_floors[0]), float(seam_floors[1]))
+    passes = (PASS_SPEED * body / fps, PASS_ACCEL * body / fps**2, max(1, round(PASS_LEAST_S * fps)))  # pace_passes'
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
@@ -785,7 +792,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      PASS_SPEED * body / fps, PASS_ACCEL * body / fps ** 2, max(1, round(PASS_LEAST_S * fps)), weights)
+                      *passes, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -838,8 +845,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight[held] *= scale[held]
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
-        pace_passes(held, weight, offset, raised, h, PASS_SPEED * body / fps, STEP_LIFT * body, STAND_STEP * body,
-                    PASS_ACCEL * body / fps ** 2, max(1, round(PASS_LEAST_S * fps)))
+        pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:])
         swing_offsets(offset, contact_runs(held))
         weights[:, leg] = weight
         locks.append((offset, raised, held))
