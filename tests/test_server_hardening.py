@@ -66,6 +66,30 @@ def test_a_body_in_utf16_or_naming_a_member_twice_is_400(srv):
     lone = '{"a": "walk", "b": "run", "length": 10, "\\ud800": 1}'
     status, raw = server_fuzz.request(srv, "POST", "/api/transition", lone.encode(), headers)
     assert status == 400 and "not valid JSON" in json.loads(raw)["error"]
+    # A pair of surrogates escaped is one character (an emoji): valid JSON, judged as a request.
+    paired = '{"a": "walk", "b": "run", "length": 10, "\\ud83d\\ude00": 1}'
+    status, raw = server_fuzz.request(srv, "POST", "/api/transition", paired.encode(), headers)
+    assert 400 <= status < 500 and "not valid JSON" not in json.loads(raw)["error"], (status, raw)
+
+
+def test_every_docstring_is_text():
+    # help() and pydoc encode docstrings: one that spelled a lone surrogate as an escape in a
+    # plain string (read_json's "\ud800") held the surrogate itself, and help() raised.
+    import importlib
+    import inspect
+    import pkgutil
+
+    import posturemap
+
+    seen = 0
+    for info in pkgutil.walk_packages(posturemap.__path__, "posturemap."):
+        module = importlib.import_module(info.name)
+        for obj in [module] + [v for _, v in inspect.getmembers(module) if getattr(v, "__module__", None) == info.name]:
+            doc = inspect.getdoc(obj)
+            if doc:
+                doc.encode("utf-8")
+                seen += 1
+    assert seen > 300
 
 
 def test_issue12_malformed_requests_get_4xx_and_no_traceback(srv):

@@ -79,13 +79,16 @@ def _is_json(content_type: str) -> bool:
     return content_type.split(";", 1)[0].strip().lower() == "application/json"
 
 
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")  # a JSON escape of a UTF-16 surrogate (D800-DFFF)
+
+
 async def read_json(request) -> object:
     """The request body as JSON.
 
     415 unless ``Content-Type: application/json`` (a cross-site form cannot send that without
     the browser asking first), 413 over :data:`MAX_BODY` bytes, 408 when the body takes longer
     than :data:`BODY_TIMEOUT` seconds, 400 when not valid JSON in UTF-8 (RFC 8259; a byte order
-    mark is skipped, no other encoding is guessed, a lone surrogate escaped as ``\ud800`` is
+    mark is skipped, no other encoding is guessed, a lone surrogate escaped as ``\\ud800`` is
     refused: no error message could hold it) or when an object names a member twice;
     :class:`Disconnected` when the client leaves.
     """
@@ -101,9 +104,10 @@ async def read_json(request) -> object:
     if not body.strip():
         raise ApiError(400, "empty body: send a JSON object")
     try:
-        value = json.loads(bytes(body).decode("utf-8-sig"), parse_constant=_reject_constant,
-                           object_pairs_hook=_unique_keys)
-        json.dumps(value, ensure_ascii=False).encode("utf-8")  # a lone surrogate escaped as \ud800 is no text
+        text = bytes(body).decode("utf-8-sig")
+        value = json.loads(text, parse_constant=_reject_constant, object_pairs_hook=_unique_keys)
+        if _SURROGATE_ESCAPE.search(text):  # UTF-8 holds no surrogate: only an escape can make one
+            json.dumps(value, ensure_ascii=False).encode("utf-8")  # a lone one (D800) is no text
         return value
     except RecursionError:
         raise ApiError(400, "body is not valid JSON (nested too deeply)") from None
