@@ -595,23 +595,60 @@ def test_swing_columns_are_the_numpy_continued_swing():
             periodic._peak(omegas, explained, lambda om: periodic._explained(rows, times, om, d), peaks), rel=1e-12)
 
 
-@crosschecks("numba_kernels:seam_rows")
+@crosschecks("numba_kernels:seam_rows", "numba_kernels:_unwrap_seam_rows", "numba_kernels:_near_turn")
 def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
     # Two clips' seam and context frames as the interpolating methods' rows, B turned and moved
     # (a turn of more than a half circle, so the heading's unwrapping counts), both backends.
+    # The second reference stands half a turn from A's last frame about random axes: about half
+    # the joints' frames fall on the other side of that half turn, and are unwrapped.
     from posturemap.synth import engine as E
 
     eng = E.TransitionEngine(None, sample_clips["walk"].skeleton)
     ta, tb = eng.add("a", sample_clips["walk"]), eng.add("b", sample_clips["run"])
     ia, ib = np.array([40, 41, 42, 30, 33, 36, 39]), np.array([5, 6, 5, 8, 11])
-    ref = tb.rots[5].copy()
-    for dtheta, shift in ((0.3, np.array([10.0, 0.0, -4.0])), (-2.9, np.zeros(3)), (3.5, np.array([0.0, 2.0, 1.0]))):
-        fast = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
-        with kernels.numpy_backend():
-            slow = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
-        np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
-        s0 = 3 * eng.skeleton.num_joints
-        assert abs(fast[len(ia), s0 + 3] - ta.heading[42]) < np.pi  # B's heading unwrapped to A's
+    j_count = eng.skeleton.num_joints
+    axes = np.random.default_rng(4).normal(size=(j_count, 3))
+    half = quat.exp(np.pi * axes / np.linalg.norm(axes, axis=1, keepdims=True))
+    s0 = 3 * j_count
+    unwrapped = 0
+    for ref in (tb.rots[5].copy(), quat.mul(ta.rots[42], half)):
+        for dtheta, shift in ((0.3, np.array([10.0, 0.0, -4.0])), (-2.9, np.zeros(3)),
+                              (3.5, np.array([0.0, 2.0, 1.0]))):
+            fast = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
+            with kernels.numpy_backend():
+                slow = E._seam_rows(eng, ta, tb, ia, ib, 42, ref, dtheta, shift)
+            np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
+            assert abs(fast[len(ia), s0 + 3] - ta.heading[42]) < np.pi  # B's heading unwrapped to A's
+            # The same rotations as the short arcs, and A's frames 41 and 42 (one step) a step apart.
+            np.testing.assert_allclose(quat.angle_between(quat.exp(fast[:, :s0].reshape(-1, j_count, 3)),
+                                                          quat.mul(quat.inv(ref), np.concatenate([ta.rots[ia], tb.rots[ib]]))),
+                                       0.0, atol=1e-6)
+            rv = fast[:, :s0].reshape(-1, j_count, 3)
+            step = np.linalg.norm(rv[2] - rv[1], axis=-1)
+            assert step.max() < 2 * quat.angle_between(ta.rots[42], ta.rots[41]).max() + 1e-6
+            plain = np.empty_like(rv)
+            kernels.log_relative(np.concatenate([ta.rots[ia], tb.rots[ib]]), ref, plain)
+            unwrapped += int(np.sum(np.abs(plain - rv).max(axis=-1) > 1.0))
+    assert unwrapped > 0  # the half turn put some frames across it
+
+
+def test_near_turn_is_the_same_rotation_nearest_the_neighbour():
+    rng = np.random.default_rng(8)
+    axes = rng.normal(size=(500, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angle = rng.uniform(np.pi - 0.19, np.pi, 500)
+    v = axes * angle[:, None]
+    # The neighbour: the same axis just beyond the half turn, whose short arc is the opposite vector.
+    near_q = quat.exp(axes * (angle + 0.2)[:, None])
+    near = quat.log(near_q)
+    assert np.all(np.sum(near * v, axis=1) < 0)
+    out = quat.near_turn(near, v)
+    np.testing.assert_allclose(quat.angle_between(quat.exp(out), near_q), 0.0, atol=1e-6)  # arccos: 1e-8
+    np.testing.assert_allclose(np.linalg.norm(out - v, axis=1), 0.2, atol=1e-9)
+    np.testing.assert_allclose(quat.near_turn(v, v), v)  # already nearest: unchanged
+    np.testing.assert_array_equal(quat.near_turn(np.zeros((3, 3)), v[:3]), 0.0)  # no axis: left as it is
+    fast = np.array([NK._near_turn(*a, *b) for a, b in zip(near, v)])
+    np.testing.assert_allclose(fast, out, rtol=0, atol=1e-12)
 
 
 @crosschecks("numba_kernels:damped_columns", "numba_kernels:_group_energy", "numba_kernels:_damped_apply",

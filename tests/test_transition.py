@@ -691,6 +691,54 @@ def test_in_betweening_that_falls_back_keeps_a_root_bone_on_the_bodys_course(cli
     assert np.abs(off[6:26]).max() < 5.0  # off the body by what the clip's own bone is, within 5 cm
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("align", [True, False])
+@pytest.mark.parametrize("method", ["spline", "damped", "retrieval", "retrieval-confident"])
+def test_a_root_bone_half_a_turn_from_b_turns_on_without_spinning(clips, model, compiled, align, method,
+                                                                   monkeypatch):
+    # walk-back_normal_001's joint_Root (it carries the clip's root motion) turning steadily
+    # about up (0.6 rad/s) through half a turn from where B's is put, the body held under it
+    # where it was, A's last frame just past the half turn: its rate at A's seam is its own
+    # step, not nearly a whole turn (the short arcs of A's last two frames point opposite ways),
+    # and it turns on the way it turned, in even steps, onto B. In-betweening (B where it is)
+    # and a transition (B placed with its root bone; the half turn is taken from where it is
+    # placed, which A's root bone does not move: the body under it stays). Retrieval fully
+    # confident leaves the root bone to a cubic of its own (engine._open_columns).
+    from posturemap.synth import retrieval
+
+    if method == "retrieval-confident":
+        monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [1.0, 1.0])
+        method = "retrieval"
+    back = clips[BACK]
+    length, a_end = 12, 10
+    b_start = a_end + length + 1
+
+    def turning(base):
+        rots, pos = back.rotations.copy(), back.positions.copy()
+        gq, gp = quat.mul(rots[:, 0], rots[:, 1]), pos[:, 0] + quat.mul_vec(rots[:, 0], pos[:, 1])
+        angle = base + np.pi + 0.01 + 0.02 * (np.arange(len(back)) - a_end)
+        angle[b_start:] = 0.0
+        rots[:, 0] = quat.mul(quat.from_axis_angle(up_vec(), angle), rots[:, 0])
+        inv = quat.inv(rots[:, 0])
+        rots[:, 1], pos[:, 1] = quat.mul(inv, gq), quat.mul_vec(inv, gp - pos[:, 0])
+        engine = TransitionEngine(model)
+        assert engine.add("back", Motion(back.skeleton, rots, pos, back.fps)).carrier == 0
+        with contextlib.nullcontext() if compiled else kernels.numpy_backend():
+            r, _ = engine.generate("back", "back", length=length, a_end=a_end, b_start=b_start, align=align,
+                                   method=method, foot_lock=False)
+            placed = engine.continuation("back", b_start, align=align).rotations[:2, 0]
+        return np.concatenate([rots[a_end - 1: a_end + 1, 0], r[:, 0], placed])
+
+    first = turning(0.0)
+    base = quat.log(quat.mul(first[-2], quat.inv(back.rotations[b_start, 0])))[UP]  # where B's was put
+    turn = turning(base)
+    np.testing.assert_allclose(np.abs(np.sum(turn[-2:] * first[-2:], axis=-1)), 1.0, atol=1e-9)
+    steps = quat.angle_between(turn[1:], turn[:-1])
+    assert steps.max() < 3 * np.pi / length, np.degrees(steps)
+    about_up = quat.log(quat.mul(turn[1:], quat.inv(turn[:-1])))[:, UP]
+    assert np.all(about_up > -1e-3), np.degrees(about_up)
+
+
 def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):
     # A conversion node (a quarter turn about X, off the origin) above the moving joint_Root: the
     # node stays where it is, and joint_Root and the body go where they go without it.
@@ -1354,6 +1402,35 @@ def test_damped_carries_a_raised_arm_to_where_b_holds_it(clips, backwards, compi
                                 align=False, method=method, foot_lock=False)
         err[method] = np.sqrt(np.mean((quat.angle_between(r[:, j], m.rotations[0, j]) - truth) ** 2))
     assert err["damped"] < 0.8 * err["slerp"], err
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("method", ["spline", "inertialize", "damped"])
+def test_a_joint_half_a_turn_from_b_goes_round_without_spinning(clips, compiled, method):
+    # A still body whose right upper arm turns steadily (0.6 rad/s) through half a turn from
+    # where B holds it, A's last frame just past the half turn: the short arcs of A's last two
+    # frames about B's point nearly opposite ways. Their difference was taken for A's velocity,
+    # nearly a whole turn a frame, and the arm spun round at up to 120 degrees a frame (a wave
+    # into a hanging arm, bandai1, bench pair byebye_proud -> bye_old). The arm now goes on the
+    # way it turned, at about its own rate or the half turn's over the gap, and lands on B.
+    m = clips[WALK]
+    length, a_end, n = 30, 40, 90
+    j = m.skeleton.names.index("UpperArm_R")
+    theta = np.pi + 0.01 + 0.02 * (np.arange(n) - a_end)
+    theta[a_end + length + 1:] = 0.0
+    rots = np.repeat(m.rotations[:1], n, axis=0)
+    rots[:, j] = quat.mul(rots[:, j], quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), theta))
+    eng = TransitionEngine()
+    eng.add("turn", Motion(m.skeleton, rots, np.repeat(m.positions[:1], n, axis=0), m.fps))
+    with contextlib.nullcontext() if compiled else kernels.numpy_backend():
+        r, _ = eng.generate("turn", "turn", length=length, a_end=a_end, b_start=a_end + length + 1,
+                            align=False, method=method, foot_lock=False)
+    arm = np.concatenate([rots[a_end - 1: a_end + 1, j], r[:, j], rots[a_end + length + 1: a_end + length + 3, j]])
+    steps = quat.angle_between(arm[1:], arm[:-1])
+    assert steps.max() < 3 * (np.pi - 0.01) / length, np.degrees(steps)  # the half turn over the gap, 6 deg a frame
+    # The way A turned (about +z): no frame turns back against it.
+    about_z = quat.log(quat.mul(arm[1:], quat.inv(arm[:-1])))[:, 2]
+    assert np.all(about_z > -1e-3), np.degrees(about_z)
 
 
 # -- waves continued through the gap (periodic) -------------------------------------------------

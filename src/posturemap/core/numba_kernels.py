@@ -36,6 +36,18 @@ def _rotate(w, x, y, z, vx, vy, vz):
 
 
 @nb.njit(**_OPTS)
+def _near_turn(x, y, z, nx, ny, nz):
+    """:func:`posturemap.core.quat.near_turn` of one vector: ``(x, y, z)`` plus the whole turns
+    about its axis that bring it nearest ``(nx, ny, nz)``."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= 1e-12:
+        return x, y, z
+    turns = np.round(((x * nx + y * ny + z * nz) / angle - angle) / (2.0 * math.pi))
+    k = 2.0 * math.pi * turns / angle
+    return x + k * x, y + k * y, z + k * z
+
+
+@nb.njit(**_OPTS)
 def log_relative(q, ref, out):
     """``out[n, j] = log(ref[j]^-1 q[n, j])`` on the short arc; q (N, J, 4), out (N, J, 3)."""
     for n in range(q.shape[0]):
@@ -1138,6 +1150,23 @@ def seam_rows(a_rots, a_pos, a_gpos, a_heading, ia, b_rots, b_pos, b_gpos, b_hea
             out[r, s0 + a_] = c * va - s * vb + shift[a_]
             out[r, s0 + b_] = s * va + c * vb + shift[b_]
             out[r, s0 + 3] = (b_heading[f] + dtheta) + turns
+    _unwrap_seam_rows(out, ia, ib, n_j)
+
+
+@nb.njit(**_OPTS)
+def _unwrap_seam_rows(out, ia, ib, n_j):
+    """:func:`posturemap.synth.engine._unwrap_seam_rows` on the rotation vectors of ``out`` (N, 6J + 4)."""
+    n_a = ia.shape[0]
+    for side in range(2):
+        frames = ia if side == 0 else ib
+        first = 0 if side == 0 else n_a
+        order = np.argsort(-frames if side == 0 else frames, kind="mergesort")
+        for i in range(1, frames.shape[0]):
+            r, p = first + order[i], first + order[i - 1]
+            for j in range(n_j):
+                c = 3 * j
+                out[r, c], out[r, c + 1], out[r, c + 2] = _near_turn(out[r, c], out[r, c + 1], out[r, c + 2],
+                                                                     out[p, c], out[p, c + 1], out[p, c + 2])
 
 
 @nb.njit(**_OPTS)

@@ -173,6 +173,20 @@ def log(q: np.ndarray) -> np.ndarray:
     return v * scale[..., None]
 
 
+def near_turn(v: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """Of the rotation vectors that make the same rotation as ``v (..., 3)`` (``v`` plus any
+    whole turn about its axis), the one nearest ``near (..., 3)``.
+
+    :func:`log` keeps the angle in [0, pi]; two frames on either side of a half turn from the
+    reference get vectors of nearly opposite directions, and their difference (a velocity) is
+    nearly a whole turn. Each expressed near its neighbour, they differ by the frames' own step.
+    """
+    angle = np.linalg.norm(v, axis=-1)
+    unit = v / np.maximum(angle, 1e-12)[..., None]
+    turns = np.round((np.sum(unit * near, axis=-1) - angle) / (2.0 * np.pi))
+    return v + (2.0 * np.pi * turns)[..., None] * unit
+
+
 def exp(r: np.ndarray) -> np.ndarray:
     """Unit quaternions of rotation vectors ``r (..., 3)`` (inverse of :func:`log`)."""
     angle = np.linalg.norm(r, axis=-1)

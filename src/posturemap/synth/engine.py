@@ -477,7 +477,25 @@ def _seam_rows(eng: TransitionEngine, ta: Track, tb: Track, ia, ib, a_end: int, 
     out[n_a:, s0: s0 + 3] = rotate_about_up(tb.gpos[ib], dtheta, up) + shift
     out[n_a:, s0 + 3] = b_head
     out[n_a:, s0 + 4:] = tb.motion.positions[ib].reshape(len(ib), -1)
+    _unwrap_seam_rows(out[:, :s0].reshape(len(out), j_count, 3), np.asarray(ia), np.asarray(ib))
     return out
+
+
+def _unwrap_seam_rows(rotvec: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> None:
+    """Each row's rotation vectors (N, J, 3; A's frames ``ia``, then B's ``ib``) expressed near
+    those of the row before it in time, from A's last frame back and from B's first on
+    (:func:`posturemap.core.quat.near_turn`), in place; the last of A and the first of B keep
+    the short arc about the reference.
+
+    A joint half a turn from the reference (an arm raised at A's end, hanging at B's start, its
+    twist the other way) has its short arcs on either side of that half turn from one frame to
+    the next: their difference, the seam's velocity, was nearly a whole turn, and ``spline``,
+    ``inertialize`` and ``damped`` swung the arm round at up to 120 degrees a frame.
+    """
+    for frames, first, order in ((ia, 0, np.argsort(-ia, kind="stable")), (ib, len(ia), np.argsort(ib, kind="stable"))):
+        for i in range(1, len(frames)):
+            r, p = first + order[i], first + order[i - 1]
+            rotvec[r] = quat.near_turn(rotvec[r], rotvec[p])
 
 
 @lru_cache(maxsize=16)
@@ -652,6 +670,7 @@ def _open_columns(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         seam = np.empty((4, len(chain), 3))
         kernels.log_relative(np.stack([ta.rots[a_prev, chain], ta.rots[a_end, chain], ref, tb.rots[b_next, chain]]),
                              ref, seam)
+        seam[0] = quat.near_turn(seam[0], seam[1])  # A's rate, not a whole turn (_unwrap_seam_rows)
         rots = np.empty((length, eng.skeleton.num_joints, 4))
         part = np.empty((length, len(chain), 4))
         kernels.exp_relative(through_seams(seam, length), ref, part)

@@ -17,7 +17,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..core.numba_kernels import _FAST, _mul, _rotate, exp_relative, fk, log_relative, slerp
+from ..core.numba_kernels import _FAST, _mul, _near_turn, _rotate, exp_relative, fk, log_relative, slerp
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -1079,6 +1079,9 @@ def open_columns(chain, a_rots, b_rots, a_prev, a_end, b_start, b_next, a_positi
             q[2, m], q[3, m] = ref[m], b_rots[b_next, chain[m]]
         seam = np.empty((4, n_c, 3))
         log_relative(q, ref, seam)
+        for m in range(n_c):  # A's rate, not a whole turn (engine._unwrap_seam_rows)
+            seam[0, m, 0], seam[0, m, 1], seam[0, m, 2] = _near_turn(seam[0, m, 0], seam[0, m, 1], seam[0, m, 2],
+                                                                     seam[1, m, 0], seam[1, m, 1], seam[1, m, 2])
         lin = np.empty((n_l, n_c, 3))
         for t in range(n_l):
             for m in range(n_c):
@@ -1155,6 +1158,8 @@ def carry_chain(rots, positions, chain, k, root, a_rots, a_positions, a_gpos, a_
     ref = sq[2].copy()
     logs = np.empty((4, 1, 3))
     log_relative(sq, ref, logs)
+    logs[0, 0, 0], logs[0, 0, 1], logs[0, 0, 2] = _near_turn(logs[0, 0, 0], logs[0, 0, 1], logs[0, 0, 2],
+                                                              logs[1, 0, 0], logs[1, 0, 1], logs[1, 0, 2])
     lin, new_p = np.empty((n_l, 1, 3)), np.empty((n_l, 3))
     for t in range(n_l):
         for c in range(3):

@@ -276,7 +276,9 @@ def carry_chain(ta: Track, tb: Track, a_end: int, b_start: int, rots: np.ndarray
     bq = quat.mul(quat.from_axis_angle(up_vector(up), np.array(float(dtheta))), bq)
     bp = rotate_about_up(bp, float(dtheta), up) + shift
     seam_q, length = np.concatenate([aq, bq]), len(rots)
-    new_q = quat.mul(seam_q[2], quat.exp(through_seams(quat.log(quat.mul(quat.inv(seam_q[2]), seam_q)), length)))
+    logs = quat.log(quat.mul(quat.inv(seam_q[2]), seam_q))
+    logs[0] = quat.near_turn(logs[0], logs[1])  # A's rate, not a whole turn, where A is half a turn from B
+    new_q = quat.mul(seam_q[2], quat.exp(through_seams(logs, length)))
     new_p = through_seams(np.concatenate([ap, bp]), length)
     if a_carrier >= 0:
         ground = np.concatenate([ta.gpos[ia], rotate_about_up(tb.gpos[ib], float(dtheta), up) + shift])
