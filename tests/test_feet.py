@@ -1556,3 +1556,79 @@ def test_pace_passes_is_the_same_compiled():
         changed += not np.array_equal(want[0], held)
         dropped += np.isfinite(accel) and len(feet.contact_runs(want[0])) < len(feet.contact_runs(held))
     assert changed > 100 and dropped > 20
+
+
+# -- the knee's bend bounded ------------------------------------------------------------------
+def straight_leg_lifted(n: int = 24, lift_at: int = 12, rng=None):
+    """A nearly straight leg (thigh 45, shin 42 cm; the hip 0.3 % of its reach above the ankle),
+    hip and ankle still, and the lock's goals: held on the spot, then from frame ``lift_at`` on
+    a pass that lifts the ankle 6 cm at once (what a foot lifted from a straight leg did)."""
+    a = np.tile([0.0, 90.0, 0.0], (n, 1))
+    c = np.tile([0.0, 90.0 - 0.997 * 87.0, 0.0], (n, 1))
+    # the knee in front, where thigh and shin meet
+    h = 0.997 * 87.0
+    x = (45.0**2 - 42.0**2 + h**2) / (2 * h)
+    b = np.tile([np.sqrt(45.0**2 - x**2), 90.0 - x, 0.0], (n, 1))
+    goal = c.copy()
+    goal[lift_at:, 1] += 6.0 * np.minimum(1.0, (np.arange(n - lift_at) + 1) / 3.0)
+    if rng is not None:
+        goal += rng.normal(scale=1.5, size=goal.shape)
+    return goal, a, b, c
+
+
+def bends(goal, a, b, c):
+    thigh, shin = np.linalg.norm(b[0] - a[0]), np.linalg.norm(c[0] - b[0])
+    return (feet.knee_bend(np.linalg.norm(goal - a, axis=-1), thigh, shin)
+            - feet.knee_bend(np.linalg.norm(c - a, axis=-1), thigh, shin))
+
+
+def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
+    # Lifting the ankle 6 cm over three frames bends the nearly straight knee by 35 degrees, 17
+    # in the first frame: bounded, the change of the bend accelerates at most KNEE_ACCEL, 0 beside the
+    # new frames, and the knee starts to bend before the lift (the held heel rising a little).
+    fps = 30.0
+    accel = feet.KNEE_ACCEL / fps**2
+    goal, a, b, c = straight_leg_lifted()
+    before = bends(goal, a, b, c)
+    assert np.degrees(np.diff(before).max()) > 15.0
+    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
+    after = np.concatenate([[0.0], bends(out, a, b, c), [0.0]])
+    assert np.abs(np.diff(after, 2)).max() <= accel * 1.01
+    assert bent[:12].any() and after[12] > 0.0  # bending before the lift
+    # Only along the hip-goal line, and the goals the lock had where the bound leaves them.
+    along = np.cross(out - a, goal - a)
+    np.testing.assert_allclose(along, 0.0, atol=1e-9)
+    np.testing.assert_array_equal(out[~bent], goal[~bent])
+    # A bound that nothing exceeds leaves every goal.
+    slow, none = feet.knee_bounded(goal, a, b, c, 0.0, 10.0)
+    assert not none.any()
+    np.testing.assert_array_equal(slow, goal)
+
+
+def test_knee_bounded_applies_the_iks_soft_reach():
+    # A goal beyond the reach is where the IK's soft reach puts it (the IK then runs without it).
+    goal, a, b, c = straight_leg_lifted()
+    goal[:, 1] -= 3.0  # 3 cm beyond the ankle: out of reach
+    out, bent = feet.knee_bounded(goal, a, b, c, feet.SOFT_REACH, 10.0)
+    assert not bent.any()
+    reach = np.linalg.norm(b[0] - a[0]) + np.linalg.norm(c[0] - b[0])
+    own = np.linalg.norm(c - a, axis=-1)
+    want = feet.soft_limit(np.linalg.norm(goal - a, axis=-1), np.maximum(own, (1 - feet.SOFT_REACH) * reach), reach)
+    np.testing.assert_allclose(np.linalg.norm(out - a, axis=-1), want, rtol=1e-12)
+    assert (np.linalg.norm(out - a, axis=-1) < reach).all()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_knee_bounded_is_the_same_compiled(seed):
+    from posturemap.core import kernels
+
+    nk = kernels.compiled()
+    rng = np.random.default_rng(seed)
+    goal, a, b, c = straight_leg_lifted(n=int(rng.integers(4, 40)), lift_at=int(rng.integers(1, 4)), rng=rng)
+    for soft, accel in ((0.0, feet.KNEE_ACCEL / 900.0), (feet.SOFT_REACH, feet.KNEE_ACCEL / 3600.0)):
+        want, bent = feet.knee_bounded(goal, a, b, c, soft, accel)
+        gpos = np.stack([a, b, c], axis=1)
+        got, moves = goal.copy(), np.zeros(len(goal), dtype=bool)
+        nk.knee_bounded(got, gpos, 0, 1, 2, soft, accel, feet.KNEE_PASSES, np.empty((2, len(goal) + 2)), moves)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(moves, bent)

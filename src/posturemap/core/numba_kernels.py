@@ -498,13 +498,13 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 
 
 @nb.njit(**_OPTS)
-def _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised):
+def _knee_hinge(grot, gpos, thigh, shin, ankle, moves):
     """The leg's hinge in the thigh's frame (unit; 0 where the legs are straight): the knee's
-    plane normals of the frames the lock moves summed there, as
+    plane normals of the frames the lock moves (``moves`` (L,) bool) summed there, as
     :func:`posturemap.synth.feet.two_bone_ik` sums them."""
     sx, sy, sz = 0.0, 0.0, 0.0
     for t in range(gpos.shape[0]):
-        if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
+        if not moves[t]:
             continue
         ux, uy, uz = gpos[t, ankle, 0] - gpos[t, thigh, 0], gpos[t, ankle, 1] - gpos[t, thigh, 1], \
             gpos[t, ankle, 2] - gpos[t, thigh, 2]
@@ -514,6 +514,68 @@ def _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised):
         x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
         sx, sy, sz = sx + x, sy + y, sz + z
     return _unit(sx, sy, sz)
+
+
+@nb.njit(**_OPTS)
+def _knee_bend(dist, thigh, shin):
+    """:func:`posturemap.synth.feet.knee_bend` of one distance."""
+    d = min(max(dist, 0.0), thigh + shin)
+    return math.pi - math.acos(min(max((thigh * thigh + shin * shin - d * d) / (2.0 * thigh * shin), -1.0), 1.0))
+
+
+@nb.njit(**_OPTS)
+def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, change, moves):
+    """:func:`posturemap.synth.feet.knee_bounded` in place: ``goals`` (L, 3) the ankle's goals
+    (the ankle itself where the lock leaves the leg), moved along the hip-goal line; the hip, knee
+    and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``change``
+    (2, L + 2) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves
+    one more."""
+    n_l = goals.shape[0]
+    thigh = math.sqrt((gpos[0, shin_j, 0] - gpos[0, thigh_j, 0]) ** 2 + (gpos[0, shin_j, 1] - gpos[0, thigh_j, 1]) ** 2
+                      + (gpos[0, shin_j, 2] - gpos[0, thigh_j, 2]) ** 2)
+    shin = math.sqrt((gpos[0, ankle_j, 0] - gpos[0, shin_j, 0]) ** 2 + (gpos[0, ankle_j, 1] - gpos[0, shin_j, 1]) ** 2
+                     + (gpos[0, ankle_j, 2] - gpos[0, shin_j, 2]) ** 2)
+    reach = thigh + shin
+    # change[0]: the lock's change of the bend, 0 beside the new frames; change[1]: it unrelaxed,
+    # then the goals' soft-limited distances.
+    change[0, 0], change[0, n_l + 1] = 0.0, 0.0
+    for t in range(n_l):
+        dist = math.sqrt((goals[t, 0] - gpos[t, thigh_j, 0]) ** 2 + (goals[t, 1] - gpos[t, thigh_j, 1]) ** 2
+                         + (goals[t, 2] - gpos[t, thigh_j, 2]) ** 2)
+        own = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, thigh_j, 0]) ** 2 + (gpos[t, ankle_j, 1] - gpos[t, thigh_j, 1]) ** 2
+                        + (gpos[t, ankle_j, 2] - gpos[t, thigh_j, 2]) ** 2)
+        if soft > 0.0:
+            dist = _soft_limit(dist, max(own, (1.0 - soft) * reach), reach)
+        change[1, t] = dist
+        change[0, t + 1] = _knee_bend(dist, thigh, shin) - _knee_bend(own, thigh, shin)
+    if min(thigh, shin) <= 1e-5:  # a rigid leg (posturemap.synth.feet.IK_EPS): nothing to bend
+        return
+    inner = change[0, 1: n_l + 1].copy()
+    step = np.empty(n_l)
+    for _ in range(passes):
+        over = False
+        for t in range(n_l):
+            second = change[0, t] - 2.0 * change[0, t + 1] + change[0, t + 2]
+            excess = abs(second) - accel
+            over = over or excess > accel * 1e-4
+            step[t] = 0.25 * (1.0 if second > 0.0 else -1.0) * excess if excess > 0.0 else 0.0
+        if not over:
+            break
+        for t in range(n_l):
+            change[0, t + 1] += step[t]
+    for t in range(n_l):
+        ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
+        dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
+        new = change[1, t]
+        if abs(change[0, t + 1] - inner[t]) > 1e-9:
+            own = math.sqrt((gpos[t, ankle_j, 0] - ax) ** 2 + (gpos[t, ankle_j, 1] - ay) ** 2
+                            + (gpos[t, ankle_j, 2] - az) ** 2)
+            bend = min(max(_knee_bend(own, thigh, shin) + change[0, t + 1], 0.0), math.pi)
+            new = math.sqrt(max(thigh * thigh + shin * shin + 2.0 * thigh * shin * math.cos(bend), 0.0))
+            moves[t] = True
+        k = new / max(dist, 1e-300)
+        goals[t, 0], goals[t, 1], goals[t, 2] = ax + (goals[t, 0] - ax) * k, ay + (goals[t, 1] - ay) * k, \
+            az + (goals[t, 2] - az) * k
 
 
 @nb.njit(**_OPTS)
@@ -727,7 +789,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, pace, accel, least, weights):
+              toe_catch, pace, accel, least, knee_accel, knee_passes, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -763,7 +825,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     pace (length unit per frame): the fastest a held foot's offset passes between two runs on
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
-    ``posturemap.synth.feet.pace_passes``).
+    ``posturemap.synth.feet.pace_passes``). knee_accel (radians per frame squared) and knee_passes:
+    the bound on the lock's change of the knees' bend and its sweeps (``KNEE_ACCEL``,
+    ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then exact on the goals it leaves.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -807,7 +871,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     raised_all = np.empty((n_legs, n_l))  # the step's lift, then also the swinging toe's
     deficit = np.empty((2, n_l))  # the toe's shortfall below its clearance: free frames, held frames
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
-    goal = np.empty(3)
+    goals = np.empty((n_l, 3))  # the ankle's goals, every frame
+    ik = np.empty(n_l, dtype=np.bool_)  # the frames the IK moves
+    change = np.empty((2, n_l + 2))  # knee_bounded's scratch
     for leg in range(n_legs):
         on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
@@ -1016,15 +1082,23 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         # A foot without a toe joint: its ankle kept out of the floor, no clearance above it.
         _toe_lift(gpos, toes[leg], up, offset, raised, on, toe_floor, clear if toes[leg] != ankle else 0.0, clear_lo,
                   clear_hi, curve_v, curve_h, clear_r, clear_fade, deficit, widest)
-        hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, offset, raised)
         for t in range(n_l):
-            if offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0:
+            ik[t] = not (offset[t, 0] == 0.0 and offset[t, 1] == 0.0 and raised[t] == 0.0)
+            for c in range(3):
+                goals[t, c] = gpos[t, ankle, c]
+            if ik[t]:
+                goals[t, a_] += offset[t, 0]
+                goals[t, b_] += offset[t, 1]
+                goals[t, up] += raised[t]
+        if not ik.any():
+            continue
+        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, change, ik)
+        hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, ik)
+        for t in range(n_l):
+            if not ik[t]:
                 continue
-            goal[a_] = gpos[t, ankle, a_] + offset[t, 0]
-            goal[b_] = gpos[t, ankle, b_] + offset[t, 1]
-            goal[up] = gpos[t, ankle, up] + raised[t]
-            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goal[0], goal[1], goal[2], eps, soft,
-                                       hinge, hx, hy, hz)
+            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goals[t, 0], goals[t, 1], goals[t, 2],
+                                       eps, 0.0, hinge, hx, hy, hz)
             # Keep the foot's global orientation: its parent chain turned (twist joints between
             # keep their local rotations and turn with the joint above).
             p = parents[thigh]

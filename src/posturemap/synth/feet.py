@@ -97,6 +97,9 @@ STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): interpolated feet planted at 
 #                    foot by half of its way beyond this (STEP_LIFT at most): a shorter shift slides
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
+KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend accelerates at most this
+#                    (knee_bounded; walking knees' own bend accelerates under it in 97.7% of frames, bandai1)
+KNEE_PASSES = 200  # knee_bounded's sweeps at most
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
 #                   leg's hinge (two_bone_ik): a straight leg's plane is noise
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
@@ -215,6 +218,61 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     # r0 (and the knee's r1) set the reach along the old thigh-ankle line, then r2 turns that
     # line onto the target; in the thigh's local frame the later rotation stands on the left.
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
+
+
+def knee_bend(dist: np.ndarray, thigh: np.ndarray, shin: np.ndarray) -> np.ndarray:
+    """The knee's bend (radians, 0 straight) of a leg whose thigh and shin are ``thigh`` and
+    ``shin`` long with its ankle ``dist`` from the hip (arrays broadcast; clipped to the reach)."""
+    d = np.clip(dist, 0.0, thigh + shin)
+    return np.pi - np.arccos(np.clip((thigh**2 + shin**2 - d**2) / (2.0 * thigh * shin), -1.0, 1.0))
+
+
+def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, soft: float,
+                 accel: float) -> tuple[np.ndarray, np.ndarray]:
+    """The lock's ankle goals (L, 3) moved along the hip-goal line so that the lock's change of
+    the knee's bend accelerates at most ``accel`` (radians per frame squared), and which frames
+    moved (L,) bool.
+
+    ``a``, ``b``, ``c`` (L, 3): the hip (thigh joint), knee and ankle as the motion has them;
+    ``goal`` the ankle's goals, the ankle itself where the lock leaves the leg; ``soft``: the
+    IK's ``SOFT_REACH``, applied here (the goals returned are reached exactly: the IK is then
+    called without it). The change is the bend at the goal's distance (:func:`knee_bend`, soft
+    limited as :func:`two_bone_ik` limits it) less the motion's own bend, 0 in the clips' frames
+    beside the new ones; where its second difference exceeds ``accel``, each frame moves a
+    quarter of the excess toward its neighbours, over at most ``KNEE_PASSES`` sweeps.
+
+    Near full extension the bend goes as the square root of the leg's shortening: a held spot
+    half a centimetre nearer the hip than the motion's nearly straight leg had its ankle bent the
+    knee 10 degrees, and a foot lifted from a straight leg into a pass bent it 38 degrees in
+    one frame. Relaxed, the knee starts to bend a few frames earlier, the held heel rising a
+    little off its spot as a real heel does before the foot leaves the floor.
+    """
+    thigh = float(np.linalg.norm(b[0] - a[0]))
+    shin = float(np.linalg.norm(c[0] - b[0]))
+    reach = thigh + shin
+    dist = np.linalg.norm(goal - a, axis=-1)
+    own = np.linalg.norm(c - a, axis=-1)
+    if soft > 0:
+        dist_s = soft_limit(dist, np.maximum(own, (1.0 - soft) * reach), reach)
+    else:
+        dist_s = dist
+    if min(thigh, shin) <= IK_EPS:  # a rigid leg: nothing to bend
+        return goal, np.zeros(len(goal), dtype=bool)
+    own_bend = knee_bend(own, thigh, shin)
+    change = np.zeros(len(goal) + 2)
+    change[1:-1] = knee_bend(dist_s, thigh, shin) - own_bend
+    inner = change[1:-1].copy()
+    for _ in range(KNEE_PASSES):
+        second = change[:-2] - 2.0 * change[1:-1] + change[2:]
+        excess = np.abs(second) - accel
+        if not (excess > accel * 1e-4).any():
+            break
+        change[1:-1] += np.where(excess > 0.0, 0.25 * np.sign(second) * excess, 0.0)
+    bent = np.abs(change[1:-1] - inner) > 1e-9
+    bend = np.clip(own_bend + change[1:-1], 0.0, np.pi)
+    new_dist = np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(bend), 0.0))
+    scale = np.where(bent, new_dist, dist_s) / np.maximum(dist, 1e-300)
+    return a + (goal - a) * scale[:, None], bent
 
 
 def slower_step(x: np.ndarray) -> np.ndarray:
@@ -792,7 +850,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      *passes, weights)
+                      *passes, KNEE_ACCEL / fps**2, KNEE_PASSES, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -869,12 +927,17 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         frames = np.flatnonzero((offset != 0).any(axis=1) | (raised != 0))
         if len(frames) == 0:
             continue
-        goal = gpos[frames, ankle] + offset[frames]
-        goal[:, up] = gpos[frames, ankle, up] + raised[frames]
-        foot_global = grot[frames, ankle]
+        goal = gpos[:, ankle].copy()
+        goal[frames] += offset[frames]
+        goal[frames, up] = gpos[frames, ankle, up] + raised[frames]
+        goal, bent = knee_bounded(goal, gpos[:, thigh], gpos[:, shin], gpos[:, ankle], SOFT_REACH,
+                                  KNEE_ACCEL / fps**2)
+        frames = np.flatnonzero(bent | (offset != 0).any(axis=1) | (raised != 0))
+        goal = goal[frames]
         new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
                                           grot[frames, thigh], grot[frames, shin],
-                                          rots[frames, thigh], rots[frames, shin], IK_EPS, SOFT_REACH, KNEE_HINGE)
+                                          rots[frames, thigh], rots[frames, shin], IK_EPS, 0.0, KNEE_HINGE)
+        foot_global = grot[frames, ankle]
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
         # Keep the foot's global orientation: its parent chain turned.
@@ -889,3 +952,4 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         rots[frames, ankle] = quat.mul(quat.inv(ankle_parent), foot_global)
         # The legs share no joint: the next leg's chain is unchanged, no new FK needed.
     return weights
+
