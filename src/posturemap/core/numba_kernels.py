@@ -536,6 +536,8 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
     shin = math.sqrt((gpos[0, ankle_j, 0] - gpos[0, shin_j, 0]) ** 2 + (gpos[0, ankle_j, 1] - gpos[0, shin_j, 1]) ** 2
                      + (gpos[0, ankle_j, 2] - gpos[0, shin_j, 2]) ** 2)
     reach = thigh + shin
+    if min(thigh, shin) <= 1e-5:  # a rigid leg (posturemap.synth.feet.IK_EPS): nothing to bend
+        return
     # change[0]: the lock's change of the bend, 0 beside the new frames; change[1]: it unrelaxed,
     # then the goals' soft-limited distances.
     change[0, 0], change[0, n_l + 1] = 0.0, 0.0
@@ -548,8 +550,6 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
             dist = _soft_limit(dist, max(own, (1.0 - soft) * reach), reach)
         change[1, t] = dist
         change[0, t + 1] = _knee_bend(dist, thigh, shin) - _knee_bend(own, thigh, shin)
-    if min(thigh, shin) <= 1e-5:  # a rigid leg (posturemap.synth.feet.IK_EPS): nothing to bend
-        return
     inner = change[0, 1: n_l + 1].copy()
     step = np.empty(n_l)
     for _ in range(passes):

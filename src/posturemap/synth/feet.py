@@ -249,15 +249,12 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     """
     thigh = float(np.linalg.norm(b[0] - a[0]))
     shin = float(np.linalg.norm(c[0] - b[0]))
+    if min(thigh, shin) <= IK_EPS:  # a rigid leg: nothing to bend (the IK leaves it as it is)
+        return goal, np.zeros(len(goal), dtype=bool)
     reach = thigh + shin
     dist = np.linalg.norm(goal - a, axis=-1)
     own = np.linalg.norm(c - a, axis=-1)
-    if soft > 0:
-        dist_s = soft_limit(dist, np.maximum(own, (1.0 - soft) * reach), reach)
-    else:
-        dist_s = dist
-    if min(thigh, shin) <= IK_EPS:  # a rigid leg: nothing to bend
-        return goal, np.zeros(len(goal), dtype=bool)
+    dist_s = soft_limit(dist, np.maximum(own, (1.0 - soft) * reach), reach) if soft > 0 else dist
     own_bend = knee_bend(own, thigh, shin)
     change = np.zeros(len(goal) + 2)
     change[1:-1] = knee_bend(dist_s, thigh, shin) - own_bend
