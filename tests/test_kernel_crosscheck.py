@@ -867,6 +867,7 @@ ELSEWHERE = {
     "test_feet.py::test_soft_limit_is_the_value_until_its_start_then_bends_onto_the_limit": (
         "numba_kernels:_soft_limit",),
     "test_kernels.py::test_slerp_agrees": ("numba_kernels:slerp",),
+    "test_kernels.py::test_slerp_track_goes_on_round_a_half_turn": ("numba_kernels:slerp_track",),
     "test_kernels.py::test_turn_toward_agrees_and_turns_the_last_joint_only": ("numba_kernels:turn_toward",),
     "test_retrieval.py::test_compiled_search_matches_the_numpy_steps": (
         "retrieval_numba:search", "retrieval_numba:_best", "retrieval_numba:_prefilter", "retrieval_numba:_pos_cost",

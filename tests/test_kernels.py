@@ -166,6 +166,40 @@ def test_slerp_agrees(jit, t):
     np.testing.assert_allclose(quat.angle_between(outs[1], b), (1 - t) * whole, atol=1e-6)
 
 
+@pytest.mark.parametrize("t", [0.0, 0.33, 0.75, 1.0])
+def test_slerp_track_goes_on_round_a_half_turn(jit, t):
+    # Track b turns steadily away from track a (3 degrees a frame, 60 frames) through a half turn
+    # at frame 40, about a random axis per column, with random signs: the short arc of each frame
+    # is slerp's until the half turn, then it flips to the other side and a blend jumped by up to
+    # a half turn in a frame. slerp_track stays on the arc it was on: the same as slerp before
+    # the half turn, then going on round (its angle from a grows on past 180 degrees), never a
+    # step larger than the track's own.
+    rng = np.random.default_rng(5)
+    n, m = 60, 12
+    a = random_quats(rng, (n, m))
+    axes = rng.normal(size=(m, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angle = np.radians(60.0 + 3.0 * np.arange(n))  # 180 degrees at frame 40
+    b = quat.mul(a, quat.exp(angle[:, None, None] * axes[None]))
+    b *= np.where(rng.random((n, m, 1)) < 0.5, -1.0, 1.0)
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        out = np.empty_like(a)
+        impl.slerp_track(a, b, t, out)
+        outs.append(out)
+    np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
+    out = outs[1]
+    short = np.empty_like(a)
+    kernels.NUMPY.slerp(a.reshape(-1, 4), b.reshape(-1, 4), t, short.reshape(-1, 4))
+    same = np.abs(np.sum(out * short, axis=-1))
+    np.testing.assert_allclose(same[:40], 1.0, atol=1e-9)  # the short arc up to the half turn
+    # Everywhere, beyond the half turn too: the fraction t of b's whole turn from a, on round.
+    want = quat.mul(a, quat.exp(t * angle[:, None, None] * axes[None]))
+    np.testing.assert_allclose(np.abs(np.sum(out * want, axis=-1)), 1.0, atol=1e-9)
+    steps = quat.angle_between(quat.mul(quat.inv(a[1:]), out[1:]), quat.mul(quat.inv(a[:-1]), out[:-1]))
+    assert steps.max() <= np.radians(3.0) * t + 1e-6  # t of b's own step from a, never a jump
+
+
 @pytest.mark.parametrize("t", [0.0, 0.5, 1.0])
 def test_turn_toward_agrees_and_turns_the_last_joint_only(jit, t):
     rng = np.random.default_rng(11)

@@ -29,7 +29,7 @@ from .skeleton import fk as _fk_reference
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
-       "project_to_map", "key_from_blend", "slerp", "turn_toward")
+       "project_to_map", "key_from_blend", "slerp", "slerp_track", "turn_toward")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
 
@@ -117,6 +117,28 @@ def compose_root(chain, root, up, rots, positions, gpos, heading):
 def slerp(a, b, t, out):
     """``out[i]`` = :func:`posturemap.core.quat.slerp` from ``a[i]`` to ``b[i]`` (M, 4) at the fraction ``t``."""
     out[...] = quat.slerp(a, b, t)
+
+
+def slerp_track(a, b, t, out):
+    """``out[n, m]`` = the SLERP from ``a[n, m]`` to ``b[n, m]`` (N, M, 4; N frames) at the
+    fraction ``t``, on the arc that goes on from frame to frame: the short arc at frame 0, then
+    each frame's relative rotation ``a^-1 b`` in the hemisphere of the frame before's.
+
+    Two tracks that pass through a half turn from each other (a retrieved arm and the fallback's)
+    had their short arc flip to the other side of it from one frame to the next, and a blend of
+    them jumped by up to a half turn in a frame; on this arc it goes on round.
+    """
+    rel = quat.mul(quat.inv(a), b)
+    flips = np.sum(rel[1:] * rel[:-1], axis=-1) < 0.0
+    sign = np.where(rel[:1, :, 0] < 0.0, -1.0, 1.0) * np.concatenate(
+        [np.ones((1,) + flips.shape[1:]), np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)])
+    theta = np.arccos(np.clip(sign * rel[..., 0], -1.0, 1.0))[..., None]
+    sin_theta = np.sin(theta)
+    small = sin_theta < 1e-6
+    safe = np.where(small, 1.0, sin_theta)
+    wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    wb = np.where(small, t, np.sin(t * theta) / safe) * sign[..., None]
+    out[...] = quat.normalize(wa * a + wb * b)
 
 
 def turn_toward(chain, rots, other, t):

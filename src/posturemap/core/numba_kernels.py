@@ -1138,6 +1138,34 @@ def slerp(a, b, t, out):
 
 
 @nb.njit(**_OPTS)
+def slerp_track(a, b, t, out):
+    """:func:`posturemap.core.kernels.slerp_track` (the reference): the SLERP from ``a[n, m]`` to
+    ``b[n, m]`` (N, M, 4) at the fraction ``t`` on the arc that goes on from frame to frame."""
+    for m in range(a.shape[1]):
+        sign = 1.0
+        p0, p1, p2, p3 = 0.0, 0.0, 0.0, 0.0
+        for n in range(a.shape[0]):
+            r0, r1, r2, r3 = _mul(a[n, m, 0], -a[n, m, 1], -a[n, m, 2], -a[n, m, 3],
+                                  b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3])
+            if n == 0:
+                sign = -1.0 if r0 < 0.0 else 1.0
+            elif r0 * p0 + r1 * p1 + r2 * p2 + r3 * p3 < 0.0:
+                sign = -sign
+            p0, p1, p2, p3 = r0, r1, r2, r3
+            theta = math.acos(min(max(sign * r0, -1.0), 1.0))
+            sin_theta = math.sin(theta)
+            if sin_theta < 1e-6:
+                wa, wb = 1.0 - t, t
+            else:
+                wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
+            wb *= sign
+            q0, q1 = wa * a[n, m, 0] + wb * b[n, m, 0], wa * a[n, m, 1] + wb * b[n, m, 1]
+            q2, q3 = wa * a[n, m, 2] + wb * b[n, m, 2], wa * a[n, m, 3] + wb * b[n, m, 3]
+            k = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
+            out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = q0 / k, q1 / k, q2 / k, q3 / k
+
+
+@nb.njit(**_OPTS)
 def turn_toward(chain, rots, other, t):
     """The last joint of ``chain`` (top first, the top without a parent) turned in place in
     ``rots (N, J, 4)`` so that its global rotation goes the fraction ``t`` of the short arc from

@@ -738,10 +738,10 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
             if c <= 0.0:
                 out_r[:, mask] = rots_fb[:, mask]
-            elif c < 1.0:
-                fb_part, part = rots_fb[:, mask].reshape(-1, 4), out_r[:, mask].reshape(-1, 4)
-                kernels.slerp(fb_part, part, c, part)
-                out_r[:, mask] = part.reshape(length, -1, 4)
+            elif c < 1.0:  # on the arc that goes on through the frames (a half turn apart: no flip)
+                part = out_r[:, mask]
+                kernels.slerp_track(rots_fb[:, mask], part, c, part)
+                out_r[:, mask] = part
         if 0.0 < res.confidence[0] < 1.0:
             r = eng._root
             out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
