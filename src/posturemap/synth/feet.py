@@ -66,7 +66,11 @@ in-between frames are made:
    under it is lifted out rather than taken for the floor;
 5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
    position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
-   end of the leg's reach bends the knee smoothly instead of snapping it straight. A nearly
+   end of the leg's reach bends the knee smoothly instead of snapping it straight. Before it, the
+   lock's change of each knee's bend (its goals' bend less the motion's own) is bounded in
+   acceleration by ``KNEE_ACCEL`` over the whole gap (:func:`knee_bounded`): near full extension
+   the bend goes as the square root of the leg's shortening, and a foot lifted from a straight
+   leg bent the knee 38 degrees in one frame. A nearly
    straight knee bends toward the leg's own hinge (``KNEE_HINGE``: the knee's bending planes
    over the gap, in the thigh's frame), not about its plane of the moment, which is noise: it
    swung sideways from frame to frame. The foot keeps its global orientation (so the toe moves
