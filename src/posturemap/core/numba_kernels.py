@@ -1117,24 +1117,30 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
 
 
 @nb.njit(**_OPTS)
+def _slerp_signed(a0, a1, a2, a3, b0, b1, b2, b3, d, sign, t):
+    """The SLERP from ``a`` to ``sign * b`` at the fraction ``t``, ``d`` their dot product with
+    that sign (the cosine of half the angle between them), normalised."""
+    theta = math.acos(min(max(d, -1.0), 1.0))
+    sin_theta = math.sin(theta)
+    if sin_theta < 1e-6:
+        wa, wb = 1.0 - t, t
+    else:
+        wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
+    wb *= sign
+    q0, q1, q2, q3 = wa * a0 + wb * b0, wa * a1 + wb * b1, wa * a2 + wb * b2, wa * a3 + wb * b3
+    n = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
+    return q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@nb.njit(**_OPTS)
 def slerp(a, b, t, out):
     """``out[i]`` = spherical linear interpolation from ``a[i]`` to ``b[i]`` (M, 4) at the
     fraction ``t`` on the short arc (:func:`posturemap.core.quat.slerp`, the reference)."""
     for i in range(a.shape[0]):
         d = a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2] + a[i, 3] * b[i, 3]
         sign = -1.0 if d < 0 else 1.0
-        d = abs(d)
-        theta = math.acos(min(max(d, -1.0), 1.0))
-        sin_theta = math.sin(theta)
-        if sin_theta < 1e-6:
-            wa, wb = 1.0 - t, t
-        else:
-            wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
-        wb *= sign
-        q0, q1 = wa * a[i, 0] + wb * b[i, 0], wa * a[i, 1] + wb * b[i, 1]
-        q2, q3 = wa * a[i, 2] + wb * b[i, 2], wa * a[i, 3] + wb * b[i, 3]
-        n = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0 / n, q1 / n, q2 / n, q3 / n
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = _slerp_signed(a[i, 0], a[i, 1], a[i, 2], a[i, 3], b[i, 0],
+                                                                   b[i, 1], b[i, 2], b[i, 3], abs(d), sign, t)
 
 
 @nb.njit(**_OPTS)
@@ -1152,17 +1158,9 @@ def slerp_track(a, b, t, out):
             elif r0 * p0 + r1 * p1 + r2 * p2 + r3 * p3 < 0.0:
                 sign = -sign
             p0, p1, p2, p3 = r0, r1, r2, r3
-            theta = math.acos(min(max(sign * r0, -1.0), 1.0))
-            sin_theta = math.sin(theta)
-            if sin_theta < 1e-6:
-                wa, wb = 1.0 - t, t
-            else:
-                wa, wb = math.sin((1.0 - t) * theta) / sin_theta, math.sin(t * theta) / sin_theta
-            wb *= sign
-            q0, q1 = wa * a[n, m, 0] + wb * b[n, m, 0], wa * a[n, m, 1] + wb * b[n, m, 1]
-            q2, q3 = wa * a[n, m, 2] + wb * b[n, m, 2], wa * a[n, m, 3] + wb * b[n, m, 3]
-            k = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3), 1e-12)
-            out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = q0 / k, q1 / k, q2 / k, q3 / k
+            out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = _slerp_signed(
+                a[n, m, 0], a[n, m, 1], a[n, m, 2], a[n, m, 3], b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3],
+                sign * r0, sign, t)
 
 
 @nb.njit(**_OPTS)
