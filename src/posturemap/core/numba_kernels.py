@@ -531,23 +531,27 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
     (2, L + 2) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves
     one more."""
     n_l = goals.shape[0]
-    thigh = math.sqrt((gpos[0, shin_j, 0] - gpos[0, thigh_j, 0]) ** 2 + (gpos[0, shin_j, 1] - gpos[0, thigh_j, 1]) ** 2
-                      + (gpos[0, shin_j, 2] - gpos[0, thigh_j, 2]) ** 2)
-    shin = math.sqrt((gpos[0, ankle_j, 0] - gpos[0, shin_j, 0]) ** 2 + (gpos[0, ankle_j, 1] - gpos[0, shin_j, 1]) ** 2
-                     + (gpos[0, ankle_j, 2] - gpos[0, shin_j, 2]) ** 2)
-    reach = thigh + shin
-    if min(thigh, shin) <= 1e-5:  # a rigid leg (posturemap.synth.feet.IK_EPS): nothing to bend
-        return
+    lengths = np.empty((2, n_l))  # each frame's own thigh and shin (a blend of two clips' bones may differ)
+    for t in range(n_l):
+        lengths[0, t] = math.sqrt((gpos[t, shin_j, 0] - gpos[t, thigh_j, 0]) ** 2
+                                  + (gpos[t, shin_j, 1] - gpos[t, thigh_j, 1]) ** 2
+                                  + (gpos[t, shin_j, 2] - gpos[t, thigh_j, 2]) ** 2)
+        lengths[1, t] = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, shin_j, 0]) ** 2
+                                  + (gpos[t, ankle_j, 1] - gpos[t, shin_j, 1]) ** 2
+                                  + (gpos[t, ankle_j, 2] - gpos[t, shin_j, 2]) ** 2)
+        if min(lengths[0, t], lengths[1, t]) <= 1e-5:  # a rigid leg (feet.IK_EPS): nothing to bend
+            return
     # change[0]: the lock's change of the bend, 0 beside the new frames; change[1]: it unrelaxed,
     # then the goals' soft-limited distances.
     change[0, 0], change[0, n_l + 1] = 0.0, 0.0
     for t in range(n_l):
+        thigh, shin = lengths[0, t], lengths[1, t]
         dist = math.sqrt((goals[t, 0] - gpos[t, thigh_j, 0]) ** 2 + (goals[t, 1] - gpos[t, thigh_j, 1]) ** 2
                          + (goals[t, 2] - gpos[t, thigh_j, 2]) ** 2)
         own = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, thigh_j, 0]) ** 2 + (gpos[t, ankle_j, 1] - gpos[t, thigh_j, 1]) ** 2
                         + (gpos[t, ankle_j, 2] - gpos[t, thigh_j, 2]) ** 2)
         if soft > 0.0:
-            dist = _soft_limit(dist, max(own, (1.0 - soft) * reach), reach)
+            dist = _soft_limit(dist, max(own, (1.0 - soft) * (thigh + shin)), thigh + shin)
         change[1, t] = dist
         change[0, t + 1] = _knee_bend(dist, thigh, shin) - _knee_bend(own, thigh, shin)
     inner = change[0, 1: n_l + 1].copy()
@@ -570,6 +574,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
         if abs(change[0, t + 1] - inner[t]) > 1e-9:
             own = math.sqrt((gpos[t, ankle_j, 0] - ax) ** 2 + (gpos[t, ankle_j, 1] - ay) ** 2
                             + (gpos[t, ankle_j, 2] - az) ** 2)
+            thigh, shin = lengths[0, t], lengths[1, t]
             bend = min(max(_knee_bend(own, thigh, shin) + change[0, t + 1], 0.0), math.pi)
             new = math.sqrt(max(thigh * thigh + shin * shin + 2.0 * thigh * shin * math.cos(bend), 0.0))
             moves[t] = True

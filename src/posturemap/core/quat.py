@@ -183,8 +183,8 @@ def near_turn(v: np.ndarray, near: np.ndarray) -> np.ndarray:
     """
     angle = np.linalg.norm(v, axis=-1)
     unit = v / np.maximum(angle, 1e-12)[..., None]
-    turns = np.round((np.sum(unit * near, axis=-1) - angle) / (2.0 * np.pi))
-    return v + (2.0 * np.pi * turns)[..., None] * unit
+    turns = np.where(angle > 1e-12, np.round((np.sum(unit * near, axis=-1) - angle) / (2.0 * np.pi)), 0.0)
+    return v + (2.0 * np.pi * turns)[..., None] * unit  # no axis (under 1e-12): left as it is
 
 
 def exp(r: np.ndarray) -> np.ndarray:

@@ -251,9 +251,9 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     one frame. Relaxed, the knee starts to bend a few frames earlier, the held heel rising a
     little off its spot as a real heel does before the foot leaves the floor.
     """
-    thigh = float(np.linalg.norm(b[0] - a[0]))
-    shin = float(np.linalg.norm(c[0] - b[0]))
-    if min(thigh, shin) <= IK_EPS:  # a rigid leg: nothing to bend (the IK leaves it as it is)
+    thigh = np.linalg.norm(b - a, axis=-1)  # each frame's own (a blend of two clips' bones may differ)
+    shin = np.linalg.norm(c - b, axis=-1)
+    if min(thigh.min(), shin.min()) <= IK_EPS:  # a rigid leg: nothing to bend (the IK leaves it as it is)
         return goal, np.zeros(len(goal), dtype=bool)
     reach = thigh + shin
     dist = np.linalg.norm(goal - a, axis=-1)
