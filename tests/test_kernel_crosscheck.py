@@ -599,8 +599,9 @@ def test_swing_columns_are_the_numpy_continued_swing():
 def test_compiled_seam_rows_equal_the_engines_numpy_rows(sample_clips):
     # Two clips' seam and context frames as the interpolating methods' rows, B turned and moved
     # (a turn of more than a half circle, so the heading's unwrapping counts), both backends.
-    # The second reference stands half a turn from A's last frame about random axes: about half
-    # the joints' frames fall on the other side of that half turn, and are unwrapped.
+    # The second reference stands half a turn from A's last frame about random axes: some of the
+    # joints' frames (of A's rows, about a quarter) fall on the other side of that half turn, and
+    # are unwrapped.
     from posturemap.synth import engine as E
 
     eng = E.TransitionEngine(None, sample_clips["walk"].skeleton)
