@@ -182,13 +182,18 @@ def test_slerp_track_goes_on_round_a_half_turn(jit, t):
     angle = np.radians(60.0 + 3.0 * np.arange(n))  # 180 degrees at frame 40
     b = quat.mul(a, quat.exp(angle[:, None, None] * axes[None]))
     b *= np.where(rng.random((n, m, 1)) < 0.5, -1.0, 1.0)
-    outs = []
+    outs, ends = [], []
     for impl in (kernels.NUMPY, jit):
         out = np.empty_like(a)
-        impl.slerp_track(a, b, t, out)
+        ends.append(impl.slerp_track(a, b, t, out))
         outs.append(out)
     np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
     out = outs[1]
+    # It returns the last frame's relative rotation on the arc, its sign included: 237 degrees
+    # round (a scalar part below 0), not the short arc's -123.
+    for end in ends:
+        np.testing.assert_allclose(end, quat.exp(angle[-1] * axes), atol=1e-9)
+    assert np.all(ends[1][:, 0] < 0.0)
     short = np.empty_like(a)
     kernels.NUMPY.slerp(a.reshape(-1, 4), b.reshape(-1, 4), t, short.reshape(-1, 4))
     same = np.abs(np.sum(out * short, axis=-1))

@@ -22,7 +22,7 @@ from posturemap.errors import UserError
 from posturemap.learn.features import root_global, upright_rest, wrap_diff
 from posturemap.learn.model import PostureMap
 from posturemap.core.motion import Motion, concatenate, root_index, up_axis
-from posturemap.core.skeleton import fk
+from posturemap.core.skeleton import chain_world, fk
 from posturemap.synth.bases import (DAMPED_PEAK, DAMPED_SAMPLES, DAMPED_TAU_S, damped_frames, damped_time_scales,
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis, reach_parts)
@@ -737,6 +737,45 @@ def test_a_root_bone_half_a_turn_from_b_turns_on_without_spinning(clips, model, 
     assert steps.max() < 3 * np.pi / length, np.degrees(steps)
     about_up = quat.log(quat.mul(turn[1:], quat.inv(turn[:-1])))[:, UP]
     assert np.all(about_up > -1e-3), np.degrees(about_up)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_b_is_placed_the_way_round_a_blended_root_went(clips, model, compiled, monkeypatch):
+    # The legs half confident: the root is the blend of the retrieved one and the fallback's,
+    # on the arc that goes on through the frames, and B is placed by the blend of their
+    # placements. Here the fallback's root makes a whole extra turn about up through the gap (it
+    # ends where it would have), so the two roots pass a half turn apart and the blend goes on
+    # round: B must be placed the way round it went, half a turn from where the short way
+    # would put it. Placed the short way (as before), the root turned about a half turn in the
+    # one frame into B (on LaFAN1, a walk into a stumble, 37 degrees).
+    from posturemap.synth import engine as engine_module, retrieval
+
+    monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.5, 0.5])
+    interpolated = engine_module._interpolated
+
+    def spinning(eng, *args, **kw):
+        rots, pos = interpolated(eng, *args, **kw)
+        rots, chain = rots.copy(), eng._chain.tolist()
+        spin = quat.from_axis_angle(up_vec(), 2 * np.pi * np.arange(1, len(rots) + 1) / len(rots))
+        parent = chain_world(chain, rots, pos)[0] if chain else np.array([1.0, 0.0, 0.0, 0.0])
+        world = quat.mul(parent, rots[:, eng._root])
+        rots[:, eng._root] = quat.mul(quat.inv(parent), quat.mul(spin, world))
+        return rots, pos
+
+    monkeypatch.setattr(engine_module, "_interpolated", spinning)
+    walk, length, a_end, b_start = clips[WALK], 12, 40, 70
+    engine = TransitionEngine(model)
+    engine.add("walk", walk)
+    with contextlib.nullcontext() if compiled else kernels.numpy_backend():
+        r, p = engine.generate("walk", "walk", length=length, a_end=a_end, b_start=b_start, method="retrieval",
+                               foot_lock=False)
+        placed = engine.continuation("walk", b_start)
+    assert engine.last["retrieval"]["confidence"] == 0.5  # the blend ran
+    chain = engine._chain.tolist() + [engine._root]
+    world = np.concatenate([chain_world(chain, r, p)[0], chain_world(chain, placed.rotations[:2], placed.positions[:2])[0]])
+    steps = quat.angle_between(world[1:], world[:-1])
+    # The gap turns the body some 15 degrees a frame (half the fallback's 30); into B no more.
+    assert steps[-2] < 1.5 * steps[:-2].max() + 0.05, np.degrees(steps)
 
 
 def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):

@@ -127,6 +127,10 @@ def slerp_track(a, b, t, out):
     Two tracks that pass through a half turn from each other (a retrieved arm and the fallback's)
     had their short arc flip to the other side of it from one frame to the next, and a blend of
     them jumped by up to a half turn in a frame; on this arc it goes on round.
+
+    Returns the last frame's relative rotation on that arc (M, 4): its scalar part is negative
+    where the arc ends more than a half turn round (the caller that places something at the
+    arc's end, B after a blended root, needs to know which way round it went). N must be >= 1.
     """
     rel = quat.mul(quat.inv(a), b)
     flips = np.sum(rel[1:] * rel[:-1], axis=-1) < 0.0
@@ -139,6 +143,7 @@ def slerp_track(a, b, t, out):
     wa = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
     wb = np.where(small, t, np.sin(t * theta) / safe) * sign[..., None]
     out[...] = quat.normalize(wa * a + wb * b)
+    return sign[-1][:, None] * rel[-1]
 
 
 def turn_toward(chain, rots, other, t):

@@ -1151,7 +1151,9 @@ def slerp(a, b, t, out):
 @nb.njit(**_OPTS)
 def slerp_track(a, b, t, out):
     """:func:`posturemap.core.kernels.slerp_track` (the reference): the SLERP from ``a[n, m]`` to
-    ``b[n, m]`` (N, M, 4) at the fraction ``t`` on the arc that goes on from frame to frame."""
+    ``b[n, m]`` (N, M, 4) at the fraction ``t`` on the arc that goes on from frame to frame;
+    returns the last frame's relative rotation on that arc (M, 4)."""
+    ends = np.empty((a.shape[1], 4))
     for m in range(a.shape[1]):
         sign = 1.0
         p0, p1, p2, p3 = 0.0, 0.0, 0.0, 0.0
@@ -1166,6 +1168,8 @@ def slerp_track(a, b, t, out):
             out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = _slerp_signed(
                 a[n, m, 0], a[n, m, 1], a[n, m, 2], a[n, m, 3], b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3],
                 sign * r0, sign, t)
+        ends[m, 0], ends[m, 1], ends[m, 2], ends[m, 3] = sign * p0, sign * p1, sign * p2, sign * p3
+    return ends
 
 
 @nb.njit(**_OPTS)

@@ -735,13 +735,16 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         out_p[:] = pos_fb
         if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
             kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
+        root_end = None  # the root's rotation from the fallback's to the retrieved one, at the last frame
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
             if c <= 0.0:
                 out_r[:, mask] = rots_fb[:, mask]
             elif c < 1.0:  # on the arc that goes on through the frames (a half turn apart: no flip)
                 part = out_r[:, mask]
-                kernels.slerp_track(rots_fb[:, mask], part, c, part)
+                ends = kernels.slerp_track(rots_fb[:, mask], part, c, part)
                 out_r[:, mask] = part
+                if mask is rt.lower_mask:
+                    root_end = ends[rt.root_column]
         if 0.0 < res.confidence[0] < 1.0:
             r = eng._root
             out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
@@ -753,9 +756,8 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             g0 = tb.gpos[b_start]
             end_fb = rotate_about_up(g0, fb_last["dtheta"], eng._up) + fb_last["shift"]
             end = rotate_about_up(g0, dtheta, eng._up) + shift
-            turn = dtheta - fb_last["dtheta"]
             res_dtheta = dtheta
-            dtheta = fb_last["dtheta"] + c * (turn - TWO_PI * round(turn / TWO_PI))
+            dtheta = fb_last["dtheta"] + c * _turn_round(eng, rots_fb, pos_fb, dtheta - fb_last["dtheta"], root_end)
             shift = end_fb + c * (end - end_fb) - rotate_about_up(g0, dtheta, eng._up)
             _meet_b_velocity(eng, tb, b_start, out_r, out_p, c, res_dtheta, fb_last["dtheta"], dtheta)
         # The retrieved segment's planted feet wherever its legs count and lie within
@@ -806,6 +808,30 @@ def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     for j in chain.tolist():
         rots[:, j], pos[:, j] = chain_r[:, j], chain_p[:, j]
     put_root(chain, r, rots, pos, gq, gp)
+
+
+def _turn_round(eng: TransitionEngine, rots_fb, pos_fb, turn: float, root_end: np.ndarray) -> float:
+    """The turn about the up axis from the fallback's placement of B to the retrieved one
+    (``turn``, modulo a whole turn) the way round that the blend of their roots went: the short
+    way, unless the roots' relative rotation went on past a half turn through the frames
+    (:func:`posturemap.core.kernels.slerp_track`; ``root_end``, its last frame's, in the frame
+    of the fallback's root).
+
+    B is placed by the blend of the two placements; turned the short way while the blended
+    root had gone round the other way, B stood ``(1 - c)`` of a whole turn off the last new
+    frame: on LaFAN1 (a walk into a stumble, the legs 0.92 confident) the hips turned 37 degrees
+    in one frame into B.
+    """
+    short = turn - TWO_PI * round(turn / TWO_PI)
+    if root_end is None:
+        return short
+    chain = eng._chain.tolist() + [eng._root]
+    g_fb = chain_world(chain, rots_fb[-1], pos_fb[-1])[0]
+    up = np.zeros(3)
+    up[eng._up] = 1.0
+    axis = quat.mul_vec(quat.inv(g_fb), up)  # the up axis in the fallback's root frame
+    went = 2.0 * np.arctan2(float(root_end[1:] @ axis), float(root_end[0]))  # (-2 pi, 2 pi]
+    return short + TWO_PI * round((went - short) / TWO_PI)
 
 
 def _meet_b_velocity(eng: TransitionEngine, tb: Track, b_start: int, out_r, out_p, c: float, turn_res: float,
