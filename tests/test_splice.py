@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -58,13 +59,15 @@ def test_splice_in_transition_mode_integrates_a_smooth_path_and_places_b_at_its_
     # Poses: SLERP by the weight, frame by frame (the same rotations; signs kept continuous).
     assert quat.angle_between(rots, quat.slerp(first.rots, second.rots, w[:, None])).max() < 1e-7
     assert np.all(np.sum(rots[1:] * rots[:-1], axis=-1)[w[1:] >= 1.0] >= 0.0)
-    # Path: the velocity is the blend of the two, so it starts as A's continuation and ends as
-    # B's arrival, with no jump anywhere.
-    vel = np.diff(np.concatenate([a_pos[None], gpos]), axis=0)
-    expect = (1 - w)[:, None] * v1 + w[:, None] * v2
-    np.testing.assert_allclose(np.delete(vel, UP, axis=1), np.delete(expect, UP, axis=1), atol=1e-12)
+    # Path: the turning rate is the blend of the two; the velocity the blend of the two, each
+    # in its own heading's frame, turned to the path's heading: it starts as A's continuation
+    # and ends as B's arrival, with no jump anywhere.
     np.testing.assert_allclose(np.diff(np.concatenate([[a_heading], heading])), (1 - w) * 0.01 + w * -0.02,
                                atol=1e-12)
+    vel = np.diff(np.concatenate([a_pos[None], gpos]), axis=0)
+    expect = (1 - w)[:, None] * rotate_about_up(np.broadcast_to(v1, (length, 3)), heading - first.heading, UP) \
+        + w[:, None] * rotate_about_up(np.broadcast_to(v2, (length, 3)), heading - second.heading, UP)
+    np.testing.assert_allclose(np.delete(vel, UP, axis=1), np.delete(expect, UP, axis=1), atol=1e-12)
     # B lies relative to the path's end as `second` put it relative to its own end, turned by
     # the difference of the end headings.
     turn = heading[-1] - second.heading[-1]
@@ -89,6 +92,41 @@ def test_splice_headings_stay_continuous_when_the_segments_drift_apart():
     _, _, heading, _, _, _ = splice(first, second, w, a_pos, 0.3, np.zeros(3), UP)
     steps = np.diff(np.concatenate([[0.3], heading]))
     np.testing.assert_allclose(steps, w * 2 * np.pi / length, atol=1e-12)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_spliced_path_goes_where_it_faces_and_arrives_at_b_as_placed(compiled):
+    # Both halves start at A's root (as replays are aligned) and walk where they face (each
+    # frame's step along its own heading), the first turning left, the second right, so the
+    # blended heading ends some 20 degrees off the second's: the spliced path must walk where
+    # its own heading faces too, and its last step must be B's arrival turned as B is placed.
+    # Blending the two steps as they lay in the world, the body went sideways into B (LaFAN1,
+    # a jump into a jog, 90 frames at 60 fps: the hips arrived at 6.7 cm a frame across B's
+    # 7.6 forward, the knee's velocity turned some 120 degrees in one frame).
+    from posturemap.core import kernels
+
+    length, forward = 30, np.array([0.0, 0.0, 1.0])
+
+    def walking(start, h0, rate, speed, dtheta):
+        heading = h0 + rate * np.arange(1, length + 1)
+        steps = rotate_about_up(np.broadcast_to(forward * speed, (length, 3)), heading, UP)
+        return SimpleNamespace(rots=np.broadcast_to(np.array([1.0, 0, 0, 0]), (length, 2, 4)).copy(),
+                               gpos=start + np.cumsum(steps, axis=0), heading=heading, dtheta=dtheta,
+                               shift=np.array([3.0, 0.0, -4.0]), contacts=np.zeros((length, 2), bool))
+
+    a_pos, a_heading = np.array([0.0, 90.0, 0.0]), 0.2
+    first = walking(a_pos, a_heading, 0.02, 4.0, 0.0)
+    second = walking(a_pos, a_heading, -0.03, 6.0, 0.4)
+    w = splice_weights(length, 1.0)  # B's arrival alone over the last half
+    assert w[-1] == 1.0
+    with contextlib.nullcontext() if compiled else kernels.numpy_backend():
+        _, gpos, heading, dtheta, shift, _ = splice(first, second, w, a_pos, a_heading, np.array([7.0, 90.0, 2.0]), UP)
+    vel = np.diff(np.concatenate([a_pos[None], gpos]), axis=0)
+    speed = (1 - w) * 4.0 + w * 6.0
+    np.testing.assert_allclose(vel, rotate_about_up(forward * speed[:, None], heading, UP), atol=1e-9)
+    turn = dtheta - second.dtheta  # B is placed turned by this from where `second` put it
+    assert abs(turn) > 0.3
+    np.testing.assert_allclose(vel[-1], rotate_about_up(second.gpos[-1] - second.gpos[-2], turn, UP), atol=1e-9)
 
 
 @pytest.mark.parametrize("alpha", [0.0, 0.5, 1.0])

@@ -944,24 +944,31 @@ def splice_rotations(a, b, w, out):
 @nb.njit(**_OPTS)
 def splice_path(g1, h1, g2, h2, turn2, w, a_pos, a_heading, up, gpos, heading):
     """The spliced root path of :func:`posturemap.synth.splice.splice` into ``gpos`` (L, 3) and
-    ``heading`` (L,): the horizontal velocity and turning rate of ``first`` (``g1``, ``h1``) and
-    of ``second`` (``g2``, ``h2 + turn2``), blended by ``w`` (L,) and integrated from A's root
-    (``a_pos``, ``a_heading``); the height blended as it is."""
+    ``heading`` (L,): the turning rates of ``first`` (``h1``) and of ``second`` (``h2 + turn2``)
+    blended by ``w`` (L,) and integrated from A's heading; their horizontal velocities (``g1``,
+    ``g2``) in their own headings' frames blended so, turned to the path's heading and
+    integrated from A's root (``a_pos``); the height blended as it is."""
     n_l = w.shape[0]
-    acc = np.zeros(3)
+    a_, b_ = (up + 1) % 3, (up + 2) % 3
+    acc_a, acc_b = 0.0, 0.0
     acc_h = 0.0
     for t in range(n_l):
         u = 1.0 - w[t]
-        for c in range(3):
-            p1 = a_pos[c] if t == 0 else g1[t - 1, c]
-            p2 = a_pos[c] if t == 0 else g2[t - 1, c]
-            acc[c] += u * (g1[t, c] - p1) + w[t] * (g2[t, c] - p2)
-            gpos[t, c] = a_pos[c] + acc[c]
-        gpos[t, up] = u * g1[t, up] + w[t] * g2[t, up]
         q1 = a_heading if t == 0 else h1[t - 1]
         q2 = a_heading if t == 0 else h2[t - 1] + turn2
         acc_h += u * (h1[t] - q1) + w[t] * ((h2[t] + turn2) - q2)
         heading[t] = a_heading + acc_h
+        d1a = g1[t, a_] - (a_pos[a_] if t == 0 else g1[t - 1, a_])
+        d1b = g1[t, b_] - (a_pos[b_] if t == 0 else g1[t - 1, b_])
+        d2a = g2[t, a_] - (a_pos[a_] if t == 0 else g2[t - 1, a_])
+        d2b = g2[t, b_] - (a_pos[b_] if t == 0 else g2[t - 1, b_])
+        c1, s1 = math.cos(heading[t] - h1[t]), math.sin(heading[t] - h1[t])
+        c2, s2 = math.cos(heading[t] - (h2[t] + turn2)), math.sin(heading[t] - (h2[t] + turn2))
+        acc_a += u * (c1 * d1a - s1 * d1b) + w[t] * (c2 * d2a - s2 * d2b)
+        acc_b += u * (s1 * d1a + c1 * d1b) + w[t] * (s2 * d2a + c2 * d2b)
+        gpos[t, a_] = a_pos[a_] + acc_a
+        gpos[t, b_] = a_pos[b_] + acc_b
+        gpos[t, up] = u * g1[t, up] + w[t] * g2[t, up]
 
 
 @nb.njit(**_OPTS)

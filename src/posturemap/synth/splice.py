@@ -12,9 +12,9 @@ motion-graph transition (Kovar, Gleicher and Pighin 2002) inside the gap, both e
   late, A's motion carries on longer; 1: it comes early, B's motion starts sooner), so alpha keeps
   its meaning, and as wide as fits in the gap around that centre (:func:`splice_blend`: the
   whole gap at alpha 0.5, half of it at 0 and 1).
-- The root's horizontal velocity and turning rate are blended and integrated from A's end, so
-  the path has no kink, and B is placed where the path arrives, as the second segment placed it
-  relative to its own end. (In in-betweening, B fixed, the engine keeps the single segment.)
+- The root's turning rate and its horizontal velocity in the heading's frame are blended and
+  integrated from A's end, so the path has no kink and the body goes where it faces, and B is
+  placed where the path arrives, as the second segment placed it relative to its own end. (In in-betweening, B fixed, the engine keeps the single segment.)
 - Planted feet come from the segment that dominates each frame.
 - Confidence per body part: the smaller of the two halves' confidences, each measured at its
   own seam. The engine uses the splice in transitions (B placed to continue A) when its legs
@@ -113,20 +113,24 @@ def splice(first, second, w: np.ndarray, a_pos: np.ndarray, a_heading: float, b_
 
 
 def splice_path(g1, h1, g2, h2, turn2: float, w: np.ndarray, a_pos: np.ndarray, a_heading: float, up: int):
-    """The spliced root path: positions (L, 3) and headings (L,). The horizontal velocity and
-    turning rate of the first segment (``g1`` (L, 3), ``h1`` (L,)) and of the second (``g2``,
-    ``h2 + turn2``) are blended by ``w`` (L,) and integrated from A's root (``a_pos``,
-    ``a_heading``), so the path has no kink; the height is blended as it is. The numpy steps of
-    :func:`splice` (its compiled call runs :func:`posturemap.synth.retrieval_numba.splice_path`)."""
+    """The spliced root path: positions (L, 3) and headings (L,). The turning rates of the first
+    segment (``h1`` (L,)) and of the second (``h2 + turn2``) are blended by ``w`` (L,) and
+    integrated from A's heading (``a_heading``); each segment's horizontal velocity (``g1``,
+    ``g2`` (L, 3)), taken in its own heading's frame, is blended so and turned to the path's
+    heading, and integrated from A's root (``a_pos``): the path has no kink, and the body goes
+    where it faces as each segment does (where the path has turned away from the second
+    segment, it arrives at B's velocity turned as B is placed). The height is blended as it is.
+    The numpy steps of :func:`splice` (its compiled call runs
+    :func:`posturemap.synth.retrieval_numba.splice_path`)."""
     w = np.asarray(w, dtype=np.float64)
     a_pos = np.asarray(a_pos, dtype=np.float64)
     h2 = h2 + turn2
-    vel = (1 - w)[:, None] * np.diff(np.concatenate([a_pos[None], g1]), axis=0) \
-        + w[:, None] * np.diff(np.concatenate([a_pos[None], g2]), axis=0)
-    gpos = a_pos + np.cumsum(vel, axis=0)
-    gpos[:, up] = (1 - w) * g1[:, up] + w * g2[:, up]
     heading = a_heading + np.cumsum((1 - w) * np.diff(np.concatenate([[a_heading], h1]))
                                     + w * np.diff(np.concatenate([[a_heading], h2])))
+    vel = (1 - w)[:, None] * rotate_about_up(np.diff(np.concatenate([a_pos[None], g1]), axis=0), heading - h1, up) \
+        + w[:, None] * rotate_about_up(np.diff(np.concatenate([a_pos[None], g2]), axis=0), heading - h2, up)
+    gpos = a_pos + np.cumsum(vel, axis=0)
+    gpos[:, up] = (1 - w) * g1[:, up] + w * g2[:, up]
     return gpos, heading
 
 
