@@ -778,6 +778,61 @@ def test_b_is_placed_the_way_round_a_blended_root_went(clips, model, compiled, m
     assert steps[-2] < 1.5 * steps[:-2].max() + 0.05, np.degrees(steps)
 
 
+@pytest.mark.parametrize("length, method", [(20, "retrieval"), (20, "auto"), (5, "auto"), (20, "damped"),
+                                            (5, "spline")])
+def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, method, monkeypatch):
+    # The interpolation under the default (retrieval's fallback, auto's spline on short gaps)
+    # made to bend the left knee 40 degrees backward in the middle of the gap, as damped did
+    # carrying a dash's knee on past straight: retrieval and auto turn it forward onto the
+    # library's bound (its knees never go past straight by more than a hair), in its plane,
+    # and change nothing else; the interpolating methods themselves are left as they are.
+    from posturemap.synth import engine as engine_module, knees, retrieval
+    from posturemap.core.joints import leg_chains
+
+    monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.0, 0.0])
+    interpolated = engine_module._interpolated
+    sk = model.skeleton_
+    thigh, shin, ankle = leg_chains(sk)[0]
+    lib = model.library_
+    (path, hinge, least), _ = knees.hinges(sk.parents, leg_chains(sk), lib.rots, sk.offsets)
+    assert np.degrees(least) > -1.0
+    made = {}
+
+    def bent_back(eng, *args, **kw):
+        rots, pos = interpolated(eng, *args, **kw)
+        rots = rots.copy()
+        t, sh, parent = knees.leg_vectors(rots, pos, path)
+        bend = knees.signed_bends(t, sh, hinge)
+        mid = slice(len(rots) // 3, 2 * len(rots) // 3 + 1)
+        # About the hinge (in the shin's parent's frame), back to 40 degrees past straight.
+        axis = quat.mul_vec(quat.inv(parent[mid]), np.broadcast_to(hinge, (len(bend[mid]), 3)))
+        rots[mid, shin] = quat.mul(quat.from_axis_angle(axis, bend[mid] + np.radians(40.0)), rots[mid, shin])
+        made["rots"], made["pos"] = rots.copy(), pos.copy()
+        return rots, pos
+
+    monkeypatch.setattr(engine_module, "_interpolated", bent_back)
+    for m in ("damped", "spline"):
+        monkeypatch.setitem(engine_module._RUN, m, bent_back)
+    engine = TransitionEngine(model)
+    engine.add("walk", clips[WALK])
+    r, p = engine.generate("walk", "walk", length=length, a_end=40, b_start=40 + length + 12, method=method,
+                           foot_lock=False)
+    t, sh, _ = knees.leg_vectors(made["rots"], made["pos"], path)
+    made_bend = knees.signed_bends(t, sh, hinge)
+    assert made_bend.min() < np.radians(-35.0)  # the knee was bent backward
+    t, sh, _ = knees.leg_vectors(r, p, path)
+    bend = knees.signed_bends(t, sh, hinge)
+    back = made_bend < least
+    if method in ("damped", "spline"):
+        np.testing.assert_array_equal(r, made["rots"])
+        return
+    np.testing.assert_allclose(bend[back], least, atol=1e-7)
+    np.testing.assert_array_equal(bend[~back], made_bend[~back])
+    others = np.ones(sk.num_joints, dtype=bool)
+    others[shin] = False
+    np.testing.assert_array_equal(r[:, others], made["rots"][:, others])
+
+
 def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):
     # A conversion node (a quarter turn about X, off the origin) above the moving joint_Root: the
     # node stays where it is, and joint_Root and the body go where they go without it.

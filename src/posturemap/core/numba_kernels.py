@@ -498,6 +498,47 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 
 
 @nb.njit(**_OPTS)
+def unbend_knees(rots, positions, joints, bounds, hinges, leasts):
+    """:func:`posturemap.synth.knees.unbend` (the reference) in place: each leg of ``bounds``
+    (K, 3; its joints in ``joints``, the shin ``joints[mid - 1]``) whose knee bends further back
+    than ``leasts[k]`` (a signed bend against ``hinges[k]``, in the thigh's frame) turned
+    forward in its plane onto it; returns how many knees it turned."""
+    turned = 0
+    for k in range(bounds.shape[0]):
+        first, mid, last = bounds[k, 0], bounds[k, 1], bounds[k, 2]
+        shin = joints[mid - 1]
+        hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
+        for f in range(rots.shape[0]):
+            q = (1.0, 0.0, 0.0, 0.0)
+            parent = q
+            px, py, pz = 0.0, 0.0, 0.0
+            tx, ty, tz = 0.0, 0.0, 0.0
+            for i in range(first, last):
+                j = joints[i]
+                ox, oy, oz = _rotate(q[0], q[1], q[2], q[3], positions[f, j, 0], positions[f, j, 1], positions[f, j, 2])
+                px, py, pz = px + ox, py + oy, pz + oz
+                if i < mid:
+                    parent = q
+                q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
+                if i == mid - 1:
+                    tx, ty, tz = px, py, pz
+            sx, sy, sz = px - tx, py - ty, pz - tz
+            size = max(math.sqrt(tx * tx + ty * ty + tz * tz) * math.sqrt(sx * sx + sy * sy + sz * sz), 1e-300)
+            bend = math.acos(min(max((tx * sx + ty * sy + tz * sz) / size, -1.0), 1.0))
+            nx, ny, nz = sy * tz - sz * ty, sz * tx - sx * tz, sx * ty - sy * tx
+            if nx * hx + ny * hy + nz * hz < 0.0:
+                bend = -bend
+            if bend >= leasts[k]:
+                continue
+            nx, ny, nz = _unit(nx, ny, nz)
+            r = _axis_angle_in(parent, nx, ny, nz, leasts[k] - bend)
+            rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
+                r[0], r[1], r[2], r[3], rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
+            turned += 1
+    return turned
+
+
+@nb.njit(**_OPTS)
 def _knee_hinge(grot, gpos, thigh, shin, ankle, moves):
     """The leg's hinge in the thigh's frame (unit; 0 where the legs are straight): the knee's
     plane normals of the frames the lock moves (``moves`` (L,) bool) summed there, as

@@ -1,0 +1,147 @@
+"""Knees bend one way (posturemap.synth.knees)."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+
+from posturemap.core import quat
+from posturemap.core.skeleton import fk
+from posturemap.core import kernels
+from posturemap.synth.knees import hinges, leg_vectors, packed, signed_bends, unbend
+
+X = np.array([1.0, 0.0, 0.0])
+
+
+def leg(flex: np.ndarray, twist: bool = False, rng=None):
+    """Local rotations and translations (N, J, 3/4) of a leg hanging along -Y from a hip with a
+    small random turn: the knee bent ``flex`` radians about X (positive: the shin back under
+    the hip, as a knee bends; negative: backward), with a twist joint inside the thigh (turned
+    about the thigh's own axis) when ``twist``."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    n = len(flex)
+    if twist:  # hip > twist > knee > ankle > toe
+        parents = np.array([-1, 0, 1, 2, 3])
+        offsets = [[0.0, 0.0, 0.0], [0.0, -0.5, 0.0], [0.0, -0.5, 0.0], [0.0, -1.0, 0.0], [0.0, -0.1, 0.2]]
+    else:  # hip > knee > ankle > toe
+        parents = np.array([-1, 0, 1, 2])
+        offsets = [[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0], [0.0, -0.1, 0.2]]
+    j = len(parents)
+    rots = np.tile(quat.identity(), (n, j, 1))
+    rots[:, 0] = quat.exp(rng.normal(scale=0.2, size=(n, 3)))  # the hip (thigh) turned anyhow
+    if twist:
+        rots[:, 1] = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), rng.normal(scale=0.5, size=n))
+        rots[:, 2] = quat.from_axis_angle(X, flex)
+        chain = (0, 2, 3)
+    else:
+        rots[:, 1] = quat.from_axis_angle(X, flex)
+        chain = (0, 1, 2)
+    pos = np.broadcast_to(np.array(offsets), (n, j, 3)).copy()
+    return parents, chain, rots, pos
+
+
+def bends_of(parents, chain, rots, pos):
+    """The knee's bend (radians, unsigned) from the joints' global positions."""
+    _, gp = fk(parents, rots, pos)
+    t, s = gp[:, chain[1]] - gp[:, chain[0]], gp[:, chain[2]] - gp[:, chain[1]]
+    return np.arccos(np.clip(np.sum(t * s, -1) / np.linalg.norm(t, axis=-1) / np.linalg.norm(s, axis=-1), -1, 1))
+
+
+@pytest.mark.parametrize("twist", [False, True])
+def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twist):
+    rng = np.random.default_rng(1)
+    flex = np.radians(rng.uniform(0.0, 90.0, 400))
+    flex[:3] = np.radians([-2.0, -1.0, -0.5])  # the library's few knees a hair past straight
+    parents, chain, rots, pos = leg(flex, twist, rng)
+    (path, hinge, least), = hinges(parents, [chain], rots, pos[0])
+    t, s, _ = leg_vectors(rots, pos, path)
+    signed = signed_bends(t, s, hinge)
+    np.testing.assert_allclose(np.abs(signed), bends_of(parents, chain, rots, pos), atol=1e-9)
+    np.testing.assert_allclose(signed, flex, atol=1e-9)  # forward positive, backward negative
+    assert least == pytest.approx(np.percentile(flex, 0.1))
+    assert np.radians(-2.0) < least < np.radians(-0.5)
+    # A library whose knees never bend has no hinge to tell them apart: no bound.
+    parents, chain, rots, pos = leg(np.zeros(50), twist, rng)
+    assert hinges(parents, [chain], rots, pos[0]) == [None]
+
+
+def backend(compiled: bool):
+    """The compiled kernels (from here on in this process) or numpy's, for the block."""
+    if compiled:
+        kernels.compiled()
+        return contextlib.nullcontext()
+    return kernels.numpy_backend()
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("twist", [False, True])
+def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(twist, compiled):
+    rng = np.random.default_rng(2)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
+    knees = hinges(parents, [chain], lib_rots, lib_pos[0])
+    (path, hinge, least), = knees
+    assert least == 0.0
+    flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
+    parents, chain, rots, pos = leg(flex, twist, rng)
+    before = rots.copy()
+    _, gp0 = fk(parents, rots, pos)
+    with backend(compiled):
+        assert unbend(packed(knees), rots, pos) == 4  # the four bent backward
+    back = flex < 0.0
+    np.testing.assert_array_equal(rots[~back], before[~back])  # the others exactly as they were
+    shin = chain[1]
+    changed = np.flatnonzero(np.any(rots != before, axis=-1).any(axis=0))
+    assert list(changed) == [shin]  # only the shin turns
+    t, s, _ = leg_vectors(rots, pos, path)
+    np.testing.assert_allclose(signed_bends(t, s, hinge)[back], 0.0, atol=1e-7)  # straight: the bound
+    _, gp = fk(parents, rots, pos)
+    # In its own plane: the ankle stays in the plane of hip, knee and the old ankle.
+    hip, knee = gp0[back, chain[0]], gp0[back, chain[1]]
+    normal = np.cross(gp0[back, chain[2]] - hip, knee - hip)
+    np.testing.assert_allclose(np.sum((gp[back, chain[2]] - hip) * normal, axis=-1), 0.0, atol=1e-9)
+    np.testing.assert_allclose(gp[back, chain[1]], knee, atol=1e-12)  # the thigh as it was
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_unbend_holds_a_knee_to_the_librarys_own_bound_and_skips_legs_without_a_hinge(compiled):
+    rng = np.random.default_rng(3)
+    flex = np.radians(rng.uniform(0.0, 80.0, 1000))
+    flex[:5] = np.radians(-4.0)  # the library's knees go 4 degrees past straight at most
+    parents, chain, lib_rots, lib_pos = leg(flex, rng=rng)
+    knees = hinges(parents, [chain], lib_rots, lib_pos[0])
+    least = knees[0][2]
+    assert least == pytest.approx(np.radians(-4.0))
+    parents, chain, rots, pos = leg(np.radians([-3.0, -20.0]), rng=rng)
+    with backend(compiled):
+        assert unbend(packed(knees), rots, pos) == 1
+    t, s, _ = leg_vectors(rots, pos, knees[0][0])
+    np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), np.radians([-3.0, -4.0]), atol=1e-7)
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(packed([None]), rots, pos) == 0
+    np.testing.assert_array_equal(rots, before)
+
+
+@pytest.mark.parametrize("twist", [False, True])
+def test_unbend_is_the_same_compiled(twist):
+    # Two legs (the same one twice, the second with another bound): the compiled kernel turns
+    # the same knees by the same rotations as the numpy reference.
+    rng = np.random.default_rng(4)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
+    (path, hinge, least), = hinges(parents, [chain], lib_rots, lib_pos[0])
+    limits = packed([(path, hinge, least), None, (path, hinge, np.radians(-10.0))])
+    parents, chain, rots, pos = leg(np.radians(rng.uniform(-60.0, 60.0, 40)), twist, rng)
+    pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
+    outs = []
+    for compiled in (False, True):
+        r = rots.copy()
+        if compiled:
+            n = kernels.compiled().unbend_knees(r, pos, *limits)
+        else:
+            with kernels.numpy_backend():
+                n = unbend(limits, r, pos)
+        outs.append((n, r))
+    assert outs[0][0] == outs[1][0] > 0
+    np.testing.assert_allclose(outs[1][1], outs[0][1], rtol=0, atol=1e-12)
