@@ -454,7 +454,7 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips, monkeypatch):
     fb_r, fb_p = bows.generate("run", "run", method="damped", **kw)
     assert fb_r is not rots
     fb_r, fb_p = fb_r.copy(), fb_p.copy()
-    engine_module._unbend_knees(bows, bows.tracks["run"], bows.tracks["run"], fb_r, fb_p)  # as assert_the_fallback
+    engine_module._unbend_limbs(bows, bows.tracks["run"], bows.tracks["run"], fb_r, fb_p)  # as assert_the_fallback
     assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
 
@@ -468,7 +468,7 @@ def assert_the_fallback(eng, name, rots, pos, kw):
 
     assert retrieval.fallback_method(kw["length"], 30.0) == "damped"
     fb_r, fb_p = (x.copy() for x in eng.generate(name, name, **{**kw, "method": "damped"}))
-    engine_module._unbend_knees(eng, eng.tracks[name], eng.tracks[name], fb_r, fb_p)
+    engine_module._unbend_limbs(eng, eng.tracks[name], eng.tracks[name], fb_r, fb_p)
     root, others = eng._root, np.arange(eng.skeleton.num_joints) != eng._root
     assert np.array_equal(rots, fb_r) and np.array_equal(pos[:, others], fb_p[:, others])
     track = eng.tracks[name]

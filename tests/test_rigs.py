@@ -236,6 +236,26 @@ def test_the_upper_bodys_top_is_the_spine_not_a_hip_joint(cmu_file, sample_clips
     assert upper[sk.index("LHipJoint")] and upper[sk.index("RHipJoint")]
 
 
+def test_arm_chains_find_upper_arm_forearm_and_hand_past_twist_joints(cmu_file, sample_clips):
+    # The elbows held to how far back the library's go (synth.hinges) need each arm's chain.
+    from posturemap.core.joints import arm_chains
+
+    def chains(sk):
+        return [tuple(sk.names[j] for j in c) for c in arm_chains(sk)]
+
+    assert chains(bvh.read(cmu_file).skeleton) == [("LeftArm", "LeftForeArm", "LeftHand"),
+                                                   ("RightArm", "RightForeArm", "RightHand")]
+    assert chains(sample_clips["walk"].skeleton) == [("UpperArm_L", "LowerArm_L", "Hand_L"),
+                                                     ("UpperArm_R", "LowerArm_R", "Hand_R")]
+    # SMPL names the wrist and a hand below it: the wrist ends the arm.
+    legs = ("L_Hip", "L_Knee", "L_Ankle"), ("R_Hip", "R_Knee", "R_Ankle")
+    sk = two_legs(*legs, upper=("Spine", "L_Shoulder", "L_Elbow", "L_Wrist", "L_Hand"))
+    assert chains(sk) == [("L_Shoulder", "L_Elbow", "L_Wrist")]
+    # A roll joint inside the forearm is passed through.
+    sk = two_legs(*legs, upper=("Spine", "LeftArm", "LeftForeArm", "LeftForeArmRoll", "LeftHand", "LeftHandIndex1"))
+    assert chains(sk) == [("LeftArm", "LeftForeArm", "LeftHand")]
+
+
 def test_a_rig_whose_offsets_are_all_zero_still_makes_finite_transitions(sample_clips):
     # Every joint at the root's place (offsets zeroed: a rig exported without its rest pose):
     # speeds and distances divided by the legs' length divided by zero (a traceback, or NaN

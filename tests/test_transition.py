@@ -786,7 +786,7 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     # carrying a dash's knee on past straight: retrieval and auto turn it forward onto the
     # library's bound (its knees never go past straight by more than a hair), in its plane,
     # and change nothing else; the interpolating methods themselves are left as they are.
-    from posturemap.synth import engine as engine_module, knees, retrieval
+    from posturemap.synth import engine as engine_module, hinges, retrieval
     from posturemap.core.joints import leg_chains
 
     monkeypatch.setattr(retrieval, "confidences", lambda *a, **k: [0.0, 0.0])
@@ -794,15 +794,15 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     sk = model.skeleton_
     thigh, shin, ankle = leg_chains(sk)[0]
     lib = model.library_
-    (path, hinge, least), _ = knees.hinges(sk.parents, leg_chains(sk), lib.rots, sk.offsets)
+    (path, hinge, least), _ = hinges.find(sk.parents, leg_chains(sk), lib.rots, sk.offsets)
     assert np.degrees(least) > -1.0
     made = {}
 
     def bent_back(eng, *args, **kw):
         rots, pos = interpolated(eng, *args, **kw)
         rots = rots.copy()
-        t, sh, parent = knees.leg_vectors(rots, pos, path)
-        bend = knees.signed_bends(t, sh, hinge)
+        t, sh, parent = hinges.leg_vectors(rots, pos, path)
+        bend = hinges.signed_bends(t, sh, hinge)
         mid = slice(len(rots) // 3, 2 * len(rots) // 3 + 1)
         # About the hinge (in the shin's parent's frame), back to 40 degrees past straight.
         axis = quat.mul_vec(quat.inv(parent[mid]), np.broadcast_to(hinge, (len(bend[mid]), 3)))
@@ -817,11 +817,11 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     engine.add("walk", clips[WALK])
     r, p = engine.generate("walk", "walk", length=length, a_end=40, b_start=40 + length + 12, method=method,
                            foot_lock=False)
-    t, sh, _ = knees.leg_vectors(made["rots"], made["pos"], path)
-    made_bend = knees.signed_bends(t, sh, hinge)
+    t, sh, _ = hinges.leg_vectors(made["rots"], made["pos"], path)
+    made_bend = hinges.signed_bends(t, sh, hinge)
     assert made_bend.min() < np.radians(-35.0)  # the knee was bent backward
-    t, sh, _ = knees.leg_vectors(r, p, path)
-    bend = knees.signed_bends(t, sh, hinge)
+    t, sh, _ = hinges.leg_vectors(r, p, path)
+    bend = hinges.signed_bends(t, sh, hinge)
     back = made_bend < least
     if method in ("damped", "spline"):
         np.testing.assert_array_equal(r, made["rots"])

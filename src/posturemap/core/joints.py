@@ -237,6 +237,33 @@ def named_hands_and_head(sk: Skeleton) -> tuple[list[int], list[int]]:
             [j for j, n in enumerate(names) if _HEAD.search(n) and not _NOT_HAND.search(n)])
 
 
+def arm_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
+    """(upper arm, forearm, hand) joint indices of each arm: a joint named like a hand or wrist
+    (:func:`named_hands_and_head`; the top one where a wrist holds a hand) whose parent and
+    grandparent, past twist and roll joints, are the forearm and the upper arm."""
+    parents, n = sk.parents, sk.num_joints
+    hands, _ = named_hands_and_head(sk)
+    is_hand = np.zeros(n, dtype=bool)
+    is_hand[hands] = True
+    twist = [bool(_TWIST.search(short_name(x))) for x in sk.names]
+    up = np.full(n, -1, dtype=np.int64)  # each joint's parent in a limb's chain: past twist and roll joints
+    below_hand = np.zeros(n, dtype=bool)
+    for k in range(n):  # parents come first
+        p = int(parents[k])
+        if p >= 0:
+            up[k] = up[p] if twist[p] else p
+            below_hand[k] = below_hand[p] or is_hand[p]
+    out = []
+    for hand in hands:
+        if below_hand[hand]:
+            continue
+        forearm = int(up[hand])
+        upper = int(up[forearm]) if forearm >= 0 else -1
+        if upper >= 0 and parents[upper] >= 0 and not is_hand[forearm]:
+            out.append((upper, forearm, hand))
+    return out
+
+
 def head_below(parents: np.ndarray, hand_a: int, hand_b: int, excluded: np.ndarray) -> int:
     """The head of a rig that names its hands but not its head: from the joint where the two
     hands' arms meet (their deepest common ancestor, the chest), down its child with the most

@@ -498,8 +498,8 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 
 
 @nb.njit(**_OPTS)
-def unbend_knees(rots, positions, joints, bounds, hinges, leasts):
-    """:func:`posturemap.synth.knees.unbend` (the reference) in place: each leg of ``bounds``
+def unbend_limbs(rots, positions, joints, bounds, hinges, leasts):
+    """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
     (K, 3; its joints in ``joints``, the shin ``joints[mid - 1]``) whose knee bends further back
     than ``leasts[k]`` (a signed bend against ``hinges[k]``, in the thigh's frame) turned
     forward in its plane onto it; returns how many knees it turned."""

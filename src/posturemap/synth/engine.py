@@ -64,7 +64,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..core import kernels, quat
-from ..core.joints import ancestors, leg_chains, leg_length, leg_toes
+from ..core.joints import ancestors, arm_chains, leg_chains, leg_length, leg_toes
 from ..core.skeleton import chain_world
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
@@ -72,7 +72,7 @@ from ..learn.features import TWO_PI, root_global, upright_rest
 from .bases import (DAMPED_GAP_SHARE, DAMPED_PEAK, DAMPED_REACH_SHARE, DAMPED_SAMPLES, DAMPED_STEP_S, DAMPED_TAU_MAX_S,
                     DAMPED_TAU_S, VELOCITY_HORIZON_S, damped_frames, damped_reach, damped_time_scales, hermite_basis,
                     inertialize_basis, key_spline_basis, keys_spline_basis, linear_basis, reach_parts)
-from . import knees, retrieval
+from . import hinges, retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
 from .periodic import PERIODIC_MIN_SAMPLES, continued
@@ -116,7 +116,7 @@ class TransitionEngine:
         self._rest = None
         self._legs = []
         self._retriever = None
-        self._knee_least: dict[int, tuple] = {}  # id(track) -> (track, how far back its knees go per leg)
+        self._limb_least: dict[int, tuple] = {}  # id(track) -> (track, how far back each knee and elbow goes)
         self.keys = None
         if model is not None:
             space = model.space_
@@ -363,38 +363,39 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
     method = "spline" if (req.length + 1) / ta.motion.fps < AUTO_SHORT_S else "retrieval"
     if method == "retrieval":
         out = _retrieval(eng, ta, tb, a, b, req.replace(method=method))
-    else:  # the spline, its knees held as retrieval's are (before the foot lock)
+    else:  # the spline, its knees and elbows held as retrieval's are (before the foot lock)
         out = _interpolated(eng, ta, tb, a, b, req.replace(method=method, foot_lock=False))
-        _unbend_knees(eng, ta, tb, *out)
+        _unbend_limbs(eng, ta, tb, *out)
         if req.foot_lock and eng._legs:
             eng.last["planted"] = eng._lock_feet(ta, tb, req, *out, eng.last["dtheta"], eng.last["shift"])
     eng.last["method"] = method
     return out
 
 
-def _unbend_knees(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray) -> None:
-    """No knee of the new frames bent further back than the motion library's knees go, nor than
-    A's and B's own (:mod:`posturemap.synth.knees`; the legs' hinges found once per library,
-    each clip's furthest back once per clip). Without a library, the frames stay as they are.
+def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray) -> None:
+    """No knee or elbow of the new frames bent further back than the motion library's go, nor
+    than A's and B's own (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per
+    library, each clip's furthest back once per clip). Without a library, the frames stay as
+    they are.
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
     library's hinge, and their bound is as far back as they go."""
     lib = getattr(eng.model, "library_", None)
-    if lib is None or not len(lib) or not eng._legs:
+    if lib is None or not len(lib):
         return
     sk = eng.skeleton
-    joints, bounds, hinge, least = lib.derived(
-        "knees", lambda: knees.packed(knees.hinges(sk.parents, leg_chains(sk), lib.rots, sk.offsets)))
+    joints, bounds, hinge, least = lib.derived("hinges", lambda: hinges.packed(hinges.find(
+        sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets)))
     if not len(least):
         return
     for track in (ta, tb):
-        own = eng._knee_least.get(id(track))
+        own = eng._limb_least.get(id(track))
         if own is None or own[0] is not track:
-            own = track, knees.least_bends((joints, bounds, hinge), track.motion.rotations, track.motion.positions)
-            eng._knee_least[id(track)] = own
+            own = track, hinges.least_bends((joints, bounds, hinge), track.motion.rotations, track.motion.positions)
+            eng._limb_least[id(track)] = own
         least = np.minimum(least, own[1])
-    knees.unbend((joints, bounds, hinge, least), out_r, out_p)
+    hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
 
 
 def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,
@@ -807,7 +808,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         head = eng._retriever.head_chain
         if not align and fb_last is not None and res.confidence[1] > 0.0 and len(head) > 1:
             kernels.turn_toward(head, out_r, rots_fb, retrieval.HEAD_GAZE)
-    _unbend_knees(eng, ta, tb, out_r, out_p)
+    _unbend_limbs(eng, ta, tb, out_r, out_p)
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p

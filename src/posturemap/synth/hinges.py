@@ -1,4 +1,4 @@
-"""Knees bend one way: no new frame bends a knee backward past what the motion library's do.
+"""Knees and elbows bend one way: no new frame bends one backward past what the motion library's do.
 
 Interpolation and extrapolation work on each joint's rotation alone and know nothing of a
 knee's hinge, and retrieval's seam offsets add a rotation to a knee whatever its bend: where A's
@@ -10,13 +10,16 @@ degrees backward; in in-betweening over held-out styles at 1.5 s, 7 of 100 rando
 a knee more than 5 degrees backward (up to 16), and the foot lock, which bends the knee in its
 plane, bent one further back and then swung it round through 138 degrees in a frame as the
 motion's passed straight. Bandai's 26,000 training frames bend no knee backward by more than
-0.3 degrees; LaFAN1's by none.
+0.3 degrees; LaFAN1's by none. Elbows less often: one window of 100 in each of those, one
+elbow 28 degrees backward (the library's elbows: 2.4 degrees at most).
 
-The library's knees give each leg its hinge (:func:`hinges`: the knee's bending planes' normals
-summed in the thigh's frame, the bent frames weighing the most) and how far back its knees go
-(the 0.1st percentile of their signed bends, 0 at most). :func:`unbend` turns each knee of the
-new frames that goes further back, in its own plane, to that bound: a knee locks straight, as a
-real one does; frames within the library's range are left exactly as they are. The engine does
+The library gives each leg and arm its hinge (:func:`find`: the knee's or elbow's bending
+planes' normals summed in the thigh's or upper arm's frame, the bent frames weighing the most)
+and how far back it goes (the 0.1st percentile of the signed bends, 0 at most). :func:`unbend`
+turns each knee and elbow of the new frames that goes further back, in its own plane, to that
+bound: it locks straight, as a real one does; frames within the library's range are left
+exactly as they are. Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm,
+forearm and elbow too. The engine does
 this to ``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`); the interpolating methods, the
 baselines, stay as they are.
@@ -72,7 +75,7 @@ def signed_bends(thigh: np.ndarray, shin: np.ndarray, hinge: np.ndarray) -> np.n
     return np.where(np.cross(shin, thigh) @ hinge < 0.0, -bend, bend)
 
 
-def hinges(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
+def find(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
     """Per leg of ``chains`` ((thigh, shin, ankle) each): ``(path, hinge (3,), least)``, the
     leg's joints (:func:`leg_path`), its hinge in the thigh's frame (unit) and the furthest back
     its knee goes in ``rots`` (N, J, 4; a signed bend in radians, 0 at most: the
@@ -94,7 +97,7 @@ def hinges(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
 
 
 def packed(knees: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`hinges`' legs that have a hinge as arrays for :func:`unbend`: ``joints`` (every
+    """:func:`find`' legs that have a hinge as arrays for :func:`unbend`: ``joints`` (every
     leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 3) each leg's
     ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``), ``hinge``
     (K, 3) and ``least`` (K,)."""
@@ -123,13 +126,13 @@ def least_bends(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndar
 
 def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     """Each knee of the frames ``rots`` (N, J, 4; local translations ``positions`` (N, J, 3))
-    bent further back than its leg's bound (``limits``: :func:`packed` of :func:`hinges`)
+    bent further back than its leg's bound (``limits``: :func:`packed` of :func:`find`)
     turned forward, in its own plane, onto the bound: the shin's local rotation turned about
     the plane's normal. In place; returns how many knees (frames times legs) it turned. Where
-    this process uses numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_knees`)."""
+    this process uses numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
-        return int(kernels.compiled().unbend_knees(rots, positions, joints, bounds, hinge_rows, leasts))
+        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts))
     turned = 0
     for (first, mid, last), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())

@@ -1,4 +1,4 @@
-"""Knees bend one way (posturemap.synth.knees)."""
+"""Knees and elbows bend one way (posturemap.synth.hinges)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from posturemap.core import quat
 from posturemap.core.skeleton import fk
 from posturemap.core import kernels
-from posturemap.synth.knees import hinges, leg_vectors, packed, signed_bends, unbend
+from posturemap.synth.hinges import find, leg_vectors, packed, signed_bends, unbend
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -55,7 +55,7 @@ def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twi
     flex = np.radians(rng.uniform(0.0, 90.0, 400))
     flex[:3] = np.radians([-2.0, -1.0, -0.5])  # the library's few knees a hair past straight
     parents, chain, rots, pos = leg(flex, twist, rng)
-    (path, hinge, least), = hinges(parents, [chain], rots, pos[0])
+    (path, hinge, least), = find(parents, [chain], rots, pos[0])
     t, s, _ = leg_vectors(rots, pos, path)
     signed = signed_bends(t, s, hinge)
     np.testing.assert_allclose(np.abs(signed), bends_of(parents, chain, rots, pos), atol=1e-9)
@@ -64,7 +64,7 @@ def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twi
     assert np.radians(-2.0) < least < np.radians(-0.5)
     # A library whose knees never bend has no hinge to tell them apart: no bound.
     parents, chain, rots, pos = leg(np.zeros(50), twist, rng)
-    assert hinges(parents, [chain], rots, pos[0]) == [None]
+    assert find(parents, [chain], rots, pos[0]) == [None]
 
 
 def backend(compiled: bool):
@@ -80,7 +80,7 @@ def backend(compiled: bool):
 def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(twist, compiled):
     rng = np.random.default_rng(2)
     parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
-    knees = hinges(parents, [chain], lib_rots, lib_pos[0])
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
     (path, hinge, least), = knees
     assert least == 0.0
     flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
@@ -110,7 +110,7 @@ def test_unbend_holds_a_knee_to_the_librarys_own_bound_and_skips_legs_without_a_
     flex = np.radians(rng.uniform(0.0, 80.0, 1000))
     flex[:5] = np.radians(-4.0)  # the library's knees go 4 degrees past straight at most
     parents, chain, lib_rots, lib_pos = leg(flex, rng=rng)
-    knees = hinges(parents, [chain], lib_rots, lib_pos[0])
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
     least = knees[0][2]
     assert least == pytest.approx(np.radians(-4.0))
     parents, chain, rots, pos = leg(np.radians([-3.0, -20.0]), rng=rng)
@@ -130,7 +130,7 @@ def test_unbend_is_the_same_compiled(twist):
     # the same knees by the same rotations as the numpy reference.
     rng = np.random.default_rng(4)
     parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
-    (path, hinge, least), = hinges(parents, [chain], lib_rots, lib_pos[0])
+    (path, hinge, least), = find(parents, [chain], lib_rots, lib_pos[0])
     limits = packed([(path, hinge, least), None, (path, hinge, np.radians(-10.0))])
     parents, chain, rots, pos = leg(np.radians(rng.uniform(-60.0, 60.0, 40)), twist, rng)
     pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
@@ -138,7 +138,7 @@ def test_unbend_is_the_same_compiled(twist):
     for compiled in (False, True):
         r = rots.copy()
         if compiled:
-            n = kernels.compiled().unbend_knees(r, pos, *limits)
+            n = kernels.compiled().unbend_limbs(r, pos, *limits)
         else:
             with kernels.numpy_backend():
                 n = unbend(limits, r, pos)
