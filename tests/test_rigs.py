@@ -247,6 +247,9 @@ def test_arm_chains_find_upper_arm_forearm_and_hand_past_twist_joints(cmu_file, 
                                                    ("RightArm", "RightForeArm", "RightHand")]
     assert chains(sample_clips["walk"].skeleton) == [("UpperArm_L", "LowerArm_L", "Hand_L"),
                                                      ("UpperArm_R", "LowerArm_R", "Hand_R")]
+    # Not a game rig's IK targets beside the body (ik_hand_root > ik_hand_gun > ik_hand_l).
+    assert chains(with_ik_targets(sample_clips["walk"]).skeleton) == [("UpperArm_L", "LowerArm_L", "Hand_L"),
+                                                                      ("UpperArm_R", "LowerArm_R", "Hand_R")]
     # SMPL names the wrist and a hand below it: the wrist ends the arm.
     legs = ("L_Hip", "L_Knee", "L_Ankle"), ("R_Hip", "R_Knee", "R_Ankle")
     sk = two_legs(*legs, upper=("Spine", "L_Shoulder", "L_Elbow", "L_Wrist", "L_Hand"))

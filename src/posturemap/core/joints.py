@@ -239,10 +239,14 @@ def named_hands_and_head(sk: Skeleton) -> tuple[list[int], list[int]]:
 
 def arm_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     """(upper arm, forearm, hand) joint indices of each arm: a joint named like a hand or wrist
-    (:func:`named_hands_and_head`; the top one where a wrist holds a hand) whose parent and
+    (:func:`named_hands_and_head`; the top one where a wrist holds a hand), among the body's
+    joints (as :func:`key_joints`: not a game rig's IK targets beside it), whose parent and
     grandparent, past twist and roll joints, are the forearm and the upper arm."""
+    from .motion import root_index
+
     parents, n = sk.parents, sk.num_joints
-    hands, _ = named_hands_and_head(sk)
+    body = subtree_mask(parents, root_index(sk))
+    hands = [j for j in named_hands_and_head(sk)[0] if body[j]]
     is_hand = np.zeros(n, dtype=bool)
     is_hand[hands] = True
     twist = [bool(_TWIST.search(short_name(x))) for x in sk.names]
@@ -259,7 +263,7 @@ def arm_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
             continue
         forearm = int(up[hand])
         upper = int(up[forearm]) if forearm >= 0 else -1
-        if upper >= 0 and parents[upper] >= 0 and not is_hand[forearm]:
+        if upper >= 0 and parents[upper] >= 0 and body[upper] and not is_hand[forearm]:
             out.append((upper, forearm, hand))
     return out
 
