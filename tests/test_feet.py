@@ -1388,11 +1388,15 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     assert np.all(gpos0[mid, toes[0], up] - floor < 0.2 * TOE_CLEAR * body)  # not clear before
     assert np.all(gpos0[:, toes[1], up] - floor > TOE_CLEAR * body)
     assert np.all(gpos1[mid, toes[0], up] - floor >= TOE_CLEAR * body * u * (1 - 1e-6))
-    # The ankle rose as the toe did (the foot's global orientation kept), horizontally unmoved.
+    # The ankle rose as the toe did (the foot's global orientation kept), horizontally unmoved
+    # but in the first two frames: there the lift, fading in from A's frame, would bend the
+    # straight knee faster than KNEE_ACCEL from rest, and knee_bounded keeps the ankle a little
+    # nearer the hip along its line (1.5 mm, nearly straight down).
     ankle = chains[0][2]
     np.testing.assert_allclose(gpos1[:, toes[0]] - gpos1[:, ankle], gpos0[:, toes[0]] - gpos0[:, ankle], atol=1e-6)
     horizontal = np.arange(3) != up
-    np.testing.assert_allclose(gpos1[:, ankle][:, horizontal], gpos0[:, ankle][:, horizontal], atol=1e-6)
+    np.testing.assert_allclose(gpos1[2:, ankle][:, horizontal], gpos0[2:, ankle][:, horizontal], atol=1e-6)
+    np.testing.assert_allclose(gpos1[:2, ankle][:, horizontal], gpos0[:2, ankle][:, horizontal], atol=0.003 * body)
     # Only the left leg moved (the right toe is high already).
     moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
     assert set(np.flatnonzero(moved)) == set(chains[0])
@@ -1603,6 +1607,22 @@ def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
     slow, none = feet.knee_bounded(goal, a, b, c, 0.0, 10.0)
     assert not none.any()
     np.testing.assert_array_equal(slow, goal)
+
+
+def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
+    # The lift from the first new frame on: A's frames beside it have no change, so the first
+    # frame's change is A's last frame's second difference, and it too stays within the bound
+    # (unbounded there, the knee bent 17 degrees from rest in one frame).
+    fps = 30.0
+    accel = feet.KNEE_ACCEL / fps**2
+    goal, a, b, c = straight_leg_lifted(lift_at=0)
+    assert bends(goal, a, b, c)[0] > 2 * accel
+    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
+    after = np.concatenate([[0.0, 0.0], bends(out, a, b, c)])  # A's last two frames, then the new ones
+    # (Within 2 %: the first frame held at the bound, its neighbour's own second difference within
+    # it, the sweeps move neither further.)
+    assert bent[0] and abs(after[2]) <= accel * (1 + 1e-9) and np.abs(np.diff(after, 2)[:-1]).max() <= accel * 1.03
+    assert after[2 + 12] > 0.99 * bends(goal, a, b, c)[12]  # the lift itself reached a few frames on
 
 
 def test_knee_bounded_applies_the_iks_soft_reach():

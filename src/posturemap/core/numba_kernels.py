@@ -598,7 +598,9 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
     inner = change[0, 1: n_l + 1].copy()
     step = np.empty(n_l)
     for _ in range(passes):
-        over = False
+        # The first new frame's change within accel too (A's last frame's second difference:
+        # feet.knee_bounded).
+        over = abs(change[0, 1]) - accel > accel * 1e-4
         for t in range(n_l):
             second = change[0, t] - 2.0 * change[0, t + 1] + change[0, t + 2]
             excess = abs(second) - accel
@@ -608,6 +610,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
             break
         for t in range(n_l):
             change[0, t + 1] += step[t]
+        change[0, 1] = min(max(change[0, 1], -accel), accel)
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
