@@ -708,7 +708,48 @@ def _pass_gap(offset, p, q, n_l):
 
 
 @nb.njit(**_OPTS)
-def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least):
+def _pass_second(wa, wb, rpa, rpb, rqa, rqb, span, window, s, side):
+    """The norm of the second derivative of :func:`posturemap.synth.feet.swing_offsets`' curve at
+    ``s`` frames into a stretch of ``span`` (its rates' windows taken as just after ``s``, side 1,
+    or just before, -1); 0 outside the stretch (``feet.pass_accel``)."""
+    if not 0.0 < s + 0.5 * side < span:
+        return 0.0
+    k = (6.0 - 12.0 * s / span) / (span * span)
+    oa, ob = wa * k, wb * k
+    if s + 0.5 * side < window:
+        k = (6.0 * s / window - 4.0) / window
+        oa += rpa * k
+        ob += rpb * k
+    if s + 0.5 * side > span - window:
+        k = (6.0 * (1.0 - (span - s) / window) - 2.0) / window
+        oa += rqa * k
+        ob += rqb * k
+    return math.sqrt(oa * oa + ob * ob)
+
+
+@nb.njit(**_OPTS)
+def _pass_accel(offset, p, q, lo, hi, n_l, carry):
+    """:func:`posturemap.synth.feet.pass_accel` of the pass from frame ``p`` (its run from ``lo``)
+    to ``q`` (its run to ``hi``) of ``offset`` (L, 2): the runs' rates where they hold two frames,
+    carried ``carry`` frames at most."""
+    pa = offset[p, 0] if p >= 0 else 0.0
+    pb = offset[p, 1] if p >= 0 else 0.0
+    qa = offset[q, 0] if q < n_l else 0.0
+    qb = offset[q, 1] if q < n_l else 0.0
+    rpa = offset[p, 0] - offset[p - 1, 0] if p - 1 >= lo else 0.0
+    rpb = offset[p, 1] - offset[p - 1, 1] if p - 1 >= lo else 0.0
+    rqa = offset[q + 1, 0] - offset[q, 0] if q + 1 < hi else 0.0
+    rqb = offset[q + 1, 1] - offset[q, 1] if q + 1 < hi else 0.0
+    span = float(q - p)
+    window = float(max(min(carry, q - p), 1))
+    out = 0.0
+    for s, side in ((0.0, 1), (span, -1), (window, -1), (window, 1), (span - window, -1), (span - window, 1)):
+        out = max(out, _pass_second(qa - pa, qb - pb, rpa, rpb, rqa, rqb, span, window, s, side))
+    return out
+
+
+@nb.njit(**_OPTS)
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
     ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height from ``gpos``."""
     n_l = on.shape[0]
@@ -753,8 +794,9 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
             q = starts[i] if i < n_r else n_l
             while True:
                 d = _pass_gap(offset, p, q, n_l)
-                need = d / pace if q - p < 2 else max(d / pace, math.sqrt(6.0 * d / accel))
-                if q - p >= need:
+                lo = starts[prev] if prev >= 0 else 0
+                hi = stops[i] if i < n_r else n_l
+                if q - p >= d / pace and (q - p < 2 or _pass_accel(offset, p, q, lo, hi, n_l, carry) <= accel):
                     break
                 left = p - starts[prev] if prev >= 0 else 0
                 right = stops[i] - 1 - q if i < n_r else 0
@@ -838,7 +880,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, pace, accel, least, knee_accel, knee_passes, weights):
+              toe_catch, pace, accel, least, carry, knee_accel, knee_passes, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -874,7 +916,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     pace (length unit per frame): the fastest a held foot's offset passes between two runs on
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
-    ``posturemap.synth.feet.pace_passes``). knee_accel (radians per frame squared) and knee_passes:
+    ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
+    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel (radians per frame squared) and knee_passes:
     the bound on the lock's change of the knees' bend and its sweeps (``KNEE_ACCEL``,
     ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then exact on the goals it leaves.
     """
@@ -1083,9 +1126,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 offset[t, 1] *= scale
                 raised[t] *= scale
         # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
-        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least)
-        # Carried through the frames between the runs: cubic Hermite from the value and rate at
-        # one run's end (0 at rest on frame -1) to those at the next one's start (0 on frame L).
+        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry)
+        # Carried through the frames between the runs: a smoothstep from the value at one run's
+        # end (0 on frame -1) to the next one's start (0 on frame L), each end's rate carried
+        # ``carry`` frames at most by the cubic Hermite's terms for it (feet.swing_offsets).
         prev, vp0, vp1, rp0, rp1 = -1, 0.0, 0.0, 0.0, 0.0
         t = 0
         while True:
@@ -1100,12 +1144,15 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 if stop - q >= 2:
                     rq0, rq1 = offset[q + 1, 0] - offset[q, 0], offset[q + 1, 1] - offset[q, 1]
             span = float(q - prev)
+            window = float(max(min(carry, q - prev), 1))
             for f in range(prev + 1, q):
-                u = (f - prev) / span
-                h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
-                h01, h11 = 3 * u**2 - 2 * u**3, u**3 - u**2
-                offset[f, 0] = h00 * vp0 + h10 * span * rp0 + h01 * vq0 + h11 * span * rq0
-                offset[f, 1] = h00 * vp1 + h10 * span * rp1 + h01 * vq1 + h11 * span * rq1
+                sf = float(f - prev)
+                u = sf / span
+                ua = min(sf / window, 1.0)
+                ub = max(1.0 - (span - sf) / window, 0.0)
+                h01, h10, h11 = 3 * u**2 - 2 * u**3, window * ua * (1 - ua) ** 2, window * ub**2 * (ub - 1)
+                offset[f, 0] = vp0 + h01 * (vq0 - vp0) + h10 * rp0 + h11 * rq0
+                offset[f, 1] = vp1 + h01 * (vq1 - vp1) + h10 * rp1 + h11 * rq1
             if q >= n_l:
                 break
             prev, vp0, vp1, rp0, rp1 = stop - 1, offset[stop - 1, 0], offset[stop - 1, 1], 0.0, 0.0

@@ -128,6 +128,7 @@ PASS_SPEED = 3.0  # leg lengths per second (2.4 m/s on Bandai): the fastest a he
 PASS_ACCEL = 40.0  # leg lengths per second^2: the pass's peak acceleration at most (the 99th percentile
 #                    of walking ankles' accelerations: 38 in bandai1, 54 in LaFAN1)
 PASS_LEAST_S = 0.1  # seconds: a run the widening leaves shorter is let go entirely (no hop between two passes)
+CARRY_S = 0.3  # seconds: a run's rate of correction carried into the free frames this long at most (swing_offsets)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -647,15 +648,23 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     return share
 
 
-def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
+def swing_offsets(offset: np.ndarray, runs, carry: int | None = None) -> np.ndarray:
     """Fill ``offset`` (L, k) between the ``runs`` (``[start, stop)``, in order) in place; returns it.
 
     ``offset`` holds in the runs' frames what they need (a planted foot's correction). Each stretch
-    of frames between two runs gets the cubic Hermite curve from the value and rate (the
-    difference of its last two frames; 0 for a one-frame run) at the end of the run before to those
-    at the start of the run after; before the first run it starts from 0 at rest on frame -1 (A's
-    last frame), after the last it comes to rest at 0 on frame L (B's first). Without runs the
-    offset is 0. The curve has a continuous value and rate everywhere, A's and B's frames included.
+    of frames between two runs goes from the value and rate (the difference of its last two
+    frames; 0 for a one-frame run) at the end of the run before to those at the start of the run
+    after; before the first run it starts from 0 at rest on frame -1 (A's last frame), after the
+    last it comes to rest at 0 on frame L (B's first). Without runs the offset is 0. The curve has
+    a continuous value and rate everywhere, A's and B's frames included: a smoothstep from value
+    to value over the stretch, plus each end's rate carried over ``carry`` frames at most (the
+    cubic Hermite's own terms for it, ``u (1 - u)^2`` and ``u^2 (u - 1)``, over that many frames,
+    then nothing). ``carry`` None or at least the stretch: the cubic Hermite curve itself.
+
+    A rate carried over a long stretch bulged the offset: a foot held at A's seam while the motion
+    under it rose into a scissor kick left the run at 1.8 cm a frame, which the Hermite over 38
+    frames (LaFAN1 at 60 fps) carried 13 cm out from where the motion put the foot, at the top of
+    the kick, where the leg was folded tight: the knee swung 38 cm up through the ankle and back.
     """
     length = len(offset)
     zero = np.zeros(offset.shape[1:])
@@ -676,15 +685,50 @@ def swing_offsets(offset: np.ndarray, runs) -> np.ndarray:
     for (p, vp, rp), (q, vq, rq) in zip(anchors[0::2], anchors[1::2], strict=True):
         if q - p < 2:
             continue
-        span = float(q - p)
-        u = (np.arange(p + 1, q) - p)[:, None] / span
-        offset[p + 1: q] = ((2 * u**3 - 3 * u**2 + 1) * vp + (u**3 - 2 * u**2 + u) * span * rp
-                            + (3 * u**2 - 2 * u**3) * vq + (u**3 - u**2) * span * rq)
+        span = q - p
+        window = float(span if carry is None else max(min(carry, span), 1))
+        s = np.arange(1, span)[:, None].astype(float)
+        u, a, b = s / span, np.minimum(s / window, 1.0), np.maximum(1.0 - (span - s) / window, 0.0)
+        offset[p + 1: q] = (vp + (3 * u**2 - 2 * u**3) * (vq - vp) + window * a * (1 - a) ** 2 * rp
+                            + window * b**2 * (b - 1) * rq)
     return offset
 
 
+def pass_accel(way: np.ndarray, rate_p: np.ndarray, rate_q: np.ndarray, span: int,
+               carry: int | None = None) -> float:
+    """The peak acceleration (per frame squared) of the curve :func:`swing_offsets` lays over
+    ``span`` frames from a value at rate ``rate_p`` (per frame) to a value ``way`` further at
+    rate ``rate_q``, each rate carried over ``carry`` frames at most (None: the whole span, the
+    cubic Hermite: ``|6 way - span (4 rate_p + 2 rate_q)| / span^2`` at its start, ``|6 way -
+    span (2 rate_p + 4 rate_q)| / span^2`` at its end). The curve's second derivative is linear
+    between the ends and the windows' edges: the peak is at one of them, on one side or the other.
+    With both rates 0, a smoothstep's ``6 |way| / span^2``.
+
+    A foot held on its spot while the motion under it moves on leaves the run with the offset
+    changing at the motion's speed; the curve that takes the offset on from there starts the foot
+    from rest, and the motion's speed must be reached within the stretch too: LaFAN1 at 60 fps, a
+    splice's blend moving a held foot 3.5 cm a frame, the foot set off at 2.2 cm a frame squared
+    (the lock's walking bound 0.9) where the offsets' gap alone (19 cm over 10 frames) passed.
+    """
+    way = np.asarray(way, dtype=float)
+    window = float(span if carry is None else max(min(carry, span), 1))
+
+    def second(s, side):  # at s, the windows' terms taken as just after (side 1) or before (-1)
+        out = way * (6.0 - 12.0 * s / span) / span**2
+        if s + 0.5 * side < window:
+            out = out + rate_p * (6.0 * s / window - 4.0) / window
+        if s + 0.5 * side > span - window:
+            out = out + rate_q * (6.0 * (1.0 - (span - s) / window) - 2.0) / window
+        return float(np.linalg.norm(out))
+
+    return max(second(s, side) for s, side in ((0, 1), (span, -1), (window, -1), (window, 1),
+                                               (span - window, -1), (span - window, 1))
+               if 0 < s + 0.5 * side < span)
+
+
 def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
-                pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1) -> None:
+                pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1,
+                carry: int | None = None) -> None:
     """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
     frame) and ``accel`` (per frame squared) allow; in place, before :func:`swing_offsets` carries
     the offsets through them.
@@ -693,9 +737,10 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     the lift, ``h`` (L,) the ankle's height in the motion. A stretch from a run's last held frame
     ``p`` to the next run's first ``q`` (A's frame -1 or B's frame L, offset 0, at the ends)
     passes ``d = |offset[q] - offset[p]|`` over ``q - p`` frames; where that is under ``d /
-    pace`` or, with a free frame between, under ``sqrt(6 d / accel)`` (a smoothstep's peak
-    acceleration over ``q - p`` frames is ``6 d / (q - p)^2``; the runs' own rates, which the
-    cubic carries into the stretch, come on top), the runs let go of their frames next to the
+    pace`` or, with a free frame between, the curve :func:`swing_offsets` carries through it
+    (each run's rate over ``carry`` frames at most) accelerates faster than ``accel``
+    (:func:`pass_accel`; the runs' rates included: a foot held while the motion under it moves on
+    sets off from rest to the motion's pace within the bound too), the runs let go of their frames next to the
     stretch, the longer run first, each keeping one frame. Of the runs left shorter than
     ``least`` frames (and than they were), the shortest as it came is let go entirely, and the
     widening starts again from the runs as they came without it, its two stretches one: its
@@ -716,6 +761,19 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
 
     def gap(p, q):
         return float(np.linalg.norm((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero)))
+
+    def too_quick(p, q, lo, hi):
+        # The pass from p (its run from lo) to q (its run to hi) at the pace, and (a free frame
+        # between) the cubic's acceleration at its ends, the runs' rates included (pass_accel).
+        d = gap(p, q)
+        if q - p < d / pace:
+            return True
+        if q - p < 2:
+            return False
+        rp = offset[p] - offset[p - 1] if p - 1 >= lo else zero
+        rq = offset[q + 1] - offset[q] if q + 1 < hi else zero
+        return pass_accel((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero), rp, rq,
+                          q - p, carry) > accel
 
     def stretches(runs):
         ends = [-1] + [stop - 1 for _, stop, *_ in runs]
@@ -739,10 +797,9 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
             p = runs[i - 1][1] - 1 if i > 0 else -1
             q = runs[i][0] if i < len(runs) else length
             while True:
-                d = gap(p, q)
                 # Next to a seam with no free frame between, the correction is not carried through
                 # frames (the foot is held on both sides): the pace alone, as for a jump.
-                if q - p >= (d / pace if q - p < 2 else max(d / pace, float(np.sqrt(6.0 * d / accel)))):
+                if not too_quick(p, q, runs[i - 1][0] if i > 0 else 0, runs[i][1] if i < len(runs) else length):
                     break
                 left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
                 right = runs[i][1] - 1 - q if i < len(runs) else 0
@@ -842,7 +899,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     height_tol = CONTACT_HEIGHT * body
     speed_tol = CONTACT_SPEED * body / fps  # per frame
     a_floor, b_floor = (np.nan, np.nan) if seam_floors is None else (float(seam_floors[0]), float(seam_floors[1]))
-    passes = (PASS_SPEED * body / fps, PASS_ACCEL * body / fps**2, max(1, round(PASS_LEAST_S * fps)))  # pace_passes'
+    passes = (PASS_SPEED * body / fps, PASS_ACCEL * body / fps**2, max(1, round(PASS_LEAST_S * fps)),
+              max(1, round(CARRY_S * fps)))  # pace_passes' and swing_offsets'
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
@@ -913,7 +971,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
         pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:])
-        swing_offsets(offset, contact_runs(held))
+        swing_offsets(offset, contact_runs(held), passes[3])
         weights[:, leg] = weight
         locks.append((offset, raised, held))
     # The toes' floor: the context's; without one, a held foot's lowest toe in the new frames, or
