@@ -777,14 +777,14 @@ def test_stance_windows_give_each_moving_foot_its_own_part_of_the_gap_farthest_f
     # One foot to move (or none): the middle of its run, as any foot planted all through.
     for moves in ([nan, nan], [nan, 30.0], [1.0, 30.0], [30.0]):
         assert (feet.stance_windows(moves, 16, 9, 4.0) == -1).all()
-    # Two: the farther first, each in the middle of its half, one frame short of it at each end.
+    # Two: the farther first, each over its half (the step's frames at most, in the middle).
     w = feet.stance_windows([20.0, 30.0], 16, 9, 4.0)
-    assert w.tolist() == [[9, 6], [1, 6]]
-    assert feet.stance_windows([30.0, 30.0], 16, 9, 4.0).tolist() == [[1, 6], [9, 6]]  # a tie: the lower index
+    assert w.tolist() == [[8, 8], [0, 8]]
+    assert feet.stance_windows([30.0, 30.0], 16, 9, 4.0).tolist() == [[0, 8], [8, 8]]  # a tie: the lower index
     assert feet.stance_windows([30.0, 20.0], 40, 9, 4.0).tolist() == [[5, 9], [25, 9]]  # long parts: the step
-    # Three feet (a quadruped's three): parts of 3 frames, a step of one frame each; in a gap too
-    # short for that (parts of 1-2 frames), every foot keeps the middle of its run.
-    assert feet.stance_windows([5.0, 6.0, 7.0], 9, 9, 4.0).tolist() == [[7, 1], [4, 1], [1, 1]]
+    # Three feet (a quadruped's three): parts of 3 frames, a step over each; in a gap too short
+    # for that (parts of 1-2 frames), every foot keeps the middle of its run.
+    assert feet.stance_windows([5.0, 6.0, 7.0], 9, 9, 4.0).tolist() == [[6, 3], [3, 3], [0, 3]]
     assert (feet.stance_windows([5.0, 6.0, 7.0], 8, 9, 4.0) == -1).all()
     rng = np.random.default_rng(5)
     for _ in range(300):
@@ -799,6 +799,24 @@ def test_stance_windows_give_each_moving_foot_its_own_part_of_the_gap_farthest_f
         assert all(b - a >= min(step, 1) for a, b in steps)  # no step of no frame unless asked for
         assert all(0 <= a <= b <= length for a, b in steps)
         assert all(b0 <= a1 for (_, b0), (a1, _) in zip(steps, steps[1:]))  # one foot after another
+
+
+def test_a_quick_step_gives_up_its_lag_in_place_to_stay_within_the_bound():
+    # A standing foot's step of 21 cm over its 5 frames of a short gap: rising and coming down in
+    # place over STEP_LAG of them, the foot moved over 3 and set off at 5 cm a frame squared; with
+    # the bound (3.6 a frame squared, a walking ankle's at 30 fps), the lag gives way and the foot
+    # travels over all of them within it. A step with time to spare keeps the lag.
+    first, last, accel = np.zeros(3), np.array([21.0, 0.0, 0.0]), 3.6
+    assert feet.step_lag(9, 5.0, accel) == feet.STEP_LAG and feet.step_lag(5, 21.0, np.inf) == feet.STEP_LAG
+    assert 0.0 <= feet.step_lag(5, 21.0, accel) < 0.25 * feet.STEP_LAG
+    peaks = {}
+    for bound in (np.inf, accel):
+        spot, raised = np.empty((7, 3)), np.zeros(7)
+        feet._step(spot, raised, first, last, 5, 8.0, (1, 5), 4.0, bound)  # frames 1-5 of 7
+        path = np.concatenate([[first], spot, [last]])
+        peaks[bound] = np.abs(np.diff(path[:, 0], 2)).max()
+        np.testing.assert_allclose(spot[[0, -1]], [first, last])  # from A's spot to B's
+    assert peaks[np.inf] > 1.4 * accel and peaks[accel] <= accel, peaks
 
 
 def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_clips):
@@ -820,7 +838,7 @@ def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_cl
     a_feet, b_feet = np.repeat(g[:1], 2, axis=0), np.repeat(g[-1:], 2, axis=0)
     a_spot, b_spot = g[0] * flat, g[-1] * flat
     windows = feet.stance_windows([0.18 * leg] * 2, length, round(STEP_S * m.fps), feet.STAND_STEP * leg)
-    assert windows.tolist() == [[1, 6], [9, 6]]
+    assert windows.tolist() == [[0, 8], [8, 8]]
     out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps)
     for r, w in out.values():
         ankles = fk(sk.parents, r, pos)[1][:, [c[2] for c in chains]]

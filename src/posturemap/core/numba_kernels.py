@@ -870,7 +870,7 @@ def _stance_windows(moves, length, step, least):
         return out
     for r in range(parts):
         lo, hi = r * length // parts, (r + 1) * length // parts
-        k = max(0, min(step, hi - lo - 2))
+        k = max(0, min(step, hi - lo))
         out[order[r], 0] = lo + (hi - lo - k) // 2
         out[order[r], 1] = k
     return out
@@ -892,7 +892,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     and lift (length unit): the step between two spots of one run (A's and B's, or a seam's and
     where the foot lands or lifts off far from it) and the frames let go at a seam whose foot moves,
     step_lag the share of a step's frames at each end where the foot rises or comes down in place
-    (``STEP_LAG``); toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes'
+    (``STEP_LAG``; less where the step would set the foot off faster than accel:
+    ``posturemap.synth.feet.step_lag``); toes (n,) each leg's toe joint (the ankle: none) and toe_floor the toes'
     lowest in the context (inf: none; see :func:`posturemap.synth.feet.lock_feet` for the floor);
     clear (length unit), clear_lo/clear_hi (length unit per frame), curve_v/curve_h (length unit
     per frame / length unit: a library's clearance by speed, empty for none) and clear_r (frames):
@@ -1027,7 +1028,11 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     ya, yb, stepping = ea + (xa - ea) * (reach / far), eb + (xb - eb) * (reach / far), True
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
-            high = min(lift, 0.5 * max(math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2) - stand, 0.0))
+            way = math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2)
+            high = min(lift, 0.5 * max(way - stand, 0.0))
+            lag = step_lag  # less where the step is too quick for it (feet.step_lag)
+            if k > 0 and way > 0.0 and accel < np.inf:
+                lag = min(max(0.5 * (1.0 - math.sqrt(6.0 * way / accel) / (k + 1.0)), 0.0), step_lag)
             mid = (start + stop - 1) // 2
             ma, mb = gpos[mid, ankle, a_], gpos[mid, ankle, b_]
             # The foot turns about its toe, held where it was at the spot's frame: the toe's place
@@ -1046,7 +1051,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                         sa, sb, ref = xa, xb, 0.0
                     else:
                         uu = (i - k0 + 1) / (k + 1.0)
-                        vv = min(max((uu - step_lag) / (1.0 - 2.0 * step_lag), 0.0), 1.0)
+                        vv = min(max((uu - lag) / (1.0 - 2.0 * lag), 0.0), 1.0)
                         ss = vv * vv * (3.0 - 2.0 * vv)
                         sa, sb, ref = xa + ss * (ya - xa), xb + ss * (yb - xb), ss
                         raised[u] = high * math.sin(math.pi * uu) ** 2

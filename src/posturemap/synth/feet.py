@@ -437,9 +437,11 @@ def stance_windows(moves, length: int, step: int, least: float) -> np.ndarray:
     the distance from which a foot counts. Where two feet or more move farther than ``least``,
     the gap is cut into as many equal parts (``r * length // parts`` on), the farthest foot
     first (the lower index on a tie), and each steps in the middle of its part, over ``step``
-    frames at most and at least one frame short of its part at each end. One foot alone keeps
-    the middle of the gap (all ``-1``), and so do all where a part would be shorter than three
-    frames (a step of no frame would move the foot from one spot to the other at once).
+    frames at most and its whole part at most (one foot lands as the next lifts; a step starts
+    and ends in place, :func:`_step`). One foot alone keeps the middle of the gap (all ``-1``),
+    and so do all where a part would be shorter than three frames. A frame short of the part at
+    each end, two feet moving 21 cm in a 10-frame gap at 30 fps stepped over 3 frames each: the
+    toe set off at 10 cm a frame squared.
     """
     moves = np.asarray(moves, dtype=float)
     out = np.full((len(moves), 2), -1, dtype=np.int64)
@@ -449,7 +451,7 @@ def stance_windows(moves, length: int, step: int, least: float) -> np.ndarray:
         return out
     for r, leg in enumerate(legs):
         lo, hi = r * length // parts, (r + 1) * length // parts
-        k = max(0, min(step, hi - lo - 2))
+        k = max(0, min(step, hi - lo))
         out[leg] = (lo + (hi - lo - k) // 2, k)
     return out
 
@@ -469,7 +471,7 @@ def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
                              speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None,
-                             toe_seams=None, shuffle=0.0):
+                             toe_seams=None, shuffle=0.0, accel=np.inf):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -487,7 +489,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
 
     A run planted at both A's end and B's start holds A's spot, then steps to B's over the
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
-    with a smoothstep (in place over the step's first and last ``STEP_LAG``) while the foot rises
+    with a smoothstep (in place over the step's first and last ``STEP_LAG``, less where that would
+    set the foot off faster than ``accel`` per frame squared: :func:`step_lag`) while the foot rises
     by ``lift`` (at most half of the step's length beyond ``shuffle``) on a squared sine and comes
     down on B's spot. The lift (L,) is added to the ankle's height.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
@@ -543,15 +546,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         spot = np.empty((n, 3))
         ref = np.zeros(n)  # where the spot is between the run's first spot and its last, 0 to 1
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
-            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle)
+            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle, accel)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
             ref = _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift,
-                        None, shuffle)
+                        None, shuffle, accel)
         elif from_a:
             spot[:] = a_spot
         elif to_b and 0 < step <= n - 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
             ref = _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift,
-                        None, shuffle)
+                        None, shuffle, accel)
         elif to_b:
             spot[:] = b_spot
             ref[:] = 1.0
@@ -619,13 +622,25 @@ def _toward(x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
     return x + (y - x) * (reach / float(np.linalg.norm(y - x)))
 
 
+def step_lag(k: int, way: float, accel: float) -> float:
+    """The share of a ``k``-frame step's frames at each end where the foot rises or comes down in
+    place: ``STEP_LAG``, less where the smoothstep between would accelerate the foot faster than
+    ``accel`` (per frame squared) over ``way``: it moves over ``(1 - 2 lag) (k + 1)`` frames,
+    whose peak acceleration is ``6 way`` over their square. A 10-frame gap at 30 fps with both
+    feet to move 21 cm stepped each over 5 frames, 3 of them moving: the toe set off at 8.5 cm
+    a frame squared (a walking ankle's bound, ``PASS_ACCEL``, 3.6)."""
+    if k <= 0 or way <= 0.0 or not np.isfinite(accel):
+        return STEP_LAG
+    return float(min(max(0.5 * (1.0 - np.sqrt(6.0 * way / accel) / (k + 1.0)), 0.0), STEP_LAG))
+
+
 def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float,
-          window=None, shuffle: float = 0.0) -> np.ndarray:
+          window=None, shuffle: float = 0.0, accel: float = np.inf) -> np.ndarray:
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
     k0 + k - 1`` instead. The foot travels on a smoothstep between the step's first and last
-    ``STEP_LAG`` and rises on a squared sine over the whole step (no vertical speed at either end;
+    ``STEP_LAG`` (less where the step is too quick for it: :func:`step_lag`, ``accel``) and rises on a squared sine over the whole step (no vertical speed at either end;
     on a half sine it rose from rest in one frame) to ``lift`` at most and half of the way beyond
     ``shuffle`` (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor;
     lifted by half of the whole way, the lock's steps cost 5-frame gaps 5% of their L2P on the
@@ -641,7 +656,8 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     spot[:k0], spot[k0 + k:] = first, last
     if k > 0:
         u = np.arange(1, k + 1) / (k + 1.0)
-        v = np.clip((u - STEP_LAG) / (1.0 - 2.0 * STEP_LAG), 0.0, 1.0)
+        lag = step_lag(k, float(np.linalg.norm(last - first)), accel)
+        v = np.clip((u - lag) / (1.0 - 2.0 * lag), 0.0, 1.0)
         share[k0: k0 + k] = v * v * (3 - 2 * v)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
         raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle)
@@ -960,7 +976,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                                                           on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
                                                           None if windows[leg, 0] < 0 else windows[leg],
                                                           (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams,
-                                                          STAND_STEP * body)
+                                                          STAND_STEP * body, passes[1])
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
