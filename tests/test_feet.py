@@ -568,7 +568,11 @@ def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips, monk
                 assert k0 + step < n < length - 1 and length - n <= most
             assert np.all(w[:n, 0] == 1) and not w[n:, 0].any()
             np.testing.assert_allclose(ankle[:k0] * flat, np.tile(g[0] * flat, (k0, 1)), atol=1e-6)
-            np.testing.assert_allclose(ankle[k0 + step: n] * flat, np.tile(landing, (n - k0 - step, 1)), atol=1e-6)
+            # (The last held frame's within 0.2% of a leg: the knee's change of bend comes to rest
+            # at B's frame no faster than KNEE_ACCEL, knee_bounded, along the hip-ankle line.)
+            np.testing.assert_allclose(ankle[k0 + step: n - 1] * flat, np.tile(landing, (n - 1 - k0 - step, 1)),
+                                       atol=1e-6)
+            np.testing.assert_allclose(ankle[n - 1] * flat, landing, atol=0.002 * leg)
             # On the ground before the step, off it in the step (after it, the toe's clearance of
             # the last frame's swing may lift the foot a little: not asserted).
             heights = ankle[:, up] - g[:, up]
@@ -1407,14 +1411,14 @@ def test_foot_lock_lifts_a_toe_dragged_along_the_floor(sample_clips):
     assert np.all(gpos0[:, toes[1], up] - floor > TOE_CLEAR * body)
     assert np.all(gpos1[mid, toes[0], up] - floor >= TOE_CLEAR * body * u * (1 - 1e-6))
     # The ankle rose as the toe did (the foot's global orientation kept), horizontally unmoved
-    # but in the first two frames: there the lift, fading in from A's frame, would bend the
-    # straight knee faster than KNEE_ACCEL from rest, and knee_bounded keeps the ankle a little
-    # nearer the hip along its line (1.5 mm, nearly straight down).
+    # but in the two frames at each seam: there the lift, fading in from A's frame and out to B's,
+    # would bend the straight knee faster than KNEE_ACCEL from and to rest, and knee_bounded keeps
+    # the ankle a little nearer the hip along its line (1.5 mm, nearly straight down).
     ankle = chains[0][2]
     np.testing.assert_allclose(gpos1[:, toes[0]] - gpos1[:, ankle], gpos0[:, toes[0]] - gpos0[:, ankle], atol=1e-6)
     horizontal = np.arange(3) != up
-    np.testing.assert_allclose(gpos1[2:, ankle][:, horizontal], gpos0[2:, ankle][:, horizontal], atol=1e-6)
-    np.testing.assert_allclose(gpos1[:2, ankle][:, horizontal], gpos0[:2, ankle][:, horizontal], atol=0.003 * body)
+    np.testing.assert_allclose(gpos1[2:-2, ankle][:, horizontal], gpos0[2:-2, ankle][:, horizontal], atol=1e-6)
+    np.testing.assert_allclose(gpos1[:, ankle][:, horizontal], gpos0[:, ankle][:, horizontal], atol=0.003 * body)
     # Only the left leg moved (the right toe is high already).
     moved = np.abs(r - rots).max(axis=(0, 2)) > 1e-12
     assert set(np.flatnonzero(moved)) == set(chains[0])
@@ -1691,7 +1695,10 @@ def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
     assert np.degrees(np.diff(before).max()) > 15.0
     out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
     after = np.concatenate([[0.0], bends(out, a, b, c), [0.0]])
-    assert np.abs(np.diff(after, 2)).max() <= accel * 1.01
+    # (Within 2 %: the lift lasts to the last frame, whose change must come to rest at B's frame;
+    # held there at the bound, its neighbour's own second difference within it, the sweeps move
+    # neither further.)
+    assert np.abs(np.diff(after, 2)).max() <= accel * 1.03 and abs(after[-2]) <= accel * (1 + 1e-9)
     assert bent[:12].any() and after[12] > 0.0  # bending before the lift
     # Only along the hip-goal line, and the goals the lock had where the bound leaves them.
     along = np.cross(out - a, goal - a)
@@ -1706,7 +1713,8 @@ def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
 def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
     # The lift from the first new frame on: A's frames beside it have no change, so the first
     # frame's change is A's last frame's second difference, and it too stays within the bound
-    # (unbounded there, the knee bent 17 degrees from rest in one frame).
+    # (unbounded there, the knee bent 17 degrees from rest in one frame). Likewise the last
+    # frame's, at B's side.
     fps = 30.0
     accel = feet.KNEE_ACCEL / fps**2
     goal, a, b, c = straight_leg_lifted(lift_at=0)
@@ -1717,6 +1725,7 @@ def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
     # it, the sweeps move neither further.)
     assert bent[0] and abs(after[2]) <= accel * (1 + 1e-9) and np.abs(np.diff(after, 2)[:-1]).max() <= accel * 1.03
     assert after[2 + 12] > 0.99 * bends(goal, a, b, c)[12]  # the lift itself reached a few frames on
+    assert abs(after[-1]) <= accel * (1 + 1e-9)
 
 
 def test_knee_bounded_applies_the_iks_soft_reach():

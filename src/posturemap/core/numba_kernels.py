@@ -598,9 +598,9 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
     inner = change[0, 1: n_l + 1].copy()
     step = np.empty(n_l)
     for _ in range(passes):
-        # The first new frame's change within accel too (A's last frame's second difference:
-        # feet.knee_bounded).
-        over = abs(change[0, 1]) - accel > accel * 1e-4
+        # The first and the last new frame's change within accel too (A's last frame's and B's
+        # first's second differences: feet.knee_bounded).
+        over = max(abs(change[0, 1]), abs(change[0, n_l])) - accel > accel * 1e-4
         for t in range(n_l):
             second = change[0, t] - 2.0 * change[0, t + 1] + change[0, t + 2]
             excess = abs(second) - accel
@@ -611,6 +611,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
         for t in range(n_l):
             change[0, t + 1] += step[t]
         change[0, 1] = min(max(change[0, 1], -accel), accel)
+        change[0, n_l] = min(max(change[0, n_l], -accel), accel)
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)

@@ -244,12 +244,14 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     called without it). The change is the bend at the goal's distance (:func:`knee_bend`, soft
     limited as :func:`two_bone_ik` limits it) less the motion's own bend, 0 in the clips' frames
     beside the new ones; where its second difference exceeds ``accel``, each frame moves a
-    quarter of the excess toward its neighbours, and the first new frame's change (A's last
-    frame's second difference, its neighbours in the clip having none) is held within
-    ``accel``, over at most ``KNEE_PASSES`` sweeps. A bow's straight leg, its foot held while
-    the hips sank into the next clip, bent the knee 0.13 radians at once: the knee set off at
-    5 cm a frame squared (30 fps) from A's still frames. (At B's side a held foot's spot is B's
-    own, and the lock's change there small; bounding it moved the held spots.)
+    quarter of the excess toward its neighbours, and the first and the last new frame's change
+    (the second differences of A's last frame and of B's first, their neighbours in the clips
+    having none) are held within ``accel``, over at most ``KNEE_PASSES`` sweeps. A bow's
+    straight leg, its foot held while the hips sank into the next clip, bent the knee 0.13
+    radians at once: the knee set off at 5 cm a frame squared (30 fps) from A's still frames; a
+    nearly straight leg whose carried offset had 2.4 cm left at the last new frame bent its knee
+    7 cm off B's, which it snapped to at 9 cm a frame squared. (Held feet at the seams then
+    move along the hip-ankle line, a millimetre or two.)
 
     Near full extension the bend goes as the square root of the leg's shortening: a held spot
     half a centimetre nearer the hip than the motion's nearly straight leg had its ankle bent the
@@ -272,12 +274,13 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     for _ in range(KNEE_PASSES):
         second = change[:-2] - 2.0 * change[1:-1] + change[2:]
         excess = np.abs(second) - accel
-        # A's last frame: the change sets off from rest there (its second difference is the first
-        # new frame's change itself).
-        if not ((excess > accel * 1e-4).any() or abs(change[1]) - accel > accel * 1e-4):
+        # A's last frame and B's first: the change sets off from rest and comes to rest there (their
+        # second differences are the first and the last new frame's change itself).
+        if not ((excess > accel * 1e-4).any() or max(abs(change[1]), abs(change[-2])) - accel > accel * 1e-4):
             break
         change[1:-1] += np.where(excess > 0.0, 0.25 * np.sign(second) * excess, 0.0)
         change[1] = np.clip(change[1], -accel, accel)
+        change[-2] = np.clip(change[-2], -accel, accel)
     bent = np.abs(change[1:-1] - inner) > 1e-9
     bend = np.clip(own_bend + change[1:-1], 0.0, np.pi)
     new_dist = np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(bend), 0.0))
