@@ -1603,7 +1603,6 @@ def test_pass_accel_is_the_carried_curves_peak_acceleration(carry):
 
 
 def test_a_foot_held_while_its_motion_moves_on_is_let_go_soon_enough_to_catch_it():
-    # (And not where the motion's own foot accelerates as hard: OWN_PASS.)
     # A foot held on its spot for frames 0-19 while the motion under it moves 0.3 a frame (the
     # correction grows as much), then free to B's seam at frame 30, where it must be back on the
     # motion (0). The offsets' gap alone (5.7 over 11 frames) passes a smoothstep within 0.3 a
@@ -1628,23 +1627,10 @@ def test_a_foot_held_while_its_motion_moves_on_is_let_go_soon_enough_to_catch_it
     assert feet.pass_accel(-offset[p + 1], offset[p + 1] - offset[p], np.zeros(2), length - p - 1, 9) > accel
     carried = np.concatenate([feet.swing_offsets(offset.copy(), runs, 9), np.zeros((2, 2))])  # B's frames at 0
     assert np.linalg.norm(np.diff(carried, 2, axis=0), axis=-1).max() <= accel * (1 + 1e-9)
-    # Where the motion's own foot accelerates as hard over the stretch (a running foot landing
-    # and leaving), the pass may reach OWN_PASS times that: the run is kept whole.
-    need = feet.pass_accel(-offset[19], offset[19] - offset[18], np.zeros(2), length - 19, 9)
-    foot = np.zeros((length, 2))
-    foot[22, 0] = need / feet.OWN_PASS / 2  # a one-frame jolt in the motion's foot: -2x that at frame 22
-    for given, whole in ((1.01 * foot, True), (0.9 * foot, False)):
-        held2 = np.zeros(length, dtype=bool)
-        held2[:20] = True
-        offset2 = np.zeros((length, 2))
-        offset2[:20, 0] = rate * np.arange(20)
-        feet.pace_passes(held2, held2.astype(float), offset2, np.zeros(length), h, 100.0, 0.08, 0.04, accel, 1, 9,
-                         feet.OWN_PASS, given)
-        assert (held2.sum() == 20) == whole
 
 
 def test_pace_passes_is_the_same_compiled():
-    # numba_kernels._pace_passes (and _pass_gap, _pass_accel, _own_accel) against feet.pace_passes on random runs,
+    # numba_kernels._pace_passes (and _pass_gap, _pass_accel) against feet.pace_passes on random runs,
     # corrections and heights, the ends' stretches (from A's frame -1 and to B's frame L) included.
     from posturemap.core import numba_kernels
 
@@ -1664,11 +1650,9 @@ def test_pace_passes_is_the_same_compiled():
                         else (np.inf, 1))
         carry = int(rng.integers(1, 40))  # the runs' rates carried that far: shorter or longer than the stretches
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        foot = gpos[:, ankle][:, [(up + 1) % 3, (up + 2) % 3]] * rng.uniform(0.0, 3.0)  # the motion's, moving
-        gpos[:, ankle, (up + 1) % 3], gpos[:, ankle, (up + 2) % 3] = foot[:, 0], foot[:, 1]
-        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, 1.5, foot)
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand, accel, least, carry, 1.5)
+        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand, accel, least, carry)
         for g, w in zip(got, want):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
         changed += not np.array_equal(want[0], held)

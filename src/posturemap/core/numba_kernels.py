@@ -750,23 +750,9 @@ def _pass_accel(offset, p, q, lo, hi, n_l, carry):
 
 
 @nb.njit(**_OPTS)
-def _own_accel(gpos, ankle, up, p, q, n_l):
-    """The motion's ankle's largest horizontal acceleration over frames ``p .. q`` (those with
-    both neighbours among the new frames; 0 for none): ``feet.pace_passes``' ``foot``."""
-    a_, b_ = (up + 1) % 3, (up + 2) % 3
-    out = 0.0
-    for t in range(max(p, 1), min(q, n_l - 2) + 1):
-        da = gpos[t + 1, ankle, a_] - 2.0 * gpos[t, ankle, a_] + gpos[t - 1, ankle, a_]
-        db = gpos[t + 1, ankle, b_] - 2.0 * gpos[t, ankle, b_] + gpos[t - 1, ankle, b_]
-        out = max(out, math.sqrt(da * da + db * db))
-    return out
-
-
-@nb.njit(**_OPTS)
-def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry, own):
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
-    ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height and its own
-    horizontal acceleration (``foot``) from ``gpos``."""
+    ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height from ``gpos``."""
     n_l = on.shape[0]
     if n_l == 0 or pace <= 0.0:
         return
@@ -811,8 +797,7 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
                 d = _pass_gap(offset, p, q, n_l)
                 lo = starts[prev] if prev >= 0 else 0
                 hi = stops[i] if i < n_r else n_l
-                if q - p >= d / pace and (q - p < 2 or _pass_accel(offset, p, q, lo, hi, n_l, carry)
-                                          <= max(accel, own * _own_accel(gpos, ankle, up, p, q, n_l))):
+                if q - p >= d / pace and (q - p < 2 or _pass_accel(offset, p, q, lo, hi, n_l, carry) <= accel):
                     break
                 left = p - starts[prev] if prev >= 0 else 0
                 right = stops[i] - 1 - q if i < n_r else 0
@@ -896,7 +881,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, pace, accel, least, carry, own, knee_accel, knee_passes, weights):
+              toe_catch, pace, accel, least, carry, knee_accel, knee_passes, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -934,8 +919,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
-    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``); own: how many
-    times the motion's own foot's acceleration a pass may reach too (``OWN_PASS``). knee_accel (radians per frame squared) and knee_passes:
+    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel (radians per frame squared) and knee_passes:
     the bound on the lock's change of the knees' bend and its sweeps (``KNEE_ACCEL``,
     ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then exact on the goals it leaves.
     """
@@ -1148,7 +1132,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 offset[t, 1] *= scale
                 raised[t] *= scale
         # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
-        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry, own)
+        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry)
         # Carried through the frames between the runs: a smoothstep from the value at one run's
         # end (0 on frame -1) to the next one's start (0 on frame L), each end's rate carried
         # ``carry`` frames at most by the cubic Hermite's terms for it (feet.swing_offsets).

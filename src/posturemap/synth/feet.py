@@ -129,8 +129,6 @@ PASS_ACCEL = 40.0  # leg lengths per second^2: the pass's peak acceleration at m
 #                    of walking ankles' accelerations: 38 in bandai1, 54 in LaFAN1)
 PASS_LEAST_S = 0.1  # seconds: a run the widening leaves shorter is let go entirely (no hop between two passes)
 CARRY_S = 0.3  # seconds: a run's rate of correction carried into the free frames this long at most (swing_offsets)
-OWN_PASS = 1.5  # a pass may accelerate the foot this many times as fast as the motion's own foot does there
-#                 (over PASS_ACCEL: a running foot lands and leaves faster; the bench counts a pop from 1.5x)
 FLOOR_S = 0.5  # seconds of A's end and of B's start whose lowest toe is the floor (a stance in any gait);
 #               the engine's seam floors, each clip's lowest ankle there, say whether a seam's foot is planted
 
@@ -749,7 +747,7 @@ def pass_accel(way: np.ndarray, rate_p: np.ndarray, rate_q: np.ndarray, span: in
 
 def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
                 pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1,
-                carry: int | None = None, own: float = OWN_PASS, foot: np.ndarray | None = None) -> None:
+                carry: int | None = None) -> None:
     """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
     frame) and ``accel`` (per frame squared) allow; in place, before :func:`swing_offsets` carries
     the offsets through them.
@@ -761,10 +759,7 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     pace`` or, with a free frame between, the curve :func:`swing_offsets` carries through it
     (each run's rate over ``carry`` frames at most) accelerates faster than ``accel``
     (:func:`pass_accel`; the runs' rates included: a foot held while the motion under it moves on
-    sets off from rest to the motion's pace within the bound too) and than ``own`` times ``foot``
-    (L, k), the motion's own foot, accelerates over the stretch's frames where given (a running
-    foot lands and leaves faster than a walking one: a run's 3-frame footfall, let go whole,
-    left the foot sliding on the floor), the runs let go of their frames next to the
+    sets off from rest to the motion's pace within the bound too), the runs let go of their frames next to the
     stretch, the longer run first, each keeping one frame. Of the runs left shorter than
     ``least`` frames (and than they were), the shortest as it came is let go entirely, and the
     widening starts again from the runs as they came without it, its two stretches one: its
@@ -797,14 +792,7 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
         rp = offset[p] - offset[p - 1] if p - 1 >= lo else zero
         rq = offset[q + 1] - offset[q] if q + 1 < hi else zero
         return pass_accel((offset[q] if q < length else zero) - (offset[p] if p >= 0 else zero), rp, rq,
-                          q - p, carry) > max(accel, own * own_accel(p, q))
-
-    def own_accel(p, q):
-        # The motion's own foot over the pass's frames: a running foot lands and leaves faster.
-        if foot is None or min(q, length - 2) < max(p, 1):
-            return 0.0
-        t = np.arange(max(p, 1), min(q, length - 2) + 1)
-        return float(np.linalg.norm(foot[t + 1] - 2.0 * foot[t] + foot[t - 1], axis=-1).max())
+                          q - p, carry) > accel
 
     def stretches(runs):
         ends = [-1] + [stop - 1 for _, stop, *_ in runs]
@@ -931,7 +919,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     speed_tol = CONTACT_SPEED * body / fps  # per frame
     a_floor, b_floor = (np.nan, np.nan) if seam_floors is None else (float(seam_floors[0]), float(seam_floors[1]))
     passes = (PASS_SPEED * body / fps, PASS_ACCEL * body / fps**2, max(1, round(PASS_LEAST_S * fps)),
-              max(1, round(CARRY_S * fps)), OWN_PASS)  # pace_passes' and swing_offsets'
+              max(1, round(CARRY_S * fps)))  # pace_passes' and swing_offsets'
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
@@ -1001,8 +989,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight[held] *= scale[held]
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
-        pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:],
-                    foot=horiz)
+        pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:])
         swing_offsets(offset, contact_runs(held), passes[3])
         weights[:, leg] = weight
         locks.append((offset, raised, held))
