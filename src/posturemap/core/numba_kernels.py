@@ -608,10 +608,17 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
             step[t] = 0.25 * (1.0 if second > 0.0 else -1.0) * excess if excess > 0.0 else 0.0
         if not over:
             break
+        first, last = change[0, 1], change[0, n_l]
+        moved = 0.0
         for t in range(n_l):
             change[0, t + 1] += step[t]
+            if 0 < t < n_l - 1:
+                moved = max(moved, abs(step[t]))
         change[0, 1] = min(max(change[0, 1], -accel), accel)
         change[0, n_l] = min(max(change[0, n_l], -accel), accel)
+        moved = max(moved, abs(change[0, 1] - first), abs(change[0, n_l] - last))
+        if moved <= accel * 1e-6:  # held at a seam's bound, nothing else moves (feet.knee_bounded)
+            break
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)

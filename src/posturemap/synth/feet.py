@@ -278,9 +278,12 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
         # second differences are the first and the last new frame's change itself).
         if not ((excess > accel * 1e-4).any() or max(abs(change[1]), abs(change[-2])) - accel > accel * 1e-4):
             break
+        before = change.copy()
         change[1:-1] += np.where(excess > 0.0, 0.25 * np.sign(second) * excess, 0.0)
         change[1] = np.clip(change[1], -accel, accel)
         change[-2] = np.clip(change[-2], -accel, accel)
+        if np.abs(change - before).max() <= accel * 1e-6:  # held at a seam's bound, nothing else moves
+            break
     bent = np.abs(change[1:-1] - inner) > 1e-9
     bend = np.clip(own_bend + change[1:-1], 0.0, np.pi)
     new_dist = np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(bend), 0.0))
