@@ -926,9 +926,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
-    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel (radians per frame squared) and knee_passes:
-    the bound on the lock's change of the knees' bend and its sweeps (``KNEE_ACCEL``,
-    ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then exact on the goals it leaves.
+    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel
+    (radians per frame squared) and knee_passes: the bound on the lock's change of the knees'
+    bend and its sweeps (``KNEE_ACCEL``, ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then
+    exact on the goals it leaves.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3

@@ -646,9 +646,10 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
     k0 + k - 1`` instead. The foot travels on a smoothstep between the step's first and last
-    ``STEP_LAG`` (less where the step is too quick for it: :func:`step_lag`, ``accel``) and rises on a squared sine over the whole step (no vertical speed at either end;
-    on a half sine it rose from rest in one frame) to ``lift`` at most and half of the way beyond
-    ``shuffle`` (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor;
+    ``STEP_LAG`` (less where the step is too quick for it: :func:`step_lag`, ``accel``) and
+    rises on a squared sine over the whole step (no vertical speed at either end; on a half sine
+    it rose from rest in one frame) to ``lift`` at most and half of the way beyond ``shuffle``
+    (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor;
     lifted by half of the whole way, the lock's steps cost 5-frame gaps 5% of their L2P on the
     held-out styles). Returns how far the step has gone at each frame (n,), 0 to 1."""
     n = len(spot)
