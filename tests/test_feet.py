@@ -1629,6 +1629,44 @@ def test_a_foot_held_while_its_motion_moves_on_is_let_go_soon_enough_to_catch_it
     assert np.linalg.norm(np.diff(carried, 2, axis=0), axis=-1).max() <= accel * (1 + 1e-9)
 
 
+def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
+    # The foot held on its spot (0) for frames 0-19 while the motion's foot walks on 0.3 a frame
+    # (its correction grows as much), let go sooner (the run's rate counted): between the held
+    # frame and B's (frame 30, on the motion's foot) the foot itself travels the motion's way
+    # less what was held back, far more than the correction's gap alone. The step it makes is
+    # lifted by that way (half of it beyond the shuffle, the lift at most), a squared sine no
+    # higher than lets it accelerate within the bound.
+    length, accel, rate, lift, shuffle = 30, 0.3, 0.3, 4.0, 2.0
+    foot = np.zeros((length, 2))
+    foot[:, 0] = -rate * np.arange(length)
+
+    def widened(given, carry=15):
+        held = np.zeros(length, dtype=bool)
+        held[:20] = True
+        offset = np.zeros((length, 2))
+        offset[:20, 0] = rate * np.arange(20)
+        raised = np.zeros(length)
+        feet.pace_passes(held, held.astype(float), offset, raised, np.zeros(length), 100.0, lift, shuffle, accel,
+                         1, carry, given)
+        return feet.contact_runs(held)[0][1] - 1, offset, raised
+
+    p, offset, raised = widened(foot)
+    way = abs(foot[-1, 0] - (foot[p, 0] + offset[p, 0]))  # from the held spot to the motion's foot at B
+    assert way > 1.5 * abs(offset[p, 0])
+    k = length - p - 1
+    want = min(lift, 0.5 * (way - shuffle), accel * (k + 1) ** 2 / (2 * np.pi**2))
+    np.testing.assert_allclose(raised[p + 1:], want * np.sin(np.pi * np.arange(1, k + 1) / (k + 1)) ** 2)
+    assert np.abs(np.diff(np.concatenate([[0.0], raised[p:], [0.0]]), 2)).max() <= accel * (1 + 1e-9)
+    # Without the motion's foot: the correction's gap only, a lower step; unbounded, higher.
+    assert widened(None)[2].max() < 0.7 * raised.max()
+    assert feet.step_lift(k, way, lift, shuffle).max() > 1.1 * raised.max()
+    # A stretch longer than the rate is carried follows the motion's own foot after that: the
+    # gap's step only.
+    p2, _, low = widened(foot, carry=length - p - 2)
+    _, _, gap_only = widened(None, carry=length - p - 2)
+    assert p2 == p and np.array_equal(low, gap_only)
+
+
 def test_pace_passes_is_the_same_compiled():
     # numba_kernels._pace_passes (and _pass_gap, _pass_accel) against feet.pace_passes on random runs,
     # corrections and heights, the ends' stretches (from A's frame -1 and to B's frame L) included.
@@ -1650,7 +1688,8 @@ def test_pace_passes_is_the_same_compiled():
                         else (np.inf, 1))
         carry = int(rng.integers(1, 40))  # the runs' rates carried that far: shorter or longer than the stretches
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry)
+        foot = gpos[:, ankle][:, [(up + 1) % 3, (up + 2) % 3]]  # the motion's foot (the steps' way)
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
         numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand, accel, least, carry)
         for g, w in zip(got, want):

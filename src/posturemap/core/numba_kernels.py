@@ -843,8 +843,20 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
                 same = True
         if same:
             continue
+        # The foot's own way between the two held frames: the motion's, with the offsets', over
+        # a stretch of carry frames at most (feet.pace_passes).
         d = _pass_gap(offset, p, q, n_l)
-        high = min(lift, 0.5 * max(d - stand, 0.0))
+        if q - p <= carry:
+            a_, b_ = (up + 1) % 3, (up + 2) % 3
+            fp, fq = min(max(p, 0), n_l - 1), min(max(q, 0), n_l - 1)
+            wa = gpos[fq, ankle, a_] - gpos[fp, ankle, a_]
+            wb = gpos[fq, ankle, b_] - gpos[fp, ankle, b_]
+            if q < n_l:
+                wa, wb = wa + offset[q, 0], wb + offset[q, 1]
+            if p >= 0:
+                wa, wb = wa - offset[p, 0], wb - offset[p, 1]
+            d = math.sqrt(wa * wa + wb * wb)
+        high = min(lift, 0.5 * max(d - stand, 0.0), accel * float(q - p) ** 2 / (2.0 * math.pi**2))
         hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
         hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
         base = min(hp, hq)
@@ -1038,7 +1050,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
             way = math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2)
-            high = min(lift, 0.5 * max(way - stand, 0.0))
+            high = min(lift, 0.5 * max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
             lag = step_lag  # less where the step is too quick for it (feet.step_lag)
             if k > 0 and way > 0.0 and accel < np.inf:
                 lag = min(max(0.5 * (1.0 - math.sqrt(6.0 * way / accel) / (k + 1.0)), 0.0), step_lag)

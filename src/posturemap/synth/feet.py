@@ -667,7 +667,7 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
         v = np.clip((u - lag) / (1.0 - 2.0 * lag), 0.0, 1.0)
         share[k0: k0 + k] = v * v * (3 - 2 * v)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
-        raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle)
+        raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle, accel)
     return share
 
 
@@ -751,7 +751,7 @@ def pass_accel(way: np.ndarray, rate_p: np.ndarray, rate_q: np.ndarray, span: in
 
 def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
                 pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1,
-                carry: int | None = None) -> None:
+                carry: int | None = None, foot: np.ndarray | None = None) -> None:
     """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
     frame) and ``accel`` (per frame squared) allow; in place, before :func:`swing_offsets` carries
     the offsets through them.
@@ -774,8 +774,15 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     to five times the acceleration of a walking ankle (46 cm in six frames at 30 fps, 20 cm in
     five at 60), and a run shortened to a frame or two put the foot down between two such
     passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
-    (``lift``, at most half of the way beyond ``shuffle``, on a squared sine) less what the
-    motion lifts it already.
+    (:func:`step_lift`: ``lift``, at most half of the way beyond ``shuffle``, on a squared sine
+    within ``accel``) less what the motion lifts it already; the way is the foot's own between
+    the two held frames, ``foot`` (L, k: the motion's foot, as ``offset`` lies) with the
+    offsets, where given and the stretch no longer than ``carry`` frames (a longer one follows
+    the motion's own foot after those: lifted over the whole of it, a foot the motion glided
+    along the floor for 0.67 s rose 7 cm into one long step while the other was up, a float),
+    else the offsets' gap. A foot let go sooner because the motion under it moved on travels
+    that motion's way too: lifted by the gap alone it slid low along the floor (between bandai1 clips, ``bench/transition_feet.py``: 2.29 / 1.83 / 1.73 cm/s at 15 /
+    30 / 45 frames; by its own way 1.99 / 1.68 / 1.58).
     """
     length = len(held)
     if length == 0 or pace <= 0:
@@ -848,17 +855,25 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
             continue
         base = min(h[p] if p >= 0 else h[0], h[q] if q < length else h[-1])
         free = slice(p + 1, q)
-        raised[free] = np.maximum(raised[free], step_lift(q - p - 1, gap(p, q), lift, shuffle)
+        way = gap(p, q)
+        if foot is not None and q - p <= (length + 1 if carry is None else carry):  # the foot's own way:
+            # the motion's with the offsets' (a longer stretch is the motion's own after carry frames)
+            way = float(np.linalg.norm(foot[min(q, length - 1)] + (offset[q] if q < length else zero)
+                                       - foot[max(p, 0)] - (offset[p] if p >= 0 else zero)))
+        raised[free] = np.maximum(raised[free], step_lift(q - p - 1, way, lift, shuffle, accel)
                                   - np.maximum(h[free] - base, 0.0))
 
 
-def step_lift(k: int, way: float, lift: float, shuffle: float) -> np.ndarray:
+def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np.inf) -> np.ndarray:
     """The lift (k,) of a step over ``k`` frames that moves a foot ``way``: a squared sine
     (no vertical speed at either end) up to ``lift`` at most and half of the way beyond
-    ``shuffle`` (a shorter shift slides or pivots on the floor); :func:`_step`'s and the steps
-    :func:`pace_passes` makes."""
+    ``shuffle`` (a shorter shift slides or pivots on the floor), and no higher than lets it
+    accelerate within ``accel`` per frame squared (a squared sine over ``k + 1`` frames peaks
+    at ``2 pi^2 / (k + 1)^2`` times its height); :func:`_step`'s and the steps :func:`pace_passes`
+    makes."""
     u = np.arange(1, k + 1) / (k + 1.0)
-    return min(lift, 0.5 * max(way - shuffle, 0.0)) * np.sin(np.pi * u) ** 2
+    high = min(lift, 0.5 * max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
+    return high * np.sin(np.pi * u) ** 2
 
 
 def _planted(seam, next_to_it, floor: float, up: int, height_tol: float, speed_tol: float) -> bool:
@@ -993,7 +1008,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         weight[held] *= scale[held]
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
-        pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:])
+        pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:],
+                    foot=horiz)
         swing_offsets(offset, contact_runs(held), passes[3])
         weights[:, leg] = weight
         locks.append((offset, raised, held))
