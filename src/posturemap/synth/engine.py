@@ -373,8 +373,8 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
 
 
 def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray) -> None:
-    """No knee or elbow of the new frames bent further back than the motion library's go, nor
-    than A's and B's own (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per
+    """No knee or elbow of the new frames bent further back than the motion library's go or
+    A's and B's own, whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per
     library, each clip's furthest back once per clip). Without a library, the frames stay as
     they are.
 

@@ -33,10 +33,10 @@ in-between frames are made:
    weight's reach). The foot's offset is the spot (less the toe's turn) minus where the motion
    put the ankle, its length softly limited where the spot lies far from the foot
    (``MAX_DRIFT``: the foot is dragged rather than the leg stretched). Between runs, while the
-   foot is in the air, the offset passes smoothly (a cubic with the runs' offsets and their
-   rates at both ends) from one run's to the next, and from and to zero at A's and B's frames:
-   the correction a planted foot needs is spread over the whole swing, not made in a few frames
-   before and after it. Where a swing is too short for its change of offset at ``PASS_SPEED``
+   foot is in the air, the offset passes smoothly (a smoothstep between the runs' offsets, and
+   their rates carried ``CARRY_S`` at most) from one run's to the next, and from and to zero at
+   A's and B's frames: the correction a planted foot needs is spread over the whole swing, not
+   made in a few frames before and after it. Where a swing is too short for its change of offset at ``PASS_SPEED``
    or ``PASS_ACCEL`` (two blended segments, or a splice, whose stances lie one or two frames
    apart on spots far from each other; a run dragged far from where B puts the foot), the runs
    let go of their ends until it is not, a run left shorter than ``PASS_LEAST_S`` goes whole,
@@ -251,7 +251,11 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     radians at once: the knee set off at 5 cm a frame squared (30 fps) from A's still frames; a
     nearly straight leg whose carried offset had 2.4 cm left at the last new frame bent its knee
     7 cm off B's, which it snapped to at 9 cm a frame squared. (Held feet at the seams then
-    move along the hip-ankle line, a millimetre or two.)
+    move along the hip-ankle line, a millimetre or two.) The sweeps move only a frame whose own
+    second difference exceeds: where a seam's frame is held at the bound and its neighbour's is
+    within it, they stop with the seam frame's own second difference over the bound (a cold
+    review: up to 1.23x on bandai1's interpolated transitions, 2.75x on a steep synthetic ramp;
+    4x at A's frame before the seams were bounded).
 
     Near full extension the bend goes as the square root of the leg's shortening: a held spot
     half a centimetre nearer the hip than the motion's nearly straight leg had its ankle bent the
@@ -781,8 +785,10 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     the motion's own foot after those: lifted over the whole of it, a foot the motion glided
     along the floor for 0.67 s rose 7 cm into one long step while the other was up, a float),
     else the offsets' gap. A foot let go sooner because the motion under it moved on travels
-    that motion's way too: lifted by the gap alone it slid low along the floor (between bandai1 clips, ``bench/transition_feet.py``: 2.29 / 1.83 / 1.73 cm/s at 15 /
-    30 / 45 frames; by its own way 1.99 / 1.68 / 1.58).
+    that motion's way too: lifted by the gap alone it slid low along the floor (between bandai1
+    clips, ``bench/transition_feet.py``: 2.29 / 1.83 / 1.73 cm/s at 15 / 30 / 45 frames; by its
+    own way 2.09 / 1.72 / 1.63). At a seam the way starts (ends) at the first (last) new frame's
+    foot, one frame off A's (B's) own.
     """
     length = len(held)
     if length == 0 or pace <= 0:
@@ -794,7 +800,7 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
 
     def too_quick(p, q, lo, hi):
         # The pass from p (its run from lo) to q (its run to hi) at the pace, and (a free frame
-        # between) the cubic's acceleration at its ends, the runs' rates included (pass_accel).
+        # between) the carried curve's peak acceleration, the runs' rates included (pass_accel).
         d = gap(p, q)
         if q - p < d / pace:
             return True

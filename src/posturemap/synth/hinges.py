@@ -141,8 +141,8 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         back = np.flatnonzero(bends < least)
         if not len(back):
             continue
-        # About the plane's own normal (shin x thigh), the shin turns toward the thigh's line
-        # and on past it: by the bend back plus the bound.
+        # About the plane's own normal (shin x thigh), the shin turns toward the thigh's line,
+        # onto the bound (never past the line: the bound is at most 0).
         normal = np.cross(s[back], t[back])
         normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-300)
         axis = quat.mul_vec(quat.inv(parent[back]), normal)  # in the shin's parent's frame
