@@ -605,6 +605,25 @@ def test_a_fork_makes_the_same_transitions_with_its_own_buffers_and_clips(model,
     assert HELD_OUT[2] in child.tracks and HELD_OUT[2] not in parent.tracks
 
 
+def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
+    # The engine keeps each clip's own bound on its knees and elbows (how far back they bend)
+    # from its first transition on; a clip replaced under its name (the studio's upload) is not
+    # kept by it, nor are the clips before it.
+    import gc
+    import weakref
+
+    eng = TransitionEngine(model)
+    a, b = HELD_OUT[:2]
+    eng.add(b, clips[b])
+    gone = []
+    for k in range(4):
+        eng.add(a, clips[a][k:])  # a new clip under the same name
+        gone.append(weakref.ref(eng.tracks[a]))
+        eng.generate(a, b, length=20, a_end=40, b_start=0, method="auto", foot_lock=True)
+    gc.collect()
+    assert [ref() is None for ref in gone] == [True, True, True, False]
+
+
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):
     with pytest.raises(RequestError, match="add one first"):
         TransitionEngine(model).warm_up()

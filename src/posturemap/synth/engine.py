@@ -392,6 +392,10 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray
     for track in (ta, tb):
         own = eng._limb_least.get(id(track))
         if own is None or own[0] is not track:
+            # A clip's first transition: forget the clips replaced or dropped since (a server that
+            # replaces its clips would otherwise keep every one), then keep this one's.
+            live = {id(t): t for t in eng.tracks.values()}
+            eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
             own = track, hinges.least_bends((joints, bounds, hinge), track.motion.rotations, track.motion.positions)
             eng._limb_least[id(track)] = own
         least = np.minimum(least, own[1])
