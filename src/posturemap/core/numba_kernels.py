@@ -565,7 +565,44 @@ def _knee_bend(dist, thigh, shin):
 
 
 @nb.njit(**_OPTS)
-def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, change, moves):
+def _at(c, t):
+    """``c[t]`` within ``c``, 0 outside it (the clips' frames beside the new ones)."""
+    return c[t] if 0 <= t < c.shape[0] else 0.0
+
+
+@nb.njit(**_OPTS)
+def _rest_bounded(c, accel, passes, plain, relax):
+    """:func:`posturemap.synth.feet.rest_bounded` in place on ``c`` (L,): the same sweeps, in the
+    same order (``passes``, ``plain``, ``relax``: ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``).
+    Centre ``m`` of the second differences is the frame ``m - 2`` of ``c`` (-1: A's last frame,
+    ``L``: B's first); values outside ``c`` are the clips', 0."""
+    n = c.shape[0]
+    for sweep in range(passes):
+        worst = 0.0
+        for m in range(1, n + 3):
+            worst = max(worst, abs(_at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)))
+        if worst - accel <= accel * 1e-4:
+            break
+        lam = 1.0 if sweep < plain else relax
+        for first in range(3):
+            for m in range(1 + first, n + 3, 3):
+                second = _at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)
+                excess = abs(second) - accel
+                if excess <= 0.0:
+                    continue
+                norm2 = (1.0 if 0 <= m - 3 < n else 0.0) + (4.0 if 0 <= m - 2 < n else 0.0) \
+                    + (1.0 if 0 <= m - 1 < n else 0.0)
+                f = lam * (1.0 if second > 0.0 else -1.0) * excess / norm2
+                if 0 <= m - 3 < n:
+                    c[m - 3] -= f
+                if 0 <= m - 2 < n:
+                    c[m - 2] += 2.0 * f
+                if 0 <= m - 1 < n:
+                    c[m - 1] -= f
+
+
+@nb.njit(**_OPTS)
+def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, change, moves):
     """:func:`posturemap.synth.feet.knee_bounded` in place: ``goals`` (L, 3) the ankle's goals
     (the ankle itself where the lock leaves the leg), moved along the hip-goal line; the hip, knee
     and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``change``
@@ -596,29 +633,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, cha
         change[1, t] = dist
         change[0, t + 1] = _knee_bend(dist, thigh, shin) - _knee_bend(own, thigh, shin)
     inner = change[0, 1: n_l + 1].copy()
-    step = np.empty(n_l)
-    for _ in range(passes):
-        # The first and the last new frame's change within accel too (A's last frame's and B's
-        # first's second differences: feet.knee_bounded).
-        over = max(abs(change[0, 1]), abs(change[0, n_l])) - accel > accel * 1e-4
-        for t in range(n_l):
-            second = change[0, t] - 2.0 * change[0, t + 1] + change[0, t + 2]
-            excess = abs(second) - accel
-            over = over or excess > accel * 1e-4
-            step[t] = 0.25 * (1.0 if second > 0.0 else -1.0) * excess if excess > 0.0 else 0.0
-        if not over:
-            break
-        first, last = change[0, 1], change[0, n_l]
-        moved = 0.0
-        for t in range(n_l):
-            change[0, t + 1] += step[t]
-            if 0 < t < n_l - 1:
-                moved = max(moved, abs(step[t]))
-        change[0, 1] = min(max(change[0, 1], -accel), accel)
-        change[0, n_l] = min(max(change[0, n_l], -accel), accel)
-        moved = max(moved, abs(change[0, 1] - first), abs(change[0, n_l] - last))
-        if moved <= accel * 1e-6:  # held at a seam's bound, nothing else moves (feet.knee_bounded)
-            break
+    _rest_bounded(change[0, 1: n_l + 1], accel, passes, plain, relax)
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
@@ -900,7 +915,7 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
-              toe_catch, pace, accel, least, carry, knee_accel, knee_passes, weights):
+              toe_catch, pace, accel, least, carry, knee_accel, knee_passes, knee_plain, knee_relax, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -939,8 +954,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
     the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel
-    (radians per frame squared) and knee_passes: the bound on the lock's change of the knees'
-    bend and its sweeps (``KNEE_ACCEL``, ``KNEE_PASSES``; :func:`knee_bounded`); the IK is then
+    (radians per frame squared), knee_passes, knee_plain and knee_relax: the bound on the lock's
+    change of the knees' bend and its sweeps (``KNEE_ACCEL``, ``KNEE_PASSES``, ``KNEE_PLAIN``,
+    ``KNEE_RELAX``; :func:`knee_bounded`); the IK is then
     exact on the goals it leaves.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
@@ -1214,7 +1230,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 goals[t, up] += raised[t]
         if not ik.any():
             continue
-        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, change, ik)
+        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, change, ik)
         hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, ik)
         for t in range(n_l):
             if not ik[t]:
