@@ -1638,8 +1638,8 @@ def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
     # lifted by that way (half of it beyond the shuffle, the lift at most), a squared sine no
     # higher than lets it accelerate within the bound.
     length, accel, rate, lift, shuffle = 30, 0.3, 0.3, 4.0, 2.0
-    foot = np.zeros((length, 2))
-    foot[:, 0] = -rate * np.arange(length)
+    foot = np.zeros((length + 2, 2))  # A's last frame, the new ones, B's first
+    foot[:, 0] = -rate * np.arange(-1, length + 1)
 
     def widened(given, carry=15):
         held = np.zeros(length, dtype=bool)
@@ -1652,7 +1652,7 @@ def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
         return feet.contact_runs(held)[0][1] - 1, offset, raised
 
     p, offset, raised = widened(foot)
-    way = abs(foot[-1, 0] - (foot[p, 0] + offset[p, 0]))  # from the held spot to the motion's foot at B
+    way = abs(foot[-1, 0] - (foot[p + 1, 0] + offset[p, 0]))  # from the held spot to the motion's foot at B
     assert way > 1.5 * abs(offset[p, 0])
     k = length - p - 1
     want = min(lift, 0.5 * (way - shuffle), accel * (k + 1) ** 2 / (2 * np.pi**2))
@@ -1666,6 +1666,60 @@ def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
     p2, _, low = widened(foot, carry=length - p - 2)
     _, _, gap_only = widened(None, carry=length - p - 2)
     assert p2 == p and np.array_equal(low, gap_only)
+
+
+def test_a_widened_pass_from_a_seam_sets_off_from_the_clips_own_foot():
+    # A run held 30 off the motion's foot, let go from A's frame on at the pace (15 frames): the
+    # step from A's seam travels from A's own foot (4 behind the new frames' still foot) to the
+    # held spot, 34, and is lifted by half of that beyond the shuffle; from the first new frame's
+    # foot it would be 30.
+    length, lift, shuffle = 30, 100.0, 20.0
+
+    def widened(a_foot):
+        held = np.zeros(length, dtype=bool)
+        held[2:] = True
+        offset = np.zeros((length, 2))
+        offset[2:, 0] = 30.0
+        raised = np.zeros(length)
+        foot = np.zeros((length + 2, 2))
+        foot[0, 0] = a_foot
+        feet.pace_passes(held, held.astype(float), offset, raised, np.zeros(length), 2.0, lift, shuffle,
+                         np.inf, 1, length + 1, foot)
+        return np.flatnonzero(held)[0], raised
+
+    q, raised = widened(-4.0)
+    assert q == 14  # 30 at 2 a frame: 15 frames from A's
+    np.testing.assert_allclose(raised[:q], feet.step_lift(q, 34.0, lift, shuffle), rtol=1e-12)
+    np.testing.assert_allclose(widened(0.0)[1][:q], feet.step_lift(q, 30.0, lift, shuffle), rtol=1e-12)
+    assert raised[:q].max() > 1.3 * widened(0.0)[1][:q].max()  # 7 high, not 5
+
+
+def rechecked_runs():
+    """Two runs and B's seam: the stretch between the runs passes with the second run's rate
+    (the offset moving on at the average pace, a gentle Hermite) and not without it (a
+    smoothstep); the stretch to B's seam then shortens that run to its first frame, and its rate
+    with it."""
+    length, w = 16, 10.0
+    held = np.zeros(length, dtype=bool)
+    held[2:6] = held[10:14] = True
+    offset = np.zeros((length, 2))
+    offset[10:14, 0] = w + w / 5 * np.arange(4)
+    # (rates 0 / w/5 over 5 frames: peak 0.16 w; 0 / 0: 0.24 w; bound 0.2 w; pace w / 4 a frame)
+    return held, held.astype(float), offset, np.zeros(length), np.zeros(length), w / 4, 0.2 * w
+
+
+def test_pace_passes_checks_a_stretch_again_when_the_next_one_shortens_its_run():
+    held, weight, offset, raised, h, pace, accel = rechecked_runs()
+    feet.pace_passes(held, weight, offset, raised, h, pace, 1.0, 0.5, accel)
+    assert np.array_equal(np.flatnonzero(held), [2, 3, 4, 10])
+    # Every stretch left passes: at the pace, and its carried curve within the bound.
+    runs = feet.contact_runs(held)
+    ends = [(-1, runs[0][0]), (runs[0][1] - 1, runs[1][0]), (runs[1][1] - 1, len(held))]
+    for p, q in ends:
+        way = (offset[q] if q < len(held) else 0.0) - (offset[p] if p >= 0 else 0.0)
+        assert q - p >= np.linalg.norm(way) / pace
+        if q - p >= 2:  # the held runs' rates: none left (one frame, or still frames)
+            assert feet.pass_accel(way, np.zeros(2), np.zeros(2), q - p) <= accel
 
 
 def test_pace_passes_is_the_same_compiled():
@@ -1689,15 +1743,25 @@ def test_pace_passes_is_the_same_compiled():
                         else (np.inf, 1))
         carry = int(rng.integers(1, 40))  # the runs' rates carried that far: shorter or longer than the stretches
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        foot = gpos[:, ankle][:, [(up + 1) % 3, (up + 2) % 3]]  # the motion's foot (the steps' way)
+        seams = rng.normal(0.0, 0.05, (2, 3))  # A's last and B's first ankle
+        foot = np.concatenate([seams[:1], gpos[:, ankle], seams[1:]])[:, [(up + 1) % 3, (up + 2) % 3]]
         feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        numba_kernels._pace_passes(*got, gpos, ankle, up, pace, lift, stand, accel, least, carry)
+        numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, accel, least, carry)
         for g, w in zip(got, want):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
         changed += not np.array_equal(want[0], held)
         dropped += np.isfinite(accel) and len(feet.contact_runs(want[0])) < len(feet.contact_runs(held))
     assert changed > 100 and dropped > 20
+    # A stretch checked again once the next one shortened its run.
+    held, weight, offset, raised, h, pace, accel = rechecked_runs()
+    want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
+    feet.pace_passes(*want, h, pace, 1.0, 0.5, accel, 1, len(held))
+    gpos = np.zeros((len(held), 1, 3))
+    numba_kernels._pace_passes(held, weight, offset, raised, gpos, 0, 1, np.zeros(3), np.zeros(3), pace, 1.0, 0.5,
+                               accel, 1, len(held))
+    assert np.array_equal(held, want[0]) and not held[5]
+    np.testing.assert_allclose(raised, want[3], rtol=0, atol=1e-12)
 
 
 # -- the knee's bend bounded ------------------------------------------------------------------

@@ -772,9 +772,10 @@ def _pass_accel(offset, p, q, lo, hi, n_l, carry):
 
 
 @nb.njit(**_OPTS)
-def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry):
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pace, lift, stand, accel, least, carry):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
-    ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height from ``gpos``."""
+    ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height and way from ``gpos``,
+    A's last frame's and B's first's ankle ``a_foot``, ``b_foot`` (3,)."""
     n_l = on.shape[0]
     if n_l == 0 or pace <= 0.0:
         return
@@ -809,35 +810,39 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
             for f in range(orig_starts[i], orig_stops[i]):
                 on[f] = keep[i]
                 weight[f] = given[f] if keep[i] else 0.0
-        prev = -1  # the run before the stretch (index), -1 for A's seam
-        for i in range(n_r + 1):
-            if i < n_r and not keep[i]:
-                continue
-            p = stops[prev] - 1 if prev >= 0 else -1
-            q = starts[i] if i < n_r else n_l
-            while True:
-                d = _pass_gap(offset, p, q, n_l)
-                lo = starts[prev] if prev >= 0 else 0
-                hi = stops[i] if i < n_r else n_l
-                if q - p >= d / pace and (q - p < 2 or _pass_accel(offset, p, q, lo, hi, n_l, carry) <= accel):
-                    break
-                left = p - starts[prev] if prev >= 0 else 0
-                right = stops[i] - 1 - q if i < n_r else 0
-                if left <= 0 and right <= 0:
-                    break
-                if left >= right:
-                    on[p] = False
-                    weight[p] = 0.0
-                    p -= 1
-                else:
-                    on[q] = False
-                    weight[q] = 0.0
-                    q += 1
-            if prev >= 0:
-                stops[prev] = p + 1
-            if i < n_r:
-                starts[i] = q
-            prev = i
+        widened = True
+        while widened:  # until no stretch widens (feet.pace_passes)
+            widened = False
+            prev = -1  # the run before the stretch (index), -1 for A's seam
+            for i in range(n_r + 1):
+                if i < n_r and not keep[i]:
+                    continue
+                p = stops[prev] - 1 if prev >= 0 else -1
+                q = starts[i] if i < n_r else n_l
+                while True:
+                    d = _pass_gap(offset, p, q, n_l)
+                    lo = starts[prev] if prev >= 0 else 0
+                    hi = stops[i] if i < n_r else n_l
+                    if q - p >= d / pace and (q - p < 2 or _pass_accel(offset, p, q, lo, hi, n_l, carry) <= accel):
+                        break
+                    left = p - starts[prev] if prev >= 0 else 0
+                    right = stops[i] - 1 - q if i < n_r else 0
+                    if left <= 0 and right <= 0:
+                        break
+                    widened = True
+                    if left >= right:
+                        on[p] = False
+                        weight[p] = 0.0
+                        p -= 1
+                    else:
+                        on[q] = False
+                        weight[q] = 0.0
+                        q += 1
+                if prev >= 0:
+                    stops[prev] = p + 1
+                if i < n_r:
+                    starts[i] = q
+                prev = i
         short = -1  # the shortest as it came of the runs left too short, the first on a tie
         for i in range(n_r):
             if keep[i] and stops[i] - starts[i] < min(least, lengths[i]) and (short < 0 or lengths[i] < lengths[short]):
@@ -863,9 +868,9 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand,
         d = _pass_gap(offset, p, q, n_l)
         if q - p <= carry:
             a_, b_ = (up + 1) % 3, (up + 2) % 3
-            fp, fq = min(max(p, 0), n_l - 1), min(max(q, 0), n_l - 1)
-            wa = gpos[fq, ankle, a_] - gpos[fp, ankle, a_]
-            wb = gpos[fq, ankle, b_] - gpos[fp, ankle, b_]
+            qa, qb = (gpos[q, ankle, a_], gpos[q, ankle, b_]) if q < n_l else (b_foot[a_], b_foot[b_])
+            pa, pb = (gpos[p, ankle, a_], gpos[p, ankle, b_]) if p >= 0 else (a_foot[a_], a_foot[b_])
+            wa, wb = qa - pa, qb - pb
             if q < n_l:
                 wa, wb = wa + offset[q, 0], wb + offset[q, 1]
             if p >= 0:
@@ -1168,7 +1173,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 offset[t, 1] *= scale
                 raised[t] *= scale
         # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
-        _pace_passes(on, weight, offset, raised, gpos, ankle, up, pace, lift, stand, accel, least, carry)
+        _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_feet[1, leg], b_feet[0, leg], pace, lift, stand,
+                     accel, least, carry)
         # Carried through the frames between the runs: a smoothstep from the value at one run's
         # end (0 on frame -1) to the next one's start (0 on frame L), each end's rate carried
         # ``carry`` frames at most by the cubic Hermite's terms for it (feet.swing_offsets).

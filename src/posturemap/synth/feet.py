@@ -793,7 +793,9 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     (each run's rate over ``carry`` frames at most) accelerates faster than ``accel``
     (:func:`pass_accel`; the runs' rates included: a foot held while the motion under it moves on
     sets off from rest to the motion's pace within the bound too), the runs let go of their frames next to the
-    stretch, the longer run first, each keeping one frame. Of the runs left shorter than
+    stretch, the longer run first, each keeping one frame; the stretches are checked again until
+    none widens (a run shortened by the stretch after it has another rate at the one before,
+    none with one frame left). Of the runs left shorter than
     ``least`` frames (and than they were), the shortest as it came is let go entirely, and the
     widening starts again from the runs as they came without it, its two stretches one: its
     neighbours get back the frames they gave up for it. A splice of two real segments, or a
@@ -805,15 +807,15 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
     (:func:`step_lift`: ``lift``, at most half of the way beyond ``shuffle``, on a squared sine
     within ``accel``) less what the motion lifts it already; the way is the foot's own between
-    the two held frames, ``foot`` (L, k: the motion's foot, as ``offset`` lies) with the
-    offsets, where given and the stretch no longer than ``carry`` frames (a longer one follows
+    the two held frames, ``foot`` (L + 2, k: the motion's foot, as ``offset`` lies, in A's last
+    frame, the new ones and B's first) with the offsets, where given and the stretch no longer
+    than ``carry`` frames (a longer one follows
     the motion's own foot after those: lifted over the whole of it, a foot the motion glided
     along the floor for 0.67 s rose 7 cm into one long step while the other was up, a float),
     else the offsets' gap. A foot let go sooner because the motion under it moved on travels
     that motion's way too: lifted by the gap alone it slid low along the floor (between bandai1
     clips, ``bench/transition_feet.py``: 2.29 / 1.83 / 1.73 cm/s at 15 / 30 / 45 frames; by its
-    own way 2.09 / 1.72 / 1.63). At a seam the way starts (ends) at the first (last) new frame's
-    foot, one frame off A's (B's) own.
+    own way 2.09 / 1.72 / 1.63). At a seam the way starts at A's foot (ends at B's).
     """
     length = len(held)
     if length == 0 or pace <= 0:
@@ -854,28 +856,34 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
             weight[start: stop] = given[start: stop] if keep else 0.0
             if keep:
                 runs.append([start, stop, k])
-        for i in range(len(runs) + 1):
-            p = runs[i - 1][1] - 1 if i > 0 else -1
-            q = runs[i][0] if i < len(runs) else length
-            while True:
-                # Next to a seam with no free frame between, the correction is not carried through
-                # frames (the foot is held on both sides): the pace alone, as for a jump.
-                if not too_quick(p, q, runs[i - 1][0] if i > 0 else 0, runs[i][1] if i < len(runs) else length):
-                    break
-                left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
-                right = runs[i][1] - 1 - q if i < len(runs) else 0
-                if left <= 0 and right <= 0:
-                    break
-                if left >= right:
-                    held[p], weight[p] = False, 0.0
-                    p -= 1
-                else:
-                    held[q], weight[q] = False, 0.0
-                    q += 1
-            if i > 0:
-                runs[i - 1][1] = p + 1
-            if i < len(runs):
-                runs[i][0] = q
+        # Until no stretch widens: a run the next stretch shortens changes its rate at the
+        # stretch before (down to none, one frame left), which is checked again.
+        widened = True
+        while widened:
+            widened = False
+            for i in range(len(runs) + 1):
+                p = runs[i - 1][1] - 1 if i > 0 else -1
+                q = runs[i][0] if i < len(runs) else length
+                while True:
+                    # Next to a seam with no free frame between, the correction is not carried
+                    # through frames (the foot is held on both sides): the pace alone, as for a jump.
+                    if not too_quick(p, q, runs[i - 1][0] if i > 0 else 0, runs[i][1] if i < len(runs) else length):
+                        break
+                    left = p - runs[i - 1][0] if i > 0 else 0  # frames the run before can let go
+                    right = runs[i][1] - 1 - q if i < len(runs) else 0
+                    if left <= 0 and right <= 0:
+                        break
+                    widened = True
+                    if left >= right:
+                        held[p], weight[p] = False, 0.0
+                        p -= 1
+                    else:
+                        held[q], weight[q] = False, 0.0
+                        q += 1
+                if i > 0:
+                    runs[i - 1][1] = p + 1
+                if i < len(runs):
+                    runs[i][0] = q
         short = [(original[k][1] - original[k][0], k) for start, stop, k in runs
                  if stop - start < min(least, original[k][1] - original[k][0])]
         if not short:
@@ -889,8 +897,8 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
         way = gap(p, q)
         if foot is not None and q - p <= (length + 1 if carry is None else carry):  # the foot's own way:
             # the motion's with the offsets' (a longer stretch is the motion's own after carry frames)
-            way = float(np.linalg.norm(foot[min(q, length - 1)] + (offset[q] if q < length else zero)
-                                       - foot[max(p, 0)] - (offset[p] if p >= 0 else zero)))
+            way = float(np.linalg.norm(foot[q + 1] + (offset[q] if q < length else zero)
+                                       - foot[p + 1] - (offset[p] if p >= 0 else zero)))
         raised[free] = np.maximum(raised[free], step_lift(q - p - 1, way, lift, shuffle, accel)
                                   - np.maximum(h[free] - base, 0.0))
 
@@ -1040,7 +1048,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
         pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:],
-                    foot=horiz)
+                    foot=np.concatenate([a_feet[1:, leg] * flat, horiz, b_feet[:1, leg] * flat]))
         swing_offsets(offset, contact_runs(held), passes[3])
         weights[:, leg] = weight
         locks.append((offset, raised, held))
