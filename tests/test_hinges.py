@@ -56,7 +56,7 @@ def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twi
     flex[:3] = np.radians([-2.0, -1.0, -0.5])  # the library's few knees a hair past straight
     parents, chain, rots, pos = leg(flex, twist, rng)
     (path, hinge, least), = find(parents, [chain], rots, pos[0])
-    t, s, _ = leg_vectors(rots, pos, path)
+    t, s = leg_vectors(rots, pos, path)
     signed = signed_bends(t, s, hinge)
     np.testing.assert_allclose(np.abs(signed), bends_of(parents, chain, rots, pos), atol=1e-9)
     np.testing.assert_allclose(signed, flex, atol=1e-9)  # forward positive, backward negative
@@ -94,7 +94,7 @@ def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(t
     shin = chain[1]
     changed = np.flatnonzero(np.any(rots != before, axis=-1).any(axis=0))
     assert list(changed) == [shin]  # only the shin turns
-    t, s, _ = leg_vectors(rots, pos, path)
+    t, s = leg_vectors(rots, pos, path)
     np.testing.assert_allclose(signed_bends(t, s, hinge)[back], 0.0, atol=1e-7)  # straight: the bound
     _, gp = fk(parents, rots, pos)
     # In its own plane: the ankle stays in the plane of hip, knee and the old ankle.
@@ -116,12 +116,40 @@ def test_unbend_holds_a_knee_to_the_librarys_own_bound_and_skips_legs_without_a_
     parents, chain, rots, pos = leg(np.radians([-3.0, -20.0]), rng=rng)
     with backend(compiled):
         assert unbend(packed(knees), rots, pos) == 1
-    t, s, _ = leg_vectors(rots, pos, knees[0][0])
+    t, s = leg_vectors(rots, pos, knees[0][0])
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), np.radians([-3.0, -4.0]), atol=1e-7)
     before = rots.copy()
     with backend(compiled):
         assert unbend(packed([None]), rots, pos) == 0
     np.testing.assert_array_equal(rots, before)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinges_normal(compiled):
+    # A blend bent a knee 11 degrees sideways, its plane turning past the hinge's normal and
+    # back: signed by its plane's normal alone it read -11 degrees in two frames and was
+    # straightened there (a 9-10 degree kick each way). About the hinge it reads about as much
+    # as it bends backward, and the knee turns that much at most, frame after frame alike.
+    rng = np.random.default_rng(5)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    (path, hinge, least), = knees
+    assert least == 0.0
+    turn = np.radians(np.linspace(80.0, 100.0, 11))  # the plane's normal from the hinge (X) toward -Z and past
+    axis = np.stack([np.cos(turn), np.zeros_like(turn), -np.sin(turn)], axis=-1)
+    parents, chain, rots, pos = leg(np.zeros(len(turn)), rng=rng)
+    rots[:, 1] = quat.from_axis_angle(axis, np.full(len(turn), np.radians(11.0)))
+    t, s = leg_vectors(rots, pos, path)
+    bends = signed_bends(t, s, hinge)
+    assert (bends < 0).sum() == 5 and np.abs(bends).max() < np.radians(2.0)
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(packed(knees), rots, pos) == 5
+    turned = np.degrees(quat.angle_between(rots[:, 1], before[:, 1]))
+    np.testing.assert_allclose(turned, np.degrees(np.maximum(-bends, 0.0)), atol=1e-6)
+    t, s = leg_vectors(rots, pos, path)
+    np.testing.assert_allclose(np.minimum(signed_bends(t, s, hinge), 0.0), 0.0, atol=1e-9)
+    assert bends_of(parents, chain, rots, pos).min() > np.radians(10.0)  # still bent sideways
 
 
 @pytest.mark.parametrize("twist", [False, True])

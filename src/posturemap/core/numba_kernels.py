@@ -500,9 +500,9 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 @nb.njit(**_OPTS)
 def unbend_limbs(rots, positions, joints, bounds, hinges, leasts):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
-    (K, 3; its joints in ``joints``, the shin ``joints[mid - 1]``) whose knee bends further back
-    than ``leasts[k]`` (a signed bend against ``hinges[k]``, in the thigh's frame) turned
-    forward in its plane onto it; returns how many knees it turned."""
+    (K, 3; its joints in ``joints``, the shin ``joints[mid - 1]``) whose knee bends about
+    ``hinges[k]`` (in the frame of the shin's parent) further back than ``leasts[k]`` turned
+    about the hinge onto it; returns how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last = bounds[k, 0], bounds[k, 1], bounds[k, 2]
@@ -522,18 +522,19 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts):
                 q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
                 if i == mid - 1:
                     tx, ty, tz = px, py, pz
-            sx, sy, sz = px - tx, py - ty, pz - tz
-            size = max(math.sqrt(tx * tx + ty * ty + tz * tz) * math.sqrt(sx * sx + sy * sy + sz * sz), 1e-300)
-            bend = math.acos(min(max((tx * sx + ty * sy + tz * sz) / size, -1.0), 1.0))
-            nx, ny, nz = sy * tz - sz * ty, sz * tx - sx * tz, sx * ty - sy * tx
-            if nx * hx + ny * hy + nz * hz < 0.0:
-                bend = -bend
+            # Both in the frame of the shin's parent (hinges.leg_vectors).
+            sx, sy, sz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], px - tx, py - ty, pz - tz)
+            tx, ty, tz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], tx, ty, tz)
+            # The bend about the hinge (hinges.signed_bends).
+            across = (sy * tz - sz * ty) * hx + (sz * tx - sx * tz) * hy + (sx * ty - sy * tx) * hz
+            along = tx * sx + ty * sy + tz * sz - (tx * hx + ty * hy + tz * hz) * (sx * hx + sy * hy + sz * hz)
+            bend = math.atan2(across, along)
             if bend >= leasts[k]:
                 continue
-            nx, ny, nz = _unit(nx, ny, nz)
-            r = _axis_angle_in(parent, nx, ny, nz, leasts[k] - bend)
+            half = 0.5 * (bend - leasts[k])
+            c, sn = math.cos(half), math.sin(half)
             rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
-                r[0], r[1], r[2], r[3], rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
+                c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
             turned += 1
     return turned
 

@@ -14,11 +14,11 @@ motion's passed straight. Bandai's 26,000 training frames bend no knee backward 
 elbow 28 degrees backward (the library's elbows: 2.4 degrees at most).
 
 The library gives each leg and arm its hinge (:func:`find`: the knee's or elbow's bending
-planes' normals summed in the thigh's or upper arm's frame, the bent frames weighing the most)
-and how far back it goes (the 0.1st percentile of the signed bends, 0 at most). :func:`unbend`
-turns each knee and elbow of the new frames that goes further back, in its own plane, to that
-bound: it locks straight, as a real one does; frames within the library's range are left
-exactly as they are. Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm,
+planes' normals summed in the frame of the shin's or forearm's parent, the bent frames weighing
+the most) and how far back it goes (the 0.1st percentile of the bends about the hinge, 0 at
+most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
+its hinge to that bound: it locks straight, as a real one does; frames within the library's
+range are left exactly as they are. Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm,
 forearm and elbow too. The engine does
 this to ``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`); the interpolating methods, the
@@ -48,8 +48,9 @@ def leg_path(parents, thigh: int, shin: int, ankle: int) -> tuple[list[int], lis
 
 def leg_vectors(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], list[int]]):
     """The thigh's vector (hip to knee) and the shin's (knee to ankle), (N, 3) each, in the
-    thigh's frame, and the rotation (N, 4) of the shin's parent in that frame, from local
-    rotations ``rots`` (N, J, 4) and translations ``offsets`` (N, J, 3) or (J, 3)."""
+    frame of the shin's parent (the thigh's, or a twist joint's inside the thigh: the frame the
+    knee's own rotation turns the shin in), from local rotations ``rots`` (N, J, 4) and
+    translations ``offsets`` (N, J, 3) or (J, 3)."""
     to_shin, to_ankle = path
     n = len(rots)
     offsets = np.broadcast_to(offsets, (n,) + offsets.shape[-2:])
@@ -63,28 +64,34 @@ def leg_vectors(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], li
     for j in to_ankle:
         p = p + quat.mul_vec(q, offsets[:, j])
         q = quat.mul(q, rots[:, j])
-    return thigh, p - thigh, parent
+    back = quat.inv(parent)
+    return quat.mul_vec(back, thigh), quat.mul_vec(back, p - thigh)
 
 
 def signed_bends(thigh: np.ndarray, shin: np.ndarray, hinge: np.ndarray) -> np.ndarray:
-    """Each frame's knee bend (radians, 0 straight), negative where the knee's plane's normal
-    (``shin x thigh``) points against ``hinge``: bent backward."""
-    cos = np.sum(thigh * shin, axis=-1) / np.maximum(np.linalg.norm(thigh, axis=-1) * np.linalg.norm(shin, axis=-1),
-                                                      1e-300)
-    bend = np.arccos(np.clip(cos, -1.0, 1.0))
-    return np.where(np.cross(shin, thigh) @ hinge < 0.0, -bend, bend)
+    """Each frame's knee bend about its hinge (radians, 0 straight, negative backward): the
+    angle from the thigh's line to the shin about ``hinge``, both seen along it (projected onto
+    the plane normal to it). A knee bent in the hinge's plane reads its whole bend, forward or
+    backward; one bent sideways reads the part of it about the hinge, which goes through 0 as
+    the knee's plane turns through sideways. (The sign of the bend by its plane's normal alone
+    jumped there: a blend of two segments bent a LaFAN1 knee 11 degrees sideways, its plane
+    turning past the hinge's normal and back over three frames, and :func:`unbend` straightened
+    it in two of them, a 9-10 degree kick each way.)"""
+    across = np.sum(np.cross(shin, thigh) * hinge, axis=-1)
+    along = np.sum(thigh * shin, axis=-1) - np.sum(thigh * hinge, axis=-1) * np.sum(shin * hinge, axis=-1)
+    return np.arctan2(across, along)
 
 
 def find(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
     """Per leg of ``chains`` ((thigh, shin, ankle) each): ``(path, hinge (3,), least)``, the
-    leg's joints (:func:`leg_path`), its hinge in the thigh's frame (unit) and the furthest back
-    its knee goes in ``rots`` (N, J, 4; a signed bend in radians, 0 at most: the
-    ``LEAST_PERCENTILE``-th percentile); None for a leg whose knees never bend (no hinge to
-    tell backward from forward)."""
+    leg's joints (:func:`leg_path`), its hinge in the frame of the shin's parent (unit) and the
+    furthest back its knee goes in ``rots`` (N, J, 4; a bend about the hinge in radians, 0 at
+    most: the ``LEAST_PERCENTILE``-th percentile); None for a leg whose knees never bend (no
+    hinge to tell backward from forward)."""
     out = []
     for thigh, shin, ankle in chains:
         path = leg_path(parents, thigh, shin, ankle)
-        t, s, _ = leg_vectors(rots, offsets, path)
+        t, s = leg_vectors(rots, offsets, path)
         normal = np.cross(s, t).sum(axis=0)
         size = float(np.mean(np.linalg.norm(t, axis=-1) * np.linalg.norm(s, axis=-1))) if len(t) else 0.0
         if not len(t) or np.linalg.norm(normal) <= HINGE_MIN * size * len(t):
@@ -119,34 +126,35 @@ def least_bends(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndar
     out = np.zeros(len(bounds))
     for k, ((first, mid, last), hinge) in enumerate(zip(bounds.tolist(), hinge_rows)):
         if len(rots):
-            t, s, _ = leg_vectors(rots, positions, (joints[first:mid].tolist(), joints[mid:last].tolist()))
+            t, s = leg_vectors(rots, positions, (joints[first:mid].tolist(), joints[mid:last].tolist()))
             out[k] = signed_bends(t, s, hinge).min()
     return out
 
 
 def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     """Each knee of the frames ``rots`` (N, J, 4; local translations ``positions`` (N, J, 3))
-    bent further back than its leg's bound (``limits``: :func:`packed` of :func:`find`)
-    turned forward, in its own plane, onto the bound: the shin's local rotation turned about
-    the plane's normal. In place; returns how many knees (frames times legs) it turned. Where
-    this process uses numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
+    bent about its hinge further back than its leg's bound (``limits``: :func:`packed` of
+    :func:`find`; :func:`signed_bends`) turned forward about the hinge onto the bound: the
+    shin's local rotation turned about the hinge, in the frame of the shin's parent, by as much
+    as it is past the bound (a knee bent in the hinge's plane turns in its own plane; one bent
+    sideways keeps its sideways part). In place; returns how many knees (frames times legs) it
+    turned. Where this process uses numba, one compiled call
+    (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
         return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts))
     turned = 0
     for (first, mid, last), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())
-        t, s, parent = leg_vectors(rots, positions, path)
+        t, s = leg_vectors(rots, positions, path)
         bends = signed_bends(t, s, hinge)
         back = np.flatnonzero(bends < least)
         if not len(back):
             continue
-        # About the plane's own normal (shin x thigh), the shin turns toward the thigh's line,
-        # onto the bound (never past the line: the bound is at most 0).
-        normal = np.cross(s[back], t[back])
-        normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-300)
-        axis = quat.mul_vec(quat.inv(parent[back]), normal)  # in the shin's parent's frame
+        # About the hinge the shin turns toward the thigh's line, onto the bound (never past
+        # the line: the bound is at most 0); a turn about +hinge lowers the bend.
         shin = path[0][-1]
-        rots[back, shin] = quat.mul(quat.from_axis_angle(axis, least - bends[back]), rots[back, shin])
+        rots[back, shin] = quat.mul(quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)),
+                                                         bends[back] - least), rots[back, shin])
         turned += len(back)
     return turned
