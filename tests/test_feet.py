@@ -1876,14 +1876,52 @@ def test_rest_bounded_brings_every_second_difference_within_the_bound_seams_incl
     np.testing.assert_array_equal(feet.rest_bounded(calm, accel), calm)
 
 
-def test_rest_bounded_is_the_same_compiled():
+def test_rest_bounded_keeps_within_its_box_and_scales_what_the_sweeps_leave(monkeypatch):
+    accel = 0.15
+    change = np.r_[np.zeros(6), np.full(8, 1.2), np.zeros(10)]  # a block: the projection rings below 0 beside it
+    assert feet.rest_bounded(change, accel).min() < -0.01
+    got = feet.rest_bounded(change, accel, np.zeros(len(change)), np.full(len(change), 2.0))
+    assert got.min() >= 0.0 and np.abs(at_rest(got)).max() <= accel * (1 + 1e-4)
+    # Two sweeps leave the plateau far over the bound: scaled toward 0 onto it.
+    monkeypatch.setattr(feet, "KNEE_PASSES", 2)
+    few = feet.rest_bounded(change, accel)
+    assert np.abs(at_rest(few)).max() == pytest.approx(accel)
+    assert 0.0 < np.abs(few).max() < np.abs(change).max()  # less than the sweeps took it, not 0
+
+
+def test_knee_bounded_keeps_a_straight_legs_bend_within_the_bound():
+    # A straight leg (the knee's own bend 0) bent 0.52 radians in frames 2-11 of 36 at 60 fps:
+    # bounded, the change rings below 0 beside the block, and a straight knee cannot bend back,
+    # so its bend, clipped at straight, broke the bound (1.67x; a cold review). Within it now.
+    n, accel = 36, feet.KNEE_ACCEL / 3600.0
+    a = np.zeros((n, 3))
+    b = np.tile([0.0, -1.0, 0.0], (n, 1))
+    c = np.tile([0.0, -2.0, 0.0], (n, 1))
+    goal = c.copy()
+    goal[2:12, 1] = -np.sqrt(2.0 + 2.0 * np.cos(0.52))
+    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
+    after = feet.knee_bend(np.linalg.norm(out - a, axis=-1), 1.0, 1.0)  # the bend itself: the knee's own is 0
+    assert bent.any() and after.min() >= 0.0
+    assert np.abs(at_rest(after)).max() <= accel * 1.001
+
+
+def test_rest_bounded_is_the_same_compiled(monkeypatch):
     from posturemap.core import kernels
 
     nk = kernels.compiled()
     for change in steep_changes() + [np.array([0.4]), np.array([0.3, -0.3])]:
         got = change.copy()
-        nk._rest_bounded(got, 0.15, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX)
+        nk._rest_bounded(got, 0.15, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX, np.full(len(got), -np.inf),
+                         np.full(len(got), np.inf))
         np.testing.assert_allclose(got, feet.rest_bounded(change, 0.15), rtol=0, atol=1e-12)
+        # Within a box too, and scaled within the bound where the sweeps cannot reach it.
+        lo, hi = np.minimum(change, 0.0) - 0.01, np.maximum(change, 0.0) + 0.01
+        for passes in (feet.KNEE_PASSES, 3):
+            got = change.copy()
+            nk._rest_bounded(got, 0.15, passes, feet.KNEE_PLAIN, feet.KNEE_RELAX, lo, hi)
+            monkeypatch.setattr(feet, "KNEE_PASSES", passes)
+            want = feet.rest_bounded(change, 0.15, lo, hi)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
 def test_knee_bounded_applies_the_iks_soft_reach():

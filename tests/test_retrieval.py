@@ -622,6 +622,10 @@ def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
         eng.generate(a, b, length=20, a_end=40, b_start=0, method="auto", foot_lock=True)
     gc.collect()
     assert [ref() is None for ref in gone] == [True, True, True, False]
+    # Nor does a fork copy one replaced since the last transition.
+    eng.add(a, clips[a][5:])
+    child = eng.fork()
+    assert all(entry[0] is child.tracks[a] or entry[0] is child.tracks[b] for entry in child._limb_least.values())
 
 
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):

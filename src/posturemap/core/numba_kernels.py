@@ -572,17 +572,24 @@ def _at(c, t):
 
 
 @nb.njit(**_OPTS)
-def _rest_bounded(c, accel, passes, plain, relax):
-    """:func:`posturemap.synth.feet.rest_bounded` in place on ``c`` (L,): the same sweeps, in the
-    same order (``passes``, ``plain``, ``relax``: ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``).
+def _second_most(c):
+    """The largest second difference of ``c`` (L,) with two 0 on either side (feet.rest_bounded)."""
+    worst = 0.0
+    for m in range(1, c.shape[0] + 3):
+        worst = max(worst, abs(_at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)))
+    return worst
+
+
+@nb.njit(**_OPTS)
+def _rest_bounded(c, accel, passes, plain, relax, lo, hi):
+    """:func:`posturemap.synth.feet.rest_bounded` in place on ``c`` (L,), each value within ``lo``
+    and ``hi`` (L,): the same sweeps, in the same order (``passes``, ``plain``, ``relax``:
+    ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``), and the same scaling of what they leave.
     Centre ``m`` of the second differences is the frame ``m - 2`` of ``c`` (-1: A's last frame,
     ``L``: B's first); values outside ``c`` are the clips', 0."""
     n = c.shape[0]
     for sweep in range(passes):
-        worst = 0.0
-        for m in range(1, n + 3):
-            worst = max(worst, abs(_at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)))
-        if worst - accel <= accel * 1e-4:
+        if _second_most(c) - accel <= accel * 1e-4:
             break
         lam = 1.0 if sweep < plain else relax
         for first in range(3):
@@ -594,12 +601,13 @@ def _rest_bounded(c, accel, passes, plain, relax):
                 norm2 = (1.0 if 0 <= m - 3 < n else 0.0) + (4.0 if 0 <= m - 2 < n else 0.0) \
                     + (1.0 if 0 <= m - 1 < n else 0.0)
                 f = lam * (1.0 if second > 0.0 else -1.0) * excess / norm2
-                if 0 <= m - 3 < n:
-                    c[m - 3] -= f
-                if 0 <= m - 2 < n:
-                    c[m - 2] += 2.0 * f
-                if 0 <= m - 1 < n:
-                    c[m - 1] -= f
+                for t, w in ((m - 3, -f), (m - 2, 2.0 * f), (m - 1, -f)):
+                    if 0 <= t < n:
+                        c[t] = min(max(c[t] + w, lo[t]), hi[t])
+    worst = _second_most(c)
+    if worst - accel > accel * 1e-4:
+        for t in range(n):
+            c[t] *= accel / worst
 
 
 @nb.njit(**_OPTS)
@@ -623,6 +631,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, pla
     # change[0]: the lock's change of the bend, 0 beside the new frames; change[1]: it unrelaxed,
     # then the goals' soft-limited distances.
     change[0, 0], change[0, n_l + 1] = 0.0, 0.0
+    box = np.empty((2, n_l))  # the change that keeps the bend within [0, pi] (feet.knee_bounded)
     for t in range(n_l):
         thigh, shin = lengths[0, t], lengths[1, t]
         dist = math.sqrt((goals[t, 0] - gpos[t, thigh_j, 0]) ** 2 + (goals[t, 1] - gpos[t, thigh_j, 1]) ** 2
@@ -632,9 +641,11 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, pla
         if soft > 0.0:
             dist = _soft_limit(dist, max(own, (1.0 - soft) * (thigh + shin)), thigh + shin)
         change[1, t] = dist
-        change[0, t + 1] = _knee_bend(dist, thigh, shin) - _knee_bend(own, thigh, shin)
+        own_bend = _knee_bend(own, thigh, shin)
+        change[0, t + 1] = _knee_bend(dist, thigh, shin) - own_bend
+        box[0, t], box[1, t] = -own_bend, math.pi - own_bend
     inner = change[0, 1: n_l + 1].copy()
-    _rest_bounded(change[0, 1: n_l + 1], accel, passes, plain, relax)
+    _rest_bounded(change[0, 1: n_l + 1], accel, passes, plain, relax, box[0], box[1])
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)

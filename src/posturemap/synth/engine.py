@@ -197,6 +197,7 @@ class TransitionEngine:
         """Another engine for another thread: its own buffers and caches, the same clips, map and
         motion library (shared, read-only). A clip added to one engine afterwards is not in the
         other."""
+        _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
         shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
@@ -392,14 +393,19 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray
     for track in (ta, tb):
         own = eng._limb_least.get(id(track))
         if own is None or own[0] is not track:
-            # A clip's first transition: forget the clips replaced or dropped since (a server that
-            # replaces its clips would otherwise keep every one), then keep this one's.
-            live = {id(t): t for t in eng.tracks.values()}
-            eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
+            _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
             own = track, hinges.least_bends((joints, bounds, hinge), track.motion.rotations, track.motion.positions)
             eng._limb_least[id(track)] = own
         least = np.minimum(least, own[1])
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
+
+
+def _forget_gone_clips(eng: TransitionEngine) -> None:
+    """Drop the knees' and elbows' own bounds the engine keeps of clips no longer among its
+    tracks (replaced under their name, or dropped): a server that replaces its clips would
+    otherwise keep every one, and a fork would copy them."""
+    live = {id(t): t for t in eng.tracks.values()}
+    eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
 
 
 def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,

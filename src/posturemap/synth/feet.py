@@ -234,27 +234,35 @@ def knee_bend(dist: np.ndarray, thigh: np.ndarray, shin: np.ndarray) -> np.ndarr
     return np.pi - np.arccos(np.clip((thigh**2 + shin**2 - d**2) / (2.0 * thigh * shin), -1.0, 1.0))
 
 
-def rest_bounded(change: np.ndarray, accel: float) -> np.ndarray:
+def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
+                 hi: np.ndarray | None = None) -> np.ndarray:
     """``change`` (L,) moved as little as the sweeps find so that, 0 in the two frames before it
     and the two after it (the clips' frames beside the new ones), every second difference is at
     most ``accel``: the one at each new frame, and at A's last frame and B's first (there the
-    first and the last value themselves). A change of the new frames that sets off from rest and
-    comes to rest within a bound on its acceleration.
+    first and the last value themselves); each value within ``lo`` and ``hi`` (L,) where given
+    (``change`` must be; 0 is). A change of the new frames that sets off from rest and comes to
+    rest within a bound on its acceleration.
 
     Each bound is a slab in the values it touches (one, two or three of them); a sweep projects
     the values onto the slabs they break (Kaczmarz's projections onto convex sets: a point
     within every bound near the nearest one, not that one), the second differences three frames
-    apart at once (they share no value), and
-    after ``KNEE_PLAIN`` sweeps over-relaxed by ``KNEE_RELAX`` (still converging: a relaxation
-    below 2), for at most ``KNEE_PASSES`` sweeps. Of 817 knee changes the lock made between
-    seeded pairs of bandai1's clips and of LaFAN1's subject 5 (its own map of subjects 1-4; 30
-    and 60 fps), the 282 that broke the bound ended within 1.0001 of it after at most 44 sweeps,
-    and moved at most 1.16x as far as the least squares projection onto the bound (median 1.00;
-    scipy's SLSQP, for the comparison). The sweeps before these moved only the frame over the
-    bound, a quarter of its excess, and stalled where a seam's frame was held at the bound: they
-    left 39 of the 282 over it, one at 3.8x, and moved 1.2x as far (median). A change far beyond
-    any knee's (14 radians over 20 frames) needs more sweeps than ``KNEE_PASSES`` (1,000) and is
-    returned as far as they took it.
+    apart at once (they share no value), then onto ``[lo, hi]``, and after ``KNEE_PLAIN``
+    sweeps over-relaxed by ``KNEE_RELAX`` (still converging: a relaxation below 2), for at most
+    ``KNEE_PASSES`` sweeps. Of 817 knee changes the lock made between seeded pairs of bandai1's
+    clips and of LaFAN1's subject 5 (its own map of subjects 1-4; 30 and 60 fps), the 282 that
+    broke the bound ended within 1.0001 of it after at most 44 sweeps, and moved at most 1.16x
+    as far as the least squares projection onto the bound (median 1.00; scipy's SLSQP, for the
+    comparison). The sweeps before these moved only the frame over the bound, a quarter of its
+    excess, and stalled where a seam's frame was held at the bound: they left 39 of the 282
+    over it, one at 3.8x, and moved 1.2x as far (median). What the sweeps leave over the bound
+    (a change far beyond a knee's, 14 radians over 20 frames at 30 fps, needs some 500; a
+    whole 0.3 s plateau at 120 fps, where the bound per frame squared is a sixteenth of 30
+    fps's, more than ``KNEE_PASSES``) is scaled down toward 0 until it is within it: a smaller
+    change, within every bound (0 is, and the bounds are convex and symmetric about it).
+
+    The box: ``knee_bounded`` clips the bend to [0, pi]; the projection rings below 0 beside a
+    block of positive change (by up to 1.3 times the bound), and a nearly straight leg's bend,
+    clipped there, broke the bound again (1.67x; a cold review).
     """
     n = len(change)
     c = np.zeros(n + 4)  # the clips' two frames on either side, 0
@@ -263,6 +271,8 @@ def rest_bounded(change: np.ndarray, accel: float) -> np.ndarray:
     free[2:-2] = 1.0
     centres = np.arange(1, n + 3)  # every second difference bounded: A's last frame to B's first
     norm2 = free[centres - 1] + 4.0 * free[centres] + free[centres + 1]
+    low = np.full(n + 4, -np.inf) if lo is None else np.concatenate([[0.0, 0.0], lo, [0.0, 0.0]])
+    high = np.full(n + 4, np.inf) if hi is None else np.concatenate([[0.0, 0.0], hi, [0.0, 0.0]])
     for sweep in range(KNEE_PASSES):
         if np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() - accel <= accel * 1e-4:
             break
@@ -274,6 +284,10 @@ def rest_bounded(change: np.ndarray, accel: float) -> np.ndarray:
             c[m - 1] -= f * free[m - 1]
             c[m] += 2.0 * f * free[m]
             c[m + 1] -= f * free[m + 1]
+            c = np.clip(c, low, high)
+    worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() if n else 0.0
+    if worst - accel > accel * 1e-4:
+        c *= accel / worst
     return c[2:-2]
 
 
@@ -312,7 +326,7 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     dist_s = soft_limit(dist, np.maximum(own, (1.0 - soft) * reach), reach) if soft > 0 else dist
     own_bend = knee_bend(own, thigh, shin)
     inner = knee_bend(dist_s, thigh, shin) - own_bend
-    change = rest_bounded(inner, accel)
+    change = rest_bounded(inner, accel, -own_bend, np.pi - own_bend)  # the bend within [0, pi]
     bent = np.abs(change - inner) > 1e-9
     bend = np.clip(own_bend + change, 0.0, np.pi)
     new_dist = np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(bend), 0.0))

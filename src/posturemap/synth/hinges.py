@@ -70,10 +70,10 @@ def leg_vectors(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], li
 
 def signed_bends(thigh: np.ndarray, shin: np.ndarray, hinge: np.ndarray) -> np.ndarray:
     """Each frame's knee bend about its hinge (radians, 0 straight, negative backward): the
-    angle from the thigh's line to the shin about ``hinge``, both seen along it (projected onto
-    the plane normal to it). A knee bent in the hinge's plane reads its whole bend, forward or
-    backward; one bent sideways reads the part of it about the hinge, which goes through 0 as
-    the knee's plane turns through sideways. (The sign of the bend by its plane's normal alone
+    angle the shin turns through about ``hinge`` onto the thigh's line, both seen along it
+    (projected onto the plane normal to it). A knee bent in the hinge's plane reads its whole
+    bend, forward or backward; one bent sideways reads the part of it about the hinge, which
+    goes through 0 as the knee's plane turns through sideways. (The sign of the bend by its plane's normal alone
     jumped there: a blend of two segments bent a LaFAN1 knee 11 degrees sideways, its plane
     turning past the hinge's normal and back over three frames, and :func:`unbend` straightened
     it in two of them, a 9-10 degree kick each way.)"""
