@@ -1949,6 +1949,6 @@ def test_knee_bounded_is_the_same_compiled(seed):
         gpos = np.stack([a, b, c], axis=1)
         got, moves = goal.copy(), np.zeros(len(goal), dtype=bool)
         nk.knee_bounded(got, gpos, 0, 1, 2, soft, accel, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX,
-                         np.empty((2, len(goal) + 2)), moves)
+                         np.empty((5, len(goal))), moves)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(moves, bent)

@@ -611,11 +611,11 @@ def _rest_bounded(c, accel, passes, plain, relax, lo, hi):
 
 
 @nb.njit(**_OPTS)
-def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, change, moves):
+def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, work, moves):
     """:func:`posturemap.synth.feet.knee_bounded` in place: ``goals`` (L, 3) the ankle's goals
     (the ankle itself where the lock leaves the leg), moved along the hip-goal line; the hip, knee
-    and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``change``
-    (2, L + 2) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves
+    and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``work``
+    (5, L) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves
     one more."""
     n_l = goals.shape[0]
     lengths = np.empty((2, n_l))  # each frame's own thigh and shin (a blend of two clips' bones may differ)
@@ -628,10 +628,9 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, pla
                                   + (gpos[t, ankle_j, 2] - gpos[t, shin_j, 2]) ** 2)
         if min(lengths[0, t], lengths[1, t]) <= 1e-5:  # a rigid leg (feet.IK_EPS): nothing to bend
             return
-    # change[0]: the lock's change of the bend, 0 beside the new frames; change[1]: it unrelaxed,
-    # then the goals' soft-limited distances.
-    change[0, 0], change[0, n_l + 1] = 0.0, 0.0
-    box = np.empty((2, n_l))  # the change that keeps the bend within [0, pi] (feet.knee_bounded)
+    # work[0]: the lock's change of the bend, bounded in place; work[1]: the goals' soft-limited
+    # distances; work[2], work[3]: the change that keeps the bend within [0, pi] (-own bend, pi -
+    # own bend); work[4]: the change unbounded.
     for t in range(n_l):
         thigh, shin = lengths[0, t], lengths[1, t]
         dist = math.sqrt((goals[t, 0] - gpos[t, thigh_j, 0]) ** 2 + (goals[t, 1] - gpos[t, thigh_j, 1]) ** 2
@@ -640,21 +639,19 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, pla
                         + (gpos[t, ankle_j, 2] - gpos[t, thigh_j, 2]) ** 2)
         if soft > 0.0:
             dist = _soft_limit(dist, max(own, (1.0 - soft) * (thigh + shin)), thigh + shin)
-        change[1, t] = dist
         own_bend = _knee_bend(own, thigh, shin)
-        change[0, t + 1] = _knee_bend(dist, thigh, shin) - own_bend
-        box[0, t], box[1, t] = -own_bend, math.pi - own_bend
-    inner = change[0, 1: n_l + 1].copy()
-    _rest_bounded(change[0, 1: n_l + 1], accel, passes, plain, relax, box[0], box[1])
+        work[0, t] = _knee_bend(dist, thigh, shin) - own_bend
+        work[1, t] = dist
+        work[2, t], work[3, t] = -own_bend, math.pi - own_bend
+        work[4, t] = work[0, t]
+    _rest_bounded(work[0], accel, passes, plain, relax, work[2], work[3])
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
-        new = change[1, t]
-        if abs(change[0, t + 1] - inner[t]) > 1e-9:
-            own = math.sqrt((gpos[t, ankle_j, 0] - ax) ** 2 + (gpos[t, ankle_j, 1] - ay) ** 2
-                            + (gpos[t, ankle_j, 2] - az) ** 2)
+        new = work[1, t]
+        if abs(work[0, t] - work[4, t]) > 1e-9:
             thigh, shin = lengths[0, t], lengths[1, t]
-            bend = min(max(_knee_bend(own, thigh, shin) + change[0, t + 1], 0.0), math.pi)
+            bend = min(max(work[0, t] - work[2, t], 0.0), math.pi)  # the own bend plus the change
             new = math.sqrt(max(thigh * thigh + shin * shin + 2.0 * thigh * shin * math.cos(bend), 0.0))
             moves[t] = True
         k = new / max(dist, 1e-300)
@@ -784,6 +781,12 @@ def _pass_accel(offset, p, q, lo, hi, n_l, carry):
 
 
 @nb.njit(**_OPTS)
+def _step_high(k, way, lift, stand, accel):
+    """The height of :func:`posturemap.synth.feet.step_lift`'s squared sine over ``k`` frames."""
+    return min(lift, 0.5 * max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
+
+
+@nb.njit(**_OPTS)
 def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pace, lift, stand, accel, least, carry):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
     ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height and way from ``gpos``,
@@ -888,7 +891,7 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pa
             if p >= 0:
                 wa, wb = wa - offset[p, 0], wb - offset[p, 1]
             d = math.sqrt(wa * wa + wb * wb)
-        high = min(lift, 0.5 * max(d - stand, 0.0), accel * float(q - p) ** 2 / (2.0 * math.pi**2))
+        high = _step_high(q - p - 1, d, lift, stand, accel)
         hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
         hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
         base = min(hp, hq)
@@ -1020,7 +1023,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goals = np.empty((n_l, 3))  # the ankle's goals, every frame
     ik = np.empty(n_l, dtype=np.bool_)  # the frames the IK moves
-    change = np.empty((2, n_l + 2))  # knee_bounded's scratch
+    knee_work = np.empty((5, n_l))  # knee_bounded's scratch
     for leg in range(n_legs):
         on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
@@ -1083,7 +1086,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
             way = math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2)
-            high = min(lift, 0.5 * max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
+            high = _step_high(k, way, lift, stand, accel)
             lag = step_lag  # less where the step is too quick for it (feet.step_lag)
             if k > 0 and way > 0.0 and accel < np.inf:
                 lag = min(max(0.5 * (1.0 - math.sqrt(6.0 * way / accel) / (k + 1.0)), 0.0), step_lag)
@@ -1248,7 +1251,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 goals[t, up] += raised[t]
         if not ik.any():
             continue
-        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, change, ik)
+        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, knee_work,
+                     ik)
         hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, ik)
         for t in range(n_l):
             if not ik[t]:
