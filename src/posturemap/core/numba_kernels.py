@@ -783,7 +783,7 @@ def _pass_accel(offset, p, q, lo, hi, n_l, carry):
 @nb.njit(**_OPTS)
 def _step_high(k, way, lift, stand, accel):
     """The height of :func:`posturemap.synth.feet.step_lift`'s squared sine over ``k`` frames."""
-    return min(lift, 0.5 * max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
+    return min(lift, max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
 
 
 @nb.njit(**_OPTS)
@@ -960,7 +960,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
     ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them)
     step one after another (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step
-    lifts the foot (half of the rest of its way, ``lift`` at most); weights (L, n) out.
+    lifts the foot (by the rest of its way, ``lift`` at most); weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
