@@ -935,8 +935,9 @@ def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np
     same but one more of 100 on Motiondataset-2 at 10 and at 20 frames; in-betweening's L2P at
     5 frames 0.370x -> 0.378x SLERP's on the held-out styles (lifted by half of the whole way,
     no ``shuffle``, the lock's steps had cost 5-frame gaps 5% of their L2P there), within 0.3%
-    elsewhere. A lift of twice the way skated 10-15% less again for two more such accelerations
-    on LaFAN1 at 40 frames."""
+    elsewhere. Not kept: twice the way (3-15% less skate again, for two more such accelerations
+    of 95 on LaFAN1 at 40 frames), or the way beyond half of ``shuffle`` (5-22% less, as many
+    more, and L2P at 5 frames 0.387x)."""
     u = np.arange(1, k + 1) / (k + 1.0)
     high = min(lift, max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
     return high * np.sin(np.pi * u) ** 2
