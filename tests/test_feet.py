@@ -871,6 +871,16 @@ def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_cl
     r, _ = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, on)["numpy"]
     ankles = fk(sk.parents, r, pos)[1][:, [c[2] for c in chains]]
     assert np.abs(ankles[4:12, :, up] - g[4:12, :, up]).max() < 0.03 * leg  # only the toes' clearance
+    # Contacts that hold both feet all through (a retrieved segment standing in both clips): the
+    # feet step one after another, in the same parts of the gap. Before, each stepped in the
+    # middle of its run, both in the air at once: a hop (a bow into a wave, held-out styles).
+    held = np.ones((length, len(chains)), bool)
+    for r, w in lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, held).values():
+        lifted = fk(sk.parents, r, pos)[1][:, [c[2] for c in chains], up] - g[..., up]
+        stepping = lifted > 0.01 * leg
+        assert stepping.any(axis=0).all() and not (stepping[:, 0] & stepping[:, 1]).any()
+        for i, (k0, k) in enumerate(windows):
+            assert not stepping[:k0, i].any() and not stepping[k0 + k:, i].any()
 
 
 def _pair_engine(bandai_files, a_name: str, b_name: str):

@@ -957,9 +957,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     its fade at the seams (``CLEAR_FADE_S``); a_floor and
     b_floor: the floors of the seams' planted test (NaN: each leg's lowest ankle in its seam
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
-    interpolated feet planted at both seams (spots at most ``drift_hi`` legs apart, the motion's
-    ankle under ``lift`` above its floor and within ``drift_lo`` legs of the line between them)
-    step one after another (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step
+    feet planted at both seams (spots at most ``drift_hi`` legs apart) that contacts hold all
+    through, or without contacts whose motion keeps the ankle under ``lift`` above its floor and
+    within ``drift_lo`` legs of the line between them, step one after another (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step
     lifts the foot (by the rest of its way, ``lift`` at most); weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
@@ -1000,7 +1000,16 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         floors[leg] = floor
         da, db = b_feet[0, leg, a_] - a_feet[1, leg, a_], b_feet[0, leg, b_] - a_feet[1, leg, b_]
         move = math.sqrt(da * da + db * db)
-        if contacts.shape[0] == 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
+        if contacts.shape[0] > 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
+            # A foot the retrieved segment holds all through steps in its own part too.
+            held_through = n_l > 0
+            for t in range(n_l):
+                if not contacts[t, leg]:
+                    held_through = False
+                    break
+            if held_through:
+                moves[leg] = move
+        elif contacts.shape[0] == 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
             # Only a foot the motion glides: under a step's lift, near the line between the spots.
             glides = n_l > 0
             dd = max(da * da + db * db, 1e-300)

@@ -19,7 +19,8 @@ in-between frames are made:
    ``MAX_DRIFT[1]`` apart, which the motion keeps under a step's lift and within
    ``MAX_DRIFT[0]`` of the line between them, is held through the whole gap and steps once,
    from A's spot to B's: an interpolation glides it between the two stances, low over the
-   floor (a leg it lifts, as in a kick, is left to it). Where two feet or more must move
+   floor (a leg it lifts, as in a kick, is left to it); so is a foot that retrieved contacts
+   hold all through the gap. Where two such feet or more must move
    farther than ``STAND_STEP``, they step one after another, each in its own part of the gap,
    the farthest first (:func:`stance_windows`): a person changes stance by stepping, not by
    hopping;
@@ -96,7 +97,7 @@ STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, o
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fifth, comes down in place
 #                  over the last, and travels in between (travelling from the first frame, low, it slid)
-STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): interpolated feet planted at both seams whose spots lie
+STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): feet held all through the gap whose spots lie
 #                    farther apart than this step one after another (stance_windows); a step lifts the
 #                    foot by its way beyond this (STEP_LIFT at most): a shorter shift slides
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
@@ -1028,7 +1029,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     flat[up] = 0.0
     length, step = len(rots), round(STEP_S * fps)
     seams = []  # per leg: its floor, whether it is planted at A's end and at B's start
-    moves = np.full(len(chains), np.nan)  # interpolated legs planted at both seams: how far each must go
+    moves = np.full(len(chains), np.nan)  # legs held all through, planted at both seams: how far each must go
     for leg, (thigh, shin, ankle) in enumerate(chains):
         context_h = np.concatenate([a_feet[:, leg, up], b_feet[:, leg, up]])
         floor = min(context_h.min(), gpos[:, ankle, up].min())
@@ -1038,9 +1039,11 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                         speed_tol)
         seams.append((floor, a_on, b_on))
         move = np.linalg.norm((b_feet[0, leg] - a_feet[1, leg]) * flat)
-        if (contacts is None and a_on and b_on and move <= MAX_DRIFT[1] * body  # one step's way at most
-                and _glides(gpos[:, ankle], a_feet[1, leg] * flat, b_feet[0, leg] * flat, flat, up,
-                            floor + STEP_LIFT * body, MAX_DRIFT[0] * body)):
+        if not (a_on and b_on and move <= MAX_DRIFT[1] * body):  # one step's way at most
+            continue
+        if (contacts[:, leg].all() if contacts is not None else  # held all through by the segment
+                _glides(gpos[:, ankle], a_feet[1, leg] * flat, b_feet[0, leg] * flat, flat, up,
+                        floor + STEP_LIFT * body, MAX_DRIFT[0] * body)):
             moves[leg] = move
     windows = stance_windows(moves, length, step, STAND_STEP * body)
     locks = []  # per leg: the offsets, lifts and held frames; the IK once the toes' floor is known
