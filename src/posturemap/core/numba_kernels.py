@@ -959,8 +959,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     frames and the new frames); stand (length unit): ``STAND_STEP`` of a leg, from which
     feet planted at both seams (spots at most ``drift_hi`` legs apart) that contacts hold all
     through, or without contacts whose motion keeps the ankle under ``lift`` above its floor and
-    within ``drift_lo`` legs of the line between them, step one after another (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step
-    lifts the foot (by the rest of its way, ``lift`` at most); weights (L, n) out.
+    within ``drift_lo`` legs of the line between them, step one after another
+    (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step lifts the foot (by
+    the rest of its way, ``lift`` at most); weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
@@ -1000,8 +1001,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         floors[leg] = floor
         da, db = b_feet[0, leg, a_] - a_feet[1, leg, a_], b_feet[0, leg, b_] - a_feet[1, leg, b_]
         move = math.sqrt(da * da + db * db)
-        if contacts.shape[0] > 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
-            # A foot the retrieved segment holds all through steps in its own part too.
+        if not (a_ons[leg] and b_ons[leg] and move <= drift_hi * body):  # one step's way at most
+            continue
+        if contacts.shape[0] > 0:  # a foot the retrieved segment holds all through
             held_through = n_l > 0
             for t in range(n_l):
                 if not contacts[t, leg]:
@@ -1009,7 +1011,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                     break
             if held_through:
                 moves[leg] = move
-        elif contacts.shape[0] == 0 and a_ons[leg] and b_ons[leg] and move <= drift_hi * body:
+        else:
             # Only a foot the motion glides: under a step's lift, near the line between the spots.
             glides = n_l > 0
             dd = max(da * da + db * db, 1e-300)
