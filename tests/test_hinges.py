@@ -10,7 +10,7 @@ import pytest
 from posturemap.core import quat
 from posturemap.core.skeleton import fk
 from posturemap.core import kernels
-from posturemap.synth.hinges import find, leg_vectors, packed, signed_bends, unbend
+from posturemap.synth.hinges import REACH_MIN, find, leg_vectors, packed, signed_bends, unbend
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -88,20 +88,26 @@ def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(t
     before = rots.copy()
     _, gp0 = fk(parents, rots, pos)
     with backend(compiled):
-        assert unbend(packed(knees), rots, pos) == 4  # the four bent backward
+        assert unbend(packed(knees, parents), rots, pos) == 4  # the four bent backward
     back = flex < 0.0
     np.testing.assert_array_equal(rots[~back], before[~back])  # the others exactly as they were
-    shin = chain[1]
+    hip, shin, ankle = chain
     changed = np.flatnonzero(np.any(rots != before, axis=-1).any(axis=0))
-    assert list(changed) == [shin]  # only the shin turns
+    assert list(changed) == [hip, shin]  # the shin turns, and the hip (a twist joint keeps its own)
     t, s = leg_vectors(rots, pos, path)
     np.testing.assert_allclose(signed_bends(t, s, hinge)[back], 0.0, atol=1e-7)  # straight: the bound
     _, gp = fk(parents, rots, pos)
-    # In its own plane: the ankle stays in the plane of hip, knee and the old ankle.
-    hip, knee = gp0[back, chain[0]], gp0[back, chain[1]]
-    normal = np.cross(gp0[back, chain[2]] - hip, knee - hip)
-    np.testing.assert_allclose(np.sum((gp[back, chain[2]] - hip) * normal, axis=-1), 0.0, atol=1e-9)
-    np.testing.assert_allclose(gp[back, chain[1]], knee, atol=1e-12)  # the thigh as it was
+    # In its own plane: the knee and the ankle stay in the plane of hip, knee and the old ankle.
+    at, knee = gp0[back, hip], gp0[back, shin]
+    normal = np.cross(gp0[back, ankle] - at, knee - at)
+    for j in (shin, ankle):
+        np.testing.assert_allclose(np.sum((gp[back, j] - at) * normal, axis=-1), 0.0, atol=1e-9)
+    # The straight leg points where the bent-back one reached: the ankle on its old line from the
+    # hip (turning the shin alone raised it: a spline's toe 46 cm up, then down in a frame).
+    line = (gp0[back, ankle] - at) / np.linalg.norm(gp0[back, ankle] - at, axis=-1, keepdims=True)
+    reach = gp[back, ankle] - at
+    np.testing.assert_allclose(reach, line * np.sum(reach * line, axis=-1, keepdims=True), atol=1e-9)
+    assert np.all(np.linalg.norm(gp[back, shin] - knee, axis=-1) > 1e-3)  # the thigh turned
 
 
 @pytest.mark.parametrize("compiled", [False, True])
@@ -115,12 +121,12 @@ def test_unbend_holds_a_knee_to_the_librarys_own_bound_and_skips_legs_without_a_
     assert least == pytest.approx(np.radians(-4.0))
     parents, chain, rots, pos = leg(np.radians([-3.0, -20.0]), rng=rng)
     with backend(compiled):
-        assert unbend(packed(knees), rots, pos) == 1
+        assert unbend(packed(knees, parents), rots, pos) == 1
     t, s = leg_vectors(rots, pos, knees[0][0])
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), np.radians([-3.0, -4.0]), atol=1e-7)
     before = rots.copy()
     with backend(compiled):
-        assert unbend(packed([None]), rots, pos) == 0
+        assert unbend(packed([None], parents), rots, pos) == 0
     np.testing.assert_array_equal(rots, before)
 
 
@@ -143,13 +149,35 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
     bends = signed_bends(t, s, hinge)
     assert (bends < 0).sum() == 5 and np.abs(bends).max() < np.radians(2.0)
     before = rots.copy()
+    _, gp0 = fk(parents, rots, pos)
     with backend(compiled):
-        assert unbend(packed(knees), rots, pos) == 5
+        assert unbend(packed(knees, parents), rots, pos) == 5
     turned = np.degrees(quat.angle_between(rots[:, 1], before[:, 1]))
     np.testing.assert_allclose(turned, np.degrees(np.maximum(-bends, 0.0)), atol=1e-6)
     t, s = leg_vectors(rots, pos, path)
     np.testing.assert_allclose(np.minimum(signed_bends(t, s, hinge), 0.0), 0.0, atol=1e-9)
     assert bends_of(parents, chain, rots, pos).min() > np.radians(10.0)  # still bent sideways
+    _, gp = fk(parents, rots, pos)
+    reach0, reach = gp0[:, 2] - gp0[:, 0], gp[:, 2] - gp[:, 0]
+    np.testing.assert_allclose(np.cross(reach, reach0), 0.0, atol=1e-9)  # the ankle on its line
+    assert np.all(np.sum(reach * reach0, axis=-1) > 0.0)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
+    # The ankle at the hip has no line from it to keep: the knee straightens, the hip stays.
+    rng = np.random.default_rng(6)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    parents, chain, rots, pos = leg(np.array([-np.pi + 0.1 * REACH_MIN, np.radians(-30.0)]), rng=rng)
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(packed(knees, parents), rots, pos) == 2
+    assert np.all(np.isfinite(rots))
+    np.testing.assert_array_equal(rots[0, 0], before[0, 0])  # folded: the hip as it was
+    assert not np.array_equal(rots[1, 0], before[1, 0])  # bent back 30 degrees: the hip turns
+    t, s = leg_vectors(rots, pos, knees[0][0])
+    np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), 0.0, atol=1e-7)
 
 
 @pytest.mark.parametrize("twist", [False, True])
@@ -159,17 +187,36 @@ def test_unbend_is_the_same_compiled(twist):
     rng = np.random.default_rng(4)
     parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
     (path, hinge, least), = find(parents, [chain], lib_rots, lib_pos[0])
-    limits = packed([(path, hinge, least), None, (path, hinge, np.radians(-10.0))])
+    limits = packed([(path, hinge, least), None, (path, hinge, np.radians(-10.0))], parents)
     parents, chain, rots, pos = leg(np.radians(rng.uniform(-60.0, 60.0, 40)), twist, rng)
     pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
     outs = []
     for compiled in (False, True):
         r = rots.copy()
         if compiled:
-            n = kernels.compiled().unbend_limbs(r, pos, *limits)
+            n = kernels.compiled().unbend_limbs(r, pos, *limits, REACH_MIN)
         else:
             with kernels.numpy_backend():
                 n = unbend(limits, r, pos)
         outs.append((n, r))
     assert outs[0][0] == outs[1][0] > 0
     np.testing.assert_allclose(outs[1][1], outs[0][1], rtol=0, atol=1e-12)
+
+
+def test_the_shortest_arc_is_the_same_compiled():
+    # The compiled unbend's turn of the hip (numba_kernels._between) is quat.between's, for
+    # vectors apart, near, the same and opposite (either perpendicular axis).
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(40, 3))
+    b = rng.normal(size=(40, 3))
+    b[:10] = a[:10] + rng.normal(scale=1e-3, size=(10, 3))
+    b[10:15] = a[10:15]
+    b[15:20] = -a[15:20]
+    a[20], b[20] = [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]  # opposite along X: the other axis
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b /= np.linalg.norm(b, axis=-1, keepdims=True)
+    want = quat.between(a, b)
+    arc = kernels.compiled()._between
+    got = np.array([arc(*x, *y) for x, y in zip(a, b)])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quat.mul_vec(got, a), b, atol=1e-9)

@@ -785,7 +785,8 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     # made to bend the left knee 40 degrees backward in the middle of the gap, as damped did
     # carrying a dash's knee on past straight: retrieval and auto turn it forward onto the
     # library's bound (its knees never go past straight by more than a hair), in its plane,
-    # and change nothing else; the interpolating methods themselves are left as they are.
+    # the hip turning the leg so the ankle keeps its line from it, and change nothing else; the
+    # interpolating methods themselves are left as they are.
     from posturemap.synth import engine as engine_module, hinges, retrieval
     from posturemap.core.joints import leg_chains
 
@@ -829,8 +830,15 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     np.testing.assert_allclose(bend[back], least, atol=1e-7)
     np.testing.assert_array_equal(bend[~back], made_bend[~back])
     others = np.ones(sk.num_joints, dtype=bool)
-    others[shin] = False
+    others[[thigh, shin]] = False
     np.testing.assert_array_equal(r[:, others], made["rots"][:, others])
+    # The hip turned the straightened leg onto the line from the hip to where the ankle was.
+    _, made_g = fk(sk.parents, made["rots"], made["pos"])
+    _, g = fk(sk.parents, r, p)
+    reach0, reach = made_g[back, ankle] - made_g[back, thigh], g[back, ankle] - g[back, thigh]
+    np.testing.assert_allclose(np.cross(reach, reach0 / np.linalg.norm(reach0, axis=-1, keepdims=True)), 0.0,
+                               atol=1e-6)
+    assert np.all(np.sum(reach * reach0, axis=-1) > 0.0)
 
 
 def test_a_root_bone_under_a_fixed_node_is_placed_and_the_node_stays(clips):

@@ -498,14 +498,16 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 
 
 @nb.njit(**_OPTS)
-def unbend_limbs(rots, positions, joints, bounds, hinges, leasts):
+def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
-    (K, 3; its joints in ``joints``, the shin ``joints[mid - 1]``) whose knee bends about
-    ``hinges[k]`` (in the frame of the shin's parent) further back than ``leasts[k]`` turned
-    about the hinge onto it; returns how many knees it turned."""
+    (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``)
+    whose knee bends about ``hinges[k]`` (in the frame of the shin's parent) further back than
+    ``leasts[k]`` turned about the hinge onto it, and its thigh turned to keep the ankle on its
+    line from the hip (unless the ankle is within ``reach_min`` leg lengths of the hip); returns
+    how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
-        first, mid, last = bounds[k, 0], bounds[k, 1], bounds[k, 2]
+        first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
         shin = joints[mid - 1]
         hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
         for f in range(rots.shape[0]):
@@ -536,7 +538,33 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts):
             rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
                 c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
             turned += 1
+            # The hip-to-ankle line before and after the shin's turn, in the thigh's frame.
+            nx, ny, nz = _rotate(c, sn * hx, sn * hy, sn * hz, sx, sy, sz)
+            rx, ry, rz = _rotate(parent[0], parent[1], parent[2], parent[3], tx + sx, ty + sy, tz + sz)
+            ux, uy, uz = _rotate(parent[0], parent[1], parent[2], parent[3], tx + nx, ty + ny, tz + nz)
+            near, far = math.sqrt(rx * rx + ry * ry + rz * rz), math.sqrt(ux * ux + uy * uy + uz * uz)
+            size = math.sqrt(tx * tx + ty * ty + tz * tz) + math.sqrt(sx * sx + sy * sy + sz * sz)
+            if near <= reach_min * size:
+                continue
+            rx, ry, rz, ux, uy, uz = rx / near, ry / near, rz / near, ux / far, uy / far, uz / far
+            a0, a1, a2, a3 = _between(ux, uy, uz, rx, ry, rz)
+            rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3] = _mul(
+                rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3], a0, a1, a2, a3)
     return turned
+
+
+@nb.njit(**_OPTS)
+def _between(ax, ay, az, bx, by, bz):
+    """:func:`posturemap.core.quat.between` of two unit vectors: the shortest-arc rotation."""
+    d = ax * bx + ay * by + az * bz
+    if d > -1.0 + 1e-12:
+        w, x, y, z = 1.0 + d, ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    elif abs(ax) < 0.9:  # opposite: a half turn about a perpendicular, cross(a, X)
+        w, x, y, z = 0.0, 0.0, az, -ay
+    else:  # cross(a, Y)
+        w, x, y, z = 0.0, -az, 0.0, ax
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / norm, x / norm, y / norm, z / norm
 
 
 @nb.njit(**_OPTS)

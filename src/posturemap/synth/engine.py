@@ -387,7 +387,7 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray
         return
     sk = eng.skeleton
     joints, bounds, hinge, least = lib.derived("hinges", lambda: hinges.packed(hinges.find(
-        sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets)))
+        sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets), sk.parents))
     if not len(least):
         return
     for track in (ta, tb):

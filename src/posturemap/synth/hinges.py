@@ -17,10 +17,17 @@ The library gives each leg and arm its hinge (:func:`find`: the knee's or elbow'
 planes' normals summed in the frame of the shin's or forearm's parent, the bent frames weighing
 the most) and how far back it goes (the 0.1st percentile of the bends about the hinge, 0 at
 most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
-its hinge to that bound: it locks straight, as a real one does; frames within the library's
-range are left exactly as they are. Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm,
-forearm and elbow too. The engine does
-this to ``retrieval``'s and ``auto``'s frames before the foot lock
+its hinge to that bound: it locks straight, as a real one does, and the hip turns the straight
+leg onto the line from the hip to where the ankle was, so the foot stays where the motion had
+it; frames within the library's range are left exactly as they are. (Turning the shin alone
+left the thigh where the bent-back leg had it: between two held-out dashes (10 frames) the spline,
+retrieval's fallback there, matching
+B's knee flexing 35 degrees a frame from straight, carried the knee 49 degrees backward, and
+the straightened leg raised the toe to 46 cm; it came down 15 cm into B's first frame, an
+acceleration 2.1x the clips' largest. With the hip turned the toe keeps the spline's path: the
+largest acceleration there 0.91x, the knee's at B's seam.) Below, "leg", "thigh", "shin" and
+"knee" stand for an arm's upper arm, forearm and elbow too. The engine does this to
+``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`); the interpolating methods, the
 baselines, stay as they are.
 """
@@ -33,6 +40,7 @@ from ..core import kernels, quat
 
 LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
 HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under which a leg has no hinge
+REACH_MIN = 1e-6  # the hip-to-ankle distance (in leg lengths) under which unbend leaves the hip as it is
 
 
 def leg_path(parents, thigh: int, shin: int, ankle: int) -> tuple[list[int], list[int]]:
@@ -51,6 +59,13 @@ def leg_vectors(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], li
     frame of the shin's parent (the thigh's, or a twist joint's inside the thigh: the frame the
     knee's own rotation turns the shin in), from local rotations ``rots`` (N, J, 4) and
     translations ``offsets`` (N, J, 3) or (J, 3)."""
+    thigh, shin, _ = _leg_frame(rots, offsets, path)
+    return thigh, shin
+
+
+def _leg_frame(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], list[int]]):
+    """:func:`leg_vectors` and the rotation (N, 4) from the frame of the shin's parent to the
+    thigh's own (the identity without twist joints)."""
     to_shin, to_ankle = path
     n = len(rots)
     offsets = np.broadcast_to(offsets, (n,) + offsets.shape[-2:])
@@ -65,7 +80,7 @@ def leg_vectors(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], li
         p = p + quat.mul_vec(q, offsets[:, j])
         q = quat.mul(q, rots[:, j])
     back = quat.inv(parent)
-    return quat.mul_vec(back, thigh), quat.mul_vec(back, p - thigh)
+    return quat.mul_vec(back, thigh), quat.mul_vec(back, p - thigh), parent
 
 
 def signed_bends(thigh: np.ndarray, shin: np.ndarray, hinge: np.ndarray) -> np.ndarray:
@@ -103,17 +118,19 @@ def find(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
     return out
 
 
-def packed(knees: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`find`' legs that have a hinge as arrays for :func:`unbend`: ``joints`` (every
-    leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 3) each leg's
-    ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``), ``hinge``
-    (K, 3) and ``least`` (K,)."""
+    leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 4) each leg's
+    ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``) and its thigh
+    (the joint above ``joints[first]`` in ``parents``: the hip, whose rotation turns the leg),
+    ``hinge`` (K, 3) and ``least`` (K,)."""
     legs = [k for k in knees if k is not None]
     joints, bounds = [], []
     for (to_shin, to_ankle), _, _ in legs:
-        bounds.append((len(joints), len(joints) + len(to_shin), len(joints) + len(to_shin) + len(to_ankle)))
+        bounds.append((len(joints), len(joints) + len(to_shin), len(joints) + len(to_shin) + len(to_ankle),
+                       int(parents[to_shin[0]])))
         joints += list(to_shin) + list(to_ankle)
-    return (np.array(joints, dtype=np.int64), np.array(bounds, dtype=np.int64).reshape(-1, 3),
+    return (np.array(joints, dtype=np.int64), np.array(bounds, dtype=np.int64).reshape(-1, 4),
             np.array([k[1] for k in legs], dtype=np.float64).reshape(-1, 3),
             np.array([k[2] for k in legs], dtype=np.float64))
 
@@ -124,7 +141,7 @@ def least_bends(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndar
     three of :func:`packed`'s arrays. 0 for a clip without frames."""
     joints, bounds, hinge_rows = legs
     out = np.zeros(len(bounds))
-    for k, ((first, mid, last), hinge) in enumerate(zip(bounds.tolist(), hinge_rows)):
+    for k, ((first, mid, last, _), hinge) in enumerate(zip(bounds.tolist(), hinge_rows)):
         if len(rots):
             t, s = leg_vectors(rots, positions, (joints[first:mid].tolist(), joints[mid:last].tolist()))
             out[k] = signed_bends(t, s, hinge).min()
@@ -137,16 +154,18 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     :func:`find`; :func:`signed_bends`) turned forward about the hinge onto the bound: the
     shin's local rotation turned about the hinge, in the frame of the shin's parent, by as much
     as it is past the bound (a knee bent in the hinge's plane turns in its own plane; one bent
-    sideways keeps its sideways part). In place; returns how many knees (frames times legs) it
-    turned. Where this process uses numba, one compiled call
+    sideways keeps its sideways part); then the thigh's local rotation turned by the shortest
+    arc that takes the ankle back onto its line from the hip (the straightened leg points where
+    the bent-back one reached; the ankle's own rotation is kept). In place; returns how many
+    knees (frames times legs) it turned. Where this process uses numba, one compiled call
     (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
-        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts))
+        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_MIN))
     turned = 0
-    for (first, mid, last), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
+    for (first, mid, last, top), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())
-        t, s = leg_vectors(rots, positions, path)
+        t, s, frame = _leg_frame(rots, positions, path)
         bends = signed_bends(t, s, hinge)
         back = np.flatnonzero(bends < least)
         if not len(back):
@@ -154,7 +173,16 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         # About the hinge the shin turns toward the thigh's line, onto the bound (never past
         # the line: the bound is at most 0); a turn about +hinge lowers the bend.
         shin = path[0][-1]
-        rots[back, shin] = quat.mul(quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)),
-                                                         bends[back] - least), rots[back, shin])
+        turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)), bends[back] - least)
+        rots[back, shin] = quat.mul(turn, rots[back, shin])
+        # The hip turns the leg so that the ankle, now further from it, is on the old line:
+        # hip-to-ankle before and after, in the thigh's frame.
+        t, s, frame = t[back], s[back], frame[back]
+        reach, straight = quat.mul_vec(frame, t + s), quat.mul_vec(frame, t + quat.mul_vec(turn, s))
+        near, far = np.linalg.norm(reach, axis=-1), np.linalg.norm(straight, axis=-1)
+        # A leg folded back onto itself (the ankle at the hip) has no line: its hip stays.
+        some = near > REACH_MIN * (np.linalg.norm(t, axis=-1) + np.linalg.norm(s, axis=-1))
+        onto = quat.between(straight[some] / far[some, None], reach[some] / near[some, None])
+        rots[back[some], top] = quat.mul(rots[back[some], top], onto)
         turned += len(back)
     return turned
