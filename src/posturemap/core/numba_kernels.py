@@ -521,7 +521,8 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
                 px, py, pz = px + ox, py + oy, pz + oz
                 if i < mid:
                     parent = q
-                q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
+                if i < last - 1:  # the ankle's own rotation moves nothing above it
+                    q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
                 if i == mid - 1:
                     tx, ty, tz = px, py, pz
             # Both in the frame of the shin's parent (hinges.leg_vectors).

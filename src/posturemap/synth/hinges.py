@@ -76,9 +76,10 @@ def _leg_frame(rots: np.ndarray, offsets: np.ndarray, path: tuple[list[int], lis
         p = p + quat.mul_vec(q, offsets[:, j])
         parent, q = q, quat.mul(q, rots[:, j])
     thigh = p
-    for j in to_ankle:
+    for k, j in enumerate(to_ankle):
         p = p + quat.mul_vec(q, offsets[:, j])
-        q = quat.mul(q, rots[:, j])
+        if k + 1 < len(to_ankle):  # the ankle's own rotation moves nothing above it
+            q = quat.mul(q, rots[:, j])
     back = quat.inv(parent)
     return quat.mul_vec(back, thigh), quat.mul_vec(back, p - thigh), parent
 
