@@ -16,28 +16,29 @@ X = np.array([1.0, 0.0, 0.0])
 
 
 def leg(flex: np.ndarray, twist: bool = False, rng=None):
-    """Local rotations and translations (N, J, 3/4) of a leg hanging along -Y from a hip with a
-    small random turn: the knee bent ``flex`` radians about X (positive: the shin back under
-    the hip, as a knee bends; negative: backward), with a twist joint inside the thigh (turned
-    about the thigh's own axis) when ``twist``."""
+    """Local rotations and translations (N, J, 3/4) of a leg hanging along -Y from a hip (below
+    a pelvis, the root) with a small random turn: the knee bent ``flex`` radians about X
+    (positive: the shin back under the hip, as a knee bends; negative: backward), with a twist
+    joint inside the thigh (turned about the thigh's own axis) when ``twist``."""
     rng = np.random.default_rng(0) if rng is None else rng
     n = len(flex)
-    if twist:  # hip > twist > knee > ankle > toe
+    if twist:  # pelvis > hip > twist > knee > ankle > toe
+        parents = np.array([-1, 0, 1, 2, 3, 4])
+        offsets = [[0.0, 0.0, 0.0], [0.1, -0.1, 0.0], [0.0, -0.5, 0.0], [0.0, -0.5, 0.0], [0.0, -1.0, 0.0],
+                   [0.0, -0.1, 0.2]]
+    else:  # pelvis > hip > knee > ankle > toe
         parents = np.array([-1, 0, 1, 2, 3])
-        offsets = [[0.0, 0.0, 0.0], [0.0, -0.5, 0.0], [0.0, -0.5, 0.0], [0.0, -1.0, 0.0], [0.0, -0.1, 0.2]]
-    else:  # hip > knee > ankle > toe
-        parents = np.array([-1, 0, 1, 2])
-        offsets = [[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0], [0.0, -0.1, 0.2]]
+        offsets = [[0.0, 0.0, 0.0], [0.1, -0.1, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0], [0.0, -0.1, 0.2]]
     j = len(parents)
     rots = np.tile(quat.identity(), (n, j, 1))
-    rots[:, 0] = quat.exp(rng.normal(scale=0.2, size=(n, 3)))  # the hip (thigh) turned anyhow
+    rots[:, 1] = quat.exp(rng.normal(scale=0.2, size=(n, 3)))  # the hip (thigh) turned anyhow
     if twist:
-        rots[:, 1] = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), rng.normal(scale=0.5, size=n))
-        rots[:, 2] = quat.from_axis_angle(X, flex)
-        chain = (0, 2, 3)
+        rots[:, 2] = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), rng.normal(scale=0.5, size=n))
+        rots[:, 3] = quat.from_axis_angle(X, flex)
+        chain = (1, 3, 4)
     else:
-        rots[:, 1] = quat.from_axis_angle(X, flex)
-        chain = (0, 1, 2)
+        rots[:, 2] = quat.from_axis_angle(X, flex)
+        chain = (1, 2, 3)
     pos = np.broadcast_to(np.array(offsets), (n, j, 3)).copy()
     return parents, chain, rots, pos
 
@@ -144,7 +145,7 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
     turn = np.radians(np.linspace(80.0, 100.0, 11))  # the plane's normal from the hinge (X) toward -Z and past
     axis = np.stack([np.cos(turn), np.zeros_like(turn), -np.sin(turn)], axis=-1)
     parents, chain, rots, pos = leg(np.zeros(len(turn)), rng=rng)
-    rots[:, 1] = quat.from_axis_angle(axis, np.full(len(turn), np.radians(11.0)))
+    rots[:, chain[1]] = quat.from_axis_angle(axis, np.full(len(turn), np.radians(11.0)))
     t, s = leg_vectors(rots, pos, path)
     bends = signed_bends(t, s, hinge)
     assert (bends < 0).sum() == 5 and np.abs(bends).max() < np.radians(2.0)
@@ -152,13 +153,13 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
     _, gp0 = fk(parents, rots, pos)
     with backend(compiled):
         assert unbend(packed(knees, parents), rots, pos) == 5
-    turned = np.degrees(quat.angle_between(rots[:, 1], before[:, 1]))
+    turned = np.degrees(quat.angle_between(rots[:, chain[1]], before[:, chain[1]]))
     np.testing.assert_allclose(turned, np.degrees(np.maximum(-bends, 0.0)), atol=1e-6)
     t, s = leg_vectors(rots, pos, path)
     np.testing.assert_allclose(np.minimum(signed_bends(t, s, hinge), 0.0), 0.0, atol=1e-9)
     assert bends_of(parents, chain, rots, pos).min() > np.radians(10.0)  # still bent sideways
     _, gp = fk(parents, rots, pos)
-    reach0, reach = gp0[:, 2] - gp0[:, 0], gp[:, 2] - gp[:, 0]
+    reach0, reach = gp0[:, chain[2]] - gp0[:, chain[0]], gp[:, chain[2]] - gp[:, chain[0]]
     np.testing.assert_allclose(np.cross(reach, reach0), 0.0, atol=1e-9)  # the ankle on its line
     assert np.all(np.sum(reach * reach0, axis=-1) > 0.0)
 
@@ -174,8 +175,8 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
     with backend(compiled):
         assert unbend(packed(knees, parents), rots, pos) == 2
     assert np.all(np.isfinite(rots))
-    np.testing.assert_array_equal(rots[0, 0], before[0, 0])  # folded: the hip as it was
-    assert not np.array_equal(rots[1, 0], before[1, 0])  # bent back 30 degrees: the hip turns
+    np.testing.assert_array_equal(rots[0, chain[0]], before[0, chain[0]])  # folded: the hip as it was
+    assert not np.array_equal(rots[1, chain[0]], before[1, chain[0]])  # bent back 30 degrees: the hip turns
     t, s = leg_vectors(rots, pos, knees[0][0])
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), 0.0, atol=1e-7)
 
@@ -220,3 +221,37 @@ def test_the_shortest_arc_is_the_same_compiled():
     got = np.array([arc(*x, *y) for x, y in zip(a, b)])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
     np.testing.assert_allclose(quat.mul_vec(got, a), b, atol=1e-9)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_unbend_leaves_a_hip_that_would_move_more_than_its_leg(compiled):
+    # A rig without thigh joints: both shins hang from the pelvis, the root, which is each leg's
+    # "thigh". Turning it to keep one ankle's line would turn the whole body: the knees
+    # straighten, the pelvis stays.
+    rng = np.random.default_rng(8)
+    parents = np.array([-1, 0, 1, 0, 3])  # pelvis > knee_L > ankle_L, pelvis > knee_R > ankle_R
+    offsets = np.array([[0.0, 1.0, 0.0], [0.1, -1.0, 0.0], [0.0, -1.0, 0.0], [-0.1, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    chains = [(0, 1, 2), (0, 3, 4)]
+
+    def frames(flex_l, flex_r):
+        rots = np.tile(quat.identity(), (len(flex_l), len(parents), 1))
+        rots[:, 0] = quat.exp(rng.normal(scale=0.2, size=(len(flex_l), 3)))
+        rots[:, 1], rots[:, 3] = quat.from_axis_angle(X, flex_l), quat.from_axis_angle(X, flex_r)
+        return rots, np.broadcast_to(offsets, rots.shape[:2] + (3,)).copy()
+
+    lib_rots, _ = frames(np.radians(rng.uniform(0.0, 90.0, 300)), np.radians(rng.uniform(0.0, 90.0, 300)))
+    knees = find(parents, chains, lib_rots, offsets)
+    limits = packed(knees, parents)
+    assert limits[1][:, 3].tolist() == [-1, -1]
+    rots, pos = frames(np.radians([-20.0, 10.0, -40.0]), np.radians([5.0, -30.0, -10.0]))
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(limits, rots, pos) == 4
+    np.testing.assert_array_equal(rots[:, 0], before[:, 0])  # the pelvis as it was
+    for (path, hinge, _), flex_back in zip(knees, ([True, False, True], [False, True, True])):
+        t, s = leg_vectors(rots, pos, path)
+        bends = signed_bends(t, s, hinge)
+        np.testing.assert_allclose(bends[flex_back], 0.0, atol=1e-7)
+    # A hip joint of its own below the pelvis is the leg's to turn.
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 50)), rng=rng)
+    assert packed(find(parents, [chain], lib_rots, lib_pos[0]), parents)[1][:, 3].tolist() == [chain[0]]

@@ -500,7 +500,8 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 @nb.njit(**_OPTS)
 def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
-    (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``)
+    (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``, -1
+    for none to turn)
     whose knee bends about ``hinges[k]`` (in the frame of the shin's parent) further back than
     ``leasts[k]`` turned about the hinge onto it, and its thigh turned to keep the ankle on its
     line from the hip (unless the ankle is within ``reach_min`` leg lengths of the hip); returns
@@ -539,6 +540,8 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
             rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
                 c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
             turned += 1
+            if top < 0:  # a hip that would move more than this leg (hinges.packed)
+                continue
             # The hip-to-ankle line before and after the shin's turn, in the thigh's frame.
             nx, ny, nz = _rotate(c, sn * hx, sn * hy, sn * hz, sx, sy, sz)
             rx, ry, rz = _rotate(parent[0], parent[1], parent[2], parent[3], tx + sx, ty + sy, tz + sz)

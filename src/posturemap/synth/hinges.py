@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import kernels, quat
+from ..core.joints import subtree_mask
 
 LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
 HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under which a leg has no hinge
@@ -123,14 +124,22 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     """:func:`find`' legs that have a hinge as arrays for :func:`unbend`: ``joints`` (every
     leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 4) each leg's
     ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``) and its thigh
-    (the joint above ``joints[first]`` in ``parents``: the hip, whose rotation turns the leg),
-    ``hinge`` (K, 3) and ``least`` (K,)."""
+    (the joint above ``joints[first]`` in ``parents``: the hip, whose rotation turns the leg;
+    -1 where turning it would move more than this leg: the skeleton's root, or a joint above
+    another leg of ``knees``, as a rig without thigh joints has its hips), ``hinge`` (K, 3) and
+    ``least`` (K,)."""
     legs = [k for k in knees if k is not None]
     joints, bounds = [], []
     for (to_shin, to_ankle), _, _ in legs:
-        bounds.append((len(joints), len(joints) + len(to_shin), len(joints) + len(to_shin) + len(to_ankle),
-                       int(parents[to_shin[0]])))
+        bounds.append([len(joints), len(joints) + len(to_shin), len(joints) + len(to_shin) + len(to_ankle),
+                       int(parents[to_shin[0]])])
         joints += list(to_shin) + list(to_ankle)
+    parents = np.asarray(parents, dtype=np.int64)
+    for leg in bounds:
+        first, _, last, top = leg
+        others = np.array(joints[:first] + joints[last:], dtype=np.int64)
+        if parents[top] < 0 or subtree_mask(parents, top)[others].any():
+            leg[3] = -1
     return (np.array(joints, dtype=np.int64), np.array(bounds, dtype=np.int64).reshape(-1, 4),
             np.array([k[1] for k in legs], dtype=np.float64).reshape(-1, 3),
             np.array([k[2] for k in legs], dtype=np.float64))
@@ -157,7 +166,8 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     as it is past the bound (a knee bent in the hinge's plane turns in its own plane; one bent
     sideways keeps its sideways part); then the thigh's local rotation turned by the shortest
     arc that takes the ankle back onto its line from the hip (the straightened leg points where
-    the bent-back one reached; the ankle's own rotation is kept). In place; returns how many
+    the bent-back one reached; the ankle's own rotation is kept; where :func:`packed` gives the
+    leg a thigh that moves only it). In place; returns how many
     knees (frames times legs) it turned. Where this process uses numba, one compiled call
     (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
@@ -176,6 +186,9 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         shin = path[0][-1]
         turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)), bends[back] - least)
         rots[back, shin] = quat.mul(turn, rots[back, shin])
+        turned += len(back)
+        if top < 0:  # a hip that would move more than this leg (packed)
+            continue
         # The hip turns the leg so that the ankle, now further from it, is on the old line:
         # hip-to-ankle before and after, in the thigh's frame.
         t, s, frame = t[back], s[back], frame[back]
@@ -185,5 +198,4 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         some = near > REACH_MIN * (np.linalg.norm(t, axis=-1) + np.linalg.norm(s, axis=-1))
         onto = quat.between(straight[some] / far[some, None], reach[some] / near[some, None])
         rots[back[some], top] = quat.mul(rots[back[some], top], onto)
-        turned += len(back)
     return turned
