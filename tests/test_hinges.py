@@ -43,6 +43,19 @@ def leg(flex: np.ndarray, twist: bool = False, rng=None):
     return parents, chain, rots, pos
 
 
+def two_legs(flex_l: np.ndarray, flex_r: np.ndarray, twist: bool = False, rng=None):
+    """:func:`leg` twice under one pelvis (the right hip to the other side): ``parents``, the two
+    chains, rotations and translations."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    parents, chain, rots, pos = leg(flex_l, twist, rng)
+    p2, c2, r2, q2 = leg(flex_r, twist, rng)
+    j = len(parents)
+    parents = np.concatenate([parents, np.where(p2[1:] == 0, 0, p2[1:] + j - 1)])
+    rots, pos = np.concatenate([rots, r2[:, 1:]], axis=1), np.concatenate([pos, q2[:, 1:]], axis=1)
+    pos[:, j, 0] *= -1.0
+    return parents, [chain, tuple(c + j - 1 for c in c2)], rots, pos
+
+
 def bends_of(parents, chain, rots, pos):
     """The knee's bend (radians, unsigned) from the joints' global positions."""
     _, gp = fk(parents, rots, pos)
@@ -183,13 +196,16 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
 
 @pytest.mark.parametrize("twist", [False, True])
 def test_unbend_is_the_same_compiled(twist):
-    # Two legs (the same one twice, the second with another bound): the compiled kernel turns
-    # the same knees by the same rotations as the numpy reference.
+    # Two legs (the second with another bound, a leg without a hinge between them): the compiled
+    # kernel turns the same knees and hips by the same rotations as the numpy reference.
     rng = np.random.default_rng(4)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
-    (path, hinge, least), = find(parents, [chain], lib_rots, lib_pos[0])
-    limits = packed([(path, hinge, least), None, (path, hinge, np.radians(-10.0))], parents)
-    parents, chain, rots, pos = leg(np.radians(rng.uniform(-60.0, 60.0, 40)), twist, rng)
+    parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
+                                                  np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
+    left, right = find(parents, chains, lib_rots, lib_pos[0])
+    limits = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)
+    assert limits[1][:, 3].tolist() == [chains[0][0], chains[1][0]]  # each hip its own leg's
+    _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
+                               twist, rng)
     pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
     outs = []
     for compiled in (False, True):
@@ -201,7 +217,30 @@ def test_unbend_is_the_same_compiled(twist):
                 n = unbend(limits, r, pos)
         outs.append((n, r))
     assert outs[0][0] == outs[1][0] > 0
+    for hip in (chains[0][0], chains[1][0]):  # the hips turned
+        assert not np.array_equal(outs[0][1][:, hip], rots[:, hip])
     np.testing.assert_allclose(outs[1][1], outs[0][1], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_unbend_leaves_a_frame_it_cannot_measure(compiled):
+    # A NaN in a frame's leg (a translation) or in the bound: nothing turned there, as numpy's
+    # `bends < least` leaves it; no NaN written into the hip.
+    rng = np.random.default_rng(9)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    parents, chain, rots, pos = leg(np.radians([-20.0, -30.0]), rng=rng)
+    pos[0, chain[2], 1] = np.nan
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(packed(knees, parents), rots, pos) == 1
+    np.testing.assert_array_equal(rots[0], before[0])
+    assert np.all(np.isfinite(rots))
+    path, hinge, _ = knees[0]
+    limits = packed([(path, hinge, np.nan)], parents)
+    with backend(compiled):
+        assert unbend(limits, rots, pos) == 0
+    assert np.all(np.isfinite(rots))
 
 
 def test_the_shortest_arc_is_the_same_compiled():
@@ -252,6 +291,32 @@ def test_unbend_leaves_a_hip_that_would_move_more_than_its_leg(compiled):
         t, s = leg_vectors(rots, pos, path)
         bends = signed_bends(t, s, hinge)
         np.testing.assert_allclose(bends[flex_back], 0.0, atol=1e-7)
-    # A hip joint of its own below the pelvis is the leg's to turn.
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 50)), rng=rng)
-    assert packed(find(parents, [chain], lib_rots, lib_pos[0]), parents)[1][:, 3].tolist() == [chain[0]]
+
+
+def test_packed_turns_only_a_hip_that_moves_its_own_leg():
+    rng = np.random.default_rng(10)
+
+    def hips(parents, chains, rots, pos):
+        return packed(find(parents, chains, rots, pos[0]), parents)[1][:, 3].tolist()
+
+    flex = np.radians(rng.uniform(0.0, 90.0, 100))
+    # A hip joint of its own below the pelvis, and a leaf beside the leg (a twist helper): turned.
+    parents, chain, rots, pos = leg(flex, rng=rng)
+    assert hips(parents, [chain], rots, pos) == [chain[0]]
+    parents = np.append(parents, chain[0])
+    rots = np.concatenate([rots, rots[:, :1] * 0 + quat.identity()], axis=1)
+    pos = np.concatenate([pos, pos[:, -1:]], axis=1)
+    assert hips(parents, [chain], rots, pos) == [chain[0]]
+    # The hip the skeleton's root (nothing beside the leg): not turned.
+    parents, chain, rots, pos = leg(flex, rng=rng)
+    assert hips(parents[1:] - 1, [tuple(c - 1 for c in chain)], rots[:, 1:], pos[:, 1:]) == [-1]
+    # Two shins under a pelvis that is not the root, only one knee ever bent (the other leg has
+    # no hinge): the pelvis carries the other leg, not turned.
+    parents = np.array([-1, 0, 1, 2, 1, 4])  # root > pelvis > knee_L > ankle_L, pelvis > knee_R > ankle_R
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.1, -1.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0],
+                        [0.0, -1.0, 0.0]])  # the right leg straight, its knee never bent
+    rots = np.tile(quat.identity(), (len(flex), 6, 1))
+    rots[:, 2] = quat.from_axis_angle(X, flex)
+    knees = find(parents, [(1, 2, 3), (1, 4, 5)], rots, offsets)
+    assert knees[1] is None
+    assert packed(knees, parents)[1][:, 3].tolist() == [-1]

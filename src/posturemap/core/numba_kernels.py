@@ -533,7 +533,7 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
             across = (sy * tz - sz * ty) * hx + (sz * tx - sx * tz) * hy + (sx * ty - sy * tx) * hz
             along = tx * sx + ty * sy + tz * sz - (tx * hx + ty * hy + tz * hz) * (sx * hx + sy * hy + sz * hz)
             bend = math.atan2(across, along)
-            if bend >= leasts[k]:
+            if not bend < leasts[k]:  # within the bound (or NaN: left as it is, as numpy's)
                 continue
             half = 0.5 * (bend - leasts[k])
             c, sn = math.cos(half), math.sin(half)
@@ -548,7 +548,7 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
             ux, uy, uz = _rotate(parent[0], parent[1], parent[2], parent[3], tx + nx, ty + ny, tz + nz)
             near, far = math.sqrt(rx * rx + ry * ry + rz * rz), math.sqrt(ux * ux + uy * uy + uz * uz)
             size = math.sqrt(tx * tx + ty * ty + tz * tz) + math.sqrt(sx * sx + sy * sy + sz * sz)
-            if near <= reach_min * size:
+            if not near > reach_min * size:
                 continue
             rx, ry, rz, ux, uy, uz = rx / near, ry / near, rz / near, ux / far, uy / far, uz / far
             a0, a1, a2, a3 = _between(ux, uy, uz, rx, ry, rz)

@@ -18,8 +18,8 @@ planes' normals summed in the frame of the shin's or forearm's parent, the bent 
 the most) and how far back it goes (the 0.1st percentile of the bends about the hinge, 0 at
 most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
 its hinge to that bound: it locks straight, as a real one does, and the hip turns the straight
-leg onto the line from the hip to where the ankle was, so the foot stays where the motion had
-it; frames within the library's range are left exactly as they are. (Turning the shin alone
+leg onto the line from the hip to where the ankle was, so the ankle keeps the motion's line, a
+little further out; frames within the library's range are left exactly as they are. (Turning the shin alone
 left the thigh where the bent-back leg had it: between two held-out dashes (10 frames) the spline,
 retrieval's fallback there, matching
 B's knee flexing 35 degrees a frame from straight, carried the knee 49 degrees backward, and
@@ -125,9 +125,10 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 4) each leg's
     ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``) and its thigh
     (the joint above ``joints[first]`` in ``parents``: the hip, whose rotation turns the leg;
-    -1 where turning it would move more than this leg: the skeleton's root, or a joint above
-    another leg of ``knees``, as a rig without thigh joints has its hips), ``hinge`` (K, 3) and
-    ``least`` (K,)."""
+    -1 where turning it would move more than this leg: the skeleton's root, or a joint with
+    another child that has children of its own, as a rig without thigh joints has its pelvis
+    above the spine and the other leg; a leaf beside the leg, a twist helper's, turns with it),
+    ``hinge`` (K, 3) and ``least`` (K,)."""
     legs = [k for k in knees if k is not None]
     joints, bounds = [], []
     for (to_shin, to_ankle), _, _ in legs:
@@ -135,10 +136,13 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
                        int(parents[to_shin[0]])])
         joints += list(to_shin) + list(to_ankle)
     parents = np.asarray(parents, dtype=np.int64)
+    has_kids = np.zeros(len(parents), dtype=bool)
+    has_kids[parents[parents >= 0]] = True
     for leg in bounds:
-        first, _, last, top = leg
-        others = np.array(joints[:first] + joints[last:], dtype=np.int64)
-        if parents[top] < 0 or subtree_mask(parents, top)[others].any():
+        first, top = leg[0], leg[3]
+        beside = subtree_mask(parents, top) & ~subtree_mask(parents, joints[first])
+        beside[top] = False
+        if parents[top] < 0 or (beside & has_kids).any():
             leg[3] = -1
     return (np.array(joints, dtype=np.int64), np.array(bounds, dtype=np.int64).reshape(-1, 4),
             np.array([k[1] for k in legs], dtype=np.float64).reshape(-1, 3),
@@ -167,9 +171,9 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     sideways keeps its sideways part); then the thigh's local rotation turned by the shortest
     arc that takes the ankle back onto its line from the hip (the straightened leg points where
     the bent-back one reached; the ankle's own rotation is kept; where :func:`packed` gives the
-    leg a thigh that moves only it). In place; returns how many
-    knees (frames times legs) it turned. Where this process uses numba, one compiled call
-    (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
+    leg a thigh that moves only it, and the ankle is not within ``REACH_MIN`` leg lengths of
+    the hip). In place; returns how many knees (frames times legs) it turned. Where this
+    process uses numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
         return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_MIN))
