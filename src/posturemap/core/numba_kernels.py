@@ -500,12 +500,11 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 @nb.njit(**_OPTS)
 def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
-    (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``, -1
-    for none to turn)
-    whose knee bends about ``hinges[k]`` (in the frame of the shin's parent) further back than
-    ``leasts[k]`` turned about the hinge onto it, and its thigh turned to keep the ankle on its
-    line from the hip (unless the ankle is within ``reach_min`` leg lengths of the hip); returns
-    how many knees it turned."""
+    (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``,
+    -1 for none to turn) whose knee bends about ``hinges[k]`` (in the frame of the shin's
+    parent) further back than ``leasts[k]`` turned about the hinge onto it, and its thigh turned
+    to keep the ankle on its line from the hip (unless the ankle is within ``reach_min`` leg
+    lengths of the hip); returns how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]

@@ -19,15 +19,14 @@ the most) and how far back it goes (the 0.1st percentile of the bends about the 
 most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
 its hinge to that bound: it locks straight, as a real one does, and the hip turns the straight
 leg onto the line from the hip to where the ankle was, so the ankle keeps the motion's line, a
-little further out; frames within the library's range are left exactly as they are. (Turning the shin alone
-left the thigh where the bent-back leg had it: between two held-out dashes (10 frames) the spline,
-retrieval's fallback there, matching
-B's knee flexing 35 degrees a frame from straight, carried the knee 49 degrees backward, and
-the straightened leg raised the toe to 46 cm; it came down 15 cm into B's first frame, an
-acceleration 2.1x the clips' largest. With the hip turned the toe keeps the spline's path: the
-largest acceleration there 0.91x, the knee's at B's seam.) Below, "leg", "thigh", "shin" and
-"knee" stand for an arm's upper arm, forearm and elbow too. The engine does this to
-``retrieval``'s and ``auto``'s frames before the foot lock
+little further out; frames within the library's range are left exactly as they are. (Turning the
+shin alone left the thigh where the bent-back leg had it: between two held-out dashes (10
+frames) the spline, retrieval's fallback there, matching B's knee flexing 35 degrees a frame
+from straight, carried the knee 49 degrees backward, and the straightened leg raised the toe to
+46 cm; it came down 15 cm into B's first frame, an acceleration 2.1x the clips' largest. With
+the hip turned the toe keeps the spline's path: the largest acceleration there 0.91x, the knee's
+at B's seam.) Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm, forearm and
+elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`); the interpolating methods, the
 baselines, stay as they are.
 """
