@@ -1035,12 +1035,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         if not (a_ons[leg] and b_ons[leg] and move <= drift_hi * body):  # one step's way at most
             continue
         if contacts.shape[0] > 0:  # a foot the retrieved segment holds all through
-            held_through = n_l > 0
-            for t in range(n_l):
-                if not contacts[t, leg]:
-                    held_through = False
-                    break
-            if held_through:
+            if contacts[:, leg].all():
                 moves[leg] = move
         else:
             # Only a foot the motion glides: under a step's lift, near the line between the spots.
