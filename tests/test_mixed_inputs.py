@@ -118,7 +118,15 @@ def test_a_clip_of_no_frames_or_with_nan_is_refused_by_name(sample_clips, walk_m
     rots = walk.rotations.copy()
     rots[-1, 2, 1] = np.nan
     broken = dataclasses.replace(walk, rotations=rots)
-    for clip, words in ((walk[:0], "the clip has no frames"), (broken, r"NaN or infinite rotation \(frame")):
+    # A rotation that is not of length 1 grew through the inverses and products of every new
+    # frame: B scaled by 1.1 gave rotations of length 1e8 under the foot lock, silently.
+    longer = dataclasses.replace(walk, rotations=walk.rotations * np.where(np.arange(len(walk)) == 4, 1.1, 1.0)[:, None, None])
+    zero = walk.rotations.copy()
+    zero[2, 3] = 0.0
+    for clip, words in ((walk[:0], "the clip has no frames"), (broken, r"NaN or infinite rotation \(frame"),
+                        (longer, r"rotation of length 1.1 is not a unit quaternion \(frame 4, joint"),
+                        (dataclasses.replace(walk, rotations=zero), r"rotation of length 0 is not a unit quaternion "
+                                                                   r"\(frame 2, joint '" + walk.skeleton.names[3])):
         with pytest.raises(UserError, match=f"^a: {words}"):
             transition(clip, run_, walk_map)
         with pytest.raises(UserError, match=f"^b: {words}"):
@@ -133,6 +141,23 @@ def test_a_clip_of_no_frames_or_with_nan_is_refused_by_name(sample_clips, walk_m
     with pytest.raises(bvh.BVHError, match="no frames; nothing written"):
         bvh.write(tmp_path / "empty.bvh", walk[:0])
     assert not (tmp_path / "empty.bvh").exists()
+
+
+def test_rotations_nearly_of_length_one_make_rotations_of_length_one(sample_clips, walk_map):
+    # float32 rotations from a game engine, or rounded ones, are off by a little: accepted, and
+    # the engine keeps them scaled to length 1, so that the new frames are rotations too.
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    rng = np.random.default_rng(0)
+    near = [dataclasses.replace(m, rotations=m.rotations * (1 + rng.uniform(-9e-4, 9e-4, m.rotations.shape[:2] + (1,))))
+            for m in (walk, run_)]
+    for method in ("auto", "slerp", "spline"):
+        for foot_lock in (True, False):
+            out = transition(*near, walk_map, method=method, foot_lock=foot_lock, length=12, a_end=30)
+            length = np.linalg.norm(out.rotations[31:43], axis=-1)
+            assert np.abs(length - 1).max() < 1e-12, (method, foot_lock)
+            exact = transition(walk, run_, walk_map, method=method, foot_lock=foot_lock, length=12, a_end=30)
+            assert np.allclose(out.rotations[31:], exact.rotations[31:], atol=1e-5)
+    assert near[0].unit() is not near[0] and walk.unit() is walk  # a copy only where one is off
 
 
 def test_the_api_checks_what_it_is_given(sample_clips, walk_map, tmp_path):

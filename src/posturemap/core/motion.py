@@ -14,6 +14,10 @@ AXES = "XYZ"
 # The frame rates a clip may have (frames per second): a frame time from 0.1 ms to 10 s, as the
 # BVH reader accepts; beyond, a gap's frame counts (seconds times fps) are meaningless or huge.
 MIN_FPS, MAX_FPS = 0.1, 10000.0
+# How far a rotation's length may be from 1 (the kernels compose and invert rotations as unit
+# quaternions, so a longer one grows through every joint and frame it passes into): float32
+# rotations from a game engine are within 1e-6; a rotation scaled by 1.01 is not a rotation.
+QUAT_NORM_TOL = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,15 +69,31 @@ class Motion:
             raise ValueError(f"source must be (F, C) with F = {len(self.rotations)}, got {self.source.shape}")
 
     def check_usable(self, where: str) -> None:
-        """Raise :class:`~posturemap.errors.UserError` on ``where`` unless the clip has frames and
+        """Raise :class:`~posturemap.errors.UserError` on ``where`` unless the clip has frames,
         every rotation and translation is finite (what a map or a transition can read: a NaN at a
-        seam would run through every new frame)."""
+        seam would run through every new frame) and every rotation is a unit quaternion within
+        :data:`QUAT_NORM_TOL` (:meth:`unit` makes them exact)."""
         if not len(self):
             raise UserError(where, "the clip has no frames")
         for name, a in (("rotation", self.rotations), ("translation", self.positions)):
             if not np.isfinite(a).all():
                 f, j = (int(k) for k in np.argwhere(~np.isfinite(a))[0][:2])
                 raise UserError(where, f"NaN or infinite {name} (frame {f}, joint {self.skeleton.names[j]!r})")
+        off = np.abs(np.linalg.norm(self.rotations, axis=-1) - 1.0)
+        if not (off <= QUAT_NORM_TOL).all():
+            f, j = (int(k) for k in np.unravel_index(off.argmax(), off.shape))
+            size = float(np.linalg.norm(self.rotations[f, j]))
+            raise UserError(where, f"rotation of length {size:.6g} is not a unit quaternion (frame {f}, joint "
+                                   f"{self.skeleton.names[j]!r}; rotations are (w, x, y, z) of length 1)")
+
+    def unit(self) -> "Motion":
+        """This clip, or a copy whose rotations are scaled to length 1 where any is not within
+        1e-12 (within :data:`QUAT_NORM_TOL`, as :meth:`check_usable` lets through): what the
+        engine and the map keep, so that new frames are rotations of length 1 too."""
+        if (np.abs(np.linalg.norm(self.rotations, axis=-1) - 1.0) <= 1e-12).all():
+            return self
+        return Motion(self.skeleton, quat.normalize(self.rotations), self.positions.copy(), self.fps,
+                      None if self.source is None else self.source.copy())
 
     @property
     def num_frames(self) -> int:

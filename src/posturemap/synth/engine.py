@@ -131,6 +131,7 @@ class TransitionEngine:
         if not isinstance(motion, Motion):
             raise TypeError(f"add needs a Motion (posturemap.io.bvh.read gives one), got {type(motion).__name__}")
         motion.check_usable(name)
+        motion = motion.unit()  # rotations of length 1 exactly: the new frames are made of them
         if self.skeleton is None:
             self.skeleton = motion.skeleton
         whose = "the map's" if self.model is not None else "the other clips'"
