@@ -143,7 +143,25 @@ def test_cli_transition_warns_of_a_clip_turned_to_another_up_axis(sample_clips, 
         err = capsys.readouterr().err
         assert err == (f"posturemap: warning: {a}: the body stands along Z, the map's clips along Y: the "
                        "transition may not line up (a map trained on clips of this orientation would)\n"
+                       f"posturemap: warning: {b}: the body stands along Z, the map's clips along Y: the "
+                       "transition may not line up (a map trained on clips of this orientation would)\n"
                        if warned else ""), err
+    # A Y-up A and a Z-up B: only A was read, and B came out lying on the floor, silently. Now B
+    # is named, against the map's axis, or without a map against A's.
+    a, b = tmp_path / "walk_y.bvh", tmp_path / "run_z.bvh"
+    for extra, whose in ((["--map", str(m)], "the map's clips along Y: the transition may not line up (a map "
+                          "trained on clips of this orientation would)"),
+                         ([], f"{a}'s along Y: the transition may not line up (lying on the floor, or of another "
+                          "up axis?)")):
+        assert cli.main(["transition", str(a), str(b), "-o", str(tmp_path / "mixed.bvh"), "--method", "slerp",
+                         "--length", "10", *extra]) == 0
+        assert capsys.readouterr().err == f"posturemap: warning: {b}: the body stands along Z, {whose}\n"
+    from posturemap.web.studio import Studio
+
+    lines = []
+    Studio({"walk": walk, "run": z_up(run_), "run_y": run_}, train=False, log=lines.append)
+    assert lines == ["posturemap: warning: run: the body stands along Z, walk's along Y: transitions with it may "
+                     "not line up (lying on the floor, or of another up axis?)"], lines
 
 
 def test_cli_transition_writes_both_outputs_or_neither(sample_clips, tmp_path, capsys, monkeypatch):
