@@ -34,3 +34,19 @@ def topped(m: Motion, q0, p0) -> Motion:
     pos = np.concatenate([np.broadcast_to(p0, (len(m), 3))[:, None], m.positions], axis=1)
     rots[:, 1], pos[:, 1] = quat.mul(quat.inv(q), m.rotations[:, 0]), quat.mul_vec(quat.inv(q), m.positions[:, 0] - p0)
     return Motion(top, rots, pos, m.fps)
+
+
+def bare(m: Motion, unalike: bool = False) -> Motion:
+    """The clip with joints named ``J00``, ``J01``...: no leg found by name, the hierarchy's
+    (:func:`posturemap.core.joints.structural_legs`). ``unalike``: the left shin and foot bones
+    also 1.6 times as long, so that the two legs are not alike and none is found at all."""
+    sk = m.skeleton
+    offsets, pos = sk.offsets.copy(), m.positions.copy()
+    if unalike:
+        for name in ("LowerLeg_L", "Foot_L"):
+            j = sk.names.index(name)
+            offsets[j] *= 1.6
+            pos[:, j] *= 1.6
+    renamed = Skeleton(tuple(f"J{j:02d}" for j in range(sk.num_joints)), sk.parents, offsets, sk.channels,
+                       sk.end_sites, sk.euler_style)
+    return Motion(renamed, m.rotations, pos, m.fps)

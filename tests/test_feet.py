@@ -54,15 +54,17 @@ def test_leg_chains_are_found_once_per_hierarchy(sample_clips):
     from posturemap.core import joints
 
     sk = sample_clips["walk"].skeleton
-    same = dataclasses.replace(sk, offsets=sk.offsets * 2.0)  # another skeleton object, the same joints
+    same = dataclasses.replace(sk, offsets=sk.offsets.copy())  # another skeleton object, the same joints
     first = leg_chains(sk)
     searches = joints._leg_chains_of.cache_info().misses
     first.append((0, 0, 0))
     assert leg_chains(same) == leg_chains(sk) == first[:2] and len(first[0]) == 3
     assert joints._leg_chains_of.cache_info().misses == searches
     renamed = dataclasses.replace(sk, names=tuple(n.replace("Foot", "Paw") for n in sk.names))
-    assert leg_chains(renamed) == []  # another hierarchy is searched again: no ankle by name there
+    assert leg_chains(renamed) == first[:2]  # another hierarchy is searched again: no ankle by name, the hierarchy's
     assert joints._leg_chains_of.cache_info().misses == searches + 1
+    leg_chains(dataclasses.replace(sk, offsets=sk.offsets * 2.0))  # the hierarchy's legs depend on the bones
+    assert joints._leg_chains_of.cache_info().misses == searches + 2
 
 
 def test_leg_chains_by_name(sample_clips, bandai_files, cmu_file):

@@ -206,14 +206,22 @@ def test_a_reader_that_stops_early_is_no_error(walk_map, tmp_path, monkeypatch, 
 
 
 def test_inspect_names_the_legs_or_says_there_are_none(sample_clips, tmp_path, capsys):
+    from rigkit import bare
+
     walk = sample_clips["walk"]
-    named, bare = tmp_path / "named.bvh", tmp_path / "bare.bvh"
-    bvh.write(named, walk)
-    renamed = dataclasses.replace(walk.skeleton, names=tuple(f"bone{j:02d}" for j in range(walk.skeleton.num_joints)))
-    bvh.write(bare, dataclasses.replace(walk, skeleton=renamed))
-    code, out, _ = run(capsys, "inspect", named)
-    legs = [line for line in out.splitlines() if line.split()[:1] == ["legs"]]
-    assert code == 0 and legs == ["  legs    UpperLeg_L > LowerLeg_L > Foot_L > Toes_L; "
-                                  "UpperLeg_R > LowerLeg_R > Foot_R > Toes_R"]
-    code, out, _ = run(capsys, "inspect", bare)
-    assert code == 0 and "legs    none found by name" in out and "no foot lock" in out
+    files = {name: tmp_path / f"{name}.bvh" for name in ("named", "bare", "unalike")}
+    for name, clip in (("named", walk), ("bare", bare(walk)), ("unalike", bare(walk, unalike=True))):
+        bvh.write(files[name], clip)
+    legs = {}
+    for name, path in files.items():
+        code, out, _ = run(capsys, "inspect", path)
+        assert code == 0
+        legs[name] = [line for line in out.splitlines() if line.split()[:1] == ["legs"]]
+    assert legs["named"] == ["  legs    UpperLeg_L > LowerLeg_L > Foot_L > Toes_L; "
+                             "UpperLeg_R > LowerLeg_R > Foot_R > Toes_R"]
+    # Named J00, J01...: the same legs, from the hierarchy (two like chains beside the spine).
+    joint = {n: f"J{j:02d}" for j, n in enumerate(walk.skeleton.names)}
+    assert legs["bare"] == ["  legs    " + "; ".join(" > ".join(joint[n] for n in (f"UpperLeg_{s}", f"LowerLeg_{s}",
+                                                                                f"Foot_{s}", f"Toes_{s}"))
+                                                    for s in "LR")]
+    assert legs["unalike"][0].startswith("  legs    none found by name") and "no foot lock" in legs["unalike"][0]

@@ -297,8 +297,9 @@ def _cmd_transition(args) -> int:
     if "retrieval" in report:
         print(describe_retrieval(report["retrieval"]))
     if not args.no_foot_lock and not leg_chains(a.skeleton):
-        print(f"  foot lock: off, no legs found by name (an ankle named foot or ankle, under a shin and a thigh; "
-              f"posturemap inspect {args.a} shows the skeleton)")
+        print(f"  foot lock: off, no legs found by name (an ankle named foot or ankle, under a shin and a thigh) "
+              f"nor in the hierarchy (two like chains beside the spine; posturemap inspect {args.a} shows the "
+              "skeleton)")
     return 0
 
 

@@ -1,4 +1,5 @@
 """What joints are, from their names: legs, feet, hands, head; body parts; contact thresholds.
+Legs no name tells are read from the hierarchy (:func:`structural_legs`).
 
 Where the motion side reads joint names (BVH files name joints freely: ``LeftFoot``,
 ``l_ankle``, ``mixamorig:LeftToeBase``): everything that needs a leg, a foot or a hand asks
@@ -99,15 +100,21 @@ def leg_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     distinct thigh (every joint numbered alike, or thigh and shin named alike but for a number,
     so that two legs would share the hips as their thigh), the plain parent and grandparent.
 
-    Found once per hierarchy (names and parents): an engine asks for each clip it prepares,
-    and :func:`posturemap.synth.engine.transition` prepares two per call."""
-    return list(_leg_chains_of(tuple(sk.names), np.asarray(sk.parents, dtype=np.int64).tobytes()))
+    Where no leg is named so (joints named ``j0``, ``j1``..., or in another language), the legs
+    of the hierarchy (:func:`structural_legs`).
+
+    Found once per hierarchy (names, parents and offsets): an engine asks for each clip it
+    prepares, and :func:`posturemap.synth.engine.transition` prepares two per call."""
+    return list(_leg_chains_of(tuple(sk.names), np.asarray(sk.parents, dtype=np.int64).tobytes(),
+                               np.asarray(sk.offsets, dtype=np.float64).tobytes()))
 
 
 @lru_cache(maxsize=32)
-def _leg_chains_of(names: tuple[str, ...], parents: bytes) -> tuple[tuple[int, int, int], ...]:
+def _leg_chains_of(names: tuple[str, ...], parents: bytes, offsets: bytes) -> tuple[tuple[int, int, int], ...]:
     sk = SimpleNamespace(names=names, parents=np.frombuffer(parents, dtype=np.int64), num_joints=len(names))
     chains = _leg_chains(sk, segments=True)
+    if not chains:
+        return tuple(structural_legs(sk.parents, np.frombuffer(offsets, dtype=np.float64).reshape(-1, 3)))
     # Bones told apart by number only (L_Leg1 > L_Leg2 > L_Foot) would run into the hips: a thigh
     # shared by two legs, or above another leg's, is no thigh. Then no segments are merged.
     thighs = [c[0] for c in chains]
@@ -157,6 +164,72 @@ def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
     return [c for c in out if not has_ankle_below[c[2]]]
 
 
+LIMB_LIKE = 0.25  # the two legs' bones: each within this share of the other's length
+
+
+def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int, int, int]]:
+    """(thigh, shin, ankle) of each leg read from the hierarchy alone, for a rig whose names say
+    nothing: two chains of at least three joints that leave the same joint, do not branch (a
+    leaf beside a chain, such as a twist helper, is passed by) and are alike (as many joints,
+    each bone within :data:`LIMB_LIKE` of its twin's length), beside a third child that holds at
+    least as many joints as the two together (the spine, with the arms and the head: what tells
+    the hips from the chest, whose arms outweigh the neck). Of several such joints, the one
+    nearest the top of the hierarchy. In each chain the thigh and the shin are the two
+    consecutive bones longest together (the chain's joint above them is the thigh joint, the
+    one below them the ankle), so that a hip joint above the thigh (CMU's ``LHipJoint``) and
+    the toes below the ankle fall outside. [] where no joint has such a pair of chains.
+
+    Near-linear in the joints (a hostile file may hold thousands): only a joint with three
+    children that have children of their own can hold the legs, and the chains below such
+    joints do not overlap; of a joint's chains, those of one length are compared in order of
+    their total length, each with the next."""
+    parents = np.asarray(parents, dtype=np.int64)
+    n = len(parents)
+    kids = [[] for _ in range(n)]
+    for j in range(n):
+        if parents[j] >= 0:
+            kids[int(parents[j])].append(j)
+    size = np.ones(n, dtype=np.int64)
+    depth = np.zeros(n, dtype=np.int64)
+    for j in range(n - 1, -1, -1):  # children come after their parents
+        if parents[j] >= 0:
+            size[parents[j]] += size[j]
+    for j in range(n):
+        if parents[j] >= 0:
+            depth[j] = depth[parents[j]] + 1
+    bone = np.linalg.norm(np.asarray(offsets, dtype=np.float64).reshape(n, 3), axis=1)
+
+    def chain(c: int) -> list[int] | None:
+        """The joints from ``c`` down to a leaf (the longest bone among several), None where
+        two children of one joint have children of their own."""
+        out = [c]
+        while kids[out[-1]]:
+            inner = [k for k in kids[out[-1]] if kids[k]]
+            if len(inner) > 1:
+                return None
+            out.append(inner[0] if inner else max(kids[out[-1]], key=lambda k: (bone[k], -k)))
+        return out
+
+    def alike(x: list[int], y: list[int]) -> bool:
+        return all(abs(bone[i] - bone[j]) <= LIMB_LIKE * max(bone[i], bone[j]) for i, j in zip(x[1:], y[1:]))
+
+    forks = [j for j in range(n) if sum(1 for k in kids[j] if kids[k]) >= 3]
+    for p in sorted(forks, key=lambda j: (depth[j], j)):
+        limbs = sorted(((len(x), float(bone[x[1:]].sum()), c, x) for c in kids[p] if kids[c]
+                        if (x := chain(c)) is not None and len(x) >= 3), key=lambda t: t[:3])
+        biggest = sorted(kids[p], key=lambda k: -size[k])[:3]
+        for (nx, _, c, x), (ny, _, d, y) in zip(limbs, limbs[1:]):
+            other = next(o for o in biggest if o not in (c, d))
+            if nx != ny or size[other] < size[c] + size[d] or not alike(x, y):
+                continue
+            legs = []
+            for limb in (x, y):
+                k = max(range(1, len(limb) - 1), key=lambda k: (bone[limb[k]] + bone[limb[k + 1]], -k))
+                legs.append((limb[k - 1], limb[k], limb[k + 1]))
+            return sorted(legs)
+    return []
+
+
 def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
     """The rest pose's distance from joint ``top`` to its descendant ``j`` (the offsets between
     them summed)."""
@@ -199,7 +272,8 @@ def describe_legs(sk: Skeleton) -> list[list[str]]:
             for chain, toe in zip(chains, leg_toes(sk, chains).tolist())]
 
 
-LEGS_MISSING = ("none found by name (an ankle named foot or ankle, under a shin and a thigh): no foot lock, "
+LEGS_MISSING = ("none found by name (an ankle named foot or ankle, under a shin and a thigh) nor in the hierarchy "
+                "(two like chains of three joints or more beside the spine): no foot lock, "
                 "and retrieval's lower body is the root alone")
 
 
