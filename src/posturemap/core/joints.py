@@ -164,68 +164,98 @@ def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
     return [c for c in out if not has_ankle_below[c[2]]]
 
 
-LIMB_LIKE = 0.25  # the two legs' bones: each within this share of the other's length
+LIMB_LIKE = 0.25  # two limbs' bones: each within this share of its twin's length
+
+
+class Limbs:
+    """The hierarchy's limbs, read without names (plain arrays of a skeleton's ``parents`` and
+    ``offsets``): each joint's children, subtree size, depth and bone length (its offset's).
+
+    :meth:`path` follows a chain down, :meth:`pairs` finds the alike chains among a joint's
+    children, :meth:`joints3` the three joints around a chain's two longest consecutive bones.
+    What :func:`structural_legs` and the bone classes of :func:`posturemap.learn.features.assign_classes`
+    read the same way."""
+
+    def __init__(self, parents: np.ndarray, offsets: np.ndarray):
+        parents = np.asarray(parents, dtype=np.int64)
+        n = len(parents)
+        self.kids = [[] for _ in range(n)]
+        for j in range(n):
+            if parents[j] >= 0:
+                self.kids[int(parents[j])].append(j)
+        self.inner = [[k for k in ks if self.kids[k]] for ks in self.kids]  # children with children
+        self.size = np.ones(n, dtype=np.int64)
+        for j in range(n - 1, -1, -1):  # children come after their parents
+            if parents[j] >= 0:
+                self.size[parents[j]] += self.size[j]
+        self.depth = np.zeros(n, dtype=np.int64)
+        for j in range(n):
+            if parents[j] >= 0:
+                self.depth[j] = self.depth[parents[j]] + 1
+        self.bone = np.linalg.norm(np.asarray(offsets, dtype=np.float64).reshape(n, 3), axis=1)
+
+    def path(self, c: int) -> list[int]:
+        """The joints from ``c`` down single children that have children (a leaf beside the
+        chain, a twist helper's, is passed by) to a leaf, the longest bone of several, or to a
+        fork (a hand with fingers), which ends it. Chains that start at different children of
+        a fork never overlap."""
+        out = [c]
+        while len(self.inner[out[-1]]) == 1:
+            out.append(self.inner[out[-1]][0])
+        if not self.inner[out[-1]] and self.kids[out[-1]]:
+            out.append(max(self.kids[out[-1]], key=lambda k: (self.bone[k], -k)))
+        return out
+
+    def pairs(self, paths: list[list[int]]) -> list[tuple[int, int]]:
+        """Indices into ``paths`` of alike chains of three joints or more: as many joints, each
+        bone within :data:`LIMB_LIKE` of its twin's. Those of one length are compared in order of
+        their total length, each with the next (not every pair: a hostile joint may have
+        thousands of children)."""
+        bone = self.bone
+        order = sorted(range(len(paths)), key=lambda i: (len(paths[i]), float(bone[paths[i][1:]].sum()), paths[i][0]))
+        out = []
+        for i, k in zip(order, order[1:]):
+            x, y = paths[i], paths[k]
+            if len(x) == len(y) >= 3 and all(abs(bone[a] - bone[b]) <= LIMB_LIKE * max(bone[a], bone[b])
+                                             for a, b in zip(x[1:], y[1:])):
+                out.append((i, k))
+        return out
+
+    def joints3(self, path: list[int]) -> int:
+        """Where in a chain of three joints or more its two longest consecutive bones meet: the
+        index ``k`` of the knee or the elbow, ``path[k - 1]`` the thigh or upper arm joint and
+        ``path[k + 1]`` the ankle or the hand (a hip joint or a clavicle above, the toes or the
+        fingers below, fall outside)."""
+        bone = self.bone
+        return max(range(1, len(path) - 1), key=lambda k: (bone[path[k]] + bone[path[k + 1]], -k))
 
 
 def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) of each leg read from the hierarchy alone, for a rig whose names say
-    nothing: two chains of at least three joints that leave the same joint, do not branch (a
-    leaf beside a chain, such as a twist helper, is passed by) and are alike (as many joints,
-    each bone within :data:`LIMB_LIKE` of its twin's length), beside a third child that holds at
-    least as many joints as the two together (the spine, with the arms and the head: what tells
-    the hips from the chest, whose arms outweigh the neck). Of several such joints, the one
-    nearest the top of the hierarchy. In each chain the thigh and the shin are the two
-    consecutive bones longest together (the chain's joint above them is the thigh joint, the
-    one below them the ankle), so that a hip joint above the thigh (CMU's ``LHipJoint``) and
-    the toes below the ankle fall outside. [] where no joint has such a pair of chains.
-
-    Near-linear in the joints (a hostile file may hold thousands): only a joint with three
-    children that have children of their own can hold the legs, and the chains below such
-    joints do not overlap; of a joint's chains, those of one length are compared in order of
-    their total length, each with the next."""
-    parents = np.asarray(parents, dtype=np.int64)
-    n = len(parents)
-    kids = [[] for _ in range(n)]
-    for j in range(n):
-        if parents[j] >= 0:
-            kids[int(parents[j])].append(j)
-    size = np.ones(n, dtype=np.int64)
-    depth = np.zeros(n, dtype=np.int64)
-    for j in range(n - 1, -1, -1):  # children come after their parents
-        if parents[j] >= 0:
-            size[parents[j]] += size[j]
-    for j in range(n):
-        if parents[j] >= 0:
-            depth[j] = depth[parents[j]] + 1
-    bone = np.linalg.norm(np.asarray(offsets, dtype=np.float64).reshape(n, 3), axis=1)
-
-    def chain(c: int) -> list[int] | None:
-        """The joints from ``c`` down to a leaf (the longest bone among several), None where
-        two children of one joint have children of their own."""
-        out = [c]
-        while kids[out[-1]]:
-            inner = [k for k in kids[out[-1]] if kids[k]]
-            if len(inner) > 1:
-                return None
-            out.append(inner[0] if inner else max(kids[out[-1]], key=lambda k: (bone[k], -k)))
-        return out
-
-    def alike(x: list[int], y: list[int]) -> bool:
-        return all(abs(bone[i] - bone[j]) <= LIMB_LIKE * max(bone[i], bone[j]) for i, j in zip(x[1:], y[1:]))
-
-    forks = [j for j in range(n) if sum(1 for k in kids[j] if kids[k]) >= 3]
-    for p in sorted(forks, key=lambda j: (depth[j], j)):
-        limbs = sorted(((len(x), float(bone[x[1:]].sum()), c, x) for c in kids[p] if kids[c]
-                        if (x := chain(c)) is not None and len(x) >= 3), key=lambda t: t[:3])
+    nothing: two alike chains (:meth:`Limbs.pairs`) that leave the same joint and end in a leaf
+    (a leg does not fork), beside a third child that holds at least as many joints as the two
+    together (the spine, with the arms and the head: what tells the hips from the chest, whose
+    arms outweigh the neck). Of several such joints, the one nearest the top of the hierarchy.
+    The thigh and the shin are each chain's two longest consecutive bones (:meth:`Limbs.joints3`),
+    so that a hip joint above the thigh (CMU's ``LHipJoint``) and the toes below the ankle fall
+    outside. [] where no joint has such a pair of chains. Near-linear in the joints (a hostile
+    file may hold thousands): only a joint with three children that have children of their own
+    can hold the legs, and chains below different such joints do not overlap."""
+    limbs = Limbs(parents, offsets)
+    kids, size = limbs.kids, limbs.size
+    forks = [j for j in range(len(kids)) if len(limbs.inner[j]) >= 3]
+    for p in sorted(forks, key=lambda j: (limbs.depth[j], j)):
+        paths = [x for x in (limbs.path(c) for c in limbs.inner[p]) if not kids[x[-1]]]
         biggest = sorted(kids[p], key=lambda k: -size[k])[:3]
-        for (nx, _, c, x), (ny, _, d, y) in zip(limbs, limbs[1:]):
+        for i, k in limbs.pairs(paths):
+            c, d = paths[i][0], paths[k][0]
             other = next(o for o in biggest if o not in (c, d))
-            if nx != ny or size[other] < size[c] + size[d] or not alike(x, y):
+            if size[other] < size[c] + size[d]:
                 continue
             legs = []
-            for limb in (x, y):
-                k = max(range(1, len(limb) - 1), key=lambda k: (bone[limb[k]] + bone[limb[k + 1]], -k))
-                legs.append((limb[k - 1], limb[k], limb[k + 1]))
+            for x in (paths[i], paths[k]):
+                m = limbs.joints3(x)
+                legs.append((x[m - 1], x[m], x[m + 1]))
             return sorted(legs)
     return []
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import quat
-from ..core.joints import ancestors, subtree_mask
+from ..core.joints import Limbs, ancestors, subtree_mask
 from ..core.skeleton import chain_world
 from ..errors import UserError
 from ..core.motion import Motion, root_index, shared_up_axis, up_vector
@@ -106,41 +106,24 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
         p = parents[c]
         steps[c] = 1 if p < 0 or body[p] else steps[p] + 1
         fallback[c] = min(int(steps[c]), 3)
-    # Limbs: the chains that leave the body, each down single children that have children to a
-    # leaf (the longest bone of several) or a fork (the fingers' hand). Two alike chains of three
-    # joints or more from one body joint (as many joints, each bone within a quarter of its
-    # twin's) are legs or arms: global down to the first of their two longest consecutive bones
-    # (the thigh, the upper arm; a hip joint or a clavicle above), medium at the second (shin,
-    # forearm), detail from the joint below them (ankle, hand) down, as the names place them.
-    # Another chain (the neck and head) is medium. The chains do not overlap: linear in the
-    # joints, but for sorting each body joint's chains.
-    bone = np.linalg.norm(np.asarray(sk.offsets, dtype=np.float64), axis=1)
-    inner = [[k for k in children[j] if children[k]] for j in range(j_count)]
+    # Limbs (:class:`posturemap.core.joints.Limbs`): two alike chains of three joints or more
+    # from one body joint are legs or arms: global down to the first of their two longest
+    # consecutive bones (the thigh, the upper arm; a hip joint or a clavicle above), medium at
+    # the second (shin, forearm), detail from the joint below them (ankle, hand) down, as the
+    # names place them. Another chain from the body (the neck and head) is medium. The chains
+    # do not overlap: near-linear in the joints.
+    limbs = Limbs(parents, sk.offsets)
     end = np.zeros(j_count, dtype=bool)
     for p in np.flatnonzero(body).tolist():
-        paths = []
-        for c in children[p]:
-            if body[c]:
-                continue
-            path = [c]
-            while len(inner[path[-1]]) == 1:
-                path.append(inner[path[-1]][0])
-            if not inner[path[-1]] and children[path[-1]]:
-                path.append(max(children[path[-1]], key=lambda k: (bone[k], -k)))
-            paths.append((len(path), float(bone[path[1:]].sum()), c, path))
-        paths.sort(key=lambda t: t[:3])
-        limb = set()
-        for (nx, _, c, x), (ny, _, d, y) in zip(paths, paths[1:]):
-            if nx == ny >= 3 and all(abs(bone[i] - bone[j]) <= 0.25 * max(bone[i], bone[j])
-                                     for i, j in zip(x[1:], y[1:])):
-                limb.update((c, d))
-        for _, _, c, path in paths:
-            if c not in limb:
+        paths = [limbs.path(c) for c in children[p] if not body[c]]
+        paired = {i for pair in limbs.pairs(paths) for i in pair}
+        for i, path in enumerate(paths):
+            if i not in paired:
                 fallback[path] = 2
                 continue
-            k = max(range(1, len(path) - 1), key=lambda k: (bone[path[k]] + bone[path[k + 1]], -k))
-            for i, j in enumerate(path):
-                fallback[j] = 1 if i < k else (2 if i == k else 3)
+            k = limbs.joints3(path)
+            for m, j in enumerate(path):
+                fallback[j] = 1 if m < k else (2 if m == k else 3)
             end[path[k + 1]] = True
     for c in range(j_count):  # parents come first: below an ankle or a hand, detail
         if parents[c] >= 0 and end[parents[c]]:
