@@ -300,6 +300,22 @@ def test_legs_are_read_from_the_hierarchy_where_no_name_says_so(bandai_files, cm
     # Legs that are not alike are no pair; and the arms, alike, hang from the chest, where the
     # neck is no bigger than they are: they are not taken for legs.
     assert leg_chains(bare(walk, unalike=True).skeleton) == []
+    # Hands with fingers end the arms' chains at the fork: the arms are still found, the hand
+    # is the hand (not a fingertip), and the legs stay the legs.
+    from posturemap.core.joints import arm_chains, structural_arms
+
+    sk = bare(walk).skeleton
+    names, parents, offsets = list(sk.names), list(sk.parents), list(sk.offsets)
+    for hand in (walk.skeleton.names.index("Hand_L"), walk.skeleton.names.index("Hand_R")):
+        for finger in range(3):
+            for segment in range(2):
+                parents.append(hand if segment == 0 else len(names) - 1)
+                offsets.append(np.array([2.0 + finger, 1.0, 0.0]) if segment == 0 else np.array([2.5, 0.0, 0.0]))
+                names.append(f"J{len(names):02d}")
+    fingered = Skeleton(tuple(names), np.array(parents), np.array(offsets), tuple(sk.channels) + (sk.channels[-1],) * (
+        len(names) - sk.num_joints), sk.end_sites, sk.euler_style)
+    assert leg_chains(fingered) == leg_chains(walk.skeleton)
+    assert arm_chains(fingered) == structural_arms(fingered, leg_chains(fingered)) == arm_chains(walk.skeleton)
 
 
 def test_a_rig_named_j00_j01_makes_the_named_rigs_transitions(sample_clips):
@@ -311,12 +327,19 @@ def test_a_rig_named_j00_j01_makes_the_named_rigs_transitions(sample_clips):
     from posturemap.synth.engine import transition
     from rigkit import bare
 
+    from posturemap.core.joints import arm_chains, head_joint, structural_arms
+
     walk, run_ = sample_clips["walk"], sample_clips["run"]
+    sk, numbered_sk = walk.skeleton, bare(walk).skeleton
     root = root_index(walk)
-    assert (assign_classes(bare(walk).skeleton, root) == assign_classes(walk.skeleton, root)).all()
+    assert (assign_classes(numbered_sk, root) == assign_classes(sk, root)).all()
+    # The arms (their elbows bend one way), the hands and the head retrieval matches: the names'.
+    assert structural_arms(sk, leg_chains(sk)) == arm_chains(numbered_sk) == arm_chains(sk) != []
+    assert [k.tolist() for k in key_joints(numbered_sk)] == [k.tolist() for k in key_joints(sk)]
+    assert head_joint(numbered_sk) == head_joint(sk) == sk.names.index("Head")
     named = PostureMap(seed=0).fit([walk, run_])
     numbered = PostureMap(seed=0).fit([bare(walk), bare(run_)])
     for method, align in (("auto", True), ("auto", False), ("spline", True)):
         x = transition(walk, run_, named, method=method, align=align, length=20, a_end=40, b_start=10)
         y = transition(bare(walk), bare(run_), numbered, method=method, align=align, length=20, a_end=40, b_start=10)
-        assert np.abs(x.global_positions() - y.global_positions()).max() < 1e-6, (method, align)
+        assert np.array_equal(x.rotations, y.rotations) and np.array_equal(x.positions, y.positions), (method, align)

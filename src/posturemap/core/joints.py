@@ -260,6 +260,34 @@ def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int,
     return []
 
 
+def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:
+    """(upper arm, forearm, hand) of each arm read from the hierarchy alone, for a rig whose names
+    say nothing: the two alike chains (:meth:`Limbs.pairs`; a chain may end at a fork, a hand
+    with fingers) that leave one joint below the one the ``legs`` ((thigh, shin, ankle) each)
+    hang from, outside the legs, nearest the top of the hierarchy (the shoulders at the chest);
+    the upper arm and the forearm their two longest consecutive bones (:meth:`Limbs.joints3`: a
+    clavicle above falls outside). [] without two legs, or where no such pair is found."""
+    hips = legs_root(sk, legs)
+    if hips < 0:
+        return []
+    parents = np.asarray(sk.parents, dtype=np.int64)
+    in_legs = np.zeros(len(parents), dtype=bool)
+    for leg in legs:
+        in_legs |= subtree_mask(parents, leg[0])
+    below = subtree_mask(parents, hips)
+    limbs = Limbs(parents, sk.offsets)
+    forks = [j for j in range(len(parents)) if len(limbs.inner[j]) >= 3 and below[j] and j != hips and not in_legs[j]]
+    for p in sorted(forks, key=lambda j: (limbs.depth[j], j)):
+        paths = [limbs.path(c) for c in limbs.inner[p] if not in_legs[c]]
+        for i, k in limbs.pairs(paths):
+            arms = []
+            for x in (paths[i], paths[k]):
+                m = limbs.joints3(x)
+                arms.append((x[m - 1], x[m], x[m + 1]))
+            return sorted(arms)
+    return []
+
+
 def _rest_distance(sk: Skeleton, top: int, j: int) -> float:
     """The rest pose's distance from joint ``top`` to its descendant ``j`` (the offsets between
     them summed)."""
@@ -345,12 +373,15 @@ def arm_chains(sk: Skeleton) -> list[tuple[int, int, int]]:
     """(upper arm, forearm, hand) joint indices of each arm: a joint named like a hand or wrist
     (:func:`named_hands_and_head`; the top one where a wrist holds a hand), among the body's
     joints (as :func:`key_joints`: not a game rig's IK targets beside it), whose parent and
-    grandparent, past twist and roll joints, are the forearm and the upper arm."""
+    grandparent, past twist and roll joints, are the forearm and the upper arm. Where no hand is
+    named, the hierarchy's arms (:func:`structural_arms`)."""
     from .motion import root_index
 
     parents, n = sk.parents, sk.num_joints
     body = subtree_mask(parents, root_index(sk))
     hands = [j for j in named_hands_and_head(sk)[0] if body[j]]
+    if not hands:  # none named: the hierarchy's
+        return structural_arms(sk, leg_chains(sk))
     is_hand = np.zeros(n, dtype=bool)
     is_hand[hands] = True
     twist = [bool(_TWIST.search(short_name(x))) for x in sk.names]
@@ -418,7 +449,9 @@ def key_joints(sk: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     the body's joints (below the root of :func:`posturemap.core.motion.root_index`: not the IK
     targets a game rig keeps beside the body, as UE's ``ik_hand_root``); a rig that names its
     hands but not its head (Rigify's ``DEF-spine.006``) gets the top of its neck chain
-    (:func:`head_below`); where a skeleton has no such names, the leaves outside the legs.
+    (:func:`head_below`); a rig that names no hand, the hands of the hierarchy's arms
+    (:func:`structural_arms`) and the head above them so; where a skeleton has neither, the
+    leaves outside the legs.
     """
     lower, upper, _ = _key_joints(sk)
     return lower, upper
@@ -437,6 +470,8 @@ def _key_joints(sk: Skeleton):
     is_hand[hands] = True
     below_hand = _below_any(sk.parents, is_hand)
     upper = [j for j in hands if body[j] and not below_hand[j]]
+    if not upper:  # no hand named: the hierarchy's arms' (structural_arms)
+        upper = [arm[2] for arm in structural_arms(sk, chains) if body[arm[2]]]
     head = [j for j in heads if body[j]][:1]
     if not head and len(upper) >= 2:
         in_legs = np.zeros(sk.num_joints, dtype=bool)
