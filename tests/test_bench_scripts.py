@@ -133,3 +133,20 @@ def test_the_transition_feet_script_measures_skate_against_the_real_clips(bandai
     assert out["auto+feet"]["mean"] < 0.5 * out["slerp"]["mean"]
     assert out["real clips"]["mean"] < 0.5 * out["slerp"]["mean"]
     assert all(s["median"] <= s["p90"] <= s["p99"] <= s["max"] for s in out.values())
+
+
+def test_the_numbered_rig_keeps_the_motion_and_reads_as_the_named_one(bandai_paths):
+    mod = _module("numbered_names")
+    name = "walk_normal_001"
+    m = bvh.read(bandai_paths([name])[name])
+    n = mod.numbered(m)
+    assert n.skeleton.names[:3] == ("J00", "J01", "J02") and len(set(n.skeleton.names)) == m.skeleton.num_joints
+    assert np.array_equal(n.rotations, m.rotations) and np.array_equal(n.global_positions(), m.global_positions())
+    named, numbered = mod.found(m.skeleton), mod.found(n.skeleton)
+    assert numbered == named and numbered["legs"] and numbered["arms"] and numbered["head"] >= 0
+    report = mod.markdown({"holdouts": {"style": {
+        "lengths": {"5": {"windows": 3, "differ": 1, "rotation": 0.5, "position_cm": 2.0}},
+        "rigs": {"named": named, "numbered": numbered}, "joints": m.skeleton.num_joints,
+        "names": list(m.skeleton.names)}}, "machine": {"cpu": "x", "cpus": 1, "python": "3"}, "date": "d"}, "c")
+    assert "legs UpperLeg_L > LowerLeg_L > Foot_L; UpperLeg_R > LowerLeg_R > Foot_R" in report
+    assert "| 5 | 3 | 1 | 0.5 | 2 |" in report
