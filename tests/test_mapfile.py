@@ -276,3 +276,16 @@ def test_more_neurons_than_the_cap_refused_from_the_header(map_bytes, tmp_path, 
 
     monkeypatch.setattr(mapfile, "MAX_NEURONS", 50)  # the sample map's classes have more
     inspect_refuses(capsys, tmp_path, map_bytes, "weights", "does not fit the metadata")
+
+
+def test_a_map_whose_library_has_other_legs_is_named_so_not_corrupt(map_bytes, tmp_path, capsys):
+    # A map trained by an earlier version on a rig that names no leg holds the feet of no leg;
+    # this version finds the hierarchy's legs there. Such a file is sound: the one line says
+    # why it is refused and what to do, and does not call it corrupt.
+    contacts = members(map_bytes)["library_contacts"]
+    assert contacts.shape[1] == 2
+    err = inspect_refuses(capsys, tmp_path, build(map_bytes, library_contacts=contacts[:, :0]),
+                          "its motion library holds the feet of 0 legs, where this version finds 2", "train the map again")
+    assert "corrupt" not in err
+    # The same width in a file whose other arrays do not fit is still corrupt.
+    inspect_refuses(capsys, tmp_path, build(map_bytes, library_contacts=contacts[:-1]), "corrupt map file", "contacts")

@@ -301,6 +301,8 @@ class PostureMap:
                 warnings.simplefilter("error", RuntimeWarning)
                 return cls._from_parts(meta, arrays)
         except (KeyError, TypeError, ValueError, IndexError, RuntimeWarning) as e:
+            if getattr(e, "sound_file", False):  # read otherwise by this version (synth.library.EarlierLegs)
+                raise MapFileError(path, str(e)) from None
             raise MapFileError(path, f"corrupt map file ({type(e).__name__}: {e})") from None
 
     @classmethod

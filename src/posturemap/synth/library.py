@@ -113,6 +113,15 @@ def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.nda
     return (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
 
 
+class EarlierLegs(ValueError):
+    """A sound library whose feet are not the legs this version finds in the skeleton: a map
+    trained by an earlier version on a rig that names no leg (it found none; the hierarchy's
+    are found now, :func:`posturemap.core.joints.structural_legs`). ``PostureMap.load`` says so
+    without calling the file corrupt."""
+
+    sound_file = True
+
+
 @dataclass(frozen=True, eq=False)
 class MotionLibrary:
     """Real motion for retrieval (see the module docstring for the arrays).
@@ -278,6 +287,11 @@ class MotionLibrary:
         if lower.ndim != 1 or upper.ndim != 1 or np.any(lower < 0) or np.any(lower >= j) \
                 or np.any(upper < 0) or np.any(upper >= j):
             raise ValueError("library key joints do not fit the skeleton")
+        held = np.shape(arrays["contacts"])
+        if len(held) == 2 and held[0] == n and held[1] != legs:
+            raise EarlierLegs(f"its motion library holds the feet of {held[1]} legs, where this version finds "
+                              f"{legs} in the skeleton (found by name, else in the hierarchy; a map trained by an "
+                              "earlier version found legs by name only): train the map again")
         shapes = {"rots": (n, j, 4), "gpos": (n, 3), "heading": (n,), "contacts": (n, legs),
                   "pose": (n, k, 3), "vel": (n, k, 3), "root": (n, 5), "win": (n,)}
         out = {}
