@@ -156,6 +156,17 @@ def test_cli_transition_warns_of_a_clip_turned_to_another_up_axis(sample_clips, 
         assert cli.main(["transition", str(a), str(b), "-o", str(tmp_path / "mixed.bvh"), "--method", "slerp",
                          "--length", "10", *extra]) == 0
         assert capsys.readouterr().err == f"posturemap: warning: {b}: the body stands along Z, {whose}\n"
+    # Without --map, auto's map of A and B stands along the axis most of their frames do: the
+    # clip that differs from it is named, A or B (a 60-frame Y-up A before a 90-frame Z-up B:
+    # the map is Z-up, and A is the odd one).
+    a60, b90 = tmp_path / "run_y.bvh", tmp_path / "walk_z.bvh"
+    bvh.write(a60, run_)
+    bvh.write(b90, z_up(walk))
+    assert len(run_) < len(walk)
+    assert cli.main(["transition", str(a60), str(b90), "-o", str(tmp_path / "m2.bvh"), "--length", "10"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("posturemap: warning")]
+    assert err == [f"posturemap: warning: {a60}: the body stands along Y, {a60} and {b90} (most frames) along Z: "
+                   "the transition may not line up (lying on the floor, or of another up axis?)"], err
     from posturemap.web.studio import Studio
 
     lines = []

@@ -233,27 +233,26 @@ def _cmd_transition(args) -> int:
     if args.map:
         model = PostureMap.load(args.map)
         model.check_skeleton(a.skeleton, args.a)
-    # The same rig turned to another up axis passes the skeleton's check (its bones are the
-    # same); the map's axis, or A's, would then turn B and plant the feet wrongly (a Y-up A and a
-    # Z-up B: B lay on the floor). Read from the body's extent, which a clip lying on the floor
-    # can mislead: a warning, as the studio's.
-    ref = model.space_.up if model is not None else up_axis(a)
-    for path, clip in ((args.a, a), (args.b, b)):
-        up = up_axis(clip)
-        if up == ref:
-            continue
-        if model is not None:
-            print(f"posturemap: warning: {path}: the body stands along {'XYZ'[up]}, the map's clips along "
-                  f"{'XYZ'[ref]}: the transition may not line up (a map trained on clips of this "
-                  "orientation would)", file=sys.stderr)
-        else:
-            print(f"posturemap: warning: {path}: the body stands along {'XYZ'[up]}, {args.a}'s along "
-                  f"{'XYZ'[ref]}: the transition may not line up (lying on the floor, or of another up "
-                  "axis?)", file=sys.stderr)
+    given = model is not None
     if model is None and args.method in KEYED:
         # A resampled B is named so in the report: its frames there are at A's rate.
         b_name = args.b if rate_note is None else resampled_name(args.b, a.fps)
         model = PostureMap(seed=0).fit([a, b], [args.a, b_name])
+    # The same rig turned to another up axis passes the skeleton's check (its bones are the
+    # same); the map's axis, or A's, would then turn B and plant the feet wrongly (a Y-up A and a
+    # Z-up B: B lay on the floor). Read from the body's extent, which a clip lying on the floor
+    # can mislead: a warning, as the studio's. Against the axis the transition takes: the map's
+    # (one made of A and B takes the one most of their frames stand along), else A's.
+    ref = model.space_.up if model is not None else up_axis(a)
+    whose = ("the map's clips" if given else f"{args.a} and {args.b} (most frames)") if model is not None \
+        else f"{args.a}'s"
+    for path, clip in ((args.a, a), (args.b, b)):
+        up = up_axis(clip)
+        if up != ref:
+            print(f"posturemap: warning: {path}: the body stands along {'XYZ'[up]}, {whose} along {'XYZ'[ref]}: "
+                  "the transition may not line up " + ("(a map trained on clips of this orientation would)" if given
+                                                       else "(lying on the floor, or of another up axis?)"),
+                  file=sys.stderr)
     report = {}
     request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
                                 a_end=args.a_end, b_start=b_start, align=not args.no_align,

@@ -165,6 +165,8 @@ def _leg_chains(sk: Skeleton, segments: bool) -> list[tuple[int, int, int]]:
 
 
 LIMB_LIKE = 0.25  # two limbs' bones: each within this share of its twin's length
+SHORT_BONE = 0.01  # of a chain's length: a joint this close to its parent (a twist or roll helper) is in its bone
+HAND_OR_FOOT = 0.5  # of the forearm or shin: the bone below an ankle or a wrist is shorter
 
 
 class Limbs:
@@ -172,13 +174,14 @@ class Limbs:
     ``offsets``): each joint's children, subtree size, depth and bone length (its offset's).
 
     :meth:`path` follows a chain down, :meth:`pairs` finds the alike chains among a joint's
-    children, :meth:`joints3` the three joints around a chain's two longest consecutive bones.
-    What :func:`structural_legs` and the bone classes of :func:`posturemap.learn.features.assign_classes`
-    read the same way."""
+    children, :meth:`joints3` the upper joint, the middle joint and the end of a limb (thigh,
+    knee, ankle; upper arm, elbow, wrist). What :func:`structural_legs`, :func:`structural_arms`
+    and the bone classes of :func:`posturemap.learn.features.assign_classes` read the same way."""
 
     def __init__(self, parents: np.ndarray, offsets: np.ndarray):
         parents = np.asarray(parents, dtype=np.int64)
         n = len(parents)
+        self.parents = parents
         self.kids = [[] for _ in range(n)]
         for j in range(n):
             if parents[j] >= 0:
@@ -193,12 +196,19 @@ class Limbs:
             if parents[j] >= 0:
                 self.depth[j] = self.depth[parents[j]] + 1
         self.bone = np.linalg.norm(np.asarray(offsets, dtype=np.float64).reshape(n, 3), axis=1)
+        self.forked = np.array([len(ks) >= 2 for ks in self.inner], dtype=bool)  # a fork at or below
+        for j in range(n - 1, -1, -1):
+            if parents[j] >= 0 and self.forked[j]:
+                self.forked[parents[j]] = True
+        # Per joint, its forked children and its three largest ones: beside_body in constant time.
+        self._n_forked = [sum(1 for k in ks if self.forked[k]) for ks in self.kids]
+        self._largest = [sorted(ks, key=lambda k: -self.size[k])[:3] for ks in self.kids]
 
     def path(self, c: int) -> list[int]:
         """The joints from ``c`` down single children that have children (a leaf beside the
         chain, a twist helper's, is passed by) to a leaf, the longest bone of several, or to a
-        fork (a hand with fingers), which ends it. Chains that start at different children of
-        a fork never overlap."""
+        fork (a hand with fingers, a foot with toes), which ends it. Chains that start at
+        different children of a fork never overlap."""
         out = [c]
         while len(self.inner[out[-1]]) == 1:
             out.append(self.inner[out[-1]][0])
@@ -206,67 +216,95 @@ class Limbs:
             out.append(max(self.kids[out[-1]], key=lambda k: (self.bone[k], -k)))
         return out
 
+    def reach(self, path: list[int]) -> float:
+        """The chain's length: its bones summed."""
+        return float(self.bone[path[1:]].sum())
+
     def pairs(self, paths: list[list[int]]) -> list[tuple[int, int]]:
-        """Indices into ``paths`` of alike chains of three joints or more: as many joints, each
-        bone within :data:`LIMB_LIKE` of its twin's. Those of one length are compared in order of
-        their total length, each with the next (not every pair: a hostile joint may have
-        thousands of children)."""
+        """Indices into ``paths`` of alike chains of three joints or more: as many joints once
+        those in their parent's bone are left out (:meth:`joints3`), each bone within
+        :data:`LIMB_LIKE` of its twin's. Those of one length are compared in order of their
+        total length, each with the next (not every pair: a hostile joint may have thousands
+        of children)."""
         bone = self.bone
-        order = sorted(range(len(paths)), key=lambda i: (len(paths[i]), float(bone[paths[i][1:]].sum()), paths[i][0]))
+        kept = [self._bones(x) for x in paths]
+        order = sorted(range(len(paths)), key=lambda i: (len(kept[i]), self.reach(paths[i]), paths[i][0]))
         out = []
         for i, k in zip(order, order[1:]):
-            x, y = paths[i], paths[k]
+            x, y = kept[i], kept[k]
             if len(x) == len(y) >= 3 and all(abs(bone[a] - bone[b]) <= LIMB_LIKE * max(bone[a], bone[b])
                                              for a, b in zip(x[1:], y[1:])):
                 out.append((i, k))
         return out
 
-    def joints3(self, path: list[int]) -> int:
-        """Where in a chain of three joints or more its two longest consecutive bones meet: the
-        index ``k`` of the knee or the elbow, ``path[k - 1]`` the thigh or upper arm joint and
-        ``path[k + 1]`` the ankle or the hand (a hip joint or a clavicle above, the toes or the
-        fingers below, fall outside)."""
-        bone = self.bone
-        return max(range(1, len(path) - 1), key=lambda k: (bone[path[k]] + bone[path[k + 1]], -k))
+    def _bones(self, path: list[int]) -> list[int]:
+        """The chain without the joints that sit in their parent's bone (a twist or roll helper
+        at the parent's place: a bone under :data:`SHORT_BONE` of the chain's length)."""
+        least = SHORT_BONE * self.reach(path)
+        return path[:1] + [j for j in path[1:] if self.bone[j] > least]
+
+    def joints3(self, path: list[int]) -> tuple[int, int, int]:
+        """The upper joint, the middle joint and the end of a limb of three joints or more:
+        the two longest consecutive bones (thigh and shin; upper arm and forearm) of those
+        whose end is followed by nothing or by a bone under :data:`HAND_OR_FOOT` of the lower
+        one (a foot, a hand: CMU's clavicle, longer than its forearm, is not the upper arm),
+        helpers in a parent's bone left out (:meth:`_bones`). A hip joint or a clavicle above
+        and the toes or fingers below fall outside."""
+        q, bone = self._bones(path), self.bone
+        ks = range(1, len(q) - 1)
+        ended = [k for k in ks if k + 2 >= len(q) or bone[q[k + 2]] < HAND_OR_FOOT * bone[q[k + 1]]]
+        k = max(ended or ks, key=lambda k: (bone[q[k]] + bone[q[k + 1]], -k))
+        return q[k - 1], q[k], q[k + 1]
+
+    def beside_body(self, p: int, c: int, d: int) -> bool:
+        """Whether chains ``c`` and ``d`` from joint ``p`` hang beside the body: another child of
+        ``p``, or of ``p``'s parent (a pelvis beside the spine), forks below (the spine into the
+        arms and the neck) or holds at least as many joints as the two together. Not so a hand's
+        fingers, beside other fingers."""
+        need = self.size[c] + self.size[d]
+        if self._n_forked[p] > self.forked[c] + self.forked[d]:
+            return True
+        if any(self.size[o] >= need for o in self._largest[p] if o not in (c, d)):
+            return True
+        q = self.parents[p]
+        return bool(q >= 0 and (self._n_forked[q] > self.forked[p]
+                                or any(self.size[o] >= need for o in self._largest[q] if o != p)))
 
 
 def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) of each leg read from the hierarchy alone, for a rig whose names say
-    nothing: two alike chains (:meth:`Limbs.pairs`) that leave the same joint and end in a leaf
-    (a leg does not fork), beside a third child that holds at least as many joints as the two
-    together (the spine, with the arms and the head: what tells the hips from the chest, whose
-    arms outweigh the neck). Of several such joints, the one nearest the top of the hierarchy.
-    The thigh and the shin are each chain's two longest consecutive bones (:meth:`Limbs.joints3`),
-    so that a hip joint above the thigh (CMU's ``LHipJoint``) and the toes below the ankle fall
-    outside. [] where no joint has such a pair of chains. Near-linear in the joints (a hostile
-    file may hold thousands): only a joint with three children that have children of their own
-    can hold the legs, and chains below different such joints do not overlap."""
+    nothing: of the alike pairs of chains that leave one joint (:meth:`Limbs.pairs`) beside the
+    body (:meth:`Limbs.beside_body`: the spine, with the arms and the head, holds more joints),
+    the one that reaches furthest (legs outreach arms, a skirt's chains, fingers). The thigh,
+    knee and ankle by :meth:`Limbs.joints3`, so that a hip joint above the thigh (CMU's
+    ``LHipJoint``) and the toes below the ankle fall outside, a twist helper at its parent's
+    place too (one halfway down a bone splits it: a rig that names nothing and has those is
+    read wrongly). [] where no such pair is found. Near-linear in the joints (a hostile file
+    may hold thousands): chains from different joints do not overlap."""
     limbs = Limbs(parents, offsets)
-    kids, size = limbs.kids, limbs.size
-    forks = [j for j in range(len(kids)) if len(limbs.inner[j]) >= 3]
-    for p in sorted(forks, key=lambda j: (limbs.depth[j], j)):
-        paths = [x for x in (limbs.path(c) for c in limbs.inner[p]) if not kids[x[-1]]]
-        biggest = sorted(kids[p], key=lambda k: -size[k])[:3]
+    best, legs = -1.0, []
+    for p in range(len(limbs.kids)):
+        if len(limbs.inner[p]) < 2:
+            continue
+        paths = [limbs.path(c) for c in limbs.inner[p]]
         for i, k in limbs.pairs(paths):
-            c, d = paths[i][0], paths[k][0]
-            other = next(o for o in biggest if o not in (c, d))
-            if size[other] < size[c] + size[d]:
-                continue
-            legs = []
-            for x in (paths[i], paths[k]):
-                m = limbs.joints3(x)
-                legs.append((x[m - 1], x[m], x[m + 1]))
-            return sorted(legs)
-    return []
+            x, y = paths[i], paths[k]
+            reach = limbs.reach(x) + limbs.reach(y)
+            if reach > best and limbs.beside_body(p, x[0], y[0]):
+                best, legs = reach, sorted((limbs.joints3(x), limbs.joints3(y)))
+    return legs
 
 
 def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:
     """(upper arm, forearm, hand) of each arm read from the hierarchy alone, for a rig whose names
-    say nothing: the two alike chains (:meth:`Limbs.pairs`; a chain may end at a fork, a hand
-    with fingers) that leave one joint below the one the ``legs`` ((thigh, shin, ankle) each)
-    hang from, outside the legs, nearest the top of the hierarchy (the shoulders at the chest);
-    the upper arm and the forearm their two longest consecutive bones (:meth:`Limbs.joints3`: a
+    say nothing: the alike pair of chains (:meth:`Limbs.pairs`; a chain may end at a fork, a hand
+    with fingers) that reaches furthest among those leaving the joint nearest the top of the
+    body (below :func:`posturemap.core.motion.root_index`, not the IK targets a game rig keeps
+    beside it), other than the one the ``legs`` ((thigh, shin, ankle) each) hang from and
+    outside them (the shoulders at the chest); the upper arm, elbow and wrist by :meth:`Limbs.joints3` (a
     clavicle above falls outside). [] without two legs, or where no such pair is found."""
+    from .motion import root_index
+
     hips = legs_root(sk, legs)
     if hips < 0:
         return []
@@ -274,17 +312,15 @@ def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:
     in_legs = np.zeros(len(parents), dtype=bool)
     for leg in legs:
         in_legs |= subtree_mask(parents, leg[0])
-    below = subtree_mask(parents, hips)
+    below = subtree_mask(parents, root_index(sk))  # the body's joints: a pelvis beside the spine, IK targets not
     limbs = Limbs(parents, sk.offsets)
-    forks = [j for j in range(len(parents)) if len(limbs.inner[j]) >= 3 and below[j] and j != hips and not in_legs[j]]
+    forks = [j for j in range(len(parents)) if len(limbs.inner[j]) >= 2 and below[j] and j != hips and not in_legs[j]]
     for p in sorted(forks, key=lambda j: (limbs.depth[j], j)):
         paths = [limbs.path(c) for c in limbs.inner[p] if not in_legs[c]]
-        for i, k in limbs.pairs(paths):
-            arms = []
-            for x in (paths[i], paths[k]):
-                m = limbs.joints3(x)
-                arms.append((x[m - 1], x[m], x[m + 1]))
-            return sorted(arms)
+        found = limbs.pairs(paths)
+        if found:
+            i, k = max(found, key=lambda ik: limbs.reach(paths[ik[0]]) + limbs.reach(paths[ik[1]]))
+            return sorted((limbs.joints3(paths[i]), limbs.joints3(paths[k])))
     return []
 
 

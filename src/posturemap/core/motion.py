@@ -89,7 +89,8 @@ class Motion:
     def unit(self) -> "Motion":
         """This clip, or a copy whose rotations are scaled to length 1 where any is not within
         1e-12 (within :data:`QUAT_NORM_TOL`, as :meth:`check_usable` lets through): what the
-        engine and the map keep, so that new frames are rotations of length 1 too."""
+        engine keeps (and so a map's motion library), so that new frames are rotations of length
+        1 too."""
         if (np.abs(np.linalg.norm(self.rotations, axis=-1) - 1.0) <= 1e-12).all():
             return self
         return Motion(self.skeleton, quat.normalize(self.rotations), self.positions.copy(), self.fps,

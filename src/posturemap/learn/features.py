@@ -64,12 +64,11 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
     """Bone class index (0 body, 1 global, 2 medium, 3 detail) per joint, shape (J,).
 
     Names decide where they can (see ``_NAME_RULES``); a joint no rule knows is placed from
-    the hierarchy: the root and the chain to the joint with the most descendants are body; two
-    alike limbs of three joints or more from one body joint (legs, arms) global to the first
-    of their two longest consecutive bones, medium at the second, detail below (thigh, shin,
-    foot; upper arm, forearm, hand); another chain from the body (the neck and head) medium;
-    the joints beside them global, medium and detail by their distance from the body.
-    Never fails.
+    the hierarchy: the root and the chain to the joint with the most descendants are body,
+    the others global, medium and detail by their distance from the body. A rig none of whose
+    names a rule knows (``J00``, ``J01``..., another language) is read by its limbs instead,
+    as the names would place them (:func:`_limb_classes`: thigh, shin, foot; upper arm,
+    forearm, hand; the neck and head medium). Never fails.
     """
     sk = getattr(motion_or_skeleton, "skeleton", motion_or_skeleton)
     parents = sk.parents
@@ -106,38 +105,46 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
         p = parents[c]
         steps[c] = 1 if p < 0 or body[p] else steps[p] + 1
         fallback[c] = min(int(steps[c]), 3)
-    # Limbs (:class:`posturemap.core.joints.Limbs`): two alike chains of three joints or more
-    # from one body joint are legs or arms: global down to the first of their two longest
-    # consecutive bones (the thigh, the upper arm; a hip joint or a clavicle above), medium at
-    # the second (shin, forearm), detail from the joint below them (ankle, hand) down, as the
-    # names place them. Another chain from the body (the neck and head) is medium. The chains
-    # do not overlap: near-linear in the joints.
-    limbs = Limbs(parents, sk.offsets)
-    end = np.zeros(j_count, dtype=bool)
+    named = [next((cls for cls, pattern in _NAME_RULES if re.search(pattern, _clean(n))), None) for n in sk.names]
+    if not any(named):
+        _limb_classes(sk, body, children, fallback)
+    out = fallback.copy()
+    for c, cls in enumerate(named):
+        if cls is not None:
+            out[c] = CLASSES.index(cls)
+    out[root] = 0
+    return out
+
+
+def _limb_classes(sk, body: np.ndarray, children: list, fallback: np.ndarray) -> None:
+    """The classes of a rig none of whose names a rule knows (``J00``, ``J01``..., another
+    language), from its limbs (:class:`posturemap.core.joints.Limbs`), in place in ``fallback``:
+    two alike chains from one body joint (legs, arms) global down to their upper joint (a hip
+    joint or a clavicle above it too), medium from the middle joint (knee, elbow), detail from
+    the end (ankle, wrist) down, as the names place them; another chain from a body joint where
+    limbs leave (the chest's neck and head) medium. The chains do not overlap: near-linear in the
+    joints. A rig with some names keeps the plain distance rule for the joints no rule knows."""
+    limbs = Limbs(sk.parents, sk.offsets)
+    end = np.zeros(len(fallback), dtype=bool)
     for p in np.flatnonzero(body).tolist():
         paths = [limbs.path(c) for c in children[p] if not body[c]]
         paired = {i for pair in limbs.pairs(paths) for i in pair}
         for i, path in enumerate(paths):
             if i not in paired:
-                fallback[path] = 2
+                if paired:
+                    fallback[path] = 2
                 continue
-            k = limbs.joints3(path)
-            for m, j in enumerate(path):
-                fallback[j] = 1 if m < k else (2 if m == k else 3)
-            end[path[k + 1]] = True
-    for c in range(j_count):  # parents come first: below an ankle or a hand, detail
-        if parents[c] >= 0 and end[parents[c]]:
+            _, middle, last = limbs.joints3(path)
+            at = 1
+            for j in path:
+                at = 2 if j == middle else (3 if j == last else at)
+                fallback[j] = at
+            end[last] = True
+    for c in range(len(fallback)):  # parents come first: below an ankle or a wrist, detail
+        p = sk.parents[c]
+        if p >= 0 and end[p]:
             end[c] = True
             fallback[c] = 3
-    out = fallback.copy()
-    for c in range(j_count):
-        name = _clean(sk.names[c])
-        for cls, pattern in _NAME_RULES:
-            if re.search(pattern, name):
-                out[c] = CLASSES.index(cls)
-                break
-    out[root] = 0
-    return out
 
 
 def load_class_overrides(path: str, names: tuple[str, ...]) -> dict[str, str]:
