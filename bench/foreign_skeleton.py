@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import _stats, default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
+from transition_speed import _stats, machine, machine_line, report_main  # noqa: E402
 
 HOLDOUTS = ("style", "content")
 METHODS = ("slerp", "spline", "inertialize", "auto+feet")
@@ -189,12 +189,7 @@ def markdown(result: dict, command: str) -> str:
 
 
 def main(argv=None) -> int:
-    args = report_parser(__doc__.split("\n")[0]).parse_args(argv)
-    result = run(Path(args.data) if args.data else default_data_dir(), args.seed)
-    md = markdown(result, "python bench/foreign_skeleton.py")
-    print(md)
-    save_outputs(result, md, args.json, args.doc, "Another rig: the hold-outs rewritten", __doc__)
-    return 0
+    return report_main(__doc__, "Another rig: the hold-outs rewritten", "python bench/foreign_skeleton.py", run, markdown, argv)
 
 
 if __name__ == "__main__":

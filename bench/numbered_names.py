@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import default_data_dir, machine, machine_line, report_parser, save_outputs  # noqa: E402
+from transition_speed import machine, machine_line, report_main  # noqa: E402
 
 HOLDOUTS = ("style", "content")
 METHOD = "auto+feet"
@@ -116,13 +116,7 @@ def markdown(result: dict, command: str) -> str:
 
 
 def main(argv=None) -> int:
-    args = report_parser(__doc__.split("\n")[0]).parse_args(argv)
-    result = run(Path(args.data) if args.data else default_data_dir(), args.seed)
-    md = markdown(result, "python bench/numbered_names.py")
-    print(md)
-    save_outputs(result, md, args.json, args.doc, "Joints named J00, J01...: the hold-outs read from the hierarchy",
-                 __doc__)
-    return 0
+    return report_main(__doc__, "Joints named J00, J01...: the hold-outs read from the hierarchy", "python bench/numbered_names.py", run, markdown, argv)
 
 
 if __name__ == "__main__":

@@ -340,6 +340,17 @@ def report_parser(description: str) -> argparse.ArgumentParser:
     return p
 
 
+def report_main(doc: str, title: str, command: str, run, markdown, argv=None) -> int:
+    """The ``main`` of a quality report that takes :func:`report_parser`'s options only: ``run(data,
+    seed)``, then ``markdown(result, command)`` printed and saved (:func:`save_outputs`)."""
+    args = report_parser(doc.split("\n")[0]).parse_args(argv)
+    result = run(Path(args.data) if args.data else default_data_dir(), args.seed)
+    md = markdown(result, command)
+    print(md)
+    save_outputs(result, md, args.json, args.doc, title, doc)
+    return 0
+
+
 def machine_line(result: dict, command: str) -> str:
     """The report's last line: the machine (``result["machine"]``, :func:`machine`), the command
     and the date."""
