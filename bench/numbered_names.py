@@ -100,12 +100,14 @@ def markdown(result: dict, command: str) -> str:
         same = [k for k in named if named[k] == num[k]]
         legs = "; ".join(" > ".join(r["names"][j] for j in c) for c in num["legs"]) or "none"
         arms = "; ".join(" > ".join(r["names"][j] for j in c) for c in num["arms"]) or "none"
+        head = r["names"][num["head"]] if num["head"] >= 0 else "none"
         lines += [f"**{name.capitalize()} hold-out** ({r['joints']} joints). Read from the numbered rig's "
-                  f"hierarchy: legs {legs}; arms {arms}; head {r['names'][num['head']] if num['head'] >= 0 else 'none'} "
+                  f"hierarchy: legs {legs}; arms {arms}; head {head} "
                   f"(the same as the names give: {', '.join(same) if same else 'nothing'}"
                   + (f"; differing: {', '.join(k for k in named if k not in same)}" if len(same) < len(named) else "")
                   + ").", "",
-                  "| frames | windows | windows that differ | largest rotation difference | largest position difference (cm) |",
+                  "| frames | windows | windows that differ | largest rotation difference "
+                  "| largest position difference (cm) |",
                   "| ---: | ---: | ---: | ---: | ---: |"]
         for length, row in r["lengths"].items():
             lines.append(f"| {length} | {row['windows']} | {row['differ']} | {row['rotation']:.3g} | "
@@ -116,7 +118,8 @@ def markdown(result: dict, command: str) -> str:
 
 
 def main(argv=None) -> int:
-    return report_main(__doc__, "Joints named J00, J01...: the hold-outs read from the hierarchy", "python bench/numbered_names.py", run, markdown, argv)
+    return report_main(__doc__, "Joints named J00, J01...: the hold-outs read from the hierarchy",
+                       "python bench/numbered_names.py", run, markdown, argv)
 
 
 if __name__ == "__main__":

@@ -285,7 +285,8 @@ def test_a_map_whose_library_has_other_legs_is_named_so_not_corrupt(map_bytes, t
     contacts = members(map_bytes)["library_contacts"]
     assert contacts.shape[1] == 2
     err = inspect_refuses(capsys, tmp_path, build(map_bytes, library_contacts=contacts[:, :0]),
-                          "its motion library holds the feet of 0 legs, where this version finds 2", "train the map again")
+                          "its motion library holds the feet of 0 legs, where this version finds 2",
+                          "train the map again")
     assert "corrupt" not in err
     # The same width in a file whose other arrays do not fit is still corrupt.
     inspect_refuses(capsys, tmp_path, build(map_bytes, library_contacts=contacts[:-1]), "corrupt map file", "contacts")

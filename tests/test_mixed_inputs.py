@@ -120,7 +120,8 @@ def test_a_clip_of_no_frames_or_with_nan_is_refused_by_name(sample_clips, walk_m
     broken = dataclasses.replace(walk, rotations=rots)
     # A rotation that is not of length 1 grew through the inverses and products of every new
     # frame: B scaled by 1.1 gave rotations of length 1e8 under the foot lock, silently.
-    longer = dataclasses.replace(walk, rotations=walk.rotations * np.where(np.arange(len(walk)) == 4, 1.1, 1.0)[:, None, None])
+    scale = np.where(np.arange(len(walk)) == 4, 1.1, 1.0)[:, None, None]
+    longer = dataclasses.replace(walk, rotations=walk.rotations * scale)
     zero = walk.rotations.copy()
     zero[2, 3] = 0.0
     for clip, words in ((walk[:0], "the clip has no frames"), (broken, r"NaN or infinite rotation \(frame"),

@@ -1,5 +1,5 @@
 """What joints are, from their names: legs, feet, hands, head; body parts; contact thresholds.
-Legs no name tells are read from the hierarchy (:func:`structural_legs`).
+Legs and arms no name tells are read from the hierarchy (:class:`Limbs`).
 
 Where the motion side reads joint names (BVH files name joints freely: ``LeftFoot``,
 ``l_ankle``, ``mixamorig:LeftToeBase``): everything that needs a leg, a foot or a hand asks
@@ -222,7 +222,7 @@ class Limbs:
 
     def pairs(self, paths: list[list[int]]) -> list[tuple[int, int]]:
         """Indices into ``paths`` of alike chains of three joints or more: as many joints once
-        those in their parent's bone are left out (:meth:`joints3`), each bone within
+        those in their parent's bone are left out (:meth:`_bones`), each bone within
         :data:`LIMB_LIKE` of its twin's. Those of one length are compared in order of their
         total length, each with the next (not every pair: a hostile joint may have thousands
         of children)."""
@@ -274,7 +274,7 @@ class Limbs:
 def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) of each leg read from the hierarchy alone, for a rig whose names say
     nothing: of the alike pairs of chains that leave one joint (:meth:`Limbs.pairs`) beside the
-    body (:meth:`Limbs.beside_body`: the spine, with the arms and the head, holds more joints),
+    body (:meth:`Limbs.beside_body`: the spine forks into the arms and the neck),
     the one that reaches furthest (legs outreach arms, a skirt's chains, fingers). The thigh,
     knee and ankle by :meth:`Limbs.joints3`, so that a hip joint above the thigh (CMU's
     ``LHipJoint``) and the toes below the ankle fall outside, a twist helper at its parent's
@@ -301,8 +301,8 @@ def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:
     with fingers) that reaches furthest among those leaving the joint nearest the top of the
     body (below :func:`posturemap.core.motion.root_index`, not the IK targets a game rig keeps
     beside it), other than the one the ``legs`` ((thigh, shin, ankle) each) hang from and
-    outside them (the shoulders at the chest); the upper arm, elbow and wrist by :meth:`Limbs.joints3` (a
-    clavicle above falls outside). [] without two legs, or where no such pair is found."""
+    outside them (the shoulders at the chest); the upper arm, elbow and wrist by
+    :meth:`Limbs.joints3` (a clavicle above falls outside). [] without two legs, or where no such pair is found."""
     from .motion import root_index
 
     hips = legs_root(sk, legs)
@@ -312,7 +312,7 @@ def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:
     in_legs = np.zeros(len(parents), dtype=bool)
     for leg in legs:
         in_legs |= subtree_mask(parents, leg[0])
-    below = subtree_mask(parents, root_index(sk))  # the body's joints: a pelvis beside the spine, IK targets not
+    below = subtree_mask(parents, root_index(sk))  # the body: beside a pelvis the spine, not IK targets
     limbs = Limbs(parents, sk.offsets)
     forks = [j for j in range(len(parents)) if len(limbs.inner[j]) >= 2 and below[j] and j != hips and not in_legs[j]]
     for p in sorted(forks, key=lambda j: (limbs.depth[j], j)):

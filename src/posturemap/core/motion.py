@@ -233,8 +233,8 @@ def root_index(motion_or_skeleton) -> int:
 
     Where legs are found (:func:`posturemap.core.joints.leg_chains`: by name, else in the
     hierarchy), the joint they hang from, or its nearest ancestor with position channels, if its
-    subtree holds at least half the joints: ``Hips`` for Bandai (its ``joint_Root`` above it is a reference node, fixed in
-    most clips and sliding in a few) and for CMU, ``pelvis`` for Unreal's mannequin (whose
+    subtree holds at least half the joints: ``Hips`` for Bandai (its ``joint_Root`` above it is
+    a reference node, fixed in most clips and sliding in a few) and for CMU, ``pelvis`` for Unreal's mannequin (whose
     ``root`` also holds the IK targets ``ik_foot_root`` and ``ik_hand_root`` beside the body).
     Otherwise the deepest joint with position channels whose subtree holds at least 90% of the
     joints; joint 0 for a skeleton with a single moving root. Motion of the joints above it is

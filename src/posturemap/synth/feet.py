@@ -77,8 +77,8 @@ in-between frames are made:
    swung sideways from frame to frame. The foot keeps its global orientation (so the toe moves
    as the ankle does: the offsets above already turn it about the toe).
 
-Legs are found by name, else in the hierarchy (:func:`posturemap.core.joints.leg_chains`); thresholds in leg lengths
-(:mod:`posturemap.core.joints`).
+Legs are found by name, else in the hierarchy (:func:`posturemap.core.joints.leg_chains`);
+thresholds in leg lengths (:mod:`posturemap.core.joints`).
 """
 
 from __future__ import annotations

@@ -104,7 +104,7 @@ class Studio:
         self.bones = bone_names(self.skeleton.names)
         self.rest = first.positions[0].copy()
         self.root, self.up = root_index(first), up_axis(first)
-        for name, m in self.clips.items():  # the same rig turned to another up axis passes the skeleton's check
+        for name, m in self.clips.items():  # the rig turned to another up axis passes the skeleton's check
             up = up_axis(m) if m is not first else self.up
             if up != self.up:
                 self.log(f"posturemap: warning: {name}: the body stands along {'XYZ'[up]}, {first_name}'s along "
