@@ -4,8 +4,8 @@ The independent evaluation runs posturemap on other skeletons, whose joints may 
 another language, by number (``J00``, ``J01``...) or by a tool's own scheme that no name rule
 knows. Where nothing is named like a foot, a hand or a head, posturemap reads the legs, the
 arms, the head and the bone classes from the hierarchy (``joints.structural_legs``,
-``joints.structural_arms``, ``features.assign_classes``). This script takes the bench's style
-and content hold-outs twice: as recorded, and with every joint renamed ``J00``, ``J01``... in
+``joints.structural_arms``, ``features.assign_classes``). This script takes the bench's style,
+content and CMU (120 fps, 31 joints, a hip joint above each thigh) hold-outs twice: as recorded, and with every joint renamed ``J00``, ``J01``... in
 the same order (training and test side); trains a map and its motion library on each training
 side; in-betweens the same windows with the default (``auto`` + foot lock) at the bench's
 lengths; and prints, per hold-out and length, how many windows differ between the two and by
@@ -31,7 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from transition_speed import machine, machine_line, report_main  # noqa: E402
 
-HOLDOUTS = ("style", "content")
+HOLDOUTS = ("style", "content", "cmu")
+TITLES = {"style": "Style", "content": "Content", "cmu": "CMU"}
 METHOD = "auto+feet"
 
 
@@ -101,7 +102,7 @@ def markdown(result: dict, command: str) -> str:
         legs = "; ".join(" > ".join(r["names"][j] for j in c) for c in num["legs"]) or "none"
         arms = "; ".join(" > ".join(r["names"][j] for j in c) for c in num["arms"]) or "none"
         head = r["names"][num["head"]] if num["head"] >= 0 else "none"
-        lines += [f"**{name.capitalize()} hold-out** ({r['joints']} joints). Read from the numbered rig's "
+        lines += [f"**{TITLES[name]} hold-out** ({r['joints']} joints). Read from the numbered rig's "
                   f"hierarchy: legs {legs}; arms {arms}; head {head} "
                   f"(the same as the names give: {', '.join(same) if same else 'nothing'}"
                   + (f"; differing: {', '.join(k for k in named if k not in same)}" if len(same) < len(named) else "")

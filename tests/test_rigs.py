@@ -409,3 +409,10 @@ def test_the_hierarchys_legs_and_arms_past_helpers_skirts_faces_and_a_pelvis_bes
                                                                                          f"{s}Hand"))
                                                         for s in ("Left", "Right")]
     assert [k.tolist() for k in key_joints(numbered)] == [k.tolist() for k in key_joints(cmu)]
+    # Its bone classes too: a hip joint at the pelvis's place above each thigh (LHipJoint) is the
+    # pelvis's, as its name makes it; the rest as a human's limbs.
+    from posturemap.learn.features import assign_classes
+
+    root = root_index(cmu)
+    assert root_index(numbered) == root
+    assert assign_classes(numbered, root).tolist() == assign_classes(cmu, root).tolist()

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import quat
-from ..core.joints import Limbs, ancestors, subtree_mask
+from ..core.joints import SHORT_BONE, Limbs, ancestors, structural_legs, subtree_mask
 from ..core.skeleton import chain_world
 from ..errors import UserError
 from ..core.motion import Motion, root_index, shared_up_axis, up_vector
@@ -119,12 +119,14 @@ def assign_classes(motion_or_skeleton, root: int | None = None) -> np.ndarray:
 def _limb_classes(sk, body: np.ndarray, children: list, fallback: np.ndarray) -> None:
     """The classes of a rig none of whose names a rule knows (``J00``, ``J01``..., another
     language), from its limbs (:class:`posturemap.core.joints.Limbs`), in place in ``fallback``:
-    two alike chains from one body joint (legs, arms) global down to their upper joint (a hip
-    joint or a clavicle above it too), medium from the middle joint (knee, elbow), detail from
-    the end (ankle, wrist) down, as the names place them; another chain from a body joint where
-    limbs leave (the chest's neck and head) medium. The chains do not overlap: near-linear in the
-    joints. A rig with some names keeps the plain distance rule for the joints no rule knows."""
+    two alike chains from one body joint (legs, arms) global down to their upper joint (a
+    clavicle above it too; a hip joint at the pelvis's place above a thigh, CMU's ``LHipJoint``,
+    body), medium from the middle joint (knee, elbow), detail from the end (ankle, wrist) down,
+    as the names place them; another chain from a body joint where limbs leave (the chest's neck
+    and head) medium. The chains do not overlap: near-linear in the joints. A rig with some
+    names keeps the plain distance rule for the joints no rule knows."""
     limbs = Limbs(sk.parents, sk.offsets)
+    thighs = {leg[0] for leg in structural_legs(sk.parents, sk.offsets)}
     end = np.zeros(len(fallback), dtype=bool)
     for p in np.flatnonzero(body).tolist():
         paths = [limbs.path(c) for c in children[p] if not body[c]]
@@ -134,11 +136,12 @@ def _limb_classes(sk, body: np.ndarray, children: list, fallback: np.ndarray) ->
                 if paired:
                     fallback[path] = 2
                 continue
-            _, middle, last = limbs.joints3(path)
-            at = 1
+            upper, middle, last = limbs.joints3(path)
+            at, hip = 1, SHORT_BONE * limbs.reach(path)
             for j in path:
                 at = 2 if j == middle else (3 if j == last else at)
-                fallback[j] = at
+                # A hip joint at the pelvis's place above a thigh is the pelvis's (CMU's LHipJoint).
+                fallback[j] = 0 if at == 1 and j != upper and upper in thighs and limbs.bone[j] <= hip else at
             end[last] = True
     for c in range(len(fallback)):  # parents come first: below an ankle or a wrist, detail
         p = sk.parents[c]
