@@ -7,10 +7,11 @@ arms, the head and the bone classes from the hierarchy (``joints.structural_legs
 ``joints.structural_arms``, ``features.assign_classes``). This script takes the bench's style,
 content and CMU (120 fps, 31 joints, a hip joint above each thigh) hold-outs twice: as
 recorded, and with every joint renamed ``J00``, ``J01``... in the same order (training and test
-side); trains a map and its motion library on each training side; in-betweens the same windows with the default (``auto`` + foot lock) at the bench's
-lengths; and prints, per hold-out and length, how many windows differ between the two and by
-how much (rotations: quaternion components; positions: centimetres), with the joints each rig
-is read to have (legs, arms, matched joints, head, and whether the bone classes agree).
+side); trains a map and its motion library on each training side; in-betweens the same windows
+with the default (``auto`` + foot lock) at the bench's lengths; and prints, per hold-out and
+length, how many windows differ between the two and by how much (rotations: quaternion
+components; positions: centimetres), with the joints each rig is read to have (legs, arms,
+matched joints, head, and whether the bone classes agree).
 
 Nothing is written to disk but the report (Bandai's licence: the data stays where it is).
 
