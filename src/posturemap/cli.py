@@ -243,9 +243,12 @@ def _cmd_transition(args) -> int:
     # Z-up B: B lay on the floor). Read from the body's extent, which a clip lying on the floor
     # can mislead: a warning, as the studio's. Against the axis the transition takes: the map's
     # (one made of A and B takes the one most of their frames stand along), else A's.
-    ref = model.space_.up if model is not None else up_axis(a)
-    whose = ("the map's clips" if given else f"{args.a} and {args.b} (most frames)") if model is not None \
-        else f"{args.a}'s"
+    if given:
+        ref, whose = model.space_.up, "the map's clips"
+    elif model is not None:
+        ref, whose = model.space_.up, f"{args.a} and {args.b} (most frames)"
+    else:
+        ref, whose = up_axis(a), f"{args.a}'s"
     for path, clip in ((args.a, a), (args.b, b)):
         up = up_axis(clip)
         if up != ref:

@@ -256,6 +256,27 @@ class Limbs:
         k = max(ended or ks, key=lambda k: (bone[q[k]] + bone[q[k + 1]], -k))
         return q[k - 1], q[k], q[k + 1]
 
+    def legs(self) -> list[tuple[int, int, int]]:
+        """(thigh, shin, ankle) of each leg: of the alike pairs of chains that leave one joint
+        (:meth:`pairs`) beside the body (:meth:`beside_body`: the spine forks into the arms and
+        the neck), the one that reaches furthest (legs outreach arms, a skirt's chains,
+        fingers). The thigh, knee and ankle by :meth:`joints3`, so that a hip joint above the
+        thigh (CMU's ``LHipJoint``) and the toes below the ankle fall outside, a twist helper at
+        its parent's place too (one halfway down a bone splits it: a rig that names nothing and
+        has those is read wrongly). [] where no such pair is found. Near-linear in the joints (a
+        hostile file may hold thousands): chains from different joints do not overlap."""
+        best, legs = -1.0, []
+        for p in range(len(self.kids)):
+            if len(self.inner[p]) < 2:
+                continue
+            paths = [self.path(c) for c in self.inner[p]]
+            for i, k in self.pairs(paths):
+                x, y = paths[i], paths[k]
+                reach = self.reach(x) + self.reach(y)
+                if reach > best and self.beside_body(p, x[0], y[0]):
+                    best, legs = reach, sorted((self.joints3(x), self.joints3(y)))
+        return legs
+
     def beside_body(self, p: int, c: int, d: int) -> bool:
         """Whether chains ``c`` and ``d`` from joint ``p`` hang beside the body: another child of
         ``p``, or of ``p``'s parent (a pelvis beside the spine), forks below (the spine into the
@@ -273,26 +294,8 @@ class Limbs:
 
 def structural_legs(parents: np.ndarray, offsets: np.ndarray) -> list[tuple[int, int, int]]:
     """(thigh, shin, ankle) of each leg read from the hierarchy alone, for a rig whose names say
-    nothing: of the alike pairs of chains that leave one joint (:meth:`Limbs.pairs`) beside the
-    body (:meth:`Limbs.beside_body`: the spine forks into the arms and the neck),
-    the one that reaches furthest (legs outreach arms, a skirt's chains, fingers). The thigh,
-    knee and ankle by :meth:`Limbs.joints3`, so that a hip joint above the thigh (CMU's
-    ``LHipJoint``) and the toes below the ankle fall outside, a twist helper at its parent's
-    place too (one halfway down a bone splits it: a rig that names nothing and has those is
-    read wrongly). [] where no such pair is found. Near-linear in the joints (a hostile file
-    may hold thousands): chains from different joints do not overlap."""
-    limbs = Limbs(parents, offsets)
-    best, legs = -1.0, []
-    for p in range(len(limbs.kids)):
-        if len(limbs.inner[p]) < 2:
-            continue
-        paths = [limbs.path(c) for c in limbs.inner[p]]
-        for i, k in limbs.pairs(paths):
-            x, y = paths[i], paths[k]
-            reach = limbs.reach(x) + limbs.reach(y)
-            if reach > best and limbs.beside_body(p, x[0], y[0]):
-                best, legs = reach, sorted((limbs.joints3(x), limbs.joints3(y)))
-    return legs
+    nothing (:meth:`Limbs.legs`)."""
+    return Limbs(parents, offsets).legs()
 
 
 def structural_arms(sk: Skeleton, legs) -> list[tuple[int, int, int]]:

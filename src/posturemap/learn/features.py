@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import quat
-from ..core.joints import SHORT_BONE, Limbs, ancestors, structural_legs, subtree_mask
+from ..core.joints import SHORT_BONE, Limbs, ancestors, subtree_mask
 from ..core.skeleton import chain_world
 from ..errors import UserError
 from ..core.motion import Motion, root_index, shared_up_axis, up_vector
@@ -126,7 +126,7 @@ def _limb_classes(sk, body: np.ndarray, children: list, fallback: np.ndarray) ->
     and head) medium. The chains do not overlap: near-linear in the joints. A rig with some
     names keeps the plain distance rule for the joints no rule knows."""
     limbs = Limbs(sk.parents, sk.offsets)
-    thighs = {leg[0] for leg in structural_legs(sk.parents, sk.offsets)}
+    thighs = {leg[0] for leg in limbs.legs()}
     end = np.zeros(len(fallback), dtype=bool)
     for p in np.flatnonzero(body).tolist():
         paths = [limbs.path(c) for c in children[p] if not body[c]]
