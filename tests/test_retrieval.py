@@ -50,7 +50,10 @@ def model(clips):
 
 @pytest.fixture(scope="module")
 def engine(model, clips):
+    # The library's retrieval: the gaps below lie inside the held-out clips, whose own motion
+    # (A's before the gap, B's after it) would be searched as well (tested on its own below).
     eng = TransitionEngine(model)
+    eng.own_seconds = 0.0
     for n in HELD_OUT:
         eng.add(n, clips[n])
     return eng
@@ -427,6 +430,7 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips, monkeypatch):
     # In-betweening ramps the confidence over a wide range of match distances: a bow's legs for
     # a run's, 30 degrees apart, are still partly confident there ...
     bows = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in UNRELATED], list(UNRELATED)))
+    bows.own_seconds = 0.0  # the library alone (the run's own motion would be searched too)
     bows.add("run", clips["run_proud_001"])
     bows.generate("run", "run", method="retrieval", length=30, a_end=40, b_start=71, align=False, foot_lock=False)
     legs = bows.last["retrieval"]["parts"]["lower"]
@@ -440,6 +444,7 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips, monkeypatch):
     assert legs["distance"] > retrieval.CONTACTS_WITHIN and given == [None]
     # ... and bows on twisted legs are beyond it.
     eng = TransitionEngine(PostureMap(seed=0).fit([twisted(clips[n]) for n in UNRELATED], list(UNRELATED)))
+    eng.own_seconds = 0.0
     eng.add("run", clips["run_proud_001"])
     kw = dict(length=30, a_end=40, b_start=71, align=False, foot_lock=False)
     rots, pos = eng.generate("run", "run", method="retrieval", **kw)
@@ -513,11 +518,19 @@ def test_a_map_without_library_uses_the_fallback(clips):
     assert bare.library_ is None
     eng = TransitionEngine(bare)
     eng.add("w", clips["walk_angry_001"])
-    r, _ = eng.generate("w", "w", length=20, a_end=30, b_start=51, method="retrieval")
-    r = r.copy()
-    assert eng.last["retrieval"] is None
-    fb, _ = eng.generate("w", "w", length=20, a_end=30, b_start=51, method=retrieval.fallback_method(20, 30.0))
-    assert np.array_equal(r, fb)
+    # Its own motion replays where A's frames before the gap and B's after it hold a segment ...
+    eng.generate("w", "w", length=20, a_end=60, b_start=81, method="retrieval")
+    assert eng.last["retrieval"]["own"]
+    # ... not where too few of them are left (A's first 11 frames, B's last 11: a segment of the
+    # shortest warp has 16), nor without it.
+    for seconds, a_end in ((eng.own_seconds, 10), (0.0, 60)):
+        eng.own_seconds = seconds
+        b_start = len(clips["walk_angry_001"]) - 11 if seconds else a_end + 21
+        r, _ = eng.generate("w", "w", length=20, a_end=a_end, b_start=b_start, method="retrieval")
+        r = r.copy()
+        assert eng.last["retrieval"] is None
+        fb, _ = eng.generate("w", "w", length=20, a_end=a_end, b_start=b_start, method=retrieval.fallback_method(20, 30.0))
+        assert np.array_equal(r, fb)
 
 
 _LOADS_PROBE = """
@@ -647,8 +660,15 @@ def test_results_are_deterministic(model, clips, engine):
     assert np.array_equal(r1, r2) and np.array_equal(p1, p2)
     fresh = TransitionEngine(PostureMap(seed=0).fit([clips[n] for n in LIBRARY], list(LIBRARY)))
     fresh.add(HELD_OUT[1], clips[HELD_OUT[1]])
+    own = [x.copy() for x in fresh.generate(HELD_OUT[1], HELD_OUT[1], **args)]  # its own motion searched too
+    assert fresh.last["retrieval"]["own"]
+    fresh.own_seconds = 0.0  # the library alone, as `engine`'s
     r3, p3 = fresh.generate(HELD_OUT[1], HELD_OUT[1], **args)
     assert np.array_equal(r1, r3) and np.array_equal(p1, p3)
+    again = TransitionEngine(fresh.model)
+    again.add(HELD_OUT[1], clips[HELD_OUT[1]])
+    for x, y in zip(own, again.generate(HELD_OUT[1], HELD_OUT[1], **args)):
+        assert np.array_equal(x, y)
 
 
 def test_alpha_trades_the_match_at_a_against_the_match_at_b(engine, clips):
@@ -684,6 +704,7 @@ def test_map_file_keeps_the_library(model, engine, tmp_path):
     for k in ("rots", "vel", "root", "index_frames", "clip_start"):  # the reversed half is rebuilt alike
         assert np.array_equal(getattr(back.library_, k), getattr(model.library_, k)), k
     eng = TransitionEngine(back)
+    eng.own_seconds = engine.own_seconds  # the library's motion, as `engine`'s
     name = HELD_OUT[0]
     eng.add(name, engine.tracks[name].motion)
     args = dict(length=25, a_end=30, b_start=56, align=False, method="retrieval")
@@ -735,6 +756,7 @@ def resample(m: Motion, factor: int) -> Motion:
 def test_a_clip_at_another_frame_rate_replays_the_library_at_its_speed(model, clips):
     fast = resample(clips["walk_angry_001"], 4)  # 120 fps against a 30 fps library
     eng = TransitionEngine(model)
+    eng.own_seconds = 0.0  # the library's frames (the clip's own are at its rate)
     eng.add("w", fast)
     length = 119  # one second
     warps = []
@@ -877,6 +899,7 @@ def test_a_library_shorter_than_the_gap_falls_back(clips):
     short = clips["walk_normal_001"][:12]
     tiny = PostureMap(seed=0).fit([short, clips["run_normal_001"][:10]], ["short walk", "short run"])
     eng = TransitionEngine(tiny)
+    eng.own_seconds = 0.0  # the library alone (the walk's own frames hold such segments)
     eng.add("w", clips["walk_angry_001"])
     r, p = eng.generate("w", "w", length=30, a_end=20, b_start=51, align=False, method="retrieval", foot_lock=True)
     assert eng.last["retrieval"] is None  # no clip holds a 23..41-frame segment

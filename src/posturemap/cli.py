@@ -234,10 +234,19 @@ def _cmd_transition(args) -> int:
         model = PostureMap.load(args.map)
         model.check_skeleton(a.skeleton, args.a)
     given = model is not None
+    request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
+                                a_end=args.a_end, b_start=b_start, align=not args.no_align,
+                                foot_lock=not args.no_foot_lock)
+    try:
+        request = request.resolved(len(a), len(b))
+    except RequestError as e:  # shown as the option that set the field
+        raise UserError("--" + e.field.replace("_", "-"), e.what) from None
     if model is None and args.method in KEYED:
-        # A resampled B is named so in the report: its frames there are at A's rate.
-        b_name = args.b if rate_note is None else resampled_name(args.b, a.fps)
-        model = PostureMap(seed=0).fit([a, b], [args.a, b_name])
+        # Learned from the frames the output keeps, A's to its end and B's from its start, and
+        # without a motion library: the motion replayed is those frames' own (see
+        # engine._own_retriever). A gap in one take (A and B the same file) is never read,
+        # so its frames cannot come back as the transition.
+        model = PostureMap(seed=0, library=False).fit([a[: request.a_end + 1], b[request.b_start:]], [args.a, args.b])
     # The same rig turned to another up axis passes the skeleton's check (its bones are the
     # same); the map's axis, or A's, would then turn B and plant the feet wrongly (a Y-up A and a
     # Z-up B: B lay on the floor). Read from the body's extent, which a clip lying on the floor
@@ -257,11 +266,7 @@ def _cmd_transition(args) -> int:
                                                        else "(lying on the floor, or of another up axis?)"),
                   file=sys.stderr)
     report = {}
-    request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
-                                a_end=args.a_end, b_start=b_start, align=not args.no_align,
-                                foot_lock=not args.no_foot_lock)
     try:
-        request = request.resolved(len(a), len(b))
         out = transition(a, b, model, request, report=report)
     except RequestError as e:  # shown as the option that set the field
         raise UserError("--" + e.field.replace("_", "-"), e.what) from None
@@ -297,7 +302,9 @@ def _cmd_transition(args) -> int:
     if rate_note:
         print(rate_note)
     if "retrieval" in report:
-        print(describe_retrieval(report["retrieval"]))
+        # B's own frames are counted at A's rate where it was resampled (named so, as train names it).
+        b_name = args.b if rate_note is None else resampled_name(args.b, a.fps)
+        print(describe_retrieval(report["retrieval"], {"a": args.a, "b": b_name}))
     if not args.no_foot_lock and not leg_chains(a.skeleton):
         print(f"  foot lock: off, no legs found by name (an ankle named foot or ankle, under a shin and a thigh) "
               f"nor in the hierarchy (two like chains beside the spine; posturemap inspect {args.a} shows the "
@@ -324,20 +331,25 @@ def _cmd_resample(args) -> int:
     return 0
 
 
-def describe_retrieval(info) -> str:
-    """One line per body part: which library clip and frames were replayed, and how confidently."""
+def describe_retrieval(info, clips: dict | None = None) -> str:
+    """One line per body part: which clip and frames were replayed, and how confidently.
+    ``clips``: the files of the clips' own motion by their names in the report (``a``, ``b``)."""
     if not info:
-        return "  retrieval: no library segment fits; interpolated instead (fallback)"
+        return "  retrieval: no segment of the library or of the clips' own frames fits; interpolated instead (fallback)"
     if max(r["confidence"] for r in info["parts"].values()) <= 0.0:
         if info.get("standing"):
             return ("  retrieval: the body stands still at both seams (a standing gesture, confidence 0); "
                     "interpolated instead")
-        return "  retrieval: the best library segments match too loosely (confidence 0); interpolated instead"
+        return "  retrieval: the best segments match too loosely (confidence 0); interpolated instead"
+    names = (clips or {}) if info.get("own") else {}
+
     def source(r):
-        return (f"{r['clip']} frames {r['frames'][0]}..{r['frames'][1]}{' (played backwards)' if r['reversed'] else ''} "
+        return (f"{names.get(r['clip'], r['clip'])} frames {r['frames'][0]}..{r['frames'][1]}"
+                f"{' (played backwards)' if r['reversed'] else ''} "
                 f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees")
 
-    lines = []
+    lines = ["  retrieval: the clips' own motion (A's frames before its end, B's from its start)"] if info.get("own") \
+        else []
     for part, r in info["parts"].items():
         if "then" in r:  # a splice: the segment continuing A, blended into the one arriving in B
             lines.append(f"  {part}: {source(r)}, then {source(r['then'])}; confidence {r['confidence']:.2f}")

@@ -75,6 +75,7 @@ from .bases import (DAMPED_GAP_SHARE, DAMPED_PEAK, DAMPED_REACH_SHARE, DAMPED_SA
 from . import hinges, retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
+from .library import MotionLibrary, own_library
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
@@ -84,6 +85,10 @@ from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
 WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
+# Retrieval searches the clips' own motion beside the gap besides the library: at most this many
+# seconds of A before its end and of B from its start (the frames nearest the gap; a capture of
+# several minutes is not searched whole for every transition). See _own_retriever.
+OWN_SECONDS = 60.0
 
 
 class TransitionEngine:
@@ -98,6 +103,10 @@ class TransitionEngine:
     only reads seam frames, finds the key and evaluates a precomputed spline basis, writing
     into buffers reused between calls of the same length. One engine serves one call at a
     time; :meth:`fork` gives another that shares the clips and the map.
+
+    ``own_seconds`` (default :data:`OWN_SECONDS`): how much of A's motion before its end and of
+    B's from its start retrieval searches besides the map's library (the clips' own motion);
+    set it to 0 to replay the library only.
     """
 
     def __init__(self, model=None, skeleton=None):
@@ -117,6 +126,10 @@ class TransitionEngine:
         self._legs = []
         self._retriever = None
         self._limb_least: dict[int, tuple] = {}  # id(track) -> (track, how far back each knee and elbow goes)
+        self._own: dict[tuple, tuple] = {}  # (id(A), a_end, id(B), b_start) -> (A, B, retriever): see _own_retriever
+        # Seconds of each clip's own motion beside the gap that retrieval searches besides the
+        # library (see _own_retriever); 0: the library only.
+        self.own_seconds = OWN_SECONDS
         self.keys = None
         if model is not None:
             space = model.space_
@@ -199,7 +212,7 @@ class TransitionEngine:
         motion library (shared, read-only). A clip added to one engine afterwards is not in the
         other."""
         _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
-        shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}}
+        shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {}}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
@@ -374,16 +387,20 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
     return out
 
 
-def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray) -> None:
+def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray,
+                  own: MotionLibrary | None = None) -> None:
     """No knee or elbow of the new frames bent further back than the motion library's go or
     A's and B's own, whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per
-    library, each clip's furthest back once per clip). Without a library, the frames stay as
-    they are.
+    library, each clip's furthest back once per clip). Without a library, the hinges are found
+    in ``own`` (the clips' own motion the transition searched, :func:`_own_retriever`), and
+    without that the frames stay as they are.
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
     library's hinge, and their bound is as far back as they go."""
     lib = getattr(eng.model, "library_", None)
+    if lib is None or not len(lib):
+        lib = own
     if lib is None or not len(lib):
         return
     sk = eng.skeleton
@@ -407,6 +424,7 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     otherwise keep every one, and a fork would copy them."""
     live = {id(t): t for t in eng.tracks.values()}
     eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
+    eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[2]) is v[1]}
 
 
 def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,
@@ -727,7 +745,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     """``method="retrieval"`` (:mod:`posturemap.synth.retrieval`), with its fallback blended by confidence."""
     length, a_end, b_start, align = req.length, req.a_end, req.b_start, req.align
     lib = getattr(eng.model, "library_", None)
-    res = None
+    res = rt = found = None
     if lib is not None and len(lib):
         if eng._retriever is None or eng._retriever.lib is not lib:
             eng._retriever = retrieval.Retriever(eng, lib)
@@ -739,9 +757,21 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # One search ranks the candidates for the single segment and both halves of the splice.
         shared = {"alphas": (0.0, 1.0)} if align else {}
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
-        if align and found is not None and found.confidence[0] < 1.0:
+    # The clips' own motion (A's before its end, B's from its start) searched as well; its match
+    # is taken where it costs no more than the library's and, between clips, carries the legs
+    # fully confident (else the library's splice of A's continuation into B's arrival is the
+    # better bet), or where there is no library match. See _own_retriever.
+    own = _own_retriever(eng, ta, tb, a, b, a_end, b_start, length)
+    if own is not None:
+        own_shared = {"alphas": (0.0, 1.0)} if align else {}
+        mine = retrieval.match(own, ta, tb, a_end, b_start, length, req.alpha, align, shared=own_shared)
+        if mine is not None and (found is None or (mine.cost <= found.cost
+                                                   and (not align or mine.confidence[0] >= 1.0))):
+            rt, found, shared = own, mine, own_shared
+    if found is not None:
+        if align and found.confidence[0] < 1.0:
             res = spliced(rt, ta, tb, a_end, b_start, length, req.alpha, shared, beat=found.confidence[0])
-        if res is None and found is not None:
+        if res is None:
             res = retrieval.replay(rt, found, skip_unconfident=True)
     # The fallback where confidence is short of full; otherwise a cubic Hermite gives what the
     # retrieved parts leave open (joints above the root, local translations).
@@ -758,7 +788,6 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # rhythm is not to be taken from legs the replay replaces.
         swing = None
         if fallback == "damped" and res is not None and max(res.confidence) >= 1.0 > min(res.confidence):
-            rt = eng._retriever
             swing = np.concatenate([rt.open_joints] + [j for c, j in zip(res.confidence, rt.part_joints) if c < 1.0])
         rots_fb, pos_fb = _interpolated(eng, ta, tb, a, b, req.replace(method=fallback, foot_lock=False),
                                         swing_joints=swing)
@@ -772,7 +801,6 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         eng.last = {**fb_last, "retrieval": None if res is None else res.info}
         dtheta, shift, contacts = fb_last["dtheta"], fb_last["shift"], None
     else:
-        rt = eng._retriever
         out_r[:] = res.rots
         for j in eng._chain.tolist():  # one joint at a time: basic indexing, no gather and scatter
             out_r[:, j] = rots_fb[:, j]
@@ -816,13 +844,47 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
                     else None)
         eng.last = {"key": None, "neurons": None, "dtheta": dtheta, "shift": shift, "retrieval": res.info}
         # The head steadied (retrieval.HEAD_GAZE): half its turn in the world the fallback's.
-        head = eng._retriever.head_chain
+        head = rt.head_chain
         if not align and fb_last is not None and res.confidence[1] > 0.0 and len(head) > 1:
             kernels.turn_toward(head, out_r, rots_fb, retrieval.HEAD_GAZE)
-    _unbend_limbs(eng, ta, tb, out_r, out_p)
+    _unbend_limbs(eng, ta, tb, out_r, out_p, None if own is None else own.lib)
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p
+
+
+def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, a_end: int, b_start: int,
+                   length: int):
+    """A retriever over the clips' own motion: A's frames up to ``a_end`` and B's from
+    ``b_start`` (each at most ``eng.own_seconds`` long, nearest the gap), as
+    :func:`posturemap.synth.library.own_library` makes them, searched whole and matched on the
+    map's library's feature scales, so that its match and the library's compare by cost. None
+    without a map, or when neither side holds a segment of the shortest warp.
+
+    A performer's own motion continues their motion best: in-betweening a gap in a take (the
+    same clip as A and B), the take's other steps and gestures are the same person's, style
+    and speed, where the library holds other performances. Only frames the output keeps are
+    read, so a gap's own frames (the ones being replaced) never are. Kept per seam pair (the
+    last few), for the next call on the same seams (a slider's)."""
+    if eng.model is None or eng.own_seconds <= 0 or not same_fps(ta.motion.fps, tb.motion.fps):
+        return None
+    key = (id(ta), a_end, id(tb), b_start, eng.own_seconds)
+    kept = eng._own.get(key)
+    if kept is not None and kept[0] is ta and kept[1] is tb:
+        return kept[2]
+    span = max(int(eng.own_seconds * ta.motion.fps), 2)
+    shortest = max(1, round(min(retrieval.WARPS) * (length + 1.0)))  # a segment's fewest frames, less one
+    pieces = [p for p in ((a, ta, max(0, a_end + 1 - span), a_end + 1),
+                          (b, tb, b_start, min(len(tb.gpos), b_start + span))) if p[3] - p[2] > shortest]
+    if not pieces:
+        return None
+    lib = getattr(eng.model, "library_", None)
+    own = retrieval.Retriever(eng, own_library(pieces, eng._up, None if lib is None or not len(lib) else lib.scale),
+                              whole=True)
+    if len(eng._own) >= 8:  # the oldest goes
+        eng._own.pop(next(iter(eng._own)))
+    eng._own[key] = (ta, tb, own)
+    return own
 
 
 def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, rots, pos) -> None:

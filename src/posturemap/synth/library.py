@@ -127,6 +127,10 @@ class MotionLibrary:
     """Real motion for retrieval (see the module docstring for the arrays).
 
     Build it with :func:`build_library`; the arrays are plain and saved in the map file.
+    ``reference_scale``: the feature scales to match with (:attr:`scale`), another library's,
+    so that the costs of searches over both compare (:func:`own_library`); None: this
+    library's own (:func:`feature_scales`). ``clip_first``: each recorded clip's first frame
+    in the clip it was cut from (:meth:`source_frames` counts from there); empty: 0 for each.
     """
 
     fps: float
@@ -146,6 +150,8 @@ class MotionLibrary:
     upper: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     reverse: bool = True
     toe_counts: np.ndarray | None = None
+    reference_scale: np.ndarray | None = None
+    clip_first: tuple[int, ...] = ()
     recorded: int = field(init=False)
     clip_of: np.ndarray = field(init=False)
     clip_end: np.ndarray = field(init=False)
@@ -163,7 +169,8 @@ class MotionLibrary:
         clip_of = np.repeat(np.arange(len(self.clip_start) - 1), np.diff(self.clip_start))
         object.__setattr__(self, "clip_of", clip_of)
         object.__setattr__(self, "clip_end", self.clip_start[1:][clip_of] if n else np.zeros(0, np.int64))
-        object.__setattr__(self, "scale", feature_scales(self))
+        object.__setattr__(self, "scale", feature_scales(self) if self.reference_scale is None
+                           else np.asarray(self.reference_scale, dtype=np.float64))
         order = np.argsort(self.win, kind="stable")
         ptr = np.zeros(int(self.win.max()) + 2 if n else 1, dtype=np.int64)
         np.add.at(ptr, self.win + 1, 1)
@@ -252,9 +259,13 @@ class MotionLibrary:
         first, last = s - int(self.clip_start[c]), e - int(self.clip_start[c])
         n_rec = self.num_recorded_clips
         if c < n_rec:
-            return self.clip_names[c], first, last
+            return self.clip_names[c], first + self._first(c), last + self._first(c)
         n = int(self.clip_start[c + 1] - self.clip_start[c])
-        return self.clip_names[c - n_rec], n - 1 - first, n - 1 - last
+        rec = c - n_rec
+        return self.clip_names[rec], n - 1 - first + self._first(rec), n - 1 - last + self._first(rec)
+
+    def _first(self, c: int) -> int:
+        return int(self.clip_first[c]) if c < len(self.clip_first) else 0
 
     def library_frame(self, name: str, frame: int) -> int:
         """The library index of frame ``frame`` (as recorded) of the recorded clip ``name``."""
@@ -353,6 +364,17 @@ def feature_scales(lib: MotionLibrary) -> np.ndarray:
     return np.concatenate([np.where(s > 1e-9, s, 1.0), np.maximum(root, 1e-6)])
 
 
+def _clip_arrays(sk: Skeleton, motion, rots, gpos, heading, joints, chains, up: int, leg: float):
+    """One clip's per-frame library arrays (``rots``, ``gpos``, ``heading`` as its track has
+    them) and its global joint positions: ``(arrays, gp)``."""
+    _, gp = fk(sk.parents, motion.rotations, motion.positions)
+    pose, vel, root = clip_features(gp, gpos, heading, joints, up, motion.fps)
+    arrays = {"rots": rots.astype(np.float32), "gpos": gpos, "heading": heading,
+              "contacts": clip_contacts(gp[:, [c[2] for c in chains]], up, motion.fps, leg),
+              "pose": pose.astype(np.float32), "vel": vel.astype(np.float32), "root": root.astype(np.float32)}
+    return arrays, gp
+
+
 def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibrary:
     """A library of the clips behind ``tracks`` (:class:`~posturemap.synth.engine.Track`, one skeleton).
 
@@ -369,22 +391,14 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
     toes = leg_toes(sk, chains)
     has_toes = bool(len(chains)) and all(t != c[2] for t, c in zip(toes, chains))
     counts = None
-    parts = {k: [] for k in ("rots", "gpos", "heading", "contacts", "pose", "vel", "root")}
+    parts = []
     for tr in tracks:
-        m = tr.motion
-        _, gp = fk(sk.parents, m.rotations, m.positions)
-        pose, vel, root = clip_features(gp, tr.gpos, tr.heading, joints, up, m.fps)
-        parts["rots"].append(tr.rots.astype(np.float32))
-        parts["gpos"].append(tr.gpos)
-        parts["heading"].append(tr.heading)
-        parts["contacts"].append(clip_contacts(gp[:, [c[2] for c in chains]], up, m.fps, leg))
+        arrays, gp = _clip_arrays(sk, tr.motion, tr.rots, tr.gpos, tr.heading, joints, chains, up, leg)
+        parts.append(arrays)
         if has_toes:
-            clip_counts = toe_height_counts(gp[:, toes], up, m.fps, leg)
+            clip_counts = toe_height_counts(gp[:, toes], up, tr.motion.fps, leg)
             counts = clip_counts if counts is None else counts + clip_counts
-        parts["pose"].append(pose.astype(np.float32))
-        parts["vel"].append(vel.astype(np.float32))
-        parts["root"].append(root.astype(np.float32))
-    arrays = {k: np.concatenate(v) for k, v in parts.items()}
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     feats = np.concatenate([tr.features for tr in tracks])
     cmap = model.maps_[INDEX_CLASS]
     win = cmap.predict(feats[:, model.space_.class_dims[INDEX_CLASS]]).astype(np.int32)
@@ -392,3 +406,28 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
     names = tuple(names) if names is not None else tuple(f"clip {i}" for i in range(len(tracks)))
     return MotionLibrary(fps, up, leg, starts, clip_names=names, lower=lower, upper=upper, win=win,
                          reverse=reverse, toe_counts=counts, **arrays)
+
+
+def own_library(pieces, up: int, reference_scale: np.ndarray | None = None) -> MotionLibrary:
+    """The clips' own motion as a library: ``pieces`` ``[(name, track, first, stop)]``, the frames
+    ``first .. stop - 1`` of each :class:`~posturemap.synth.engine.Track` (one skeleton and
+    frame rate), as recorded (no reversed copies), matched on ``reference_scale`` (the map's
+    library's :attr:`MotionLibrary.scale`; None: their own). Each piece is computed from its
+    own frames only: its velocities, contacts and floor read no frame outside it, so a piece
+    that ends at A's last frame or starts at B's first knows nothing of the frames between.
+    The frames are not indexed (``win`` 0): a search takes every one
+    (:class:`~posturemap.synth.retrieval.Retriever` with ``whole``); :meth:`MotionLibrary.source_frames`
+    counts each piece's frames in its clip.
+    """
+    sk = pieces[0][1].motion.skeleton
+    lower, upper = key_joints(sk)
+    joints = np.concatenate([lower, upper])
+    chains = leg_chains(sk)
+    leg = leg_length(sk, chains)
+    parts = [_clip_arrays(sk, tr.motion[lo:hi], tr.rots[lo:hi], tr.gpos[lo:hi], tr.heading[lo:hi], joints, chains,
+                          up, leg)[0] for _, tr, lo, hi in pieces]
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    starts = np.concatenate([[0], np.cumsum([hi - lo for _, _, lo, hi in pieces])]).astype(np.int64)
+    return MotionLibrary(float(pieces[0][1].motion.fps), up, leg, starts, clip_names=tuple(p[0] for p in pieces),
+                         lower=lower, upper=upper, win=np.zeros(int(starts[-1]), dtype=np.int32), reverse=False,
+                         reference_scale=reference_scale, clip_first=tuple(int(p[2]) for p in pieces), **arrays)

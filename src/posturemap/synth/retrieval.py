@@ -84,6 +84,9 @@ UPPER_CONF_RANGE = {False: (16.0, 48.0), True: (24.0, 48.0)}  # the upper body's
 # another performance does (docs/retrieval.md, "The head steadied").
 HEAD_GAZE = 0.5
 UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
+# The upper body's match distance (degrees) over which the clips' own motion keeps a standing
+# gesture (a bow, a wave) confident where the body stands at both seams (see confidences).
+OWN_STANDING_RANGE = (8.0, 24.0)
 # The foot lock holds the retrieved segment's planted feet where its legs lie within this match
 # distance (degrees; between clips, the end of their ramp); beyond, it finds them itself.
 CONTACTS_WITHIN = 24.0
@@ -152,9 +155,12 @@ class Seams:
 class Retriever:
     """Search and synthesis over one library for one engine (skeleton, root, up)."""
 
-    def __init__(self, engine, library: MotionLibrary):
+    def __init__(self, engine, library: MotionLibrary, whole: bool = False):
         self.engine = engine
         self.lib = library
+        # Every frame is a candidate, not only those the index files under the seams' neurons:
+        # the clips' own motion (library.own_library), a few thousand frames at most.
+        self.whole = bool(whole)
         sk = engine.skeleton
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
@@ -378,9 +384,12 @@ class Retriever:
 
         Neurons are visited nearest first until :attr:`budget` frames are gathered; with
         ``part``, nearness counts only the index map's dimensions of that body part's joints
-        (the thighs for the legs, the clavicles and upper arms for the upper body).
+        (the thighs for the legs, the clavicles and upper arms for the upper body). With
+        ``whole``, every frame.
         """
         lib, cmap = self.lib, self.cmap
+        if self.whole:
+            return np.arange(len(lib), dtype=np.int64)
         if _compiled() is not None:
             cols = self.index_cols[part] if part is not None else np.arange(cmap.weights_.shape[1])
             return _compiled().gather(cmap.weights_, cols, x[self.space.class_dims[INDEX_CLASS][cols]],
@@ -413,7 +422,7 @@ class Retriever:
     def gather_seams(self, xa: np.ndarray, xb: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """``[(gather(xa, 0), gather(xb, 0)), (gather(xa, 1), gather(xb, 1))]``: where numba is in
         use, in one pass over the index map's neurons."""
-        if _compiled() is None:
+        if _compiled() is None or self.whole:
             return [(self.gather(xa, p), self.gather(xb, p)) for p in (0, 1)]
         cmap, lib = self.cmap, self.lib
         if self._index_w is None or self._index_w[0] is not cmap.weights_:
@@ -805,7 +814,8 @@ def still_weight(qa: Seams, qb: Seams, leg: float, up: int, travel: float = 0.0,
     return weight
 
 
-def confidences(distance, still: float, upper: float, both: bool = True, *, align: bool) -> list[float]:
+def confidences(distance, still: float, upper: float, both: bool = True, *, align: bool,
+                own: bool = False) -> list[float]:
     """The confidence (0..1) of each body part of a match, from its match distances (degrees,
     :meth:`Retriever.seam_distances`), :func:`still_weight` and :func:`upper_weight`.
 
@@ -831,14 +841,24 @@ def confidences(distance, still: float, upper: float, both: bool = True, *, alig
     motion, and the wide ramps gave mixed results. The measurements (every Bandai split, LaFAN1,
     CMU, a library far from the clips, the ramps tried and not kept) are in
     ``docs/retrieval.md``, "Wide ramps in in-betweening".
+
+    ``own``: the segments are the clips' own motion (:func:`posturemap.synth.library.own_library`).
+    Where the body stands at both seams (``still`` 0: a bow, a wave), another performance's
+    arms are interpolated instead, but the performer's own wave goes on as they waved it: the
+    upper body then keeps the confidence of its match distance over :data:`OWN_STANDING_RANGE`
+    (the legs' ramp without ``still`` in place of ``lower``), if that is the higher.
     """
     def ramp(x, lo, hi):
         return min(max((hi - x) / (hi - lo), 0.0), 1.0)
 
     lo, hi = CONF_RANGE[bool(align)]
-    lower = ramp(distance[0], lo, hi) * still
+    legs = ramp(distance[0], lo, hi)
+    lower = legs * still
     if both:
-        return [lower, ramp(distance[1], *UPPER_CONF_RANGE[bool(align)]) * min(lower / UPPER_FOLLOWS, 1.0) * upper]
+        arms = ramp(distance[1], *UPPER_CONF_RANGE[bool(align)]) * min(lower / UPPER_FOLLOWS, 1.0) * upper
+        if own:  # the performer's own gesture goes on where the body stands (see OWN_STANDING_RANGE)
+            arms = max(arms, ramp(distance[1], *OWN_STANDING_RANGE) * min(legs / UPPER_FOLLOWS, 1.0) * upper)
+        return [lower, arms]
     return [lower, ramp(distance[1], lo, hi) * still * upper]
 
 
@@ -1222,7 +1242,14 @@ class Match:
     lib: MotionLibrary
     weights: list = field(default_factory=lambda: [None, None])
     still: float = 1.0  # still_weight: 0 where the body stands at both seams (a standing gesture)
+    own: bool = False  # the segments are the clips' own motion (a Retriever with ``whole``)
     _info: dict | None = field(default=None, repr=False)
+
+    @property
+    def cost(self) -> float:
+        """The best segment's cost of each body part, summed: what a search over the clips' own
+        motion is weighed against the library's by (both on the library's feature scales)."""
+        return sum(float(f[2][0]) for f in self.found)
 
     @property
     def info(self) -> dict:
@@ -1243,6 +1270,8 @@ class Match:
                     "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
                     "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
+            if self.own:  # the clips' own frames: A's before its end, B's from its start
+                self._info["own"] = True
             if self.still <= 0.0:  # why every part is interpolated, whatever the match distance
                 self._info["standing"] = True
         return self._info
@@ -1314,8 +1343,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         dist = rt.seam_distances([(p, found[p][1][0], found[p][1][0]) for p in (0, 1)], xb, xb)
     else:
         dist = rt.seam_distances([(p, found[p][0][0], found[p][1][0]) for p in (0, 1)], xa, xb)
-    conf = confidences(dist, still, upper_weight(length, fps), seam == "both", align=align)
-    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights, still)
+    conf = confidences(dist, still, upper_weight(length, fps), seam == "both", align=align, own=rt.whole)
+    return Match(ta, tb, ia, ib, length, align, found, dist, conf, lib, weights, still, rt.whole)
 
 
 def _displacement(ta, tb, a_end: int, b_start: int, up: int) -> tuple[float, float, float]:

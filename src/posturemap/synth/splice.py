@@ -207,6 +207,8 @@ def spliced(rt, ta, tb, a_end: int, b_start: int, length: int, alpha: float,
     centre, width = splice_blend(alpha)
     info = {"parts": parts, "confidence": round(min(conf), 3),
             "splice": {"centre": round(centre, 3), "width": round(width, 3)}}
+    if first.own:  # the clips' own motion (a Retriever with ``whole``)
+        info["own"] = True
     # The match distance the report gives: the half continuing A's.
     return Result(rots, gpos, heading, dtheta, shift, contacts, info, conf, first.distance)
 

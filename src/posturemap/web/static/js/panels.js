@@ -118,10 +118,11 @@ function showRetrieval(res) {
   const r = res.retrieval;
   el.hidden = r === undefined;
   if (r === undefined) return;
-  el.textContent = !r ? 'No library motion fits: interpolated (fallback).'
-    : Object.entries(r.parts).map(([part, p]) => `${part}: ${source(p)}`
-      + (p.then ? ` → then ${source(p.then)}` : '')
-      + ` · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
+  el.textContent = !r ? 'No real motion fits (library or the clips\' own frames): interpolated (fallback).'
+    : (r.own ? 'The clips\' own motion (A before its end, B from its start):\n' : '')
+      + Object.entries(r.parts).map(([part, p]) => `${part}: ${source(p)}`
+        + (p.then ? ` → then ${source(p.then)}` : '')
+        + ` · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
 }
 
 // ---- map status --------------------------------------------------------------------------
