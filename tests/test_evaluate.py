@@ -202,6 +202,60 @@ def test_every_window_is_rebuilt_from_its_own_context(sample_clips):
     assert not np.allclose(preds["spline"][0][0], preds["spline"][0][1])  # each window its own
 
 
+def test_a_gap_in_a_take_is_rebuilt_from_the_clip_but_the_gap(sample_clips):
+    from posturemap.learn.model import PostureMap
+    from posturemap.core.motion import Motion
+
+    walk = sample_clips["walk"]
+    model = PostureMap(seed=0).fit([sample_clips["run"]])  # a library without the walk
+    windows, length = [(0, 5), (0, 40)], 12
+    preds, own = evaluate.predict_whole_clip(model, [walk], windows, length)
+    assert set(preds) == set(own) == set(evaluate.WHOLE_CLIP)
+    default, library_only = evaluate.WHOLE_CLIP
+    assert own[library_only] == 0.0 and 0.0 < own[default] <= 1.0  # the walk's own steps replayed
+    # The frames of a window's gap are never read: garbled, they change nothing in it (the
+    # quaternions' signs, chosen continuous through a clip, within rounding).
+    rng = np.random.default_rng(0)
+    for i, (_, s) in enumerate(windows):
+        rots = walk.rotations.copy()
+        q = rng.normal(size=rots[s + N_PAST: s + N_PAST + length].shape)
+        rots[s + N_PAST: s + N_PAST + length] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        garbled = Motion(walk.skeleton, rots, walk.positions, walk.fps)
+        again, _ = evaluate.predict_whole_clip(model, [garbled], [windows[i]], length)
+        for label in preds:
+            assert np.all(np.abs(np.sum(preds[label][0][i] * again[label][0][0], axis=-1)) > 1 - 1e-12), label
+            np.testing.assert_allclose(preds[label][1][i], again[label][1][0], rtol=0, atol=1e-9)
+    # Each window is what an engine holding the clip before and after its gap makes.
+    for i, (_, s) in enumerate(windows):
+        for label, seconds in evaluate.WHOLE_CLIP.items():
+            eng = TransitionEngine(model)
+            if seconds is not None:
+                eng.own_seconds = seconds
+            eng.add("a", walk[: s + N_PAST])
+            eng.add("b", walk[s + N_PAST + length:])
+            r, p = eng.generate("a", "b", length=length, a_end=s + N_PAST - 1, b_start=0, align=False)
+            np.testing.assert_array_equal(preds[label][0][i], r)
+            np.testing.assert_array_equal(preds[label][1][i], p)
+
+
+def test_whole_clip_ratios_divide_by_slerp_and_the_truth_and_average_the_splits():
+    def per(l2q, skate):
+        return {str(n): {"l2q": l2q * n, "l2p": 2 * l2q * n, "skate": skate} for n in report.SKATE_LENGTHS}
+
+    def split(a, truth_skate):
+        return {"methods": {"slerp": per(1.0, 8.0)}, "truth": {str(n): {"skate": truth_skate} for n in report.SKATE_LENGTHS},
+                "default_method": "auto+feet", "whole_clip": {"methods": {"auto+feet": per(a, 2.0)}}}
+
+    results = {"holdouts": {"style": {"inbetween": split(0.5, 4.0)}, "cmu": {"inbetween": split(9.0, 1.0)}},
+               "more_splits": {"styles-2": split(0.3, 1.0)}}
+    ratios = report.whole_clip_ratios(results)
+    assert set(ratios) == {"style", "styles-2", "mean"}  # Bandai splits only: not CMU
+    assert ratios["style"]["30"] == pytest.approx({"l2q": 0.5, "l2p": 0.5, "skate": 0.5})
+    assert ratios["mean"]["45"] == pytest.approx({"l2q": 0.4, "l2p": 0.4, "skate": 1.25})
+    del results["more_splits"]["styles-2"]["whole_clip"]  # results of code without it
+    assert report.whole_clip_ratios(results) is None
+
+
 # -- on real data -------------------------------------------------------------------------------
 # The checks below run on a smaller run than `posturemap bench --quick` (a third of its training
 # clips, 3 windows, 2 pairs, no plots: a few seconds); the slow set runs them on the real quick
@@ -295,6 +349,15 @@ def test_quick_run_has_every_hold_out_method_length_and_finite_metrics(quick):
     # the largest step and acceleration of every transition are far over the real frames' own.
     zero = cross["methods"]["zero-velocity"]
     assert zero["step_ratio"] > 1.5 and zero["accel_ratio"] > 1.5 and zero["accels_over_1_5"] == cross["pairs"]
+    for name, hold in holds.items():  # a gap in a take: the default with the whole clip as context
+        inb = hold["inbetween"]
+        wc, lengths = inb["whole_clip"], [str(n) for n in inb["lengths"]]
+        assert set(wc["methods"]) == set(evaluate.WHOLE_CLIP)
+        for label, per_length in wc["methods"].items():
+            assert set(per_length) == set(lengths)
+            assert all(math.isfinite(v) for v in _finite_numbers(per_length)), (name, label)
+            assert all(0.0 <= wc["own_share"][label][n] <= 1.0 for n in lengths)
+        assert sum(c["windows"] for c in wc["per_content"].values()) == inb["windows"]
     assert holds["cmu"]["cross_clip"] is None  # one test clip
     assert set(results["speed"]["latency"]) == set(METHODS) - {"zero-velocity"}
     assert all(v["median_us"] > 0 for v in results["speed"]["latency"].values())
@@ -341,6 +404,9 @@ def test_quick_run_more_splits(quick):
                 assert {"l2q", "l2p", "skate"} <= set(scores)
                 assert all(math.isfinite(v) and v > 0 for v in scores.values()), (name, m)
         assert all(t["skate"] > 0 for t in sp["truth"].values())
+        for label, per_length in sp["whole_clip"]["methods"].items():
+            assert set(per_length) == {str(n) for n in evaluate.SPLIT_LENGTHS}
+            assert all(math.isfinite(v) and v > 0 for scores in per_length.values() for v in scores.values())
         # slerp glides the feet where the default steps: never less skate than the truth's here
         assert all(sp["methods"]["slerp"][n]["skate"] > sp["truth"][n]["skate"] for n in ("30", "45"))
 

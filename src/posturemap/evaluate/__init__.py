@@ -62,6 +62,11 @@ velocity features in the character's frame); pose validity (distance to the near
 posture in the map's feature space) and jerk (cm/s^3). Beside each realism figure, the truth's.
 Every method against slerp, window by window, with a bootstrap interval.
 
+A gap in a take (:data:`WHOLE_CLIP`, :func:`predict_whole_clip`): the same windows again for
+the default, given the whole test clip but the gap as context (A up to the last past frame, B
+from the first future frame), as it runs (the clips' own motion searched beside the library) and
+with the library only; scored like the methods, on the hold-outs and the more splits.
+
 More splits (:data:`MORE_SPLITS`, :func:`run_split`): four more splits of bandai1, two holding
 out other whole styles (childish, giant, tired; chimpira, musical, sad) and two other whole
 motion types (walk-left, run, bye; walk, guide), with the same protocol at 15, 30 and 45
@@ -92,10 +97,12 @@ from .protocol import (ASF_UNIT_CM, CMU_FILE, CMU_LENGTHS, CROSS_LENGTH, DEFAULT
                        HOLDOUTS, LENGTHS, METHODS, MORE_SPLITS, N_FUTURE, N_PAST, QUALITY_KEYS, SPLIT_LENGTHS,
                        SPLIT_METHODS, STATS_STRIDE,
                        STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS, TEST_STYLES, UNIT_CM,
-                       VARIANTS, Settings, Split, load_split, make_windows, method_spec, parse_name,
+                       VARIANTS, WHOLE_CLIP, Settings, Split, load_split, make_windows, method_spec,
+                       parse_name,
                        random_pairs, split_files, unit_cm, window_starts)
 from .runner import (clips_in, code_version, default_data_dir, empty_engines, generate_from_context,
-                     make_engines, predict_windows, prepare, round_per_window, run, run_cli, run_cross,
+                     make_engines, predict_whole_clip, predict_windows, prepare, round_per_window, run, run_cli,
+                     run_cross,
                      run_diagnostics, run_holdout, run_inbetween, run_split, sweep)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, PER_CONTENT_KEYS, Context, global_windows,
                       natural_frames, natural_reference, naturalness_fn, paired_difference, per_content,
@@ -108,10 +115,11 @@ __all__ = ["report", "KeyModel", "KeyTable", "centred", "engine_call", "fixed_ke
            "LENGTHS", "METHODS", "MORE_SPLITS", "N_FUTURE", "N_PAST", "SPLIT_LENGTHS", "SPLIT_METHODS",
            "QUALITY_KEYS", "STATS_STRIDE", "STATS_WINDOW",
            "STRIDE", "SWEEP_FRACTIONS", "SWEEP_LENGTHS", "TEST_CONTENTS", "TEST_STYLES", "UNIT_CM",
-           "VARIANTS", "Settings", "Split", "load_split", "make_windows", "method_spec",
+           "VARIANTS", "WHOLE_CLIP", "Settings", "Split", "load_split", "make_windows", "method_spec",
            "parse_name", "random_pairs", "split_files", "unit_cm", "window_starts", "code_version",
            "default_data_dir", "generate_from_context", "clips_in", "empty_engines", "round_per_window",
-           "make_engines", "predict_windows", "prepare", "run", "run_cli", "run_cross", "run_diagnostics",
+           "make_engines", "predict_whole_clip", "predict_windows", "prepare", "run", "run_cli", "run_cross",
+           "run_diagnostics",
            "run_holdout", "run_inbetween", "run_split", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S",
            "PER_CONTENT_KEYS", "Context",
            "global_windows", "natural_frames", "natural_reference", "naturalness_fn", "paired_difference",

@@ -49,6 +49,11 @@ def method_spec(m: str) -> tuple[str, bool]:
     return (m[: -len(FEET)], True) if m.endswith(FEET) else (m, False)
 
 
+# In-betweening of a gap in a take: A is the test clip up to the last past frame and B the clip
+# from the first future frame (the whole clip but the gap, where the protocol above gives 10 frames
+# each). The default as it runs (the clips' own motion searched beside the library) and with the
+# library only (TransitionEngine.own_seconds = 0): label -> own_seconds (None: the engine's default).
+WHOLE_CLIP = {DEFAULT_SPEC: None, DEFAULT_SPEC + ", library only": 0.0}
 VARIANTS = ("blend-key", "oracle-key", "self-map-key", "spline-v0", "blend-key-v0", "upm-lerp-root")
 SWEEP_LENGTHS = (15, 30, 45)
 SWEEP_FRACTIONS = (0.25, 0.5, 0.75)

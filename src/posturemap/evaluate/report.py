@@ -15,6 +15,7 @@ import numpy as np
 
 from . import metrics
 from ..learn.features import CLASSES
+from .protocol import N_PAST
 
 HOLDOUT_TITLES = {
     "style": "Style hold-out (unseen styles of known motion types)",
@@ -260,6 +261,8 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
         body.append(["truth", "", "", "", _series(pc["truth"], lengths, "skate"),
                      _series(pc["truth"], lengths, "naturalness")])
         _table(r, ["method", "L2Q", "L2P", "MPJPE cm", "skate cm/s", "naturalness"], body)
+    if inb.get("whole_clip"):
+        _whole_clip_section(r, inb)
     cc = hold.get("cross_clip")
     if cc:
         r.append(f"### Transitions between different clips ({cc['pairs']} seeded random pairs of test clips, "
@@ -285,6 +288,44 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
                  "limb set off or stopped at once, a knee snapped straight.\n")
 
 
+def _whole_clip_section(r: list[str], inb: dict) -> None:
+    """A gap in a take: the default given the whole clip as context, beside the protocol's."""
+    wc, lengths, default = inb["whole_clip"], inb["lengths"], inb["default_method"]
+    labels = list(wc["methods"])
+    r.append("### A gap in a take: the whole clip as context\n")
+    r.append(f"The same windows, but A is the test clip up to the last past frame and B the clip from the first "
+             f"future frame: everything but the gap, where the protocol above gives {N_PAST} frames each (a gap "
+             "in a take to fill, as `posturemap transition take.bvh take.bvh --a-end I --b-start J --no-align` "
+             "gives it). The default also searches the clips' own motion beside the library "
+             "(`TransitionEngine.own_seconds`; docs/retrieval.md, \"The clips' own motion\"); "
+             f"\"{labels[-1]}\" does not. Ratios to slerp's (slerp reads the seams only: its figures are "
+             "those above), slerp's own value in its row; the skate in cm/s.\n")
+    body = []
+    for k, title in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE cm")):
+        ref = [inb["methods"]["slerp"][str(n)][k] for n in lengths]
+        body.append([f"{title}: slerp"] + ref)
+        body.append([f"{title}: {default}, {N_PAST} frames each side"]
+                    + [f"{inb['methods'][default][str(n)][k] / v:.3f}x" for n, v in zip(lengths, ref)])
+        for label in labels[::-1]:
+            body.append([f"{title}: {label}, whole clip"]
+                        + [f"{wc['methods'][label][str(n)][k] / v:.3f}x" for n, v in zip(lengths, ref)])
+    for label in labels[::-1]:
+        body.append([f"skate: {label}, whole clip"] + [wc["methods"][label][str(n)]["skate"] for n in lengths])
+    body.append(["skate: truth"] + [inb["truth"][str(n)]["skate"] for n in lengths])
+    body.append([f"windows replaying the clips' own motion ({labels[0]})"]
+                + [f"{100 * wc['own_share'][labels[0]][str(n)]:.0f}%" for n in lengths])
+    _table(r, ["measure"] + [f"L={n}" for n in lengths], body)
+    if wc.get("per_content"):
+        r.append(f"Per motion type, {labels[0]} with the whole clip: L2Q and L2P as ratios to slerp's at L = "
+                 + ", ".join(map(str, lengths)) + ".\n")
+        body = []
+        for content, pc in wc["per_content"].items():
+            sl = inb["per_content"][content]["methods"]["slerp"]
+            body.append([content, pc["windows"]] + [" ".join(f"{pc['methods'][labels[0]][str(n)][k] / sl[str(n)][k]:.2f}"
+                                                             for n in lengths) for k in ("l2q", "l2p")])
+        _table(r, ["content", "windows", "L2Q / slerp", "L2P / slerp"], body)
+
+
 def markdown(results: dict) -> str:
     """results.md from the results dict (as in results.json: the report can be redone from it)."""
     r = []
@@ -303,6 +344,16 @@ def markdown(results: dict) -> str:
              f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames.\n")
     for name, hold in holds.items():
         _acceptance_rows(r, name, hold["inbetween"])
+    whole = [(name, hold["inbetween"]) for name, hold in holds.items() if hold["inbetween"].get("whole_clip")]
+    if whole:
+        r.append(f"**A gap in a take** (the same windows with the whole clip as context instead of {N_PAST} frames "
+                 "each side; see each hold-out's section): the default's L2Q and L2P as ratios to slerp's at "
+                 + " and ".join(map(str, GOAL_LENGTHS)) + " frames: "
+                 + "; ".join(f"{name} " + ", ".join(
+                     k.upper() + " " + " / ".join(
+                         f"{inb['whole_clip']['methods'][inb['default_method']][str(n)][k] / inb['methods']['slerp'][str(n)][k]:.3f}"
+                         for n in GOAL_LENGTHS) for k in ("l2q", "l2p"))
+                     for name, inb in whole if all(str(n) in inb["methods"]["slerp"] for n in GOAL_LENGTHS)) + ".\n")
     ratios = split_ratios(results) if results.get("more_splits") else None
     default = next(iter(holds.values()))["inbetween"]["default_method"]
     if ratios:
@@ -351,7 +402,7 @@ def markdown(results: dict) -> str:
     for name, hold in holds.items():
         _holdout_section(r, name, hold, cfg)
     if ratios:
-        _splits_section(r, results["more_splits"], ratios, default)
+        _splits_section(r, results["more_splits"], ratios, default, whole_clip_ratios(results))
     if results.get("diagnostics"):
         _diagnostics_section(r, results)
     _speed_section(r, results)
@@ -383,7 +434,24 @@ def split_ratios(results: dict) -> dict:
     return out
 
 
-def _splits_section(r: list[str], splits: dict, ratios: dict, default: str) -> None:
+def whole_clip_ratios(results: dict) -> dict | None:
+    """:func:`split_ratios` of the default with the whole clip as context (``whole_clip``), per
+    Bandai split and their mean; None where a split lacks it (results of older code)."""
+    tables = {name: hold["inbetween"] for name, hold in results["holdouts"].items() if name in ("style", "content")}
+    tables.update(results.get("more_splits", {}))
+    if not tables or any(t.get("whole_clip") is None for t in tables.values()):
+        return None
+    default = next(iter(results["holdouts"].values()))["inbetween"]["default_method"]
+    out = {name: {str(n): {"l2q": t["whole_clip"]["methods"][default][str(n)]["l2q"] / t["methods"]["slerp"][str(n)]["l2q"],
+                           "l2p": t["whole_clip"]["methods"][default][str(n)]["l2p"] / t["methods"]["slerp"][str(n)]["l2p"],
+                           "skate": t["whole_clip"]["methods"][default][str(n)]["skate"] / t["truth"][str(n)]["skate"]}
+                   for n in SKATE_LENGTHS} for name, t in tables.items()}
+    out["mean"] = {str(n): {k: float(np.mean([out[s][str(n)][k] for s in tables])) for k in ("l2q", "l2p", "skate")}
+                   for n in SKATE_LENGTHS}
+    return out
+
+
+def _splits_section(r: list[str], splits: dict, ratios: dict, default: str, whole: dict | None = None) -> None:
     lengths = " / ".join(str(n) for n in SKATE_LENGTHS)
     r.append("## More splits of bandai1\n")
     r.append("The style and content hold-outs above are one split of bandai1 each, and the default's rules "
@@ -406,6 +474,13 @@ def _splits_section(r: list[str], splits: dict, ratios: dict, default: str) -> N
     r.append(f"The default ({default}) over all {len(ratios) - 1} splits: L2Q "
              + " and ".join(f"{g:.3f}x" for g in goal) + f" slerp's at {' and '.join(map(str, GOAL_LENGTHS))} "
              f"frames (goal: {GOAL_FACTOR:g}x).\n")
+    if whole:
+        r.append(f"A gap in a take (the whole clip as context instead of {N_PAST} frames each side), every split: "
+                 f"the default's L2Q and L2P as ratios to slerp's, its skate to the truth's, at {lengths} frames.\n")
+        _table(r, ["split", f"L2Q / slerp at {lengths}", f"L2P / slerp at {lengths}", f"skate / truth at {lengths}"],
+               [[f"**{name}**" if name == "mean" else name]
+                + [" ".join(f"{v[str(n)][k]:.2f}" for n in SKATE_LENGTHS) for k in ("l2q", "l2p", "skate")]
+                for name, v in whole.items()])
     for name, sp in splits.items():
         r.append(f"### {name}: {sp['rule']}\n")
         r.append(f"{sp['test_clips']} test clips, {sp['windows']} windows; {sp['train_clips']} training clips. "

@@ -21,8 +21,8 @@ from . import report
 from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
 from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
                        SPLIT_METHODS, STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS,
-                       TEST_CONTENTS, TEST_STYLES, VARIANTS, Settings, Split, _log, load_split, make_windows,
-                       random_pairs, window_starts)
+                       TEST_CONTENTS, TEST_STYLES, VARIANTS, WHOLE_CLIP, Settings, Split, _log, load_split,
+                       make_windows, method_spec, random_pairs, window_starts)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, foot_float, global_windows, natural_reference,
                       naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
                       score_truth, skate_scores, truth_globals, window_features)
@@ -160,6 +160,32 @@ def predict_windows(engines: dict, methods, test: list, windows, length: int):
     return truth_r, truth_p, preds
 
 
+def predict_whole_clip(model, test: list, windows, length: int) -> tuple[dict, dict]:
+    """The default's rebuilt gap of every window given the whole clip as context (:data:`WHOLE_CLIP`):
+    A is the test clip up to the window's last past frame, B the clip from its first future
+    frame (``align=False``); neither holds a frame of the gap. Returns ``({label: (rotations
+    (W, length, J, 4), positions (W, length, J, 3))}, {label: the share of windows whose
+    retrieval replayed the clips' own motion})``."""
+    eng = TransitionEngine(model)
+    base, feet = method_spec(DEFAULT_SPEC)
+    preds, own, default = {}, {}, eng.own_seconds
+    for label, seconds in WHOLE_CLIP.items():
+        eng.own_seconds = default if seconds is None else seconds
+        r_out, p_out, count = None, None, 0
+        for i, (c, s) in enumerate(windows):
+            eng.add("_past", test[c][: s + N_PAST])
+            eng.add("_future", test[c][s + N_PAST + length:])
+            r, p = eng.generate("_past", "_future", length=length, a_end=s + N_PAST - 1, b_start=0, align=False,
+                                method=base, foot_lock=feet)
+            if r_out is None:
+                r_out, p_out = np.empty((len(windows),) + r.shape), np.empty((len(windows),) + p.shape)
+            r_out[i], p_out[i] = r, p
+            count += bool((eng.last.get("retrieval") or {}).get("own"))
+        eng.tracks.clear()
+        preds[label], own[label] = (r_out, p_out), count / max(len(windows), 1)
+    return preds, own
+
+
 def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                   diagnostics: bool = False) -> tuple[dict, dict, dict]:
     """Scores per method and length, the truth's, per content, the diagnostics; plus curves
@@ -169,7 +195,8 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
     test, lengths = state["test"], state["split"].lengths
     res = {"windows": len(windows), "lengths": list(lengths), "methods": {m: {} for m in METHODS},
            "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS},
-           "window_list": [[state["test_files"][c], s] for c, s in windows]}
+           "window_list": [[state["test_files"][c], s] for c, s in windows],
+           "whole_clip": {"methods": {v: {} for v in WHOLE_CLIP}, "own_share": {v: {} for v in WHOLE_CLIP}}}
     diag = {"key_distance": {}, "key_distance_by_class": {}, "variants": {v: {} for v in VARIANTS},
             "sweep": {}} if diagnostics else {}
     example = {}
@@ -188,6 +215,10 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
             res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=nat[k],
                                                    truth_g=truth_g)
         res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=nat[-1])
+        whole, own = predict_whole_clip(state["model"], test, windows, length)
+        for v, (r, p) in whole.items():
+            res["whole_clip"]["methods"][v][n] = score_inbetween(ctx, truth_r, truth_p, r, p, length, truth_g=truth_g)
+            res["whole_clip"]["own_share"][v][n] = own[v]
         for m in METHODS:
             res["vs_slerp"][m][n] = {
                 k: paired_difference(res["methods"][m][n]["per_window"][k],
@@ -212,7 +243,9 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
         r = res["methods"]
         log(f"  in-betweening L={length}: {len(windows)} windows in {time.perf_counter() - t0:.1f} s; "
             + ", ".join(f"{m} L2Q {r[m][n]['l2q']:.3f}" for m in METHODS))
-    res["per_content"] = per_content(res, [state["split"].contents[c] for c, _ in windows])
+    contents = [state["split"].contents[c] for c, _ in windows]
+    res["per_content"] = per_content(res, contents)
+    res["whole_clip"]["per_content"] = per_content({**res["whole_clip"], "truth": res["truth"]}, contents)
     return res, diag, example
 
 
@@ -444,7 +477,8 @@ def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log
     out = {"rule": split.rule, "train_clips": len(split.train), "train_clips_all": split.train_clips_all,
            "test_clips": len(split.test), "windows": len(windows), "lengths": list(split.lengths),
            "train_files": list(split.train_names), "test_files": list(split.test_names),
-           "methods": {m: {} for m in SPLIT_METHODS}, "truth": {}}
+           "methods": {m: {} for m in SPLIT_METHODS}, "truth": {},
+           "whole_clip": {"methods": {v: {} for v in WHOLE_CLIP}, "own_share": {v: {} for v in WHOLE_CLIP}}}
     t0 = time.perf_counter()
     for length in split.lengths:
         truth_r, truth_p, preds = predict_windows(engines, SPLIT_METHODS, test, windows, length)
@@ -453,6 +487,11 @@ def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log
         for m in SPLIT_METHODS:
             out["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, accuracy_only=True,
                                                    truth_g=truth_g)
+        whole, own = predict_whole_clip(state["model"], test, windows, length)
+        for v, (r, p) in whole.items():
+            out["whole_clip"]["methods"][v][n] = score_inbetween(ctx, truth_r, truth_p, r, p, length,
+                                                                 accuracy_only=True, truth_g=truth_g)
+            out["whole_clip"]["own_share"][v][n] = own[v]
         out["truth"][n] = {"skate": float(skate_scores(ctx, truth_g[1], steps)[0].mean())}
     log(f"  {name}: {len(windows)} windows from {len(test)} test clips in {time.perf_counter() - t0:.1f} s; "
         + ", ".join(f"{m} L2Q at 30 {out['methods'][m]['30']['l2q']:.3f}" for m in SPLIT_METHODS
