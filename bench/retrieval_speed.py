@@ -1,4 +1,4 @@
-"""Retrieval transitions: latency, scaling with the library, and the index against its peers.
+"""Retrieval transitions: latency, scaling with the library, in-betweening, and the index against its peers.
 
 All on Bandai-Namco dataset 1 (``<data>/bandai1``), a map (with its motion library) trained on
 every clip with default parameters, every clip prepared once in a
@@ -13,6 +13,12 @@ every clip with default parameters, every clip prepared once in a
   map is the same; the copies' frames are indexed through it), on a second engine interleaved
   call by call with the first, so that the 10x / 1x ratio does not depend on how busy the
   shared machine was in one part of the run or another;
+- **in-betweening**: one 30-frame gap inside a clip (B the same clip, kept where it is; seeded
+  draws of clips of at least 90 frames and of the gap's place), the default (``auto`` + foot
+  lock) as it runs, searching the clips' own motion (A's frames before the gap, B's after it)
+  beside the library, against the same with the library only (``own_seconds`` 0) and SLERP,
+  interleaved call by call; each call's seams are new, so each builds its own-motion search
+  (one built for a seam pair is kept for the next call on it, as a slider's);
 - **index**: how the candidate frames are found, each followed by the same exact re-rank of
   the same cost (:meth:`posturemap.synth.retrieval.Retriever.search`), against the exhaustive search
   (every start frame of the library with every warp):
@@ -84,6 +90,32 @@ def time_methods(engines: dict, names, lengths, calls, rng) -> dict:
                             method=m, foot_lock=feet)
             times[label, m].append(time.perf_counter_ns() - t0)
     return {label: {m: _stats(times[label, m]) for m, _ in METHODS} for label in engines}
+
+
+def time_inbetween(engine, names, lengths, calls, rng) -> dict:
+    """Median/p99 (us) of one ``LENGTH``-frame gap inside a clip (``align=False``): the default as it
+    runs, with the library only, and SLERP, interleaved call by call as :func:`time_methods`."""
+    default = engine.own_seconds
+    runs = (("default", "auto", True, default), ("default, library only", "auto", True, 0.0),
+            ("slerp", "slerp", False, default))
+    long = [i for i, n in enumerate(lengths) if n >= 3 * LENGTH]
+    draws = []
+    for _ in range(calls + 20):
+        c = long[int(rng.integers(len(long)))]
+        a_end = int(rng.integers(1, lengths[c] - LENGTH - 2))
+        draws.append((names[c], a_end, float(rng.random())))
+    times = {label: [] for label, *_ in runs}
+    for i, (name, a_end, alpha) in enumerate(draws):
+        k = i % len(runs)
+        for label, m, feet, seconds in runs[k:] + runs[:k]:
+            engine.own_seconds = seconds
+            t0 = time.perf_counter_ns()
+            engine.generate(name, name, length=LENGTH, alpha=alpha, a_end=a_end, b_start=a_end + LENGTH + 1,
+                            align=False, method=m, foot_lock=feet)
+            if i >= 20:  # the first 20: warm-up
+                times[label].append(time.perf_counter_ns() - t0)
+    engine.own_seconds = default
+    return {label: _stats(t) for label, t in times.items()}
 
 
 def seam_queries(rt, engine, names, lengths, count, rng):
@@ -200,6 +232,10 @@ def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
     log(f"  10x library ({len(big)} frames, built in {build_s:.1f} s): retrieval median "
         f"{latency_big['retrieval']['median_us']:.0f} us")
 
+    inbetween = time_inbetween(engine, names, lengths, calls, np.random.default_rng(seed + 3))
+    for m, s in inbetween.items():
+        log(f"  in-betweening, {m}: median {s['median_us']:.0f} us, p99 {s['p99_us']:.0f} us")
+
     rt = Retriever(engine, lib)
     queries = seam_queries(rt, engine, names, lengths, 40 if quick else 200, np.random.default_rng(seed + 2))
     indexes = compare_indexes(rt, queries, log)
@@ -209,6 +245,7 @@ def run(data_dir, quick: bool = False, seed: int = 0, log=print) -> dict:
         "length": LENGTH, "calls": calls, "latency": latency,
         "library_10x": {"frames": len(big), "copies": COPIES, "jitter_deg": JITTER_DEG, "latency": latency_big,
                         "ratio": latency_big["retrieval"]["median_us"] / latency["retrieval"]["median_us"]},
+        "inbetween": inbetween,
         "index": {"queries": len(queries), "results": indexes},
     }
 
@@ -231,8 +268,19 @@ def markdown(result: dict, command: str | None = None) -> str:
                      f"{s['p99_us'] / 1e3:.2f} ms | {s['median_us'] / base:.1f}x | {b['median_us'] / 1e3:.2f} ms | "
                      f"{b['p99_us'] / 1e3:.2f} ms | {b['median_us'] / s['median_us']:.2f}x |")
     lines += ["", f"The 10x library: {big['frames']} frames ({big['copies']} copies of every clip, rotations "
-              f"jittered by about {big['jitter_deg']:g} degree).", "",
-              f"Index against the exhaustive search ({result['index']['queries']} cross-clip queries, both body "
+              f"jittered by about {big['jitter_deg']:g} degree).", ""]
+    if "inbetween" in result:
+        inb = result["inbetween"]
+        lines += [f"In-betweening: one {result['length']}-frame gap inside a clip (B kept where it is), "
+                  f"{result['calls']} seeded calls each, interleaved:", "",
+                  "| method | median | p99 | median / SLERP |", "| --- | ---: | ---: | ---: |"]
+        note = {"default": " (the clips' own motion searched too)"}
+        for m, s in inb.items():
+            lines.append(f"| {m}{note.get(m, '')} | "
+                         f"{s['median_us'] / 1e3:.2f} ms | {s['p99_us'] / 1e3:.2f} ms | "
+                         f"{s['median_us'] / inb['slerp']['median_us']:.1f}x |")
+        lines.append("")
+    lines += [f"Index against the exhaustive search ({result['index']['queries']} cross-clip queries, both body "
               "parts; the same exact re-rank after each):", "",
               "| index | search median | p99 | recall@1 | best cost / exhaustive (mean) | p90 |",
               "| --- | ---: | ---: | ---: | ---: | ---: |"]

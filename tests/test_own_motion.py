@@ -197,3 +197,30 @@ def test_the_command_line_without_a_map_fills_a_gap_from_the_takes_kept_frames(c
         made.append(bvh.read(out))
     # Within the BVH text's six decimals (the written rotations of the gap differ, their signs with them).
     np.testing.assert_allclose(made[0].global_positions(), made[1].global_positions(), rtol=0, atol=1e-4)
+
+
+def test_a_piece_of_a_clip_is_computed_from_its_own_frames_as_a_clip_of_them_would_be(model, clips):
+    # own_library slices what own_frames computes once per clip; each piece must be what the
+    # library's own code makes of the piece's frames as a clip of their own (velocities at its
+    # first frame toward the next, its own floor and ankle speeds), so that nothing outside it
+    # is read.
+    from posturemap.core.joints import leg_chains
+    from posturemap.synth.library import clip_contacts, clip_features, own_frames, own_library
+
+    eng = TransitionEngine(model)
+    tr = eng.add("take", clips["walk-back_old_001"])
+    lib = model.library_
+    keys = np.concatenate([lib.lower, lib.upper])
+    ankles = [c[2] for c in leg_chains(tr.motion.skeleton)]
+    frames = own_frames(tr, keys, ankles, 1)
+    for lo, hi in ((0, 101), (131, 282), (57, 60), (140, 141)):
+        own = own_library([("take", tr, lo, hi, frames)], 1, lib.leg, lib.lower, lib.upper, lib.scale)
+        piece = tr.motion[lo:hi]
+        gp = fk(piece.skeleton.parents, piece.rotations, piece.positions)[1]
+        pose, vel, root = clip_features(gp, tr.gpos[lo:hi], tr.heading[lo:hi], keys, 1, piece.fps)
+        np.testing.assert_allclose(own.pose, pose.astype(np.float32), rtol=1e-6, atol=1e-4)
+        np.testing.assert_allclose(own.vel, vel.astype(np.float32), rtol=1e-6, atol=1e-3)
+        np.testing.assert_allclose(own.root, root.astype(np.float32), rtol=1e-6, atol=1e-3)
+        assert np.array_equal(own.contacts, clip_contacts(gp[:, ankles], 1, piece.fps, lib.leg)), (lo, hi)
+        assert np.array_equal(own.rots, tr.rots[lo:hi].astype(np.float32)) and np.array_equal(own.scale, lib.scale)
+        assert own.source_frames(0, hi - lo - 1) == ("take", lo, hi - 1)

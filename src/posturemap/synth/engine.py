@@ -64,7 +64,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..core import kernels, quat
-from ..core.joints import ancestors, arm_chains, leg_chains, leg_length, leg_toes
+from ..core.joints import ancestors, arm_chains, key_joints, leg_chains, leg_length, leg_toes
 from ..core.skeleton import chain_world
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
 from ..errors import UserError
@@ -75,7 +75,7 @@ from .bases import (DAMPED_GAP_SHARE, DAMPED_PEAK, DAMPED_REACH_SHARE, DAMPED_SA
 from . import hinges, retrieval
 from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
-from .library import MotionLibrary, own_library
+from .library import MotionLibrary, own_frames, own_library
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
@@ -126,7 +126,14 @@ class TransitionEngine:
         self._legs = []
         self._retriever = None
         self._limb_least: dict[int, tuple] = {}  # id(track) -> (track, how far back each knee and elbow goes)
-        self._own: dict[tuple, tuple] = {}  # (id(A), a_end, id(B), b_start) -> (A, B, retriever): see _own_retriever
+        # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), a_end,
+        # id(B), b_start, own_seconds) -> (A, B, retriever); each clip's per-frame key joints and
+        # ankles, id(track) -> (track, keys, own_frames); the key joints without a library; the
+        # retriever the others copy without a library.
+        self._own: dict[tuple, tuple] = {}
+        self._own_frames: dict[int, tuple] = {}
+        self._own_keys = None
+        self._own_base = None
         # Seconds of each clip's own motion beside the gap that retrieval searches besides the
         # library (see _own_retriever); 0: the library only.
         self.own_seconds = OWN_SECONDS
@@ -212,7 +219,8 @@ class TransitionEngine:
         motion library (shared, read-only). A clip added to one engine afterwards is not in the
         other."""
         _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
-        shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {}}
+        shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {},
+                  id(self._own_frames): {}, id(self._own_base): None}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
             shared[id(library)] = library
@@ -425,6 +433,7 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     live = {id(t): t for t in eng.tracks.values()}
     eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
     eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[2]) is v[1]}
+    eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}
 
 
 def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,
@@ -757,11 +766,12 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # One search ranks the candidates for the single segment and both halves of the splice.
         shared = {"alphas": (0.0, 1.0)} if align else {}
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
-    # The clips' own motion (A's before its end, B's from its start) searched as well; its match
-    # is taken where it costs no more than the library's and, between clips, carries the legs
-    # fully confident (else the library's splice of A's continuation into B's arrival is the
-    # better bet), or where there is no library match. See _own_retriever.
-    own = _own_retriever(eng, ta, tb, a, b, a_end, b_start, length)
+    # The clips' own motion (A's before its end, B's from its start) searched as well where B
+    # stays where it is (a gap in a take), or where no library is; its match is taken where it
+    # costs no more than the library's and, between clips, carries the legs fully confident (else
+    # the library's splice of A's continuation into B's arrival is the better bet), or where there
+    # is no library match. See _own_retriever.
+    own = _own_retriever(eng, ta, tb, a, b, a_end, b_start, length) if not align or rt is None else None
     if own is not None:
         own_shared = {"alphas": (0.0, 1.0)} if align else {}
         mine = retrieval.match(own, ta, tb, a_end, b_start, length, req.alpha, align, shared=own_shared)
@@ -865,7 +875,8 @@ def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, 
     same clip as A and B), the take's other steps and gestures are the same person's, style
     and speed, where the library holds other performances. Only frames the output keeps are
     read, so a gap's own frames (the ones being replaced) never are. Kept per seam pair (the
-    last few), for the next call on the same seams (a slider's)."""
+    last few), for the next call on the same seams (a slider's); each clip's per-frame key
+    joints and ankles once per clip."""
     if eng.model is None or eng.own_seconds <= 0 or not same_fps(ta.motion.fps, tb.motion.fps):
         return None
     key = (id(ta), a_end, id(tb), b_start, eng.own_seconds)
@@ -874,17 +885,39 @@ def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, 
         return kept[2]
     span = max(int(eng.own_seconds * ta.motion.fps), 2)
     shortest = max(1, round(min(retrieval.WARPS) * (length + 1.0)))  # a segment's fewest frames, less one
-    pieces = [p for p in ((a, ta, max(0, a_end + 1 - span), a_end + 1),
-                          (b, tb, b_start, min(len(tb.gpos), b_start + span))) if p[3] - p[2] > shortest]
-    if not pieces:
+    sides = [p for p in ((a, ta, max(0, a_end + 1 - span), a_end + 1),
+                         (b, tb, b_start, min(len(tb.gpos), b_start + span))) if p[3] - p[2] > shortest]
+    if not sides:
         return None
     lib = getattr(eng.model, "library_", None)
-    own = retrieval.Retriever(eng, own_library(pieces, eng._up, None if lib is None or not len(lib) else lib.scale),
-                              whole=True)
+    lib = lib if lib is not None and len(lib) else None
+    if lib is not None:
+        lower, upper = lib.lower, lib.upper
+    else:
+        if eng._own_keys is None:
+            eng._own_keys = key_joints(eng.skeleton)
+        lower, upper = eng._own_keys
+    pieces = [(name, track, lo, hi, _own_frames(eng, track, np.concatenate([lower, upper])))
+              for name, track, lo, hi in sides]
+    own_lib = own_library(pieces, eng._up, eng._leg_length, lower, upper, None if lib is None else lib.scale)
+    base = eng._retriever if lib is not None and eng._retriever is not None else eng._own_base
+    own = retrieval.Retriever(eng, own_lib, whole=True) if base is None else base.over(own_lib, whole=True)
+    if lib is None:
+        eng._own_base = own
     if len(eng._own) >= 8:  # the oldest goes
         eng._own.pop(next(iter(eng._own)))
     eng._own[key] = (ta, tb, own)
     return own
+
+
+def _own_frames(eng: TransitionEngine, track: Track, keys: np.ndarray) -> dict:
+    """:func:`posturemap.synth.library.own_frames` of ``track``, once per clip."""
+    kept = eng._own_frames.get(id(track))
+    if kept is None or kept[0] is not track or not np.array_equal(kept[1], keys):
+        _forget_gone_clips(eng)
+        kept = (track, keys, own_frames(track, keys, [c[2] for c in eng._legs], eng._up))
+        eng._own_frames[id(track)] = kept
+    return kept[2]
 
 
 def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, rots, pos) -> None:

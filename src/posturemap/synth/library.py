@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, key_joints, leg_chains, leg_length, leg_toes
+from ..core import kernels
 from ..core.skeleton import Skeleton, fk
 from .feet import CLEAR_BINS, CLEAR_HEIGHTS, clearance_curve, slower_step, toe_height_counts
 
@@ -408,26 +409,73 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
                          reverse=reverse, toe_counts=counts, **arrays)
 
 
-def own_library(pieces, up: int, reference_scale: np.ndarray | None = None) -> MotionLibrary:
-    """The clips' own motion as a library: ``pieces`` ``[(name, track, first, stop)]``, the frames
-    ``first .. stop - 1`` of each :class:`~posturemap.synth.engine.Track` (one skeleton and
-    frame rate), as recorded (no reversed copies), matched on ``reference_scale`` (the map's
-    library's :attr:`MotionLibrary.scale`; None: their own). Each piece is computed from its
-    own frames only: its velocities, contacts and floor read no frame outside it, so a piece
-    that ends at A's last frame or starts at B's first knows nothing of the frames between.
-    The frames are not indexed (``win`` 0): a search takes every one
-    (:class:`~posturemap.synth.retrieval.Retriever` with ``whole``); :meth:`MotionLibrary.source_frames`
-    counts each piece's frames in its clip.
+def own_frames(track, keys: np.ndarray, ankles: list[int], up: int) -> dict[str, np.ndarray]:
+    """What a library of a clip's own motion reads of each frame of a
+    :class:`~posturemap.synth.engine.Track`, computed once per clip for :func:`own_library` to
+    slice: ``pose`` (F, K, 3), the key joints ``keys`` about the root in its heading frame, as
+    :func:`clip_features` has them, their velocity ``vel`` and ``root`` (F, 5) as
+    :func:`motion_features` has them over the whole clip (backward differences), the root's
+    velocity in the world ``root_world`` (F, 3) and the ankles' heights ``heights`` (F, legs)
+    and horizontal steps to the next frame ``steps`` (F - 1, legs)."""
+    m = track.motion
+    grot, gp = np.empty(m.rotations.shape), np.empty(m.positions.shape)
+    kernels.fk(m.skeleton.parents, m.rotations, m.positions, grot, gp)
+    pose = heading_frame(gp[:, keys] - track.gpos[:, None], track.heading, up)
+    vel, root = motion_features(pose, track.gpos, track.heading, up, m.fps)
+    flat = np.ones(3)
+    flat[up] = 0.0
+    feet = gp[:, ankles]
+    return {"pose": pose, "vel": vel, "root": root,
+            "root_world": np.concatenate([track.gpos[1:2] - track.gpos[:1], np.diff(track.gpos, axis=0)]) * m.fps,
+            "heights": feet[..., up], "steps": np.linalg.norm(np.diff(feet * flat, axis=0), axis=-1)}
+
+
+def _piece(frames: dict, lo: int, hi: int, heading: np.ndarray, up: int, fps: float, leg: float):
+    """Frames ``lo .. hi - 1`` of :func:`own_frames`' arrays as a clip of their own: the features
+    of :func:`clip_features` and the contacts of :func:`clip_contacts` computed on those frames
+    alone (the first frame's velocities the step to the next, as a clip's first frame's; the
+    floor and the ankles' speeds from the piece's frames): ``(pose, vel, root, contacts)``."""
+    pose, vel, root = frames["pose"][lo:hi], frames["vel"][lo:hi].copy(), frames["root"][lo:hi].copy()
+    if hi - lo < 2:  # one frame: no motion
+        vel[:] = 0.0
+        root[:, :4] = 0.0
+    elif lo > 0:  # the frame before is not the piece's: the step to the next frame (as a clip's first frame)
+        vel[0] = frames["vel"][lo + 1]
+        root[0, :3] = heading_frame(frames["root_world"][lo + 1][None], heading[lo: lo + 1], up)[0]
+        root[0, 3] = frames["root"][lo + 1, 3]
+    h = frames["heights"][lo:hi]
+    if h.shape[1] == 0:
+        return pose, vel, root, np.zeros(h.shape, dtype=bool)
+    st = frames["steps"][lo: hi - 1]
+    speed = (np.concatenate([st[:1], np.minimum(st[1:], st[:-1]), st[-1:]]) if len(st) else np.zeros_like(h)) * fps
+    floor = np.percentile(h, FLOOR_PERCENTILE, axis=0)
+    return pose, vel, root, (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
+
+
+def own_library(pieces, up: int, leg: float, lower: np.ndarray, upper: np.ndarray,
+                reference_scale: np.ndarray | None = None) -> MotionLibrary:
+    """The clips' own motion as a library: ``pieces`` ``[(name, track, first, stop, frames)]``, the
+    frames ``first .. stop - 1`` of each :class:`~posturemap.synth.engine.Track` (one skeleton and
+    frame rate) with :func:`own_frames`' arrays of its whole clip (key joints ``lower`` then
+    ``upper``), as recorded (no reversed copies), matched on ``reference_scale`` (the map's
+    library's :attr:`MotionLibrary.scale`; None: their own). A piece's velocities, contacts and
+    floor are computed from its own frames only (as :func:`build_library` computes a clip's):
+    a piece that ends at A's last frame or starts at B's first knows nothing of the frames
+    between. The frames are not indexed (``win`` 0): a search takes every one
+    (:class:`~posturemap.synth.retrieval.Retriever` with ``whole``);
+    :meth:`MotionLibrary.source_frames` counts each piece's frames in its clip.
     """
-    sk = pieces[0][1].motion.skeleton
-    lower, upper = key_joints(sk)
-    joints = np.concatenate([lower, upper])
-    chains = leg_chains(sk)
-    leg = leg_length(sk, chains)
-    parts = [_clip_arrays(sk, tr.motion[lo:hi], tr.rots[lo:hi], tr.gpos[lo:hi], tr.heading[lo:hi], joints, chains,
-                          up, leg)[0] for _, tr, lo, hi in pieces]
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    starts = np.concatenate([[0], np.cumsum([hi - lo for _, _, lo, hi in pieces])]).astype(np.int64)
-    return MotionLibrary(float(pieces[0][1].motion.fps), up, leg, starts, clip_names=tuple(p[0] for p in pieces),
-                         lower=lower, upper=upper, win=np.zeros(int(starts[-1]), dtype=np.int32), reverse=False,
+    fps = float(pieces[0][1].motion.fps)
+    parts = {k: [] for k in ("rots", "gpos", "heading", "contacts", "pose", "vel", "root")}
+    for _, tr, lo, hi, frames in pieces:
+        pose, vel, root, contacts = _piece(frames, lo, hi, tr.heading, up, fps, leg)
+        for k, v in (("rots", tr.rots[lo:hi]), ("pose", pose), ("vel", vel), ("root", root)):
+            parts[k].append(v.astype(np.float32))
+        parts["gpos"].append(tr.gpos[lo:hi])
+        parts["heading"].append(tr.heading[lo:hi])
+        parts["contacts"].append(contacts)
+    arrays = {k: np.concatenate(v) for k, v in parts.items()}
+    starts = np.concatenate([[0], np.cumsum([p[3] - p[2] for p in pieces])]).astype(np.int64)
+    return MotionLibrary(fps, up, leg, starts, clip_names=tuple(p[0] for p in pieces), lower=lower, upper=upper,
+                         win=np.zeros(int(starts[-1]), dtype=np.int32), reverse=False,
                          reference_scale=reference_scale, clip_first=tuple(int(p[2]) for p in pieces), **arrays)
