@@ -22,7 +22,9 @@ segments' own 60 fps and again with every segment resampled to 30 fps and to fil
 next to each other: L2Q, L2P, NPSS and MPJPE of SLERP, the spline, inertialization, ``damped``,
 the paper's ``upm``, the previous default (``upm-valid`` + foot lock) and the default (``auto``
 + foot lock), every method's foot skate with the truth's, and the default per motion (the
-theme of the take and the segment's label).
+theme of the take and the segment's label); in a last column the default again given the whole
+segment but the gap as context (a gap in a take), where it also replays the segment's own
+motion.
 
 Nothing is copied: the files are read where they are (the licence forbids sharing changes).
 

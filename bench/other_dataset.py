@@ -16,7 +16,9 @@ in-betweened as the bench does (10 past and 10 future frames of context, windows
 frames, the gap's length 5 to 45 frames). Printed next to each other: L2Q, L2P, NPSS and MPJPE
 of SLERP, the spline, inertialization, ``damped``, the paper's ``upm``, the previous default
 (``upm-valid`` + foot lock) and the default (``auto`` + foot lock), the default's and SLERP's
-foot skate with the truth's, and the default per content.
+foot skate with the truth's, and the default per content; in a last column the default again
+given the whole clip but the gap as context (a gap in a take: A the clip up to the last past
+frame, B from the first future frame), where it also replays the clip's own motion.
 
 Nothing is copied: the clips are read where they are (Bandai's licence).
 
@@ -41,6 +43,9 @@ from transition_speed import default_data_dir, machine, machine_line, report_par
 
 METHODS = ("slerp", "spline", "inertialize", "damped", "upm", "upm-valid+feet", "auto+feet")
 DEFAULT = "auto+feet"
+# The default again with the whole test clip but the gap as context (a gap in a take: A the clip
+# up to the last past frame, B from the first future frame; posturemap.evaluate.predict_whole_clip).
+WHOLE = "auto+feet, whole clip"
 LENGTHS = (5, 15, 30, 45)
 PER_CONTENT = (30, 45)  # lengths of the per-content table
 NAME = re.compile(r"^dataset-2_(?P<content>[^_]+)_(?P<style>[^_]+)_(?P<id>\d+)$")
@@ -113,9 +118,10 @@ def scored_lengths(state: dict, windows, kinds: np.ndarray, lengths, per_content
     out = {}
     for length in lengths:
         truth_r, truth_p, preds = runner.predict_windows(engines, METHODS, test, windows, length)
+        preds[WHOLE] = runner.predict_whole_clip(state["model"], test, windows, length)[0][DEFAULT]
         tg = scoring.truth_globals(ctx, truth_r, truth_p)
         row = {"truth_skate": scoring.score_truth(ctx, truth_r, truth_p, length)["skate"]}
-        for m in METHODS:
+        for m in METHODS + (WHOLE,):
             sc = scoring.score_inbetween(ctx, truth_r, truth_p, *preds[m], length, truth_g=tg)
             row[m] = {k: sc[k] for k in ("l2q", "l2p", "npss", "mpjpe_cm", "skate")}
         if length in per_content:
@@ -125,7 +131,7 @@ def scored_lengths(state: dict, windows, kinds: np.ndarray, lengths, per_content
                 tk = tuple(x[ix] for x in tg)
                 cell = {m: scoring.score_inbetween(ctx, truth_r[ix], truth_p[ix], preds[m][0][ix], preds[m][1][ix],
                                                    length, accuracy_only=True, truth_g=tk)
-                        for m in ("slerp", "spline", "damped", DEFAULT)}
+                        for m in ("slerp", "spline", "damped", DEFAULT, WHOLE)}
                 cell["truth_skate"] = scoring.score_truth(ctx, truth_r[ix], truth_p[ix], length)["skate"]
                 row["per_content"][k] = cell
         out[str(length)] = row
@@ -134,33 +140,37 @@ def scored_lengths(state: dict, windows, kinds: np.ndarray, lengths, per_content
 
 def score_tables(scores: dict, contents: dict, kind: str = "content") -> list[str]:
     """Markdown lines of :func:`scored_lengths`' ``scores``: L2Q, L2P, NPSS and MPJPE as ratios to
-    SLERP's, the skate beside the truth's, and per ``kind`` (``contents``: windows of each)."""
+    SLERP's, the skate beside the truth's, and per ``kind`` (``contents``: windows of each); the
+    default with the whole clip as context (:data:`WHOLE`) in a last column where scored."""
     lines = []
+    methods = METHODS + ((WHOLE,) if all(WHOLE in row for row in scores.values()) else ())
     for key, label in (("l2q", "L2Q"), ("l2p", "L2P"), ("npss", "NPSS"), ("mpjpe_cm", "MPJPE (cm)")):
-        lines += [f"**{label}**", "", "| frames | " + " | ".join(METHODS) + " |",
-                  "| ---: | " + " | ".join("---:" for _ in METHODS) + " |"]
+        lines += [f"**{label}**", "", "| frames | " + " | ".join(methods) + " |",
+                  "| ---: | " + " | ".join("---:" for _ in methods) + " |"]
         for length, row in scores.items():
             sl = row["slerp"][key]
-            cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in METHODS[1:]]
+            cells = [f"{sl:.3f}"] + [f"{row[m][key] / sl:.2f}x" for m in methods[1:]]
             lines.append(f"| {length} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += ["**Foot skate** (cm/s, height-weighted foot speed over the gap, no contact detection)", "",
-              "| frames | " + " | ".join(METHODS) + " | truth |", "| ---: | " + " | ".join("---:" for _ in METHODS)
+              "| frames | " + " | ".join(methods) + " | truth |", "| ---: | " + " | ".join("---:" for _ in methods)
               + " | ---: |"]
     for length, row in scores.items():
-        lines.append(f"| {length} | " + " | ".join(f"{row[m]['skate']:.2f}" for m in METHODS)
+        lines.append(f"| {length} | " + " | ".join(f"{row[m]['skate']:.2f}" for m in methods)
                      + f" | {row['truth_skate']:.2f} |")
     lines.append("")
     for length, row in scores.items():
         if "per_content" not in row:
             continue
+        whole = all(WHOLE in cell for cell in row["per_content"].values())
+        shown = ("spline", "damped", DEFAULT) + ((WHOLE,) if whole else ())
         lines += [f"**Per {kind} at {length} frames** (L2Q / L2P as ratios to SLERP; skate in cm/s)", "",
-                  f"| {kind} | windows | SLERP L2Q | spline | damped | default | default skate / truth |",
-                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+                  f"| {kind} | windows | SLERP L2Q | spline | damped | default | "
+                  + ("default, whole clip | " if whole else "") + "default skate / truth |",
+                  "| --- | ---: | ---: | ---: | ---: | ---: | " + ("---: | " if whole else "") + "---: |"]
         for k, cell in row["per_content"].items():
             sl = cell["slerp"]
-            ratio = [f"{cell[m]['l2q'] / sl['l2q']:.2f}x / {cell[m]['l2p'] / sl['l2p']:.2f}x"
-                     for m in ("spline", "damped", DEFAULT)]
+            ratio = [f"{cell[m]['l2q'] / sl['l2q']:.2f}x / {cell[m]['l2p'] / sl['l2p']:.2f}x" for m in shown]
             lines.append(f"| {k} | {contents[k]} | {sl['l2q']:.3f} | " + " | ".join(ratio)
                          + f" | {cell[DEFAULT]['skate']:.2f} / {cell['truth_skate']:.2f} |")
         lines.append("")
