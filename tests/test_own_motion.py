@@ -1,5 +1,5 @@
 """The clips' own motion (issue "Transitions that move like real people"): retrieval searches A's
-frames before its end and B's from its start besides the map's library, and replays the better
+frames up to its end and B's from its start besides the map's library, and replays the better
 match; a gap in a take (A and B the same clip) is filled from the take's other frames, never from
 the frames it replaces.
 """
@@ -20,7 +20,7 @@ from posturemap.synth import retrieval
 from posturemap.synth.engine import TransitionEngine, transition
 
 LIBRARY = ("walk_normal_001", "walk_happy_001", "run_normal_001", "walk-left_normal_001")
-TAKES = ("walk-back_old_001", "byebye_happy_001", "walk-back_proud_001")
+TAKES = ("walk-back_old_001", "byebye_happy_001", "walk-back_proud_001", "punch_normal_001", "run_happy_001")
 A_END, LENGTH = 100, 30
 B_START = A_END + LENGTH + 1
 
@@ -57,19 +57,24 @@ def outside_the_gap(info: dict, a_end: int, b_start: int) -> bool:
     return all(max(p["frames"]) <= a_end or min(p["frames"]) >= b_start for p in segments)
 
 
-def test_a_gap_in_a_take_is_filled_from_the_take_never_from_the_frames_it_replaces(model, clips):
-    take = clips["walk-back_old_001"]  # no backward walk in the library
+@pytest.mark.parametrize("name, a_end", [("walk-back_old_001", A_END), ("byebye_happy_001", 110),
+                                          ("punch_normal_001", 112), ("run_happy_001", 70)])
+def test_a_gap_in_a_take_is_filled_from_the_take_never_from_the_frames_it_replaces(model, clips, name, a_end):
+    # No backward walk, wave or punch in the library. Garbled, the gap's frames would also bend
+    # its knees and elbows backward, which loosened their bound when it counted the whole clip.
+    take = clips[name]
+    b_start = a_end + LENGTH + 1
     made = []
-    for clip in (take, garbled(take, A_END + 1, B_START)):
+    for clip in (take, garbled(take, a_end + 1, b_start)):
         report = {}
-        out = transition(clip, clip, model, length=LENGTH, a_end=A_END, b_start=B_START, align=False, report=report)
+        out = transition(clip, clip, model, length=LENGTH, a_end=a_end, b_start=b_start, align=False, report=report)
         made.append((out, report["retrieval"]))
     (out, info), (out_garbled, info_garbled) = made
-    assert info["own"] and outside_the_gap(info, A_END, B_START)
+    assert info["own"] and outside_the_gap(info, a_end, b_start)
     assert info == info_garbled
     # The same rotations (the clip's quaternion signs, chosen continuous through the gap, may
     # differ: within rounding) and the same places.
-    new = slice(A_END + 1, B_START)
+    new = slice(a_end + 1, b_start)
     assert np.all(np.abs(np.sum(out.rotations[new] * out_garbled.rotations[new], axis=-1)) > 1 - 1e-12)
     np.testing.assert_allclose(out.positions, out_garbled.positions, rtol=0, atol=1e-9)
     # Not the truth replayed: the gap's own frames were never there to replay.
@@ -163,6 +168,31 @@ def test_own_motion_is_searched_within_own_seconds_of_the_seams(model, clips):
     assert engine_module._own_retriever(eng, tr, tr, "take", "take", A_END, B_START, LENGTH) is None
 
 
+def test_own_motion_is_searched_within_own_frames_of_the_seams(model, clips, monkeypatch):
+    # However long own_seconds is, at most OWN_FRAMES a side (every frame is a candidate).
+    monkeypatch.setattr(engine_module, "OWN_FRAMES", 50)
+    eng = TransitionEngine(model)
+    tr = eng.add("take", clips["walk-back_proud_001"])
+    own = engine_module._own_retriever(eng, tr, tr, "take", "take", A_END, B_START, LENGTH)
+    assert len(own.lib) == 100 and own.lib.clip_first == (A_END + 1 - 50, B_START)
+
+
+def test_a_gap_of_another_length_on_the_same_seams_searches_its_own_pieces(model, clips):
+    # B's 24 frames from its start hold a segment of a 21-frame gap, not of a 41-frame one: the
+    # search kept for the longer gap must not serve the shorter (a length slider).
+    wave = clips["byebye_happy_001"]
+    a_end, b_start = 100, len(wave) - 24
+    eng, fresh = TransitionEngine(model), TransitionEngine(model)
+    eng.add("w", wave)
+    fresh.add("w", wave)
+    kw = dict(a_end=a_end, b_start=b_start, align=False)
+    eng.generate("w", "w", length=40, **kw)
+    r, p = eng.generate("w", "w", length=20, **kw)
+    r2, p2 = fresh.generate("w", "w", length=20, **kw)
+    assert eng.last["retrieval"] == fresh.last["retrieval"]
+    assert np.array_equal(r, r2) and np.array_equal(p, p2)
+
+
 def test_a_replaced_clip_and_a_fork_search_their_own_clips(model, clips):
     kw = dict(length=LENGTH, a_end=A_END, b_start=B_START, align=False)
     eng = TransitionEngine(model)
@@ -223,4 +253,10 @@ def test_a_piece_of_a_clip_is_computed_from_its_own_frames_as_a_clip_of_them_wou
         np.testing.assert_allclose(own.root, root.astype(np.float32), rtol=1e-6, atol=1e-3)
         assert np.array_equal(own.contacts, clip_contacts(gp[:, ankles], 1, piece.fps, lib.leg)), (lo, hi)
         assert np.array_equal(own.rots, tr.rots[lo:hi].astype(np.float32)) and np.array_equal(own.scale, lib.scale)
-        assert own.source_frames(0, hi - lo - 1) == ("take", lo, hi - 1)
+        assert own.source_frames(0, hi - lo - 1) == ("take", lo, hi - 1) and own.library_frame("take", hi - 1) == hi - lo - 1
+    # Two pieces of one clip (A's and B's): each frame found in the piece that holds it.
+    both = own_library([("take", tr, 0, 101, frames), ("take", tr, 131, 282, frames)], 1, lib.leg, lib.lower, lib.upper)
+    assert both.library_frame("take", 100) == 100 and both.library_frame("take", 131) == 101
+    assert both.source_frames(101, 110) == ("take", 131, 140)
+    with pytest.raises(ValueError):
+        both.library_frame("take", 115)  # in the gap: in neither piece

@@ -459,7 +459,8 @@ def test_an_unrelated_library_falls_back_to_interpolation(clips, monkeypatch):
     fb_r, fb_p = bows.generate("run", "run", method="damped", **kw)
     assert fb_r is not rots
     fb_r, fb_p = fb_r.copy(), fb_p.copy()
-    engine_module._unbend_limbs(bows, bows.tracks["run"], bows.tracks["run"], fb_r, fb_p)  # as assert_the_fallback
+    engine_module._unbend_limbs(bows, bows.tracks["run"], bows.tracks["run"], kw["a_end"], kw["b_start"], fb_r,
+                                fb_p)  # as assert_the_fallback
     assert np.array_equal(rots, fb_r) and np.array_equal(pos, fb_p)
 
 
@@ -473,7 +474,7 @@ def assert_the_fallback(eng, name, rots, pos, kw):
 
     assert retrieval.fallback_method(kw["length"], 30.0) == "damped"
     fb_r, fb_p = (x.copy() for x in eng.generate(name, name, **{**kw, "method": "damped"}))
-    engine_module._unbend_limbs(eng, eng.tracks[name], eng.tracks[name], fb_r, fb_p)
+    engine_module._unbend_limbs(eng, eng.tracks[name], eng.tracks[name], kw["a_end"], kw["b_start"], fb_r, fb_p)
     root, others = eng._root, np.arange(eng.skeleton.num_joints) != eng._root
     assert np.array_equal(rots, fb_r) and np.array_equal(pos[:, others], fb_p[:, others])
     track = eng.tracks[name]
@@ -619,9 +620,9 @@ def test_a_fork_makes_the_same_transitions_with_its_own_buffers_and_clips(model,
 
 
 def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
-    # The engine keeps each clip's own bound on its knees and elbows (how far back they bend)
-    # from its first transition on; a clip replaced under its name (the studio's upload) is not
-    # kept by it, nor are the clips before it.
+    # The engine keeps each clip's knees' and elbows' bends (how far back they go) from its first
+    # transition on; a clip replaced under its name (the studio's upload) is not kept by it, nor
+    # are the clips before it.
     import gc
     import weakref
 
@@ -638,7 +639,7 @@ def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
     # Nor does a fork copy one replaced since the last transition.
     eng.add(a, clips[a][5:])
     child = eng.fork()
-    kept = list(child._limb_least.values())
+    kept = list(child._limb_bends.values())
     assert len(kept) == 1 and kept[0][0] is child.tracks[b]  # B's, shared; not A's replaced one
 
 

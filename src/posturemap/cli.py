@@ -348,7 +348,7 @@ def describe_retrieval(info, clips: dict | None = None) -> str:
                 f"{' (played backwards)' if r['reversed'] else ''} "
                 f"(warp {r['warp']:.2f}), match distance {r['distance']:.2f} degrees")
 
-    lines = ["  retrieval: the clips' own motion (A's frames before its end, B's from its start)"] if info.get("own") \
+    lines = ["  retrieval: the clips' own motion (A's frames up to its end, B's from its start)"] if info.get("own") \
         else []
     for part, r in info["parts"].items():
         if "then" in r:  # a splice: the segment continuing A, blended into the one arriving in B

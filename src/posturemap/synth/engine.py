@@ -86,9 +86,10 @@ from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_
 # upper body from travelling frames), and long (the legs in step).
 WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
 # Retrieval searches the clips' own motion beside the gap besides the library: at most this many
-# seconds of A before its end and of B from its start (the frames nearest the gap; a capture of
+# seconds of A up to its end and of B from its start (the frames nearest the gap; a capture of
 # several minutes is not searched whole for every transition). See _own_retriever.
 OWN_SECONDS = 60.0
+OWN_FRAMES = 1800  # ... and at most this many frames a side (60 s at 30 fps, 15 s at 120): the search takes every one
 
 
 class TransitionEngine:
@@ -104,9 +105,11 @@ class TransitionEngine:
     into buffers reused between calls of the same length. One engine serves one call at a
     time; :meth:`fork` gives another that shares the clips and the map.
 
-    ``own_seconds`` (default :data:`OWN_SECONDS`): how much of A's motion before its end and of
-    B's from its start retrieval searches besides the map's library (the clips' own motion);
-    set it to 0 to replay the library only.
+    ``own_seconds`` (default :data:`OWN_SECONDS`, at most :data:`OWN_FRAMES` frames): how much of
+    A's motion up to its end and of B's from its start retrieval searches besides the map's
+    library (the clips' own motion),
+    where B stays where it is (``align=False``: a gap in a take) or where the map has no
+    library; set it to 0 to replay the library only.
     """
 
     def __init__(self, model=None, skeleton=None):
@@ -125,18 +128,17 @@ class TransitionEngine:
         self._rest = None
         self._legs = []
         self._retriever = None
-        self._limb_least: dict[int, tuple] = {}  # id(track) -> (track, how far back each knee and elbow goes)
-        # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), a_end,
-        # id(B), b_start, own_seconds) -> (A, B, retriever); each clip's per-frame key joints and
+        # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
+        self._limb_bends: dict[int, tuple] = {}
+        # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), id(B), the
+        # pieces searched) -> (A, B, retriever); each clip's per-frame key joints and
         # ankles, id(track) -> (track, keys, own_frames); the key joints without a library; the
         # retriever the others copy without a library.
         self._own: dict[tuple, tuple] = {}
         self._own_frames: dict[int, tuple] = {}
         self._own_keys = None
         self._own_base = None
-        # Seconds of each clip's own motion beside the gap that retrieval searches besides the
-        # library (see _own_retriever); 0: the library only.
-        self.own_seconds = OWN_SECONDS
+        self.own_seconds = OWN_SECONDS  # see the class docstring and _own_retriever
         self.keys = None
         if model is not None:
             space = model.space_
@@ -388,41 +390,46 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
         out = _retrieval(eng, ta, tb, a, b, req.replace(method=method))
     else:  # the spline, its knees and elbows held as retrieval's are (before the foot lock)
         out = _interpolated(eng, ta, tb, a, b, req.replace(method=method, foot_lock=False))
-        _unbend_limbs(eng, ta, tb, *out)
+        _unbend_limbs(eng, ta, tb, req.a_end, req.b_start, *out)
         if req.foot_lock and eng._legs:
             eng.last["planted"] = eng._lock_feet(ta, tb, req, *out, eng.last["dtheta"], eng.last["shift"])
     eng.last["method"] = method
     return out
 
 
-def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, out_r: np.ndarray, out_p: np.ndarray,
-                  own: MotionLibrary | None = None) -> None:
+def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, out_r: np.ndarray,
+                  out_p: np.ndarray, own: MotionLibrary | None = None) -> None:
     """No knee or elbow of the new frames bent further back than the motion library's go or
-    A's and B's own, whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per
-    library, each clip's furthest back once per clip). Without a library, the hinges are found
-    in ``own`` (the clips' own motion the transition searched, :func:`_own_retriever`), and
-    without that the frames stay as they are.
+    the frames the output keeps of A (to ``a_end``) and of B (from ``b_start``), whichever goes
+    further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
+    clip's bends about them once per clip). Without a library, the hinges are found in ``own``
+    (the clips' own motion the transition searched, :func:`_own_retriever`), and without that
+    the frames stay as they are.
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
-    library's hinge, and their bound is as far back as they go."""
+    library's hinge, and their bound is as far back as they go. Only the kept frames count: a
+    gap in a take (A and B one clip) is never read, however its knees bend."""
     lib = getattr(eng.model, "library_", None)
     if lib is None or not len(lib):
         lib = own
     if lib is None or not len(lib):
         return
     sk = eng.skeleton
-    joints, bounds, hinge, least = lib.derived("hinges", lambda: hinges.packed(hinges.find(
+    limbs = lib.derived("hinges", lambda: hinges.packed(hinges.find(
         sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets), sk.parents))
+    joints, bounds, hinge, least = limbs
     if not len(least):
         return
-    for track in (ta, tb):
-        own = eng._limb_least.get(id(track))
-        if own is None or own[0] is not track:
+    for track, kept in ((ta, slice(0, a_end + 1)), (tb, slice(b_start, None))):
+        bends = eng._limb_bends.get(id(track))
+        if bends is None or bends[0] is not track or bends[1] is not limbs:
             _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
-            own = track, hinges.least_bends((joints, bounds, hinge), track.motion.rotations, track.motion.positions)
-            eng._limb_least[id(track)] = own
-        least = np.minimum(least, own[1])
+            bends = track, limbs, hinges.bend_frames((joints, bounds, hinge), track.motion.rotations,
+                                                     track.motion.positions)
+            eng._limb_bends[id(track)] = bends
+        if len(bends[2][kept]):
+            least = np.minimum(least, bends[2][kept].min(axis=0))
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
 
 
@@ -431,8 +438,8 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     tracks (replaced under their name, or dropped): a server that replaces its clips would
     otherwise keep every one, and a fork would copy them."""
     live = {id(t): t for t in eng.tracks.values()}
-    eng._limb_least = {k: v for k, v in eng._limb_least.items() if live.get(k) is v[0]}
-    eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[2]) is v[1]}
+    eng._limb_bends = {k: v for k, v in eng._limb_bends.items() if live.get(k) is v[0]}
+    eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[1]) is v[1]}
     eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}
 
 
@@ -766,7 +773,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # One search ranks the candidates for the single segment and both halves of the splice.
         shared = {"alphas": (0.0, 1.0)} if align else {}
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
-    # The clips' own motion (A's before its end, B's from its start) searched as well where B
+    # The clips' own motion (A's up to its end, B's from its start) searched as well where B
     # stays where it is (a gap in a take), or where no library is; its match is taken where it
     # costs no more than the library's and, between clips, carries the legs fully confident (else
     # the library's splice of A's continuation into B's arrival is the better bet), or where there
@@ -857,7 +864,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         head = rt.head_chain
         if not align and fb_last is not None and res.confidence[1] > 0.0 and len(head) > 1:
             kernels.turn_toward(head, out_r, rots_fb, retrieval.HEAD_GAZE)
-    _unbend_limbs(eng, ta, tb, out_r, out_p, None if own is None else own.lib)
+    _unbend_limbs(eng, ta, tb, a_end, b_start, out_r, out_p, None if own is None else own.lib)
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p
@@ -866,29 +873,31 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
 def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, a_end: int, b_start: int,
                    length: int):
     """A retriever over the clips' own motion: A's frames up to ``a_end`` and B's from
-    ``b_start`` (each at most ``eng.own_seconds`` long, nearest the gap), as
-    :func:`posturemap.synth.library.own_library` makes them, searched whole and matched on the
-    map's library's feature scales, so that its match and the library's compare by cost. None
-    without a map, or when neither side holds a segment of the shortest warp.
+    ``b_start`` (each at most ``eng.own_seconds`` long and :data:`OWN_FRAMES` frames, nearest
+    the gap), as :func:`posturemap.synth.library.own_library` makes them, searched whole and
+    matched on the map's library's feature scales, so that its match and the library's compare
+    by cost. None without a map, with ``own_seconds`` 0, for clips at two frame rates, or where
+    neither side holds a segment of the gap's shortest warp.
 
     A performer's own motion continues their motion best: in-betweening a gap in a take (the
     same clip as A and B), the take's other steps and gestures are the same person's, style
     and speed, where the library holds other performances. Only frames the output keeps are
-    read, so a gap's own frames (the ones being replaced) never are. Kept per seam pair (the
-    last few), for the next call on the same seams (a slider's); each clip's per-frame key
-    joints and ankles once per clip."""
+    read, so a gap's own frames (the ones being replaced) never are. Kept per seam pair and the
+    pieces it uses (the last few), for the next call on the same seams (a slider's); each clip's
+    per-frame key joints and ankles once per clip."""
     if eng.model is None or eng.own_seconds <= 0 or not same_fps(ta.motion.fps, tb.motion.fps):
         return None
-    key = (id(ta), a_end, id(tb), b_start, eng.own_seconds)
-    kept = eng._own.get(key)
-    if kept is not None and kept[0] is ta and kept[1] is tb:
-        return kept[2]
-    span = max(int(eng.own_seconds * ta.motion.fps), 2)
+    span = max(min(int(eng.own_seconds * ta.motion.fps), OWN_FRAMES), 2)
     shortest = max(1, round(min(retrieval.WARPS) * (length + 1.0)))  # a segment's fewest frames, less one
     sides = [p for p in ((a, ta, max(0, a_end + 1 - span), a_end + 1),
                          (b, tb, b_start, min(len(tb.gpos), b_start + span))) if p[3] - p[2] > shortest]
     if not sides:
         return None
+    # The pieces a gap of this length can use (a short piece holds no segment of a long gap).
+    key = (id(ta), id(tb)) + tuple((p[0] == a, p[2], p[3]) for p in sides)
+    kept = eng._own.get(key)
+    if kept is not None and kept[0] is ta and kept[1] is tb:
+        return kept[2]
     lib = getattr(eng.model, "library_", None)
     lib = lib if lib is not None and len(lib) else None
     if lib is not None:

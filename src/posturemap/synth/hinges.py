@@ -148,16 +148,16 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
             np.array([k[2] for k in legs], dtype=np.float64))
 
 
-def least_bends(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """How far back (the smallest signed bend, radians) each leg's knee goes in the frames
-    ``rots`` (N, J, 4; local translations ``positions``), against its hinge; ``legs`` the first
-    three of :func:`packed`'s arrays. 0 for a clip without frames."""
+def bend_frames(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Each leg's knee's signed bend (radians) against its hinge in each of the frames ``rots``
+    (N, J, 4; local translations ``positions``): (N, legs); ``legs`` the first three of
+    :func:`packed`'s arrays. Its minimum over some frames is how far back the knee goes in them."""
     joints, bounds, hinge_rows = legs
-    out = np.zeros(len(bounds))
+    out = np.zeros((len(rots), len(bounds)))
     for k, ((first, mid, last, _), hinge) in enumerate(zip(bounds.tolist(), hinge_rows)):
         if len(rots):
             t, s = leg_vectors(rots, positions, (joints[first:mid].tolist(), joints[mid:last].tolist()))
-            out[k] = signed_bends(t, s, hinge).min()
+            out[:, k] = signed_bends(t, s, hinge)
     return out
 
 

@@ -269,8 +269,14 @@ class MotionLibrary:
         return int(self.clip_first[c]) if c < len(self.clip_first) else 0
 
     def library_frame(self, name: str, frame: int) -> int:
-        """The library index of frame ``frame`` (as recorded) of the recorded clip ``name``."""
-        return int(self.clip_start[self.clip_names.index(name)]) + frame
+        """The library index of frame ``frame`` (as recorded, counted in the clip it was cut from:
+        ``clip_first``) of the recorded clip ``name`` (the first of that name that holds it);
+        ValueError where none does."""
+        for c in range(self.num_recorded_clips):
+            first = self._first(c)
+            if self.clip_names[c] == name and first <= frame < first + self.clip_start[c + 1] - self.clip_start[c]:
+                return int(self.clip_start[c]) + frame - first
+        raise ValueError(f"no recorded clip {name!r} holds frame {frame}")
 
     @property
     def num_recorded_clips(self) -> int:

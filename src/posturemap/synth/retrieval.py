@@ -160,7 +160,7 @@ class Retriever:
         self.engine = engine
         self.lib = library
         # Every frame is a candidate, not only those the index files under the seams' neurons:
-        # the clips' own motion (library.own_library), a few thousand frames at most.
+        # the clips' own motion (library.own_library), at most engine.OWN_FRAMES a side.
         self.whole = bool(whole)
         sk = engine.skeleton
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
@@ -857,10 +857,11 @@ def confidences(distance, still: float, upper: float, both: bool = True, *, alig
     ``docs/retrieval.md``, "Wide ramps in in-betweening".
 
     ``own``: the segments are the clips' own motion (:func:`posturemap.synth.library.own_library`).
-    Where the body stands at both seams (``still`` 0: a bow, a wave), another performance's
-    arms are interpolated instead, but the performer's own wave goes on as they waved it: the
-    upper body then keeps the confidence of its match distance over :data:`OWN_STANDING_RANGE`
-    (the legs' ramp without ``still`` in place of ``lower``), if that is the higher.
+    Where the body stands at the seams (``still`` under 1, 0 at a bow or a wave), another
+    performance's arms are held back with the legs, but the performer's own wave goes on as
+    they waved it: the upper body keeps the confidence of its match distance over
+    :data:`OWN_STANDING_RANGE` (the legs' ramp without ``still`` in place of ``lower``) where that
+    is the higher.
     """
     def ramp(x, lo, hi):
         return min(max((hi - x) / (hi - lo), 0.0), 1.0)
@@ -1284,7 +1285,7 @@ class Match:
                     "distance": round(float(self.distance[p]), 3), "confidence": round(float(self.confidence[p]), 3),
                     "blended": len(s)}
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
-            if self.own:  # the clips' own frames: A's before its end, B's from its start
+            if self.own:  # the clips' own frames: A's up to its end, B's from its start
                 self._info["own"] = True
             if self.still <= 0.0:  # why every part is interpolated, whatever the match distance
                 self._info["standing"] = True

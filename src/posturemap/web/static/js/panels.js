@@ -119,7 +119,7 @@ function showRetrieval(res) {
   el.hidden = r === undefined;
   if (r === undefined) return;
   el.textContent = !r ? 'No real motion fits (library or the clips\' own frames): interpolated (fallback).'
-    : (r.own ? 'The clips\' own motion (A before its end, B from its start):\n' : '')
+    : (r.own ? 'The clips\' own motion (A up to its end, B from its start):\n' : '')
       + Object.entries(r.parts).map(([part, p]) => `${part}: ${source(p)}`
         + (p.then ? ` → then ${source(p.then)}` : '')
         + ` · confidence ${Math.round(100 * p.confidence)}%`).join('\n');
