@@ -117,13 +117,29 @@ def test_the_cheaper_match_of_library_and_own_motion_is_replayed(model, clips):
     own_info = eng.last["retrieval"]
     library = retrieval.match(eng._retriever, tr, tr, A_END, B_START, LENGTH, 0.5, False)
     assert own_info["own"] and own_info["parts"]["lower"]["cost"] + own_info["parts"]["upper"]["cost"] <= library.cost
-    # A library that holds the take itself has its gap, at no cost: the library's match is
-    # replayed then (a map trained on the clips being in-betweened knows their gaps).
-    knows = TransitionEngine(PostureMap(seed=0).fit([take], ["take"]))
-    knows.add("take", take)
-    knows.generate("take", "take", **kw)
-    info = knows.last["retrieval"]
-    assert "own" not in info and info["parts"]["lower"]["frames"] == [A_END, B_START]
+
+
+def test_a_library_that_holds_the_take_is_searched_without_it(model, clips):
+    # A map trained on the take itself (a capture session, then a gap filled in one of its
+    # takes) holds the gap's own frames, at no cost: that clip (and its reversed copy) is left
+    # out, and the take's kept frames are searched as its own motion. Garbled gap frames (a
+    # marker dropout) in the map's copy are not replayed either.
+    take = clips["walk-back_old_001"]
+    for clip in (take, garbled(take, A_END + 1, B_START)):
+        knows = PostureMap(seed=0).fit([clip, clips["walk_normal_001"]], ["take", "walk"])
+        lib = knows.library_
+        eng = TransitionEngine(knows)
+        tr = eng.add("take", take)
+        rt = retrieval.Retriever(eng, lib)
+        # The take (its gap whole or garbled) and its reversed copy: its frames at A's end and B's start.
+        assert list(lib.take_clips(rt.part_joints[1], tr.rots[A_END], tr.rots[B_START], B_START - A_END)) == [0, 2]
+        for align in (False, True):
+            eng.generate("take", "take", length=LENGTH, a_end=A_END, b_start=B_START, align=align, method="retrieval")
+            info = eng.last["retrieval"]
+            segments = list(info["parts"].values()) + [p["then"] for p in info["parts"].values() if "then" in p]
+            for p in segments:
+                if p["clip"] == "take":  # the library's copy or the take's own frames: never its gap
+                    assert max(p["frames"]) <= A_END or min(p["frames"]) >= B_START, (align, p)
 
 
 def test_a_standing_wave_goes_on_from_the_performers_own_waving(model, clips):
@@ -225,6 +241,13 @@ def test_the_command_line_without_a_map_fills_a_gap_from_the_takes_kept_frames(c
         text = capsys.readouterr().out
         assert "the clips' own motion" in text and f"lower: {path} frames " in text, text
         made.append(bvh.read(out))
+    # A length other than the gap's makes the take shorter: a warning says so (the default, 20).
+    path = tmp_path / "take.bvh"
+    assert cli.main(["transition", str(path), str(path), "-o", str(tmp_path / "short.bvh"), "--a-end", str(A_END),
+                     "--b-start", str(B_START), "--no-align"]) == 0
+    err = capsys.readouterr().err
+    assert (f"posturemap: warning: {path}: A and B are one take and --length 20 is not the {LENGTH} frames between "
+            f"--a-end and --b-start: the take comes out {LENGTH - 20} frames shorter") in err, err
     # Within the BVH text's six decimals (the written rotations of the gap differ, their signs with them).
     np.testing.assert_allclose(made[0].global_positions(), made[1].global_positions(), rtol=0, atol=1e-4)
 

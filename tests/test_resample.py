@@ -123,7 +123,8 @@ def test_option_errors_name_the_option_first(capsys, tmp_path):
 
 def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_clips):
     # B at twice A's rate: the command line resamples B to A's rate (saying so) rather than
-    # refusing it; --b-start counts B's own frames and keeps the nearest in time.
+    # refusing it, from its frame --b-start on (--b-start counts B's own frames; none before it
+    # is read: a frame between two of B's would blend in the one before).
     walk, run_ = sample_clips["walk"], sample_clips["run"]
     a, b = tmp_path / "walk.bvh", tmp_path / "run60.bvh"
     bvh.write(a, walk)
@@ -133,19 +134,29 @@ def test_transition_and_train_take_clips_at_two_rates(capsys, tmp_path, sample_c
     code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--method", "slerp", "--length", "10",
                             "--b-start", "22", "--no-align")
     assert code == 0, err
-    assert f"{b}: {b60.fps:g} fps, resampled to A's {walk.fps:g} fps (its frame 22 is frame 11)" in stdout
-    r, b30 = bvh.read(out), resample(b60, walk.fps)
-    assert r.fps == pytest.approx(walk.fps, rel=1e-6) and len(r) == len(walk) + 10 + len(b30) - 11
-    np.testing.assert_allclose(r.global_positions()[len(walk) + 10:], b30.global_positions()[11:], atol=1e-3)
-    # A frame halfway between two at A's rate goes to the later one, as resample's own frames do.
-    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--method", "slerp", "--length", "10",
-                            "--b-start", "5")
-    assert code == 0 and "(its frame 5 is frame 3)" in stdout, err
-    # Without --map, the map made of A and B lists B's segments by B's frames at A's rate, so
-    # it names B with that rate.
-    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--length", "20")
+    assert (f"{b}: {b60.fps:g} fps, its frames from 22 on resampled to A's {walk.fps:g} fps (its frame 22 is "
+            "their first)") in stdout
+    r, cut, b30 = bvh.read(out), resample(b60[22:], walk.fps), resample(b60, walk.fps)
+    assert r.fps == pytest.approx(walk.fps, rel=1e-6) and len(r) == len(walk) + 10 + len(cut)
+    np.testing.assert_allclose(r.global_positions()[len(walk) + 10:], cut.global_positions(), atol=1e-3)
+    # B's frame 22 is at A's rate the frame halfway between 10 and 11 there: as the whole of B
+    # resampled has it from its frame 11 (22 / 60 s), to within the BVH's decimals.
+    np.testing.assert_allclose(cut.global_positions()[: len(cut) - 1], b30.global_positions()[11: 10 + len(cut)],
+                               atol=1e-3)
+    # B's frames before --b-start are never read: garbled, the output is the same.
+    garbled = bvh.read(b)
+    garbled.rotations[:22] = garbled.rotations[::-1][:22]
+    garbled.positions[:22] += 100.0
+    bvh.write(tmp_path / "g60.bvh", garbled)
+    code, _, err = run(capsys, "transition", a, tmp_path / "g60.bvh", "-o", tmp_path / "g.bvh", "--method", "slerp",
+                       "--length", "10", "--b-start", "22", "--no-align")
     assert code == 0, err
-    assert f"{b} (at {walk.fps:g} fps) frames " in stdout and f"{b} frames" not in stdout, stdout
+    np.testing.assert_allclose(bvh.read(tmp_path / "g.bvh").global_positions(), r.global_positions(), atol=1e-6)
+    # Without --map, the report names B's frames by their count from --b-start at A's rate.
+    code, stdout, err = run(capsys, "transition", a, b, "-o", out, "--length", "20", "--b-start", "4")
+    assert code == 0, err
+    assert f"{b} (at {walk.fps:g} fps) from its frame 4 frames " in stdout or "lower: " not in stdout, stdout
+    assert f"{b} frames" not in stdout, stdout
     # B's own last frame is the last a --b-start can name.
     assert_refused(capsys, "--b-start", "transition", a, b, "-o", out, "--b-start", str(len(b60)),
                    words=[f"frame {len(b60)} is outside clip B (frames 0..{len(b60) - 1})"])

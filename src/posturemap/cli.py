@@ -219,21 +219,30 @@ def _cmd_transition(args) -> int:
     if why:
         raise UserError(args.b, why)
     _check_output(args.output, [args.a, args.b])
-    b_start, rate_note = args.b_start, None
-    if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames: the nearest in time
+    b_start, rate_note, b_name = args.b_start, None, args.b
+    if not same_fps(a.fps, b.fps):  # B at A's rate; --b-start counts B's own frames
         try:
             frame_index("b_start", b_start, len(b), "clip B")
         except RequestError as e:
             raise UserError("--b-start", e.what) from None
-        b_fps, b = b.fps, at_one_rate([b], a.fps, [args.b])[0][0]
-        b_start = min(int(args.b_start * a.fps / b_fps + 0.5), len(b) - 1)  # halves up, as resample's frames
-        rate_note = (f"  {args.b}: {b_fps:g} fps, resampled to A's {a.fps:g} fps "
-                     f"(its frame {args.b_start} is frame {b_start})")
+        # From its frame b_start on only: a resampled frame between two of B's would blend in the
+        # frame before b_start, which a gap in a take (B the take at another rate) replaces.
+        b_fps, b = b.fps, at_one_rate([b[args.b_start:]], a.fps, [args.b])[0][0]
+        b_start = 0
+        rate_note = (f"  {args.b}: {b_fps:g} fps, its frames from {args.b_start} on resampled to A's {a.fps:g} fps "
+                     f"(its frame {args.b_start} is their first)")
+        # The report counts them from there, at A's rate.
+        b_name = f"{resampled_name(args.b, a.fps)} from its frame {args.b_start}"
     model = None
     if args.map:
         model = PostureMap.load(args.map)
         model.check_skeleton(a.skeleton, args.a)
     given = model is not None
+    gap = args.b_start - args.a_end - 1 if args.a_end is not None else 0
+    if args.no_align and gap > 0 and args.length != gap and rate_note is None and _same_file(args.a, args.b):
+        print(f"posturemap: warning: {args.b}: A and B are one take and --length {args.length} is not the {gap} frames "
+              f"between --a-end and --b-start: the take comes out {abs(gap - args.length)} frames "
+              f"{'shorter' if args.length < gap else 'longer'} (--length {gap} keeps its duration)", file=sys.stderr)
     request = TransitionRequest(length=args.length, alpha=args.alpha, method=args.method, key_at=args.key_at,
                                 a_end=args.a_end, b_start=b_start, align=not args.no_align,
                                 foot_lock=not args.no_foot_lock)
@@ -297,13 +306,12 @@ def _cmd_transition(args) -> int:
             with contextlib.suppress(OSError):
                 os.remove(args.preview)
         raise
-    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames "
-          f"+ B[{b_start}..{len(b) - 1}]" + (f"; filmstrip {args.preview}" if args.preview else ""))
+    b_part = f"B[{b_start}..{len(b) - 1}]" if rate_note is None else f"B from its frame {args.b_start} ({len(b)} frames)"
+    print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames + {b_part}"
+          + (f"; filmstrip {args.preview}" if args.preview else ""))
     if rate_note:
         print(rate_note)
     if "retrieval" in report:
-        # B's own frames are counted at A's rate where it was resampled (named so, as train names it).
-        b_name = args.b if rate_note is None else resampled_name(args.b, a.fps)
         print(describe_retrieval(report["retrieval"], {"a": args.a, "b": b_name}))
     if not args.no_foot_lock and not leg_chains(a.skeleton):
         print(f"  foot lock: off, no legs found by name (an ankle named foot or ankle, under a shin and a thigh) "
@@ -329,6 +337,14 @@ def _cmd_resample(args) -> int:
         bvh.write(args.output, out)
     print(f"{args.output}: {len(out)} frames at {out.fps:g} fps ({args.input}: {len(m)} frames at {m.fps:g} fps)")
     return 0
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def describe_retrieval(info, clips: dict | None = None) -> str:
@@ -460,8 +476,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="file to write: .bvh (A's skeleton and channels), or .glb / .gltf (glTF 2.0: "
                         "metres, Y up, one animation; the clip's unit is guessed from its body height)")
     r.add_argument("--map", metavar="MAP", help="posture map (and motion library) from `posturemap train` "
-                                                "(default: learn one from A and B)")
-    r.add_argument("--length", type=_positive_int, default=DEFAULT_LENGTH, help=f"in-between frames ({DEFAULT_LENGTH})")
+                                                "(default: learn one from the frames A and B keep)")
+    r.add_argument("--length", type=_positive_int, default=DEFAULT_LENGTH,
+                   help=f"in-between frames ({DEFAULT_LENGTH}; a gap in one file keeps its duration with --length "
+                        "equal to the frames between --a-end and --b-start: a warning says when it does not)")
     r.add_argument("--key-at", type=_positive_int, default=None,
                    help="position of the key among the in-between frames, 1..length (default length/2; "
                         "used by the key-posture methods, checked for every method)")

@@ -295,7 +295,7 @@ def _whole_clip_section(r: list[str], inb: dict) -> None:
     r.append("### A gap in a take: the whole clip as context\n")
     r.append(f"The same windows, but A is the test clip up to the last past frame and B the clip from the first "
              f"future frame: everything but the gap, where the protocol above gives {N_PAST} frames each (a gap "
-             "in a take to fill, as `posturemap transition take.bvh take.bvh --a-end I --b-start J --no-align` "
+             "in a take to fill, as `posturemap transition take.bvh take.bvh --a-end I --b-start J --length J-I-1 --no-align` "
              "gives it). The default also searches the clips' own motion beside the library "
              "(`TransitionEngine.own_seconds`; docs/retrieval.md, \"The clips' own motion\"); "
              f"\"{labels[-1]}\" does not. Ratios to slerp's (slerp reads the seams only: its figures are "

@@ -772,7 +772,12 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # L2Q by +0.3% to +1.6% (held-out contents at 15 and 30 frames) for no less skate.
         # One search ranks the candidates for the single segment and both halves of the splice.
         shared = {"alphas": (0.0, 1.0)} if align else {}
-        found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared)
+        # A library that holds the take being in-betweened (a map trained on it) would replay the
+        # frames this transition replaces: that clip is left out (its kept frames are the clips'
+        # own motion, below).
+        skip = (lib.take_clips(rt.part_joints[1], ta.rots[a_end], tb.rots[b_start], b_start - a_end)
+                if b_start > a_end + 1 else None)
+        found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared, skip=skip)
     # The clips' own motion (A's up to its end, B's from its start) searched as well where B
     # stays where it is (a gap in a take), or where no library is; its match is taken where it
     # costs no more than the library's and, between clips, carries the legs fully confident (else

@@ -268,6 +268,33 @@ class MotionLibrary:
     def _first(self, c: int) -> int:
         return int(self.clip_first[c]) if c < len(self.clip_first) else 0
 
+    def take_clips(self, joints: np.ndarray, a_rots: np.ndarray, b_rots: np.ndarray, gap: int) -> np.ndarray:
+        """The clips of this library that are a take being in-betweened: those holding its frame
+        ``a_rots`` (J, 4: a track's rotations, compared at ``joints``, as float32 as the library
+        keeps them) and, ``gap`` frames later, its frame ``b_rots``; each recorded clip with its
+        reversed copy. Their frames between would be the very frames the transition replaces
+        (a map trained on the take). Empty where none. Found through a table of every recorded
+        frame's rotations, made once per library."""
+        table = self.derived(("frame table", tuple(int(j) for j in joints)), lambda: self._frame_table(joints))
+        a = np.ascontiguousarray(a_rots[joints], dtype=np.float32)
+        b = np.ascontiguousarray(b_rots[joints], dtype=np.float32)
+        out = []
+        for i in table.get(hash(a.tobytes()), ()):
+            j = i + gap
+            if (j < self.clip_end[i] and np.array_equal(self.rots[i, joints], a)
+                    and np.array_equal(self.rots[j, joints], b)):
+                c = int(self.clip_of[i])
+                out += [c, c + self.num_recorded_clips] if self.reverse else [c]
+        return np.unique(np.array(out, dtype=np.int64))
+
+    def _frame_table(self, joints: np.ndarray) -> dict:
+        """Each recorded frame's index under the hash of its rotations at ``joints``."""
+        rows = np.ascontiguousarray(self.rots[: self.recorded][:, joints])
+        table: dict[int, list[int]] = {}
+        for i, row in enumerate(rows):
+            table.setdefault(hash(row.tobytes()), []).append(i)
+        return table
+
     def library_frame(self, name: str, frame: int) -> int:
         """The library index of frame ``frame`` (as recorded, counted in the clip it was cut from:
         ``clip_first``) of the recorded clip ``name`` (the first of that name that holds it);

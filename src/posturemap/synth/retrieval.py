@@ -1294,7 +1294,7 @@ class Match:
 
 def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: float, align: bool,
           exhaustive: bool = False, top_k: int | None = None, seam: str = "both",
-          shared: dict | None = None) -> Match | None:
+          shared: dict | None = None, skip: np.ndarray | None = None) -> Match | None:
     """The search of :func:`retrieve` and the confidences, without replaying; None when no
     segment fits at all.
 
@@ -1308,6 +1308,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     on another transition starts afresh. With ``shared["alphas"]`` set, the first call ranks
     the candidates for all of those alphas in its one search (as
     :meth:`Retriever.search_alphas`), and later calls for those alphas search no more.
+    ``skip``: library clips left out of the search (:meth:`MotionLibrary.take_clips`: the take
+    being in-betweened; not with ``exhaustive``).
     """
     lib = rt.lib
     fps = float(ta.motion.fps)
@@ -1318,6 +1320,12 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     xa, xb = ta.features[a_end], tb.features[b_start]
     shared = {} if shared is None else shared
     key = (id(ta), id(tb), a_end, b_start, length, bool(align), bool(exhaustive), top_k)
+    kept = shared.get("skip")
+    if skip is None and kept is not None and kept[0] == key:  # a splice's halves leave out what its search did
+        skip = kept[1]
+    skip = np.zeros(0, np.int64) if skip is None else np.asarray(skip, dtype=np.int64)
+    shared["skip"] = (key, skip)
+    key += (tuple(skip.tolist()),)
     if shared.get("key") != key:  # another transition: nothing kept applies to it
         for name in ("seams", "found"):
             shared.pop(name, None)
@@ -1328,6 +1336,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         qa, qb = rt.seam_pair(ta, ia, tb, ib)
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
+        if len(skip) and not exhaustive:  # a segment lies in one clip: none of these clips' then
+            gathered = [tuple(f[~np.isin(lib.clip_of[f], skip)] for f in pair) for pair in gathered]
         # In-betweening: B's place is fixed, so the gap's displacement ranks the segments and its
         # speed says whether the character must travel (still_weight).
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
