@@ -294,6 +294,10 @@ class TransitionEngine:
                 for length in lengths:
                     _open_columns(self, ta, tb, na - 1, 0, length)
                     spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
+                # The table that finds a take in the library (made once per library, about 30 ms
+                # for bandai1's): asked of every gap whose B starts past A's end.
+                rt = self._retriever
+                rt.lib.take_clips(rt.part_joints[1], ta.rots[na - 1], tb.rots[0], 2)
         finally:
             self.last = last
             self._buffers = {**self._buffers, **buffers}
