@@ -306,7 +306,8 @@ def _cmd_transition(args) -> int:
             with contextlib.suppress(OSError):
                 os.remove(args.preview)
         raise
-    b_part = f"B[{b_start}..{len(b) - 1}]" if rate_note is None else f"B from its frame {args.b_start} ({len(b)} frames)"
+    b_part = (f"B[{b_start}..{len(b) - 1}]" if rate_note is None
+              else f"B from its frame {args.b_start} ({len(b)} frames)")
     print(f"{args.output}: {len(out)} frames = A[0..{a_end}] + {args.length} {used} frames + {b_part}"
           + (f"; filmstrip {args.preview}" if args.preview else ""))
     if rate_note:
@@ -351,7 +352,8 @@ def describe_retrieval(info, clips: dict | None = None) -> str:
     """One line per body part: which clip and frames were replayed, and how confidently.
     ``clips``: the files of the clips' own motion by their names in the report (``a``, ``b``)."""
     if not info:
-        return "  retrieval: no segment of the library or of the clips' own frames fits; interpolated instead (fallback)"
+        return ("  retrieval: no segment of the library or of the clips' own frames fits; interpolated instead "
+                "(fallback)")
     if max(r["confidence"] for r in info["parts"].values()) <= 0.0:
         if info.get("standing"):
             return ("  retrieval: the body stands still at both seams (a standing gesture, confidence 0); "

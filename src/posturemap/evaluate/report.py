@@ -346,14 +346,16 @@ def markdown(results: dict) -> str:
         _acceptance_rows(r, name, hold["inbetween"])
     whole = [(name, hold["inbetween"]) for name, hold in holds.items() if hold["inbetween"].get("whole_clip")]
     if whole:
+        def goal_ratios(inb, k):  # the default with the whole clip, over slerp, at GOAL_LENGTHS
+            wc, sl = inb["whole_clip"]["methods"][inb["default_method"]], inb["methods"]["slerp"]
+            return " / ".join(f"{wc[str(n)][k] / sl[str(n)][k]:.3f}" for n in GOAL_LENGTHS)
+
         r.append(f"**A gap in a take** (the same windows with the whole clip as context instead of {N_PAST} frames "
                  "each side; see each hold-out's section): the default's L2Q and L2P as ratios to slerp's at "
                  + " and ".join(map(str, GOAL_LENGTHS)) + " frames: "
-                 + "; ".join(f"{name} " + ", ".join(
-                     k.upper() + " " + " / ".join(
-                         f"{inb['whole_clip']['methods'][inb['default_method']][str(n)][k] / inb['methods']['slerp'][str(n)][k]:.3f}"
-                         for n in GOAL_LENGTHS) for k in ("l2q", "l2p"))
-                     for name, inb in whole if all(str(n) in inb["methods"]["slerp"] for n in GOAL_LENGTHS)) + ".\n")
+                 + "; ".join(f"{name} L2Q {goal_ratios(inb, 'l2q')}, L2P {goal_ratios(inb, 'l2p')}"
+                             for name, inb in whole if all(str(n) in inb["methods"]["slerp"] for n in GOAL_LENGTHS))
+                 + ".\n")
     ratios = split_ratios(results) if results.get("more_splits") else None
     default = next(iter(holds.values()))["inbetween"]["default_method"]
     if ratios:
@@ -442,10 +444,12 @@ def whole_clip_ratios(results: dict) -> dict | None:
     if not tables or any(t.get("whole_clip") is None for t in tables.values()):
         return None
     default = next(iter(results["holdouts"].values()))["inbetween"]["default_method"]
-    out = {name: {str(n): {"l2q": t["whole_clip"]["methods"][default][str(n)]["l2q"] / t["methods"]["slerp"][str(n)]["l2q"],
-                           "l2p": t["whole_clip"]["methods"][default][str(n)]["l2p"] / t["methods"]["slerp"][str(n)]["l2p"],
-                           "skate": t["whole_clip"]["methods"][default][str(n)]["skate"] / t["truth"][str(n)]["skate"]}
-                   for n in SKATE_LENGTHS} for name, t in tables.items()}
+    def ratios(t, n):
+        whole, slerp = t["whole_clip"]["methods"][default][n], t["methods"]["slerp"][n]
+        return {"l2q": whole["l2q"] / slerp["l2q"], "l2p": whole["l2p"] / slerp["l2p"],
+                "skate": whole["skate"] / t["truth"][n]["skate"]}
+
+    out = {name: {str(n): ratios(t, str(n)) for n in SKATE_LENGTHS} for name, t in tables.items()}
     out["mean"] = {str(n): {k: float(np.mean([out[s][str(n)][k] for s in tables])) for k in ("l2q", "l2p", "skate")}
                    for n in SKATE_LENGTHS}
     return out

@@ -86,7 +86,7 @@ UPPER_CONF_RANGE = {False: (16.0, 48.0), True: (24.0, 48.0)}  # the upper body's
 HEAD_GAZE = 0.5
 UPPER_FOLLOWS = 0.5  # the upper body is retrieved in full while the legs' confidence is at least this
 # The upper body's match distance (degrees) over which the clips' own motion keeps a standing
-# gesture (a bow, a wave) confident where the body stands at both seams (see confidences).
+# gesture (a bow, a wave) confident where the body stands at the seams (see confidences).
 OWN_STANDING_RANGE = (8.0, 24.0)
 # The foot lock holds the retrieved segment's planted feet where its legs lie within this match
 # distance (degrees; between clips, the end of their ramp); beyond, it finds them itself.
@@ -1287,7 +1287,7 @@ class Match:
             self._info = {"parts": parts, "confidence": round(min(self.confidence), 3)}
             if self.own:  # the clips' own frames: A's up to its end, B's from its start
                 self._info["own"] = True
-            if self.still <= 0.0:  # why every part is interpolated, whatever the match distance
+            if self.still <= 0.0:  # why the legs are interpolated (and, but for own motion, the arms)
                 self._info["standing"] = True
         return self._info
 
