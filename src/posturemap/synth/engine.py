@@ -295,7 +295,7 @@ class TransitionEngine:
                     _open_columns(self, ta, tb, na - 1, 0, length)
                     spliced(self._retriever, ta, tb, na - 1, 0, length, 0.5)
                 # The table that finds a take in the library (made once per library, about 30 ms
-                # for bandai1's): asked of every gap whose B starts past A's end.
+                # for bandai1's): asked of every in-betweening whose B starts past A's end.
                 rt = self._retriever
                 rt.lib.take_clips(rt.part_joints[1], ta.rots[na - 1], tb.rots[0], 2)
         finally:
@@ -778,9 +778,9 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         shared = {"alphas": (0.0, 1.0)} if align else {}
         # A library that holds the take being in-betweened (a map trained on it) would replay the
         # frames this transition replaces: that clip is left out (its kept frames are the clips'
-        # own motion, below).
+        # own motion, below). Between clips (B placed to continue A) nothing is replaced.
         skip = (lib.take_clips(rt.part_joints[1], ta.rots[a_end], tb.rots[b_start], b_start - a_end)
-                if b_start > a_end + 1 else None)
+                if not align and b_start > a_end + 1 else None)
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared, skip=skip)
     # The clips' own motion (A's up to its end, B's from its start) searched as well where B
     # stays where it is (a gap in a take), or where no library is; its match is taken where it
