@@ -106,12 +106,17 @@ def clip_contacts(ankles: np.ndarray, up: int, fps: float, leg: float) -> np.nda
     """
     if ankles.shape[1] == 0 or len(ankles) == 0:
         return np.zeros(ankles.shape[:2], dtype=bool)
-    h = ankles[..., up]
-    floor = np.percentile(h, FLOOR_PERCENTILE, axis=0)
     flat = np.ones(3)
     flat[up] = 0.0
-    speed = slower_step(ankles * flat) * fps
-    return (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
+    return planted(ankles[..., up], slower_step(ankles * flat) * fps, leg)
+
+
+def planted(heights: np.ndarray, speeds: np.ndarray, leg: float) -> np.ndarray:
+    """:func:`clip_contacts` from the ankles' heights and horizontal speeds (F, legs): within
+    ``CONTACT_HEIGHT`` leg lengths of the clip's floor (the :data:`FLOOR_PERCENTILE` th percentile
+    of each ankle's heights) and slower than ``CONTACT_SPEED`` leg lengths per second."""
+    floor = np.percentile(heights, FLOOR_PERCENTILE, axis=0)
+    return (heights < floor + CONTACT_HEIGHT * leg) & (speeds < CONTACT_SPEED * leg)
 
 
 class EarlierLegs(ValueError):
@@ -479,10 +484,9 @@ def _piece(frames: dict, lo: int, hi: int, heading: np.ndarray, up: int, fps: fl
     h = frames["heights"][lo:hi]
     if h.shape[1] == 0:
         return pose, vel, root, np.zeros(h.shape, dtype=bool)
-    st = frames["steps"][lo: hi - 1]
+    st = frames["steps"][lo: hi - 1]  # feet.slower_step of the piece, from the clip's steps
     speed = (np.concatenate([st[:1], np.minimum(st[1:], st[:-1]), st[-1:]]) if len(st) else np.zeros_like(h)) * fps
-    floor = np.percentile(h, FLOOR_PERCENTILE, axis=0)
-    return pose, vel, root, (h < floor + CONTACT_HEIGHT * leg) & (speed < CONTACT_SPEED * leg)
+    return pose, vel, root, planted(h, speed, leg)
 
 
 def own_library(pieces, up: int, leg: float, lower: np.ndarray, upper: np.ndarray,

@@ -1309,7 +1309,7 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     the candidates for all of those alphas in its one search (as
     :meth:`Retriever.search_alphas`), and later calls for those alphas search no more.
     ``skip``: library clips left out of the search (:meth:`MotionLibrary.take_clips`: the take
-    being in-betweened; not with ``exhaustive``).
+    being in-betweened, where nothing is spliced; not with ``exhaustive``).
     """
     lib = rt.lib
     fps = float(ta.motion.fps)
@@ -1319,13 +1319,8 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
     ib = [b_start, min(b_start + 1, len(tb.gpos) - 1)]
     xa, xb = ta.features[a_end], tb.features[b_start]
     shared = {} if shared is None else shared
-    key = (id(ta), id(tb), a_end, b_start, length, bool(align), bool(exhaustive), top_k)
-    kept = shared.get("skip")
-    if skip is None and kept is not None and kept[0] == key:  # a splice's halves leave out what its search did
-        skip = kept[1]
     skip = np.zeros(0, np.int64) if skip is None else np.asarray(skip, dtype=np.int64)
-    shared["skip"] = (key, skip)
-    key += (tuple(skip.tolist()),)
+    key = (id(ta), id(tb), a_end, b_start, length, bool(align), bool(exhaustive), top_k, tuple(skip.tolist()))
     if shared.get("key") != key:  # another transition: nothing kept applies to it
         for name in ("seams", "found"):
             shared.pop(name, None)
