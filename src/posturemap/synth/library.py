@@ -453,8 +453,8 @@ def own_frames(track, keys: np.ndarray, ankles: list[int], up: int) -> dict[str,
     slice: ``pose`` (F, K, 3), the key joints ``keys`` about the root in its heading frame, as
     :func:`clip_features` has them, their velocity ``vel`` and ``root`` (F, 5) as
     :func:`motion_features` has them over the whole clip (backward differences), the root's
-    velocity in the world ``root_world`` (F, 3) and the ankles' heights ``heights`` (F, legs)
-    and horizontal steps to the next frame ``steps`` (F - 1, legs)."""
+    velocity in the world ``root_world`` (F, 3), the ankles' heights ``heights`` (F, legs) and
+    their places over the floor ``flat`` (F, legs, 3; the up coordinate 0)."""
     m = track.motion
     grot, gp = np.empty(m.rotations.shape), np.empty(m.positions.shape)
     kernels.fk(m.skeleton.parents, m.rotations, m.positions, grot, gp)
@@ -465,7 +465,7 @@ def own_frames(track, keys: np.ndarray, ankles: list[int], up: int) -> dict[str,
     feet = gp[:, ankles]
     return {"pose": pose, "vel": vel, "root": root,
             "root_world": np.concatenate([track.gpos[1:2] - track.gpos[:1], np.diff(track.gpos, axis=0)]) * m.fps,
-            "heights": feet[..., up], "steps": np.linalg.norm(np.diff(feet * flat, axis=0), axis=-1)}
+            "heights": feet[..., up], "flat": feet * flat}
 
 
 def _piece(frames: dict, lo: int, hi: int, heading: np.ndarray, up: int, fps: float, leg: float):
@@ -484,9 +484,7 @@ def _piece(frames: dict, lo: int, hi: int, heading: np.ndarray, up: int, fps: fl
     h = frames["heights"][lo:hi]
     if h.shape[1] == 0:
         return pose, vel, root, np.zeros(h.shape, dtype=bool)
-    st = frames["steps"][lo: hi - 1]  # feet.slower_step of the piece, from the clip's steps
-    speed = (np.concatenate([st[:1], np.minimum(st[1:], st[:-1]), st[-1:]]) if len(st) else np.zeros_like(h)) * fps
-    return pose, vel, root, planted(h, speed, leg)
+    return pose, vel, root, planted(h, slower_step(frames["flat"][lo:hi]) * fps, leg)
 
 
 def own_library(pieces, up: int, leg: float, lower: np.ndarray, upper: np.ndarray,
