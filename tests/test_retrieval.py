@@ -643,6 +643,26 @@ def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
     assert len(kept) == 1 and kept[0][0] is child.tracks[b]  # B's, shared; not A's replaced one
 
 
+def test_a_clips_knee_bounds_are_those_of_its_kept_frames_and_warm_up_makes_them(model, clips):
+    # A transition reads how far back each knee and elbow goes in A up to its end and in B from
+    # its start: two rows of running minima, made once per clip (in warm_up for the clips added).
+    from posturemap.synth import engine as engine_module, hinges
+
+    eng = TransitionEngine(model)
+    for n in HELD_OUT[:3]:
+        eng.add(n, clips[n])
+    eng.warm_up()
+    limbs = engine_module._library_limbs(eng, model.library_)
+    assert len(limbs[3]) and len(eng._limb_bends) == 3
+    for track in eng.tracks.values():
+        first, last = engine_module._limb_bends(eng, track, limbs)
+        bends = hinges.bend_frames(limbs[:3], track.motion.rotations, track.motion.positions)
+        assert bends.min() < bends.max()
+        for f in (0, 7, len(bends) // 2, len(bends) - 1):
+            np.testing.assert_array_equal(first[f], bends[:f + 1].min(axis=0))
+            np.testing.assert_array_equal(last[f], bends[f:].min(axis=0))
+
+
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):
     with pytest.raises(RequestError, match="add one first"):
         TransitionEngine(model).warm_up()

@@ -298,6 +298,12 @@ class TransitionEngine:
                 # for bandai1's): asked of every in-betweening whose B starts past A's end.
                 rt = self._retriever
                 rt.lib.take_clips(rt.part_joints[1], ta.rots[na - 1], tb.rots[0], 2)
+                # Each clip's knees and elbows about the library's hinges (a clip's first
+                # transition would pay for it: about 0.5 ms for a bandai1 clip).
+                limbs = _library_limbs(self, rt.lib)
+                if len(limbs[3]):
+                    for track in self.tracks.values():
+                        _limb_bends(self, track, limbs)
         finally:
             self.last = last
             self._buffers = {**self._buffers, **buffers}
@@ -419,22 +425,39 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         lib = own
     if lib is None or not len(lib):
         return
-    sk = eng.skeleton
-    limbs = lib.derived("hinges", lambda: hinges.packed(hinges.find(
-        sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets), sk.parents))
+    limbs = _library_limbs(eng, lib)
     joints, bounds, hinge, least = limbs
     if not len(least):
         return
-    for track, kept in ((ta, slice(0, a_end + 1)), (tb, slice(b_start, None))):
-        bends = eng._limb_bends.get(id(track))
-        if bends is None or bends[0] is not track or bends[1] is not limbs:
-            _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
-            bends = track, limbs, hinges.bend_frames((joints, bounds, hinge), track.motion.rotations,
-                                                     track.motion.positions)
-            eng._limb_bends[id(track)] = bends
-        if len(bends[2][kept]):
-            least = np.minimum(least, bends[2][kept].min(axis=0))
+    first, last = _limb_bends(eng, ta, limbs)[0], _limb_bends(eng, tb, limbs)[1]
+    least = np.minimum(least, first[a_end])
+    if b_start < len(last):
+        least = np.minimum(least, last[b_start])
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
+
+
+def _library_limbs(eng: TransitionEngine, lib: MotionLibrary) -> tuple:
+    """The knees' and elbows' hinges and bounds in ``lib`` (:func:`posturemap.synth.hinges.packed`
+    of :func:`~posturemap.synth.hinges.find`), once per library."""
+    sk = eng.skeleton
+    return lib.derived("hinges", lambda: hinges.packed(hinges.find(
+        sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets), sk.parents))
+
+
+def _limb_bends(eng: TransitionEngine, track: Track, limbs: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """How far back each knee and elbow of ``limbs`` (:func:`posturemap.synth.hinges.packed`)
+    goes in ``track``'s frames up to each frame and from each frame on: (N, limbs) each, the
+    running minimum of :func:`posturemap.synth.hinges.bend_frames` from the clip's first frame and
+    from its last. Once per clip and limbs (a clip's first transition, or :meth:`TransitionEngine.warm_up`),
+    so a transition reads two rows, whatever the clip's length."""
+    kept = eng._limb_bends.get(id(track))
+    if kept is None or kept[0] is not track or kept[1] is not limbs:
+        _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
+        bends = hinges.bend_frames(limbs[:3], track.motion.rotations, track.motion.positions)
+        kept = track, limbs, (np.minimum.accumulate(bends, axis=0),
+                              np.minimum.accumulate(bends[::-1], axis=0)[::-1])
+        eng._limb_bends[id(track)] = kept
+    return kept[2]
 
 
 def _forget_gone_clips(eng: TransitionEngine) -> None:
