@@ -923,7 +923,7 @@ def test_the_seams_path_follows_a_curving_walk():
     arc = np.stack([radius * np.sin(angle), np.zeros_like(t), radius * (1.0 - np.cos(angle))], axis=1)
     side = np.stack([-np.sin(angle), np.zeros_like(t), np.cos(angle)], axis=1)
     gpos = arc + 3.0 * np.sin(2 * np.pi * 1.8 * t)[:, None] * side
-    track = SimpleNamespace(gpos=gpos)
+    track = SimpleNamespace(gpos=gpos, motion=SimpleNamespace(fps=fps))
     a_end, length = 60, 44
     b_start = a_end + length + 1
     path = trajectory.seam_path(track, track, a_end, b_start, length, UP)
@@ -934,6 +934,41 @@ def test_the_seams_path_follows_a_curving_walk():
     off = lambda p: np.linalg.norm((p - arc[gap])[:, [0, 2]], axis=1).max()
     assert off(chord) > 35.0
     assert off(path) < 10.0
+
+
+def test_the_seams_path_over_a_long_gap_carries_a_sway_briefly_and_a_walk_on():
+    # Over a gap longer than SEAM_HERMITE_S a seam's velocity is its average over its last
+    # (first) second, the two frames' own fading within SEAM_FADE_S: a performer swaying 3 cm
+    # from side to side in place stays within a few cm of their place through a 5 s gap, where
+    # the cubic through the seams' two-frame velocities swings 15 cm and more away; a steady
+    # straight walk stays on its line; the first and last new frames move on with the seams' step.
+    from types import SimpleNamespace
+
+    fps = 30.0
+    t = np.arange(400) / fps
+    sway = np.zeros((len(t), 3))
+    sway[:, 2] = 3.0 * np.sin(2 * np.pi * 1.8 * t)
+    a_end = 100
+    for length in (149, 174):  # 5 and 5.8 s, A's last and B's first frame swaying at full speed
+        b_start = a_end + length + 1
+        track = SimpleNamespace(gpos=sway, motion=SimpleNamespace(fps=fps))
+        path = trajectory.seam_path(track, track, a_end, b_start, length, UP)
+        cubic = trajectory.through_seams(sway[[a_end - 1, a_end, b_start, b_start + 1]], length)
+        assert np.abs(cubic[:, 2]).max() > 15.0
+        assert np.abs(path[:, [0, 2]]).max() < 5.0
+        # The seams' own step carried into the first and last new frames (slowing: it fades).
+        for first, seam in (((path[0] - sway[a_end]), sway[a_end] - sway[a_end - 1]),
+                            ((sway[b_start] - path[-1]), sway[b_start + 1] - sway[b_start])):
+            assert abs(seam[2]) > 1.0 and 0.5 < first[2] / seam[2] <= 1.0 and first[0] == 0.0
+    walk = np.stack([120.0 * t, np.zeros_like(t), 40.0 * t], axis=1)
+    track = SimpleNamespace(gpos=walk, motion=SimpleNamespace(fps=fps))
+    path = trajectory.seam_path(track, track, a_end, a_end + 150, 149, UP)
+    np.testing.assert_allclose(path, walk[a_end + 1:a_end + 150] * [1, 0, 1], atol=1e-9)
+    # Up to SEAM_HERMITE_S, the cubic itself.
+    length = int(trajectory.SEAM_HERMITE_S * fps) - 1
+    path = trajectory.seam_path(track, track, a_end, a_end + length + 1, length, UP)
+    np.testing.assert_array_equal(path[:, [0, 2]], trajectory.through_seams(
+        walk[[a_end - 1, a_end, a_end + length + 1, a_end + length + 2]], length)[:, [0, 2]])
 
 
 def test_alignment_faces_b_the_way_a_walks(clips, model):
