@@ -960,6 +960,12 @@ def test_the_seams_path_over_a_long_gap_carries_a_sway_briefly_and_a_walk_on():
         for first, seam in (((path[0] - sway[a_end]), sway[a_end] - sway[a_end - 1]),
                             ((sway[b_start] - path[-1]), sway[b_start + 1] - sway[b_start])):
             assert abs(seam[2]) > 1.0 and 0.5 < first[2] / seam[2] <= 1.0 and first[0] == 0.0
+    # Sides with less than SEAM_AVERAGE_S of their own frames (the bench's 10 context frames)
+    # keep their last step's velocity: the cubic.
+    short = SimpleNamespace(gpos=sway[:10 + 150 + 10], motion=SimpleNamespace(fps=fps))
+    path = trajectory.seam_path(short, short, 9, 160, 150, UP)
+    np.testing.assert_allclose(path[:, [0, 2]], trajectory.through_seams(sway[[8, 9, 160, 161]], 150)[:, [0, 2]],
+                               atol=1e-12)
     walk = np.stack([120.0 * t, np.zeros_like(t), 40.0 * t], axis=1)
     track = SimpleNamespace(gpos=walk, motion=SimpleNamespace(fps=fps))
     path = trajectory.seam_path(track, track, a_end, a_end + 150, 149, UP)

@@ -262,8 +262,10 @@ class TransitionEngine:
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
         B where it is (matches of every confidence, as these clips give them); then, with a
         motion library, what runs at one confidence only (every part retrieved; a splice), run
-        directly. Returns the number of transitions run; :attr:`last` and the frames earlier calls
-        returned are left as they were. Raises :class:`RequestError` when no clip has been added."""
+        directly; and every clip's knees and elbows measured against the library's hinges (each
+        clip's first transition would pay for it). Returns the number of transitions run;
+        :attr:`last` and the frames earlier calls returned are left as they were. Raises
+        :class:`RequestError` when no clip has been added."""
         if not self.tracks:
             raise RequestError("a", "no clips to warm up with (add one first)")
         methods = (methods,) if isinstance(methods, str) else tuple(methods)
