@@ -10,7 +10,7 @@ import pytest
 from posturemap.core import quat
 from posturemap.core.skeleton import fk
 from posturemap.core import kernels
-from posturemap.synth.hinges import REACH_MIN, find, leg_vectors, packed, signed_bends, unbend
+from posturemap.synth.hinges import REACH_MIN, bend_frames, find, leg_vectors, packed, signed_bends, unbend
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -192,6 +192,28 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
     assert not np.array_equal(rots[1, chain[0]], before[1, chain[0]])  # bent back 30 degrees: the hip turns
     t, s = leg_vectors(rots, pos, knees[0][0])
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("twist", [False, True])
+def test_bend_frames_is_the_same_compiled(twist):
+    # Each frame's knee bends (forward and backward, a leg without a hinge left out by packed):
+    # the compiled kernel reads what the numpy reference reads, per-frame translations or one set.
+    rng = np.random.default_rng(5)
+    parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
+                                                  np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
+    left, right = find(parents, chains, lib_rots, lib_pos[0])
+    legs = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)[:3]
+    _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
+                               twist, rng)
+    pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
+    kernels.compiled()
+    for offsets in (pos, pos[0]):
+        with kernels.numpy_backend():
+            want = bend_frames(legs, rots, offsets)
+        got = bend_frames(legs, rots, offsets)
+        assert want.shape == (40, 2) and want.min() < 0.0 < want.max()
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert bend_frames(legs, rots[:0], pos[:0]).shape == (0, 2)
 
 
 @pytest.mark.parametrize("twist", [False, True])

@@ -498,6 +498,47 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
 
 
 @nb.njit(**_OPTS)
+def _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz):
+    """Frame ``f``'s knee bend about the hinge ``(hx, hy, hz)`` of the leg ``joints[first:last]``
+    (the shin ``joints[mid - 1]``; :func:`posturemap.synth.hinges.signed_bends` of
+    :func:`~posturemap.synth.hinges.leg_vectors`), the rotation to the frame of the shin's parent
+    (w, x, y, z), and the thigh's and the shin's vectors in that frame: (bend, parent, tx, ty,
+    tz, sx, sy, sz)."""
+    q = (1.0, 0.0, 0.0, 0.0)
+    parent = q
+    px, py, pz = 0.0, 0.0, 0.0
+    tx, ty, tz = 0.0, 0.0, 0.0
+    for i in range(first, last):
+        j = joints[i]
+        ox, oy, oz = _rotate(q[0], q[1], q[2], q[3], positions[f, j, 0], positions[f, j, 1], positions[f, j, 2])
+        px, py, pz = px + ox, py + oy, pz + oz
+        if i < mid:
+            parent = q
+        if i < last - 1:  # the ankle's own rotation moves nothing above it
+            q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
+        if i == mid - 1:
+            tx, ty, tz = px, py, pz
+    # Both in the frame of the shin's parent (hinges.leg_vectors).
+    sx, sy, sz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], px - tx, py - ty, pz - tz)
+    tx, ty, tz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], tx, ty, tz)
+    # The bend about the hinge (hinges.signed_bends).
+    across = (sy * tz - sz * ty) * hx + (sz * tx - sx * tz) * hy + (sx * ty - sy * tx) * hz
+    along = tx * sx + ty * sy + tz * sz - (tx * hx + ty * hy + tz * hz) * (sx * hx + sy * hy + sz * hz)
+    return math.atan2(across, along), parent, tx, ty, tz, sx, sy, sz
+
+
+@nb.njit(**_OPTS)
+def limb_bends(rots, positions, joints, bounds, hinges, out):
+    """:func:`posturemap.synth.hinges.bend_frames` (the reference) into ``out`` (N, K): each
+    frame's knee bend of each leg of ``bounds`` about its hinge, as :func:`unbend_limbs` reads
+    it."""
+    for k in range(bounds.shape[0]):
+        hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
+        for f in range(rots.shape[0]):
+            out[f, k] = _limb_bend(rots, positions, f, joints, bounds[k, 0], bounds[k, 1], bounds[k, 2], hx, hy, hz)[0]
+
+
+@nb.njit(**_OPTS)
 def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
     (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``,
@@ -511,27 +552,7 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
         shin = joints[mid - 1]
         hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
         for f in range(rots.shape[0]):
-            q = (1.0, 0.0, 0.0, 0.0)
-            parent = q
-            px, py, pz = 0.0, 0.0, 0.0
-            tx, ty, tz = 0.0, 0.0, 0.0
-            for i in range(first, last):
-                j = joints[i]
-                ox, oy, oz = _rotate(q[0], q[1], q[2], q[3], positions[f, j, 0], positions[f, j, 1], positions[f, j, 2])
-                px, py, pz = px + ox, py + oy, pz + oz
-                if i < mid:
-                    parent = q
-                if i < last - 1:  # the ankle's own rotation moves nothing above it
-                    q = _mul(q[0], q[1], q[2], q[3], rots[f, j, 0], rots[f, j, 1], rots[f, j, 2], rots[f, j, 3])
-                if i == mid - 1:
-                    tx, ty, tz = px, py, pz
-            # Both in the frame of the shin's parent (hinges.leg_vectors).
-            sx, sy, sz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], px - tx, py - ty, pz - tz)
-            tx, ty, tz = _rotate(parent[0], -parent[1], -parent[2], -parent[3], tx, ty, tz)
-            # The bend about the hinge (hinges.signed_bends).
-            across = (sy * tz - sz * ty) * hx + (sz * tx - sx * tz) * hy + (sx * ty - sy * tx) * hz
-            along = tx * sx + ty * sy + tz * sz - (tx * hx + ty * hy + tz * hz) * (sx * hx + sy * hy + sz * hz)
-            bend = math.atan2(across, along)
+            bend, parent, tx, ty, tz, sx, sy, sz = _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz)
             if not bend < leasts[k]:  # within the bound (or NaN: left as it is, as numpy's)
                 continue
             half = 0.5 * (bend - leasts[k])

