@@ -194,18 +194,28 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), 0.0, atol=1e-7)
 
 
+def hinged_legs_and_frames(seed: int, twist: bool):
+    """Two legs' hinges found in a seeded library of knees bent -3..90 degrees, packed with a
+    leg without a hinge between them and the second leg's bound at -10 degrees, and 40 seeded
+    frames of knees bent -60..60 degrees with translations that vary per frame: (chains,
+    limits, rots, pos)."""
+    rng = np.random.default_rng(seed)
+    parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
+                                                  np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
+    left, right = find(parents, chains, lib_rots, lib_pos[0])
+    limits = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)
+    _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
+                               twist, rng)
+    pos += rng.normal(scale=0.01, size=pos.shape)
+    return chains, limits, rots, pos
+
+
 @pytest.mark.parametrize("twist", [False, True])
 def test_bend_frames_is_the_same_compiled(twist):
     # Each frame's knee bends (forward and backward, a leg without a hinge left out by packed):
     # the compiled kernel reads what the numpy reference reads, per-frame translations or one set.
-    rng = np.random.default_rng(5)
-    parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
-                                                  np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
-    left, right = find(parents, chains, lib_rots, lib_pos[0])
-    legs = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)[:3]
-    _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
-                               twist, rng)
-    pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
+    _, limits, rots, pos = hinged_legs_and_frames(5, twist)
+    legs = limits[:3]
     kernels.compiled()
     for offsets in (pos, pos[0]):
         with kernels.numpy_backend():
@@ -220,15 +230,8 @@ def test_bend_frames_is_the_same_compiled(twist):
 def test_unbend_is_the_same_compiled(twist):
     # Two legs (the second with another bound, a leg without a hinge between them): the compiled
     # kernel turns the same knees and hips by the same rotations as the numpy reference.
-    rng = np.random.default_rng(4)
-    parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
-                                                  np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
-    left, right = find(parents, chains, lib_rots, lib_pos[0])
-    limits = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)
+    chains, limits, rots, pos = hinged_legs_and_frames(4, twist)
     assert limits[1][:, 3].tolist() == [chains[0][0], chains[1][0]]  # each hip its own leg's
-    _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
-                               twist, rng)
-    pos += rng.normal(scale=0.01, size=pos.shape)  # translations that vary per frame
     outs = []
     for compiled in (False, True):
         r = rots.copy()
