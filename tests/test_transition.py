@@ -966,6 +966,13 @@ def test_the_seams_path_over_a_long_gap_carries_a_sway_briefly_and_a_walk_on():
     path = trajectory.seam_path(short, short, 9, 160, 150, UP)
     np.testing.assert_allclose(path[:, [0, 2]], trajectory.through_seams(sway[[8, 9, 160, 161]], 150)[:, [0, 2]],
                                atol=1e-12)
+    # At 0.4 fps a second is under a frame: a side with no frame before its seam (A's first
+    # frame) or none after it (B's last) keeps its step, and no frame beyond the clip is read.
+    coarse = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0], [50, 0, 50]])
+    track = SimpleNamespace(gpos=coarse, motion=SimpleNamespace(fps=0.4))
+    for a, b in ((0, 2), (3, 5)):
+        np.testing.assert_allclose(trajectory.seam_path(track, track, a, b, 1, UP)[:, [0, 2]], trajectory.through_seams(
+            coarse[[max(a - 1, 0), a, b, min(b + 1, 5)]], 1)[:, [0, 2]], atol=1e-12)
     walk = np.stack([120.0 * t, np.zeros_like(t), 40.0 * t], axis=1)
     track = SimpleNamespace(gpos=walk, motion=SimpleNamespace(fps=fps))
     path = trajectory.seam_path(track, track, a_end, a_end + 150, 149, UP)

@@ -965,7 +965,8 @@ def _own_frames(eng: TransitionEngine, track: Track, keys: np.ndarray) -> dict:
 
 def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, rots, pos) -> None:
     """The fallback's root over the floor on the seams' own path
-    (:func:`posturemap.synth.trajectory.seam_path`: the ``spline`` method's), its height as the
+    (:func:`posturemap.synth.trajectory.seam_path`: the ``spline`` method's; over gaps longer than
+    2 s, each seam's velocity averaged over its own last or first second), its height as the
     fallback makes it, where B stays where it is and the fallback is ``damped``.
 
     ``damped`` carries each seam's velocity for 0.05 s only, then runs straight: where the legs

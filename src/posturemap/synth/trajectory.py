@@ -127,7 +127,8 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
     """The root's place over the floor through ``length`` new frames between A's frame ``a_end``
     and B's ``b_start`` where B stays where it is (in-betweening): (length, 3), the up
     coordinate 0. A cubic Hermite from A's last place and velocity (its last two frames) to B's
-    first (its first two), as the ``spline`` method's root runs.
+    first (its first two), as the ``spline`` method's root runs (up to :data:`SEAM_HERMITE_S`;
+    longer gaps below).
 
     Measured against a trajectory smoothed as motion matching's is (a line fitted to each seam's
     last or first 0.25 s, its place and velocity joined by the cubic, each seam's sway off its
@@ -135,23 +136,22 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
     (subject 5, 1 / 2 s gaps) it erred 4.4 / 11.4 cm on average, this one 2.9 / 9.1, and the
     bench's six bandai1 splits and CMU agreed.
 
-    Over a gap longer than :data:`SEAM_HERMITE_S` the cubic carries a seam's velocity for the
-    whole gap, a sway or a last step included: a performer standing between two sways was sent
-    8 cm off their place, on average, by the cubic of a 5 s gap. There each seam's velocity is
-    its average over its last (first) frames, a longer span the longer the gap (up to
-    :data:`SEAM_AVERAGE_S` at a gap of ``SEAM_HERMITE_S + SEAM_AVERAGE_S``; the same cubic at
-    ``SEAM_HERMITE_S``), and what the two frames' velocity adds to it fades within
-    :data:`SEAM_FADE_S` of the seam (its place and velocity kept there). A side with less than
-    ``SEAM_AVERAGE_S`` of its own frames keeps its two frames' velocity (an average over part of
-    a stride is no steadier than its last step). In-betweening one take with no map (the CLI's
-    ``transition`` without ``--map``), the default's MPJPE against the truth went, at 3 / 4 / 5
-    s (30 fps), on Motiondataset-2 (120 seeded takes, those long enough: 47 / 36 / 15) 9.49 /
-    9.44 / 9.29 -> 8.68 / 8.55 / 5.70 cm (SLERP's 16.35 / 16.90 / 5.33); on bandai1 at 3.3 s
-    (33 takes) 9.22 -> 8.42 (SLERP's 8.54). With a library (the bench's six bandai1 splits, the
-    test clip's frames before and after the gap as context, 3 / 4 s) L2P moved by +0.4% / +0.1%
-    on average (-0.3% to +1.1% a split), L2Q by under 0.1%: on walks the last step's velocity
-    and the average agree. The bench's 10-frame context is under a second: unchanged. Gaps up
-    to 2 s are unchanged.
+    Over a gap longer than :data:`SEAM_HERMITE_S` the cubic carries a seam's velocity for the whole
+    gap, a sway or a last step included: a performer standing between two sways was sent 8 cm off
+    their place, on average, by the cubic of a 5 s gap. There each seam's velocity is its average
+    over its last (first) frames, a longer span the longer the gap (up to :data:`SEAM_AVERAGE_S` at
+    a gap of ``SEAM_HERMITE_S + SEAM_AVERAGE_S``; the same cubic at ``SEAM_HERMITE_S``), and what
+    the two frames' velocity adds to it fades within :data:`SEAM_FADE_S` of the seam (its place and
+    velocity kept there). A side with less than ``SEAM_AVERAGE_S`` of its own frames keeps its two
+    frames' velocity (an average over part of a stride is no steadier than its last step).
+    In-betweening one take with no map (the CLI's ``transition --no-align`` without ``--map``), the
+    default's MPJPE against the truth went, at 3 / 4 / 5 s (30 fps), on Motiondataset-2 (120 seeded
+    takes, those long enough: 47 / 36 / 15) 9.49 / 9.44 / 9.29 -> 8.68 / 8.55 / 5.70 cm (SLERP's
+    16.35 / 16.90 / 5.33); on bandai1 at 3.3 s (33 takes) 9.22 -> 8.42 (SLERP's 8.54). With a
+    library (the bench's six bandai1 splits, the test clip's frames before and after the gap as
+    context, 3 / 4 s) L2P moved by +0.4% / +0.1% on average (-0.3% to +1.1% a split), L2Q by under
+    0.1%: on walks the last step's velocity and the average agree. The bench's 10-frame context is
+    under a second: unchanged. Gaps up to 2 s are unchanged.
     """
     flat = [i for i in range(3) if i != up]
     a_prev, b_next = max(a_end - 1, 0), min(b_start + 1, len(tb.gpos) - 1)
@@ -165,7 +165,7 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
         return out
     # A side with less than SEAM_AVERAGE_S of its own frames keeps its two frames' velocity: an
     # average over part of a stride is no steadier than its last step.
-    whole = round(SEAM_AVERAGE_S * fps)
+    whole = max(1, round(SEAM_AVERAGE_S * fps))  # a frame at least, at any frame rate
     span = max(1, min(round(over), whole))
     rates = np.stack([rows[1] - rows[0], rows[3] - rows[2]])  # the two frames' velocities
     mean = rates.copy()
