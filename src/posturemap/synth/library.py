@@ -403,17 +403,6 @@ def feature_scales(lib: MotionLibrary) -> np.ndarray:
     return np.concatenate([np.where(s > 1e-9, s, 1.0), np.maximum(root, 1e-6)])
 
 
-def _clip_arrays(sk: Skeleton, motion, rots, gpos, heading, joints, chains, up: int, leg: float):
-    """One clip's per-frame library arrays (``rots``, ``gpos``, ``heading`` as its track has
-    them) and its global joint positions: ``(arrays, gp)``."""
-    _, gp = fk(sk.parents, motion.rotations, motion.positions)
-    pose, vel, root = clip_features(gp, gpos, heading, joints, up, motion.fps)
-    arrays = {"rots": rots.astype(np.float32), "gpos": gpos, "heading": heading,
-              "contacts": clip_contacts(gp[:, [c[2] for c in chains]], up, motion.fps, leg),
-              "pose": pose.astype(np.float32), "vel": vel.astype(np.float32), "root": root.astype(np.float32)}
-    return arrays, gp
-
-
 def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibrary:
     """A library of the clips behind ``tracks`` (:class:`~posturemap.synth.engine.Track`, one skeleton).
 
@@ -430,14 +419,22 @@ def build_library(tracks, model, names=None, reverse: bool = True) -> MotionLibr
     toes = leg_toes(sk, chains)
     has_toes = bool(len(chains)) and all(t != c[2] for t, c in zip(toes, chains))
     counts = None
-    parts = []
+    parts = {k: [] for k in ("rots", "gpos", "heading", "contacts", "pose", "vel", "root")}
     for tr in tracks:
-        arrays, gp = _clip_arrays(sk, tr.motion, tr.rots, tr.gpos, tr.heading, joints, chains, up, leg)
-        parts.append(arrays)
+        m = tr.motion
+        _, gp = fk(sk.parents, m.rotations, m.positions)
+        pose, vel, root = clip_features(gp, tr.gpos, tr.heading, joints, up, m.fps)
+        parts["rots"].append(tr.rots.astype(np.float32))
+        parts["gpos"].append(tr.gpos)
+        parts["heading"].append(tr.heading)
+        parts["contacts"].append(clip_contacts(gp[:, [c[2] for c in chains]], up, m.fps, leg))
         if has_toes:
-            clip_counts = toe_height_counts(gp[:, toes], up, tr.motion.fps, leg)
+            clip_counts = toe_height_counts(gp[:, toes], up, m.fps, leg)
             counts = clip_counts if counts is None else counts + clip_counts
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        parts["pose"].append(pose.astype(np.float32))
+        parts["vel"].append(vel.astype(np.float32))
+        parts["root"].append(root.astype(np.float32))
+    arrays = {k: np.concatenate(v) for k, v in parts.items()}
     feats = np.concatenate([tr.features for tr in tracks])
     cmap = model.maps_[INDEX_CLASS]
     win = cmap.predict(feats[:, model.space_.class_dims[INDEX_CLASS]]).astype(np.int32)
