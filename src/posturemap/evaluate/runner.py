@@ -186,6 +186,17 @@ def predict_whole_clip(model, test: list, windows, length: int) -> tuple[dict, d
     return preds, own
 
 
+def _score_whole_clip(out: dict, n: int, model, ctx, test: list, windows, length: int, truth_r, truth_p,
+                      **score) -> None:
+    """:func:`predict_whole_clip` of ``windows`` at ``length`` scored against the truth into ``out``
+    (``{"methods": {label: {n: scores}}, "own_share": {label: {n: share}}}``); ``score``: the
+    keywords of :func:`score_inbetween`."""
+    whole, own = predict_whole_clip(model, test, windows, length)
+    for v, (r, p) in whole.items():
+        out["methods"][v][n] = score_inbetween(ctx, truth_r, truth_p, r, p, length, **score)
+        out["own_share"][v][n] = own[v]
+
+
 def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                   diagnostics: bool = False) -> tuple[dict, dict, dict]:
     """Scores per method and length, the truth's, per content, the diagnostics; plus curves
@@ -215,10 +226,8 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
             res["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, natural=nat[k],
                                                    truth_g=truth_g)
         res["truth"][n] = score_truth(ctx, truth_r, truth_p, length, natural=nat[-1])
-        whole, own = predict_whole_clip(state["model"], test, windows, length)
-        for v, (r, p) in whole.items():
-            res["whole_clip"]["methods"][v][n] = score_inbetween(ctx, truth_r, truth_p, r, p, length, truth_g=truth_g)
-            res["whole_clip"]["own_share"][v][n] = own[v]
+        _score_whole_clip(res["whole_clip"], n, state["model"], ctx, test, windows, length, truth_r, truth_p,
+                          truth_g=truth_g)
         for m in METHODS:
             res["vs_slerp"][m][n] = {
                 k: paired_difference(res["methods"][m][n]["per_window"][k],
@@ -487,11 +496,8 @@ def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log
         for m in SPLIT_METHODS:
             out["methods"][m][n] = score_inbetween(ctx, truth_r, truth_p, *preds[m], length, accuracy_only=True,
                                                    truth_g=truth_g)
-        whole, own = predict_whole_clip(state["model"], test, windows, length)
-        for v, (r, p) in whole.items():
-            out["whole_clip"]["methods"][v][n] = score_inbetween(ctx, truth_r, truth_p, r, p, length,
-                                                                 accuracy_only=True, truth_g=truth_g)
-            out["whole_clip"]["own_share"][v][n] = own[v]
+        _score_whole_clip(out["whole_clip"], n, state["model"], ctx, test, windows, length, truth_r, truth_p,
+                          accuracy_only=True, truth_g=truth_g)
         out["truth"][n] = {"skate": float(skate_scores(ctx, truth_g[1], steps)[0].mean())}
     log(f"  {name}: {len(windows)} windows from {len(test)} test clips in {time.perf_counter() - t0:.1f} s; "
         + ", ".join(f"{m} L2Q at 30 {out['methods'][m]['30']['l2q']:.3f}" for m in SPLIT_METHODS
