@@ -1332,7 +1332,9 @@ def match(rt: Retriever, ta, tb, a_end: int, b_start: int, length: int, alpha: f
         none = np.zeros(0, np.int64)
         gathered = [(none, none)] * 2 if exhaustive else rt.gather_seams(xa, xb)
         if len(skip) and not exhaustive:  # a segment lies in one clip: none of these clips' then
-            gathered = [tuple(f[~np.isin(lib.clip_of[f], skip)] for f in pair) for pair in gathered]
+            kept = np.ones(lib.num_clips, dtype=bool)
+            kept[skip[(skip >= 0) & (skip < len(kept))]] = False  # as np.isin: others match no clip
+            gathered = [tuple(f[kept[lib.clip_of[f]]] for f in pair) for pair in gathered]
         # In-betweening: B's place is fixed, so the gap's displacement ranks the segments and its
         # speed says whether the character must travel (still_weight).
         disp = None if align else _displacement(ta, tb, a_end, b_start, rt.engine._up)
