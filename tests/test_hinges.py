@@ -125,6 +125,29 @@ def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(t
 
 
 @pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("twist", [False, True])
+def test_unbend_reads_a_knee_folded_forward_past_a_half_turn_as_forward(twist, compiled):
+    # An interpolated knee folding on past 180 degrees reads -179 frame by frame (the bend's
+    # angle wraps): not a knee bent backward. Snapped onto the bound, it turned 176 degrees in a
+    # frame and back (a Bandai in-betweening, walk into dash, the default method). Read over the
+    # frames, it goes on forward and is left; a knee bent backward after it is still turned.
+    rng = np.random.default_rng(12)
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
+    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    (path, hinge, least), = knees
+    flex = np.radians([160.0, 172.0, 178.0, 183.0, 190.0, 184.0, 176.0, 150.0, 60.0, 5.0, -20.0])
+    parents, chain, rots, pos = leg(flex, twist, rng)
+    t, s = leg_vectors(rots, pos, path)
+    assert np.all(signed_bends(t, s, hinge)[3:6] < np.radians(-160.0))  # frame by frame: "backward"
+    before = rots.copy()
+    with backend(compiled):
+        assert unbend(packed(knees, parents), rots, pos) == 1  # the last frame only
+    np.testing.assert_array_equal(rots[:-1], before[:-1])
+    t, s = leg_vectors(rots, pos, path)
+    assert signed_bends(t, s, hinge)[-1] == pytest.approx(least, abs=1e-7)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
 def test_unbend_holds_a_knee_to_the_librarys_own_bound_and_skips_legs_without_a_hinge(compiled):
     rng = np.random.default_rng(3)
     flex = np.radians(rng.uniform(0.0, 80.0, 1000))

@@ -551,8 +551,20 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
         shin = joints[mid - 1]
         hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
+        seen, prev, fix = False, 0.0, 0.0
         for f in range(rots.shape[0]):
             bend, parent, tx, ty, tz, sx, sy, sz = _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz)
+            if bend != bend:  # NaN: left as it is, as numpy's, and not a step of the unwrapping
+                continue
+            if seen:  # unwrapped as np.unwrap does it over the measured frames: each step within a half turn
+                step = bend - prev
+                wrapped = (step + math.pi) % (2.0 * math.pi) - math.pi
+                if wrapped == -math.pi and step > 0.0:
+                    wrapped = math.pi
+                if abs(step) >= math.pi:
+                    fix += wrapped - step
+            seen, prev = True, bend
+            bend += fix
             if not bend < leasts[k]:  # within the bound (or NaN: left as it is, as numpy's)
                 continue
             half = 0.5 * (bend - leasts[k])

@@ -180,8 +180,13 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     arc that takes the ankle back onto its line from the hip (the straightened leg points where
     the bent-back one reached; the ankle's own rotation is kept; where :func:`packed` gives the
     leg a thigh that moves only it, and the ankle is not within ``REACH_MIN`` leg lengths of
-    the hip). In place; returns how many knees (frames times legs) it turned. Where this
-    process uses numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
+    the hip). The bends are read continuously from frame to frame (unwrapped, starting from
+    the first frame's in (-pi, pi]): a knee folded forward past a half turn, or bent sideways
+    past a quarter turn, reads about pi on one frame and about -pi on the next, which is not a
+    knee bent backward (read frame by frame, one interpolated knee folded forward past 180
+    degrees was snapped straight and back, a 176-degree turn in a frame each way). In place;
+    returns how many knees (frames times legs) it turned. Where this process uses numba, one
+    compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
         return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_MIN))
@@ -190,6 +195,8 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())
         t, s, frame = _leg_frame(rots, positions, path)
         bends = signed_bends(t, s, hinge)
+        ok = np.isfinite(bends)
+        bends[ok] = np.unwrap(bends[ok])  # continuous over the frames it can measure (see above)
         back = np.flatnonzero(bends < least)
         if not len(back):
             continue
