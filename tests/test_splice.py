@@ -39,7 +39,11 @@ def test_splice_weights_run_from_a_to_b_and_alpha_moves_the_blend(length):
 
 def _result(rng, length, joints, start, velocity, turn_rate, dtheta, shift, contacts):
     t = np.arange(1, length + 1)[:, None]
-    return SimpleNamespace(rots=quat.normalize(rng.normal(size=(length, joints, 4))),
+    # Poses that move (5 degrees a frame at most about each axis) from a turn of at most 40
+    # degrees: the two halves stay within a half turn of each other.
+    rots = quat.exp(np.radians(20.0) * rng.uniform(-1, 1, (1, joints, 3))
+                    + np.cumsum(np.radians(5.0) / len(t) * rng.uniform(-1, 1, (length, joints, 3)), axis=0))
+    return SimpleNamespace(rots=rots * np.where(rng.random((length, joints, 1)) < 0.3, -1.0, 1.0),
                            gpos=start + t * velocity, heading=0.3 + turn_rate * t[:, 0],
                            dtheta=dtheta, shift=np.asarray(shift, dtype=float), contacts=contacts)
 
@@ -129,6 +133,60 @@ def test_the_spliced_path_goes_where_it_faces_and_arrives_at_b_as_placed(compile
     np.testing.assert_allclose(vel[-1], rotate_about_up(second.gpos[-1] - second.gpos[-2], turn, UP), atol=1e-9)
 
 
+def arc_blend(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The blend of tracks a and b (L, J, 4) by w (L,; rising from 0 to 1) on the arc that goes
+    on from frame to frame, from its definition: a turned by the fraction w of a^-1 b, whose
+    sign is the short arc's at the first frame with 0 < w < 1 and then follows on from frame to
+    frame (its rotation angle grows past a half turn where the halves pass one)."""
+    rel = quat.mul(quat.inv(a), b)
+    out = np.where((w >= 1.0)[:, None, None], b, a)
+    blend = np.flatnonzero((w > 0.0) & (w < 1.0))
+    for k, t in enumerate(blend):
+        if k == 0:
+            rel[t] *= np.where(rel[t, :, :1] < 0.0, -1.0, 1.0)
+        else:
+            rel[t] *= np.where(np.sum(rel[t] * rel[blend[k - 1]], axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+        v = rel[t, :, 1:]
+        s = np.linalg.norm(v, axis=-1, keepdims=True)
+        half = np.arctan2(s, rel[t, :, :1])  # in [0, pi]: the whole angle up to a full turn
+        axis = v / np.maximum(s, 1e-300)
+        out[t] = quat.mul(a[t], np.concatenate([np.cos(w[t] * half), np.sin(w[t] * half) * axis], axis=-1))
+    return out
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_splice_rotations_go_on_round_where_the_halves_pass_a_half_turn_apart(compiled):
+    # Between a walk and a wave the two halves' arms passed through a half turn from each other
+    # in the blend; the short arc flipped to the other side there and the arm turned 180
+    # degrees in one frame. The blend goes on round on the arc it was on.
+    from posturemap.core import kernels
+    from posturemap.synth import retrieval_numba
+    from posturemap.synth.splice import splice_rotations
+
+    rng = np.random.default_rng(8)
+    length, joints = 30, 4
+    a = quat.exp(np.cumsum(rng.normal(scale=0.03, size=(length, joints, 3)), axis=0))
+    axes = rng.normal(size=(joints, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angle = np.radians(np.linspace(150.0, 210.0, length))  # a half turn apart mid-gap
+    b = quat.mul(a, quat.exp(angle[:, None, None] * axes[None]))
+    b *= np.where(rng.random((length, joints, 1)) < 0.5, -1.0, 1.0)  # stored signs anyhow
+    w = splice_weights(length, 0.5)
+    if compiled:
+        got = np.empty(a.shape)
+        retrieval_numba.splice_rotations(a, b, w, got)
+    else:
+        with kernels.numpy_backend():
+            got = splice_rotations(a, b, w)
+    want = quat.mul(a, quat.exp(w[:, None, None] * angle[:, None, None] * axes[None]))
+    np.testing.assert_allclose(np.abs(np.sum(got * want, axis=-1)), 1.0, atol=1e-9)
+    steps = quat.angle_between(got[1:], got[:-1])
+    assert steps.max() < np.radians(20.0)  # the blend's own pace, no jump
+    # The short arc, frame by frame, turned the joints about 180 degrees in a frame there.
+    short = quat.slerp(a, b, w[:, None])
+    assert quat.angle_between(short[1:], short[:-1]).max() > np.radians(150.0)
+
+
 @pytest.mark.parametrize("alpha", [0.0, 0.5, 1.0])
 def test_compiled_splice_rotations_match_the_numpy_reference(alpha):
     from posturemap.core import kernels
@@ -141,14 +199,16 @@ def test_compiled_splice_rotations_match_the_numpy_reference(alpha):
     a = quat.exp(np.cumsum(rng.normal(scale=0.2, size=(length, joints, 3)), axis=0))
     b = quat.exp(np.cumsum(rng.normal(scale=0.2, size=(length, joints, 3)), axis=0))
     b *= np.where(rng.random((length, joints, 1)) < 0.3, -1.0, 1.0)
-    for w in (splice_weights(length, alpha), np.clip(rng.normal(0.5, 0.6, length), 0.0, 1.0)):
+    for w in (splice_weights(length, alpha), np.sort(np.clip(rng.normal(0.5, 0.6, length), 0.0, 1.0))):
         got = np.empty(a.shape)
         retrieval_numba.splice_rotations(a, b, w, got)
         with kernels.numpy_backend():
             ref = splice_rotations(a, b, w)
         np.testing.assert_allclose(got, ref, atol=1e-12)
-        # The same rotations as a frame-by-frame SLERP ...
-        assert quat.angle_between(got, quat.slerp(a, b, w[:, None])).max() < 1e-6
+        # The SLERP on the arc that goes on from frame to frame (some of these halves pass a half
+        # turn apart, where the short arc would flip): a's frame turned by the fraction w of the
+        # relative rotation a^-1 b, its sign kept from frame to frame (the short arc at the first).
+        assert quat.angle_between(got, arc_blend(a, b, w)).max() < 1e-6
         # ... with B's frames following on in sign from the frame before (no flips to undo).
         tail = np.flatnonzero(w >= 1.0)
         tail = tail[tail > 0]

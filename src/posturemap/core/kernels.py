@@ -121,8 +121,9 @@ def slerp(a, b, t, out):
 
 def slerp_track(a, b, t, out):
     """``out[n, m]`` = the SLERP from ``a[n, m]`` to ``b[n, m]`` (N, M, 4; N frames) at the
-    fraction ``t``, on the arc that goes on from frame to frame: the short arc at frame 0, then
-    each frame's relative rotation ``a^-1 b`` in the hemisphere of the frame before's.
+    fraction ``t`` (one for every frame, or (N,) one per frame), on the arc that goes on from
+    frame to frame: the short arc at frame 0, then each frame's relative rotation ``a^-1 b`` in
+    the hemisphere of the frame before's.
 
     Two tracks that pass through a half turn from each other (a retrieved arm and the fallback's)
     had their short arc flip to the other side of it from one frame to the next, and a blend of
@@ -132,6 +133,7 @@ def slerp_track(a, b, t, out):
     where the arc ends more than a half turn round (the caller that places something at the
     arc's end, B after a blended root, needs to know which way round it went). N must be >= 1.
     """
+    t = np.broadcast_to(np.asarray(t, dtype=np.float64), (len(a),))[:, None, None]
     rel = quat.mul(quat.inv(a), b)
     flips = np.sum(rel[1:] * rel[:-1], axis=-1) < 0.0
     sign = np.where(rel[:1, :, 0] < 0.0, -1.0, 1.0) * np.concatenate(

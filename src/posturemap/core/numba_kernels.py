@@ -1376,9 +1376,11 @@ def slerp(a, b, t, out):
 @nb.njit(**_OPTS)
 def slerp_track(a, b, t, out):
     """:func:`posturemap.core.kernels.slerp_track` (the reference): the SLERP from ``a[n, m]`` to
-    ``b[n, m]`` (N, M, 4) at the fraction ``t`` on the arc that goes on from frame to frame;
-    returns the last frame's relative rotation on that arc (M, 4)."""
+    ``b[n, m]`` (N, M, 4) at the fraction ``t`` (a number, or (N,) one per frame) on the arc
+    that goes on from frame to frame; returns the last frame's relative rotation on that arc (M, 4)."""
     ends = np.empty((a.shape[1], 4))
+    w = np.empty(a.shape[0])
+    w[:] = t
     for m in range(a.shape[1]):
         sign = 1.0
         p0, p1, p2, p3 = 0.0, 0.0, 0.0, 0.0
@@ -1392,7 +1394,7 @@ def slerp_track(a, b, t, out):
             p0, p1, p2, p3 = r0, r1, r2, r3
             out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = _slerp_signed(
                 a[n, m, 0], a[n, m, 1], a[n, m, 2], a[n, m, 3], b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3],
-                sign * r0, sign, t)
+                sign * r0, sign, w[n])
         ends[m, 0], ends[m, 1], ends[m, 2], ends[m, 3] = sign * p0, sign * p1, sign * p2, sign * p3
     return ends
 

@@ -17,7 +17,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..core.numba_kernels import _FAST, _mul, _near_turn, _rotate, exp_relative, fk, log_relative, slerp
+from ..core.numba_kernels import _FAST, _mul, _near_turn, _rotate, exp_relative, fk, log_relative, slerp_track
 
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 
@@ -923,14 +923,21 @@ def replay_part(rots, clip_start, clip_of, clip_end, s, e, d, t, joints, cols, a
 @nb.njit(**_OPTS)
 def splice_rotations(a, b, w, out):
     """:func:`posturemap.synth.splice.splice_rotations` in one call: per frame ``t`` of a (L, J, 4)
-    and b, ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` between, ``b[t]`` where
+    and b, ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` between (on the arc that goes on
+    from frame to frame, :func:`~posturemap.core.numba_kernels.slerp_track`), ``b[t]`` where
     ``w[t] >= 1``, each joint's sign in the hemisphere of the frame before."""
     n_l, n_j = a.shape[0], a.shape[1]
+    lo, hi = n_l, 0
+    for t in range(n_l):
+        if 0.0 < w[t] < 1.0:
+            lo, hi = min(lo, t), t + 1
+    if lo < hi:  # one stretch: w rises
+        slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi])
     for t in range(n_l):
         if w[t] <= 0.0:
             out[t] = a[t]
         elif w[t] < 1.0:
-            slerp(a[t], b[t], w[t], out[t])
+            continue
         else:
             out[t] = b[t]
             if t > 0:

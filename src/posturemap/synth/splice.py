@@ -136,18 +136,25 @@ def splice_path(g1, h1, g2, h2, turn2: float, w: np.ndarray, a_pos: np.ndarray, 
 
 def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Frames (L, J, 4) of A's continuation ``a`` blended into B's arrival ``b`` by the weights
-    ``w`` (L,): ``a[t]`` where ``w[t] <= 0``, the SLERP at ``w[t]`` (on the short arc, in
-    ``a``'s hemisphere) in between, ``b[t]`` where ``w[t] >= 1``, each joint's sign in the
+    ``w`` (L,; 0 before the blend, rising, 1 after it): ``a[t]`` where ``w[t] <= 0``, the
+    SLERP at ``w[t]`` in between, ``b[t]`` where ``w[t] >= 1``, each joint's sign in the
     hemisphere of the frame before (so each may hold only the frames it shows: :func:`spliced`
-    replays no more). The numpy steps of :func:`splice` (its compiled call runs
+    replays no more). The SLERP is on the arc that goes on from frame to frame
+    (:func:`posturemap.core.kernels.slerp_track`: the short arc at the blend's first frame):
+    where the two halves pass through a half turn from each other, the short arc flipped to
+    the other side in a frame (an arm turned 180 degrees in one frame between a walk and a
+    wave). The numpy steps of :func:`splice` (its compiled call runs
     :func:`posturemap.synth.retrieval_numba.splice_rotations`)."""
+    w = np.asarray(w, dtype=np.float64)
     out = np.empty(a.shape)
-    for t, wt in enumerate(np.asarray(w, dtype=np.float64).tolist()):
+    blend = np.flatnonzero((w > 0.0) & (w < 1.0))
+    if len(blend):
+        lo, hi = int(blend[0]), int(blend[-1]) + 1  # one stretch: w rises
+        kernels.slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi])
+    for t, wt in enumerate(w.tolist()):
         if wt <= 0.0:
             out[t] = a[t]
-        elif wt < 1.0:
-            kernels.slerp(a[t], b[t], wt, out[t])
-        else:  # B, each joint in the hemisphere of the frame before
+        elif wt >= 1.0:  # B, each joint in the hemisphere of the frame before
             out[t] = b[t] if t == 0 else np.where((np.sum(b[t] * out[t - 1], axis=-1) < 0.0)[:, None], -b[t], b[t])
     return out
 
