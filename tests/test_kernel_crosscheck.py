@@ -410,7 +410,7 @@ def test_nearest_sample_dist_matches_numpy():
 
 # -- retrieval --------------------------------------------------------------------------------
 @pytest.mark.parametrize("k", [1, 4])
-@crosschecks("retrieval_numba:replay", "retrieval_numba:_mean_samples")
+@crosschecks("retrieval_numba:replay", "retrieval_numba:_mean_track")
 def test_replay_matches_the_numpy_retrieval_path(k):
     rng = np.random.default_rng(117 + k)
     n_lib, j, length = 200, 6, 9

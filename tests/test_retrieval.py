@@ -15,6 +15,7 @@ import itertools
 import json
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -848,6 +849,45 @@ def test_cli_says_which_motion_was_replayed(model, clips, paths_for_cli, tmp_pat
 def paths_for_cli(bandai_paths):
     p = bandai_paths(HELD_OUT[:2])
     return p[HELD_OUT[0]], p[HELD_OUT[1]]
+
+
+def test_the_mean_of_segments_keeps_each_ones_sign_through_a_half_turn_from_the_first():
+    # Two segments of a joint: the second turns steadily away from the first (120 -> 240
+    # degrees about one axis), passing a half turn from it mid-gap; the library stores either
+    # sign of each frame. Aligned to the first segment sample by sample, the second changed sign
+    # there and the mean jumped 180 degrees (an arm 107 degrees in a frame between a wave and a
+    # run); each segment's sign kept from sample to sample, the mean turns steadily: the first
+    # turned half the second's angle, on round.
+    from posturemap.synth import retrieval_numba
+
+    rng = np.random.default_rng(4)
+    t = 40
+    first = quat.exp(np.cumsum(rng.normal(scale=0.02, size=(t, 3)), axis=0))
+    axis = np.array([0.3, 0.9, -0.3]) / np.linalg.norm([0.3, 0.9, -0.3])
+    angle = np.radians(np.linspace(120.0, 240.0, t))
+    second = quat.mul(first, quat.exp(angle[:, None] * axis))
+    rots = np.concatenate([first, second])[:, None] * np.where(rng.random((2 * t, 1, 1)) < 0.4, -1.0, 1.0)
+    lib = SimpleNamespace(rots=rots.astype(np.float32))
+    i0 = np.stack([np.arange(t), t + np.arange(t)])
+    i1, f = i0.copy(), np.zeros(i0.shape)
+    joints = np.array([0])
+    samples = retrieval.sample_rotations(lib, i0, i1, f, joints)
+    want = quat.mul(first, quat.exp(0.5 * angle[:, None] * axis))[:, None]
+    got = retrieval.average_rotations(samples)
+    compiled = np.empty((t, 1, 4))
+    retrieval_numba._mean_track(lib.rots, i0, i1, f, joints, np.ones(2), compiled)
+    for mean in (got, compiled):
+        assert quat.angle_between(mean, want).max() < 1e-6
+        assert quat.angle_between(mean[1:], mean[:-1]).max() < np.radians(6.0)  # the tracks' own pace
+    np.testing.assert_allclose(compiled, got, atol=1e-12)
+    # Where no segment passes a half turn from the first, the same signs as aligning each sample
+    # to the first segment's (the mean before this rule, to the bit).
+    near = quat.mul(first, quat.exp(np.radians(np.linspace(10.0, 90.0, t))[:, None] * axis))
+    lib.rots = (np.concatenate([first, near])[:, None] * np.where(rng.random((2 * t, 1, 1)) < 0.4, -1.0, 1.0)
+                ).astype(np.float32)
+    q = retrieval.sample_rotations(lib, i0, i1, f, joints)
+    aligned = quat.normalize(np.sum(q * np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0), axis=0))
+    np.testing.assert_array_equal(retrieval.average_rotations(q), aligned)
 
 
 def test_compiled_replay_matches_the_numpy_reference(model):

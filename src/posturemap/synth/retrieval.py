@@ -1126,11 +1126,22 @@ def offset_values(src: np.ndarray, a2: np.ndarray, b2: np.ndarray, curves: np.nd
 
 
 def average_rotations(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Mean of rotations (K, ...) over the first axis (signs aligned to the first, normalised sum,
-    each weighed by ``weights`` (K,) if given; the rotations need not be unit length)."""
+    """Mean of K segments' rotations ``q`` (K, T, ..., 4) at each of their T samples: the
+    normalised sum, each segment weighed by ``weights`` (K,) if given (the rotations need not
+    be unit length), each segment's sign kept from sample to sample and set at the first sample
+    by the first segment's (then given the first segment's sign at each sample).
+
+    Aligned to the first segment sample by sample instead, a segment whose joint passed a half
+    turn from the first's changed sign in the middle of the gap, and the mean with it (an arm
+    turned 107 degrees in a frame, averaging six segments between a wave and a run). Where no
+    segment does, the signs are those of that sample-by-sample alignment."""
     if len(q) == 1:
         return quat.normalize(q[0])
-    sign = np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    flips = np.sum(q[:, 1:] * q[:, :-1], axis=-1) < 0.0  # a segment's own sign changes
+    par = np.concatenate([np.ones(flips[:, :1].shape), np.where(np.cumsum(flips, axis=1) % 2 == 1, -1.0, 1.0)],
+                         axis=1)
+    side = np.where(np.sum(q[:, :1] * q[:1, :1], axis=-1) < 0.0, -1.0, 1.0)  # at the first sample
+    sign = (side * par * par[:1])[..., None]
     if weights is not None:
         sign = sign * np.asarray(weights, dtype=float).reshape((len(q),) + (1,) * (q.ndim - 1))
     return quat.normalize(np.sum(q * sign, axis=0))

@@ -77,7 +77,7 @@ def _log_rel(p, q):
 @nb.njit(**_OPTS)
 def _sample(rots, i0, i1, f, j):
     """Lerp of library rotations i0 and i1 (sign-aligned) of joint j, a 4-tuple; not normalised
-    (:func:`_mean_samples` normalises the segments' sum)."""
+    (:func:`_mean_track` normalises the segments' sum)."""
     a0, a1, a2, a3 = float(rots[i0, j, 0]), float(rots[i0, j, 1]), float(rots[i0, j, 2]), float(rots[i0, j, 3])
     b0, b1, b2, b3 = float(rots[i1, j, 0]), float(rots[i1, j, 1]), float(rots[i1, j, 2]), float(rots[i1, j, 3])
     if a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 < 0.0:
@@ -91,27 +91,47 @@ def _row(a):
 
 
 @nb.njit(**_OPTS)
-def _mean_samples(rots, i0, i1, f, joints, u, ref, out, wts):
-    """The segments' mean rotation of each joint of ``joints`` (M,) at sample ``u``, into out (M, 4):
-    the normalised sum of the K samples ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``, each
-    weighed by ``wts[k]`` and sign-aligned to the first segment's (kept in ``ref`` (M, 4)).
-    Segment by segment, so that each library frame is read once for all the joints."""
-    n_m = joints.shape[0]
-    for k in range(i0.shape[0]):
-        a, b, w, g = i0[k, u], i1[k, u], f[k, u], wts[k]
+def _mean_track(rots, i0, i1, f, joints, wts, out):
+    """The segments' mean rotation of each joint of ``joints`` (M,) at every sample, into out
+    (T, M, 4): the normalised sum of the K samples ``_sample(rots, i0[k, u], i1[k, u], f[k, u], j)``,
+    each weighed by ``wts[k]``, each segment's sign kept from sample to sample and set at the
+    first sample by the first segment's (:func:`posturemap.synth.retrieval.average_rotations`,
+    the reference). Segment by segment, sample by sample: each library frame read once for all
+    the joints."""
+    n_k, n_t, n_m = i0.shape[0], i0.shape[1], joints.shape[0]
+    par0 = np.empty((n_t, n_m))  # the first segment's own sign changes, to its first sample
+    first = np.empty((n_m, 4))
+    prev = np.empty((n_m, 4))
+    par, side = np.empty(n_m), np.empty(n_m)
+    for k in range(n_k):
+        g = wts[k]
+        for u in range(n_t):
+            a, b, w = i0[k, u], i1[k, u], f[k, u]
+            for m in range(n_m):
+                q0, q1, q2, q3 = _sample(rots, a, b, w, joints[m])
+                if u == 0:
+                    par[m] = 1.0
+                    if k == 0:
+                        first[m, 0], first[m, 1], first[m, 2], first[m, 3] = q0, q1, q2, q3
+                        side[m] = 1.0
+                    else:
+                        d = q0 * first[m, 0] + q1 * first[m, 1] + q2 * first[m, 2] + q3 * first[m, 3]
+                        side[m] = -1.0 if d < 0.0 else 1.0
+                elif q0 * prev[m, 0] + q1 * prev[m, 1] + q2 * prev[m, 2] + q3 * prev[m, 3] < 0.0:
+                    par[m] = -par[m]
+                prev[m, 0], prev[m, 1], prev[m, 2], prev[m, 3] = q0, q1, q2, q3
+                if k == 0:
+                    par0[u, m] = par[m]
+                    out[u, m, 0], out[u, m, 1], out[u, m, 2], out[u, m, 3] = g * q0, g * q1, g * q2, g * q3
+                    continue
+                h = g * (side[m] * par[m] * par0[u, m])
+                out[u, m, 0], out[u, m, 1], out[u, m, 2], out[u, m, 3] = (
+                    out[u, m, 0] + h * q0, out[u, m, 1] + h * q1, out[u, m, 2] + h * q2, out[u, m, 3] + h * q3)
+    for u in range(n_t):
         for m in range(n_m):
-            q0, q1, q2, q3 = _sample(rots, a, b, w, joints[m])
-            if k == 0:
-                ref[m, 0], ref[m, 1], ref[m, 2], ref[m, 3] = q0, q1, q2, q3
-                out[m, 0], out[m, 1], out[m, 2], out[m, 3] = g * q0, g * q1, g * q2, g * q3
-                continue
-            h = -g if q0 * ref[m, 0] + q1 * ref[m, 1] + q2 * ref[m, 2] + q3 * ref[m, 3] < 0.0 else g
-            out[m, 0], out[m, 1], out[m, 2], out[m, 3] = (out[m, 0] + h * q0, out[m, 1] + h * q1,
-                                                          out[m, 2] + h * q2, out[m, 3] + h * q3)
-    for m in range(n_m):
-        a0, a1, a2, a3 = out[m, 0], out[m, 1], out[m, 2], out[m, 3]
-        n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
-        out[m, 0], out[m, 1], out[m, 2], out[m, 3] = a0 / n, a1 / n, a2 / n, a3 / n
+            a0, a1, a2, a3 = out[u, m, 0], out[u, m, 1], out[u, m, 2], out[u, m, 3]
+            n = max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3), 1e-12)
+            out[u, m, 0], out[u, m, 1], out[u, m, 2], out[u, m, 3] = a0 / n, a1 / n, a2 / n, a3 / n
 
 
 @nb.njit(**_OPTS)
@@ -132,10 +152,11 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out, wts):
             for m in range(n_m):
                 col = cols[m]
                 out[t, col, 0], out[t, col, 1], out[t, col, 2], out[t, col, 3] = 1.0, 0.0, 0.0, 0.0
-    ref = np.empty((n_m, 4))
+    means = np.empty((n_t, n_m, 4))  # every sample's: each segment's sign follows on through them
+    _mean_track(rots, i0, i1, f, joints, wts, means)
     seam = np.empty((4, n_m, 4))  # the mean at t = -1, 0, d, d + 1
     for r, u in enumerate((0, 1, n_t - 2, n_t - 1)):
-        _mean_samples(rots, i0, i1, f, joints, u, ref, seam[r], wts)
+        seam[r] = means[u]
     # Per joint, the seam offsets: A's value and velocity, B's value and velocity.
     off = np.empty((n_m, 4, 3))
     for m in range(n_m):
@@ -149,9 +170,8 @@ def replay(rots, i0, i1, f, joints, cols, a2, b2, curves, lo, hi, out, wts):
         for c in range(3):
             off[m, 0, c], off[m, 1, c] = ra[c], va1[c] - va2[c]
             off[m, 2, c], off[m, 3, c] = rb[c], vb1[c] - vb2[c]
-    mean = np.empty((n_m, 4))
     for t in range(lo, hi):
-        _mean_samples(rots, i0, i1, f, joints, t + 2, ref, mean, wts)
+        mean = means[t + 2]
         c0, c1, c2, c3 = curves[0, t], curves[1, t], curves[2, t], curves[3, t]
         for m in range(n_m):
             ox = c0 * off[m, 0, 0] + c1 * off[m, 1, 0] + c2 * off[m, 2, 0] + c3 * off[m, 3, 0]
