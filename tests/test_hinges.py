@@ -10,7 +10,7 @@ import pytest
 from posturemap.core import quat
 from posturemap.core.skeleton import fk
 from posturemap.core import kernels
-from posturemap.synth.hinges import REACH_MIN, bend_frames, find, leg_vectors, packed, signed_bends, unbend
+from posturemap.synth.hinges import REACH_FULL, REACH_NONE, bend_frames, find, leg_vectors, packed, signed_bends, unbend
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -202,19 +202,38 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
 
 @pytest.mark.parametrize("compiled", [False, True])
 def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
-    # The ankle at the hip has no line from it to keep: the knee straightens, the hip stays.
+    # The ankle at the hip has no line from it to keep: the knee straightens, the hip stays; a
+    # leg folded back nearly so turns its hip part of the way, and as the fold passes a half
+    # turn the hip does not swing round with the ankle's line (a spline's thigh turned 157
+    # degrees in a frame so).
     rng = np.random.default_rng(6)
     parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
     knees = find(parents, [chain], lib_rots, lib_pos[0])
-    parents, chain, rots, pos = leg(np.array([-np.pi + 0.1 * REACH_MIN, np.radians(-30.0)]), rng=rng)
+    # The leg's thigh and shin are 1 long each: the ankle 2 cos(bend / 2) from the hip.
+    full, none = (2.0 * np.degrees(np.arccos(r)) for r in (REACH_FULL, REACH_NONE))  # 120, 151 degrees
+    flex = -np.radians([180.0 - 1e-6, 30.0, full - 5.0, 0.5 * (full + none), none + 3.0, 170.0, 178.0, 182.0,
+                        190.0])
+    parents, chain, rots, pos = leg(flex, rng=rng)
+    rots[:, 1] = rots[0, 1]  # one thigh for all (the knee alone moves from frame to frame)
     before = rots.copy()
     with backend(compiled):
-        assert unbend(packed(knees, parents), rots, pos) == 2
+        assert unbend(packed(knees, parents), rots, pos) == len(flex)
     assert np.all(np.isfinite(rots))
-    np.testing.assert_array_equal(rots[0, chain[0]], before[0, chain[0]])  # folded: the hip as it was
-    assert not np.array_equal(rots[1, chain[0]], before[1, chain[0]])  # bent back 30 degrees: the hip turns
+    hip = chain[0]
+    turn = quat.angle_between(rots[:, hip], before[:, hip])
+    still = [0, 4, 5, 6, 7, 8]  # folded (past 151 degrees): the hip as it was
+    np.testing.assert_array_equal(rots[still, hip], before[still, hip])
+    assert np.all(turn[1:4] > np.radians(5.0))  # bent back 30 .. 136 degrees: the hip turns
     t, s = leg_vectors(rots, pos, knees[0][0])
     np.testing.assert_allclose(signed_bends(t, s, knees[0][1]), 0.0, atol=1e-7)
+    # The whole way onto the ankle's line up to 120 degrees back, a share of it between.
+    _, gp0 = fk(parents, before, pos)
+    _, gp = fk(parents, rots, pos)
+    line = gp0[:, chain[2]] - gp0[:, chain[0]]
+    leg_dir = gp[:, chain[2]] - gp[:, chain[0]]
+    off = np.degrees(np.arccos(np.clip(np.sum(line * leg_dir, -1) / np.linalg.norm(line, axis=-1)
+                                       / np.linalg.norm(leg_dir, axis=-1), -1.0, 1.0)))
+    assert np.all(off[1:3] < 1e-4) and off[3] > 5.0
 
 
 def hinged_legs_and_frames(seed: int, twist: bool):
@@ -259,7 +278,7 @@ def test_unbend_is_the_same_compiled(twist):
     for compiled in (False, True):
         r = rots.copy()
         if compiled:
-            n = kernels.compiled().unbend_limbs(r, pos, *limits, REACH_MIN)
+            n = kernels.compiled().unbend_limbs(r, pos, *limits, REACH_NONE, REACH_FULL)
         else:
             with kernels.numpy_backend():
                 n = unbend(limits, r, pos)

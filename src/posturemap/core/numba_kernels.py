@@ -539,13 +539,14 @@ def limb_bends(rots, positions, joints, bounds, hinges, out):
 
 
 @nb.njit(**_OPTS)
-def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
+def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_none, reach_full):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
     (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``,
     -1 for none to turn) whose knee bends about ``hinges[k]`` (in the frame of the shin's
     parent) further back than ``leasts[k]`` turned about the hinge onto it, and its thigh turned
-    to keep the ankle on its line from the hip (unless the ankle is within ``reach_min`` leg
-    lengths of the hip); returns how many knees it turned."""
+    to keep the ankle on its line from the hip (the whole way where the ankle is at least
+    ``reach_full`` leg lengths from the hip, none within ``reach_none``, a share of the way
+    between); returns how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
@@ -580,13 +581,31 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_min):
             ux, uy, uz = _rotate(parent[0], parent[1], parent[2], parent[3], tx + nx, ty + ny, tz + nz)
             near, far = math.sqrt(rx * rx + ry * ry + rz * rz), math.sqrt(ux * ux + uy * uy + uz * uz)
             size = math.sqrt(tx * tx + ty * ty + tz * tz) + math.sqrt(sx * sx + sy * sy + sz * sz)
-            if not near > reach_min * size:
+            share = (near / size - reach_none) / (reach_full - reach_none)
+            if not share > 0.0:
                 continue
             rx, ry, rz, ux, uy, uz = rx / near, ry / near, rz / near, ux / far, uy / far, uz / far
             a0, a1, a2, a3 = _between(ux, uy, uz, rx, ry, rz)
+            if share < 1.0:  # a share of the turn (quat.exp of share times quat.log)
+                a0, a1, a2, a3 = _turn_share(a0, a1, a2, a3, share)
             rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3] = _mul(
                 rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3], a0, a1, a2, a3)
     return turned
+
+
+@nb.njit(**_OPTS)
+def _turn_share(w, x, y, z, share):
+    """The unit rotation ``(w, x, y, z)`` scaled to ``share`` of its angle (short arc), as
+    ``quat.exp(share * quat.log(q))``."""
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * math.atan2(s, w)
+    scale = angle / s if s > 1e-8 else 2.0 + s * s / 3.0
+    rx, ry, rz = share * x * scale, share * y * scale, share * z * scale
+    a = math.sqrt(rx * rx + ry * ry + rz * rz)
+    k = math.sin(0.5 * a) / a if a > 1e-8 else 0.5 - a * a / 48.0
+    return math.cos(0.5 * a), rx * k, ry * k, rz * k
 
 
 @nb.njit(**_OPTS)

@@ -130,6 +130,8 @@ class TransitionEngine:
         self._retriever = None
         # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
         self._limb_bends: dict[int, tuple] = {}
+        # Without a motion library: (id(A), id(B)) -> (A, B, the hinges found in their clips).
+        self._clip_limbs: dict[tuple, tuple] = {}
         # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), id(B), the
         # pieces searched) -> (A, B, retriever); each clip's per-frame key joints and
         # ankles, id(track) -> (track, keys, own_frames); the key joints without a library; the
@@ -416,7 +418,7 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
     clip's bends about them once per clip). Without a library, the hinges are found in ``own``
     (the clips' own motion the transition searched, :func:`_own_retriever`), and without that
-    the frames stay as they are.
+    in the frames the output keeps of A and B (:func:`_clip_limbs`).
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
@@ -425,9 +427,8 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     lib = getattr(eng.model, "library_", None)
     if lib is None or not len(lib):
         lib = own
-    if lib is None or not len(lib):
-        return
-    limbs = _library_limbs(eng, lib)
+    limbs = (_clip_limbs(eng, ta, tb, a_end, b_start) if lib is None or not len(lib)
+             else _library_limbs(eng, lib))
     joints, bounds, hinge, least = limbs
     if not len(least):
         return
@@ -436,6 +437,26 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     if b_start < len(last):
         least = np.minimum(least, last[b_start])
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
+
+
+def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int) -> tuple:
+    """The knees' and elbows' hinges and bounds (:func:`_library_limbs`) found in the frames the
+    output keeps of A (to ``a_end``) and of B (from ``b_start``), real motion, where there is no
+    motion library to find them in (a gap in a take: never its own frames); once per pair of
+    clips and seams (the last few)."""
+    key = (id(ta), id(tb), a_end, b_start)
+    kept = eng._clip_limbs.get(key)
+    if kept is None or kept[0] is not ta or kept[1] is not tb:
+        sk = eng.skeleton
+        parts = [(ta.motion, slice(0, a_end + 1)), (tb.motion, slice(b_start, None))]
+        rots = np.concatenate([m.rotations[s] for m, s in parts])
+        positions = np.concatenate([np.broadcast_to(m.positions, m.rotations.shape[:-1] + (3,))[s] for m, s in parts])
+        kept = (ta, tb, hinges.packed(hinges.find(sk.parents, leg_chains(sk) + arm_chains(sk), rots, positions),
+                                      sk.parents))
+        if len(eng._clip_limbs) >= 8:  # the oldest goes
+            eng._clip_limbs.pop(next(iter(eng._clip_limbs)))
+        eng._clip_limbs[key] = kept
+    return kept[2]
 
 
 def _library_limbs(eng: TransitionEngine, lib: MotionLibrary) -> tuple:
@@ -531,6 +552,10 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
     eng.last = {"key": None if keys is None else keys["key"], "neurons": None if keys is None else keys["neurons"],
                 "dtheta": dtheta, "shift": shift}
     if req.foot_lock and eng._legs:
+        # The lock bends a knee in its own plane: one the interpolation bent backward would be
+        # bent on backward and swung round through straight (the spline between two sideways
+        # walks, 102 degrees in a frame at a knee); unbent first, as auto's and retrieval's are.
+        _unbend_limbs(eng, ta, tb, a_end, b_start, out_r, out_p)
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift)
     return out_r, out_p
 

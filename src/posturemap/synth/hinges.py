@@ -27,8 +27,9 @@ from straight, carried the knee 49 degrees backward, and the straightened leg ra
 the hip turned the toe keeps the spline's path: the largest acceleration there 0.91x, the knee's
 at B's seam.) Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm, forearm and
 elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
-(:func:`posturemap.synth.engine.TransitionEngine.generate`); the interpolating methods, the
-baselines, stay as they are.
+(:func:`posturemap.synth.engine.TransitionEngine.generate`), and to any method's before its foot
+lock, which bends a knee in its own plane (a knee bent backward would be bent on backward);
+without the lock the interpolating methods, the baselines, stay as they are.
 """
 
 from __future__ import annotations
@@ -40,7 +41,9 @@ from ..core.joints import subtree_mask
 
 LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
 HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under which a leg has no hinge
-REACH_MIN = 1e-6  # the hip-to-ankle distance (in leg lengths) under which unbend leaves the hip as it is
+# The hip-to-ankle distance, in leg lengths (thigh plus shin), from which unbend turns the hip the
+# whole way onto the ankle's line, and under which it leaves the hip as it is (a fraction between).
+REACH_FULL, REACH_NONE = 0.5, 0.25
 
 
 def leg_path(parents, thigh: int, shin: int, ankle: int) -> tuple[list[int], list[int]]:
@@ -179,8 +182,12 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     sideways keeps its sideways part); then the thigh's local rotation turned by the shortest
     arc that takes the ankle back onto its line from the hip (the straightened leg points where
     the bent-back one reached; the ankle's own rotation is kept; where :func:`packed` gives the
-    leg a thigh that moves only it, and the ankle is not within ``REACH_MIN`` leg lengths of
-    the hip). The bends are read continuously from frame to frame (unwrapped, starting from
+    leg a thigh that moves only it). A knee folded back so far that the ankle comes within
+    ``REACH_FULL`` leg lengths of the hip (bent back about 120 degrees) has its hip turned only
+    part of the way, none within ``REACH_NONE`` (about 150 degrees): the ankle's line from the
+    hip swings round as the ankle passes the hip, and the hip with it (a spline over 3.3 s
+    folded a knee back through a half turn, and its straightened thigh turned 157 degrees in a
+    frame). The bends are read continuously from frame to frame (unwrapped, starting from
     the first frame's in (-pi, pi]): a knee folded forward past a half turn, or bent sideways
     past a quarter turn, reads about pi on one frame and about -pi on the next, which is not a
     knee bent backward (read frame by frame, one interpolated knee folded forward past 180
@@ -189,7 +196,8 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits
     if kernels.backend() == "numba":
-        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_MIN))
+        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_NONE,
+                                                   REACH_FULL))
     turned = 0
     for (first, mid, last, top), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())
@@ -214,7 +222,11 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         reach, straight = quat.mul_vec(frame, t + s), quat.mul_vec(frame, t + quat.mul_vec(turn, s))
         near, far = np.linalg.norm(reach, axis=-1), np.linalg.norm(straight, axis=-1)
         # A leg folded back onto itself (the ankle at the hip) has no line: its hip stays.
-        some = near > REACH_MIN * (np.linalg.norm(t, axis=-1) + np.linalg.norm(s, axis=-1))
+        share = (near / (np.linalg.norm(t, axis=-1) + np.linalg.norm(s, axis=-1)) - REACH_NONE) / (REACH_FULL
+                                                                                                 - REACH_NONE)
+        some = share > 0.0
         onto = quat.between(straight[some] / far[some, None], reach[some] / near[some, None])
+        part = share[some] < 1.0
+        onto[part] = quat.exp(share[some][part, None] * quat.log(onto[part]))
         rots[back[some], top] = quat.mul(rots[back[some], top], onto)
     return turned
