@@ -185,7 +185,7 @@ def test_slerp_track_goes_on_round_a_half_turn(jit, t):
     outs, ends = [], []
     for impl in (kernels.NUMPY, jit):
         out = np.empty_like(a)
-        ends.append(impl.slerp_track(a, b, t, out))
+        ends.append(impl.slerp_track(a, b, t, out, np.zeros(m, dtype=bool)))
         outs.append(out)
     np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
     out = outs[1]
@@ -203,6 +203,54 @@ def test_slerp_track_goes_on_round_a_half_turn(jit, t):
     np.testing.assert_allclose(np.abs(np.sum(out * want, axis=-1)), 1.0, atol=1e-9)
     steps = quat.angle_between(quat.mul(quat.inv(a[1:]), out[1:]), quat.mul(quat.inv(a[:-1]), out[:-1]))
     assert steps.max() <= np.radians(3.0) * t + 1e-6  # t of b's own step from a, never a jump
+
+
+@pytest.mark.parametrize("t", [0.33, 0.59])
+def test_slerp_track_fade_columns_meet_an_end_at_a_half_turn_and_never_wind(jit, t):
+    # Track b turns away from track a through a half turn and on, round to within 9 degrees of
+    # a whole turn (that is, back next to a from the other side), then 15 degrees past it. On
+    # the arc that goes on, a blend at a fraction that stays ends a third of a whole turn from
+    # both (an arm 123 degrees in a frame into B's first) and turns over where the arc passes
+    # the whole turn; the fade columns take the short arc, their fraction moving to the nearer
+    # end from 120 degrees apart: at a half turn the blend is that end, on either side.
+    assert jit._FADE_FROM == kernels.FADE_FROM == np.radians(120.0)
+    rng = np.random.default_rng(15)
+    n, m = 80, 6
+    a = quat.exp(np.cumsum(rng.normal(scale=0.01, size=(n, m, 3)), axis=0))
+    axes = rng.normal(size=(m, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angle = np.radians(np.linspace(2.0, 375.0, n))
+    b = quat.mul(a, quat.exp(angle[:, None, None] * axes[None]))
+    b *= np.where(rng.random((n, m, 1)) < 0.5, -1.0, 1.0)
+    fade = np.arange(m) % 2 == 0  # half the columns
+    outs, ends = [], []
+    for impl in (kernels.NUMPY, jit):
+        out = np.empty_like(a)
+        ends.append(impl.slerp_track(a, b, t, out, fade))
+        outs.append(out)
+    np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
+    np.testing.assert_allclose(ends[1], ends[0], atol=1e-12)
+    out = outs[1]
+    apart = quat.angle_between(a, b)  # the short arc's angle, 0 .. 180 degrees
+    end = a if t < 0.5 else b
+    # The fade columns: the short arc's SLERP while the two are under 120 degrees apart ...
+    short = quat.slerp(a, b, np.full((n, m), t))
+    under = apart < np.radians(120.0) - 1e-9
+    assert quat.angle_between(out[:, fade], short[:, fade])[under[:, fade]].max() < 1e-6
+    # ... the nearer end at a half turn ...
+    half = np.argmin(np.abs(angle - np.pi))
+    assert quat.angle_between(out[half, fade], end[half, fade]).max() < np.radians(0.5)
+    # ... and never a jump, nor a blend far from both tracks once they are close again.
+    steps = quat.angle_between(out[1:, fade], out[:-1, fade])
+    assert steps.max() < 3.0 * np.radians(373.0 / (n - 1))  # three times the tracks' relative turn a frame
+    last = slice(n - 12, n)
+    assert np.all(quat.angle_between(out[last][:, fade], a[last][:, fade]) <= apart[last][:, fade] + 1e-6)
+    # The other columns go on round (their blend ends t of 375 degrees round) and do turn over.
+    want = quat.mul(a, quat.exp(t * angle[:, None, None] * axes[None]))
+    turned = angle < 2.0 * np.pi - 1e-3
+    np.testing.assert_allclose(np.abs(np.sum(out[turned][:, ~fade] * want[turned][:, ~fade], axis=-1)), 1.0,
+                               atol=1e-9)
+    assert quat.angle_between(out[1:, ~fade], out[:-1, ~fade]).max() > np.radians(30.0)
 
 
 @pytest.mark.parametrize("t", [0.0, 0.5, 1.0])

@@ -887,9 +887,15 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
             if c <= 0.0:
                 out_r[:, mask] = rots_fb[:, mask]
-            elif c < 1.0:  # on the arc that goes on through the frames (a half turn apart: no flip)
+            elif c < 1.0:  # no flip where the two pass a half turn apart (kernels.slerp_track)
+                # The root on the arc that goes on through the frames (B is placed at its end, by
+                # the way round it went); every other joint on the short arc, toward whichever
+                # of the two the confidence is nearer where they are nearly a half turn apart.
                 part = out_r[:, mask]
-                ends = kernels.slerp_track(rots_fb[:, mask], part, c, part)
+                fade = np.ones(part.shape[1], dtype=bool)
+                if mask is rt.lower_mask:
+                    fade[rt.root_column] = False
+                ends = kernels.slerp_track(rots_fb[:, mask], part, c, part, fade)
                 out_r[:, mask] = part
                 if mask is rt.lower_mask:
                     root_end = ends[rt.root_column]

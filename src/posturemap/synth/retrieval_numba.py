@@ -952,7 +952,7 @@ def splice_rotations(a, b, w, out):
         if 0.0 < w[t] < 1.0:
             lo, hi = min(lo, t), t + 1
     if lo < hi:  # one stretch: w rises
-        slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi])
+        slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi], np.zeros(n_j, dtype=np.bool_))
     for t in range(n_l):
         if w[t] <= 0.0:
             out[t] = a[t]

@@ -150,7 +150,7 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     blend = np.flatnonzero((w > 0.0) & (w < 1.0))
     if len(blend):
         lo, hi = int(blend[0]), int(blend[-1]) + 1  # one stretch: w rises
-        kernels.slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi])
+        kernels.slerp_track(a[lo:hi], b[lo:hi], w[lo:hi], out[lo:hi], np.zeros(a.shape[1], dtype=bool))
     for t, wt in enumerate(w.tolist()):
         if wt <= 0.0:
             out[t] = a[t]
