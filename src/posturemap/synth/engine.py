@@ -130,7 +130,8 @@ class TransitionEngine:
         self._retriever = None
         # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
         self._limb_bends: dict[int, tuple] = {}
-        # Without a motion library: (id(A), id(B)) -> (A, B, the hinges found in their clips).
+        # Without a motion library: (id(A), id(B), A's end, B's start) -> (A, B, the hinges found
+        # in the frames the output keeps of them).
         self._clip_limbs: dict[tuple, tuple] = {}
         # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), id(B), the
         # pieces searched) -> (A, B, retriever); each clip's per-frame key joints and

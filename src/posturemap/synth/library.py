@@ -121,8 +121,8 @@ def planted(heights: np.ndarray, speeds: np.ndarray, leg: float) -> np.ndarray:
 
 
 def low_percentile(x: np.ndarray, q: float) -> np.ndarray:
-    """``np.percentile(x, q, axis=0)`` of finite ``x`` (its linear method), the same values to the bit, from a
-    partial sort of the two rows it reads: a few microseconds on a piece of a clip, where
+    """``np.percentile(x, q, axis=0)`` of finite ``x`` (its linear method), the same values to the
+    bit, from a partial sort of the two rows it reads: a few microseconds on a piece of a clip, where
     ``np.percentile``'s general machinery takes about 25 (an in-betweening call builds the
     contacts of two pieces of its clips' own motion, :func:`own_library`)."""
     n = len(x)
