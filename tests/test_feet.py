@@ -939,7 +939,12 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
                   method="spline")
         r0, p0 = (x.copy() for x in e.generate("a", "b", foot_lock=False, **kw))
         r1, p1 = (x.copy() for x in e.generate("a", "b", foot_lock=True, **kw))
-        g0 = fk(e.skeleton.parents, r0, p0)[1][:, feet_joints]
+        # The lock's input: the free motion with any knee bent backward straightened first
+        # (the lock bends a knee in its own plane); that turns the shin and hip only.
+        u0 = r0.copy()
+        engine_module._unbend_limbs(e, e.tracks["a"], e.tracks["b"], kw["a_end"], kw["b_start"], u0, p0,
+                                    legs_only=True)
+        g0 = fk(e.skeleton.parents, u0, p0)[1][:, feet_joints]
         g1 = fk(e.skeleton.parents, r1, p1)[1][:, feet_joints]
         # Skate as the benchmark measures it: the feet's horizontal speed weighted by their
         # closeness to the floor, no contact detection (the toes, lowest, carry nearly all of it).
@@ -953,20 +958,23 @@ def test_foot_lock_reduces_skate_and_touches_only_the_legs(bandai_files, pair):
         contacts = metrics.foot_contacts(g0a, a.fps, 1, np.full(len(ankles), 11.0), 4.0, 50.0)
         free_heels.append(metrics.horizontal_speed(g0a, a.fps, 1)[contacts])
         locked_heels.append(metrics.horizontal_speed(g1a, a.fps, 1)[contacts])
-        # Only the legs change; the feet keep their global orientation.
+        # Only the legs change; the feet keep their global orientation through the lock.
         legs = sorted({j for c in e._legs for j in c})
         others = [j for j in range(a.skeleton.num_joints) if j not in legs]
         np.testing.assert_array_equal(r1[:, others], r0[:, others])
+        np.testing.assert_array_equal(u0[:, others], r0[:, others])
         np.testing.assert_array_equal(p1, p0)
-        q0, q1 = fk(e.skeleton.parents, r0, p0)[0], fk(e.skeleton.parents, r1, p1)[0]
+        q0, q1 = fk(e.skeleton.parents, u0, p0)[0], fk(e.skeleton.parents, r1, p1)[0]
         assert np.max(quat.angle_between(q0[:, ankles], q1[:, ankles])) < 1e-6
     free, locked = np.mean(free_steps), np.mean(locked_steps)
     # 0.61 and 0.54 (a foot held by its ankle, its toe sliding as it rolled: 0.62 and 0.71).
     assert locked < 0.7 * free, (free, locked)
     free, locked = np.concatenate(free_heels), np.concatenate(locked_heels)
     assert len(free) > 10
-    # 0.75 and 0.66 (held by the ankle: 0.42 and 0.44).
-    assert locked.mean() < 0.8 * free.mean(), (free.mean(), locked.mean())
+    # 0.86 and 0.68 (held by the ankle: 0.42 and 0.44; 0.79 and 0.68 before knees bent backward
+    # were straightened ahead of the lock: a straightened leg has less reach left to hold a heel
+    # with, and the walk-run pair's spline bends a knee back in some of these frames).
+    assert locked.mean() < 0.9 * free.mean(), (free.mean(), locked.mean())
 
 
 @pytest.mark.parametrize("given_contacts", [False, True])

@@ -289,6 +289,21 @@ def test_unbend_is_the_same_compiled(twist):
     np.testing.assert_allclose(outs[1][1], outs[0][1], rtol=0, atol=1e-12)
 
 
+def test_a_share_of_the_hips_turn_is_the_same_compiled():
+    # unbend turns a hip part of the way for a knee folded back past 120 degrees: the compiled
+    # share of a turn is quat.exp(share * quat.log(q)), either sign of q, tiny turns too.
+    rng = np.random.default_rng(10)
+    q = quat.exp(rng.normal(scale=1.2, size=(60, 3)))
+    q[:10] = quat.exp(rng.normal(scale=1e-9, size=(10, 3)))
+    q *= np.where(rng.random((60, 1)) < 0.5, -1.0, 1.0)
+    share = rng.uniform(0.0, 1.0, 60)
+    want = quat.exp(share[:, None] * quat.log(q))
+    got = np.array([kernels.compiled()._turn_share(*row, s) for row, s in zip(q.tolist(), share.tolist())])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert np.all(quat.angle_between(got, np.broadcast_to(quat.identity(), got.shape))[10:]
+                  < quat.angle_between(q, np.broadcast_to(quat.identity(), q.shape))[10:] + 1e-12)
+
+
 @pytest.mark.parametrize("compiled", [False, True])
 def test_unbend_leaves_a_frame_it_cannot_measure(compiled):
     # A NaN in a frame's leg (a translation) or in the bound: nothing turned there, as numpy's

@@ -866,6 +866,7 @@ ELSEWHERE = {
     "test_feet.py::test_rest_bounded_is_the_same_compiled": ("numba_kernels:_rest_bounded", "numba_kernels:_at",
                                                              "numba_kernels:_second_most"),
     "test_hinges.py::test_unbend_is_the_same_compiled": ("numba_kernels:unbend_limbs",),
+    "test_hinges.py::test_a_share_of_the_hips_turn_is_the_same_compiled": ("numba_kernels:_turn_share",),
     "test_hinges.py::test_bend_frames_is_the_same_compiled": ("numba_kernels:limb_bends", "numba_kernels:_limb_bend"),
     "test_hinges.py::test_the_shortest_arc_is_the_same_compiled": ("numba_kernels:_between",),
     "test_feet.py::test_a_toe_planted_at_a_seam_stays_put_after_a_short_run_there": ("numba_kernels:_from_seam",),

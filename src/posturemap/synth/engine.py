@@ -413,7 +413,7 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
 
 
 def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, out_r: np.ndarray,
-                  out_p: np.ndarray, own: MotionLibrary | None = None) -> None:
+                  out_p: np.ndarray, own: MotionLibrary | None = None, legs_only: bool = False) -> None:
     """No knee or elbow of the new frames bent further back than the motion library's go or
     the frames the output keeps of A (to ``a_end``) and of B (from ``b_start``), whichever goes
     further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
@@ -424,7 +424,9 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
     library's hinge, and their bound is as far back as they go. Only the kept frames count: a
-    gap in a take (A and B one clip) is never read, however its knees bend."""
+    gap in a take (A and B one clip) is never read, however its knees bend. ``legs_only``: the
+    knees alone (an interpolating method's, before its foot lock: the lock touches the legs
+    only, and the rest of the baseline stays as it is)."""
     lib = getattr(eng.model, "library_", None)
     if lib is None or not len(lib):
         lib = own
@@ -437,6 +439,9 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     least = np.minimum(least, first[a_end])
     if b_start < len(last):
         least = np.minimum(least, last[b_start])
+    if legs_only:  # the limbs whose shin is a leg's
+        keep = np.isin(joints[bounds[:, 1] - 1], [c[1] for c in eng._legs])
+        bounds, hinge, least = bounds[keep], hinge[keep], least[keep]
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
 
 
@@ -556,7 +561,7 @@ def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, r
         # The lock bends a knee in its own plane: one the interpolation bent backward would be
         # bent on backward and swung round through straight (the spline between two sideways
         # walks, 102 degrees in a frame at a knee); unbent first, as auto's and retrieval's are.
-        _unbend_limbs(eng, ta, tb, a_end, b_start, out_r, out_p)
+        _unbend_limbs(eng, ta, tb, a_end, b_start, out_r, out_p, legs_only=True)
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift)
     return out_r, out_p
 

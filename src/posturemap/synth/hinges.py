@@ -27,9 +27,9 @@ from straight, carried the knee 49 degrees backward, and the straightened leg ra
 the hip turned the toe keeps the spline's path: the largest acceleration there 0.91x, the knee's
 at B's seam.) Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm, forearm and
 elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
-(:func:`posturemap.synth.engine.TransitionEngine.generate`), and to any method's before its foot
-lock, which bends a knee in its own plane (a knee bent backward would be bent on backward);
-without the lock the interpolating methods, the baselines, stay as they are.
+(:func:`posturemap.synth.engine.TransitionEngine.generate`), and to any method's knees before its
+foot lock, which bends a knee in its own plane (a knee bent backward would be bent on backward);
+otherwise the interpolating methods, the baselines, stay as they are.
 """
 
 from __future__ import annotations
