@@ -304,3 +304,33 @@ def test_a_pieces_floor_is_numpys_percentile_to_the_bit():
                 assert got.shape == want.shape and np.array_equal(got, want), (n, q, got, want)
                 checked += 1
     assert checked == 72 * 8 * 2
+
+
+def test_without_a_map_an_interpolating_methods_lock_reads_no_frame_of_the_gap(clips):
+    # Without a map, the knees' hinges that straighten a knee bent backward before the foot lock
+    # come from the clips (engine._clip_limbs); in a gap in a take, only from the frames the
+    # output keeps: the gap garbled (a marker dropout), the same hinges and bounds to the bit,
+    # and the same output within 1e-5 (a track's heading, about the facing it estimates from its
+    # whole clip, moves by about 0.001 radians with the gap garbled: not this lock's reading).
+    take = clips["walk-back_old_001"]
+    outs, limbs = [], []
+    for clip in (take, garbled(take, A_END + 1, B_START)):
+        eng = TransitionEngine(None, take.skeleton)
+        eng.add("take", clip)
+        r, p = eng.generate("take", "take", length=LENGTH, a_end=A_END, b_start=B_START, align=False,
+                            method="spline", foot_lock=True)
+        outs.append((r.copy(), p.copy()))
+        (found,) = eng._clip_limbs.values()
+        limbs.append(found[2])
+    assert len(limbs[0][0]) > 0  # hinges were found
+    for x, y in zip(*limbs):
+        np.testing.assert_array_equal(x, y)
+    for x, y in zip(*outs):
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-5)
+    # Read from the whole take instead, the garbled gap moves the hinges.
+    from posturemap.core.joints import arm_chains, leg_chains
+    from posturemap.synth import hinges
+    sk = take.skeleton
+    whole = [hinges.find(sk.parents, leg_chains(sk) + arm_chains(sk), m.rotations, m.positions)
+             for m in (take, garbled(take, A_END + 1, B_START))]
+    assert any(not np.allclose(u[1], v[1]) for u, v in zip(*whole) if u is not None and v is not None)

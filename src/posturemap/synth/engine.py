@@ -130,8 +130,8 @@ class TransitionEngine:
         self._retriever = None
         # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
         self._limb_bends: dict[int, tuple] = {}
-        # Without a motion library: (id(A), id(B), A's end, B's start) -> (A, B, the hinges found
-        # in the frames the output keeps of them).
+        # Without a motion library: (id(A), id(B)[, A's end, B's start: a gap in a take]) -> (A, B,
+        # the hinges found in their frames, see _clip_limbs).
         self._clip_limbs: dict[tuple, tuple] = {}
         # The clips' own motion (see _own_retriever): retrievers per seam pair, (id(A), id(B), the
         # pieces searched) -> (A, B, retriever); each clip's per-frame key joints and
@@ -446,15 +446,18 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
 
 
 def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int) -> tuple:
-    """The knees' and elbows' hinges and bounds (:func:`_library_limbs`) found in the frames the
-    output keeps of A (to ``a_end``) and of B (from ``b_start``), real motion, where there is no
-    motion library to find them in (a gap in a take: never its own frames); once per pair of
-    clips and seams (the last few)."""
-    key = (id(ta), id(tb), a_end, b_start)
+    """The knees' and elbows' hinges and bounds (:func:`_library_limbs`) found in the clips' real
+    motion, where there is no motion library to find them in: between two clips their whole
+    frames, once per pair (a slider's new seams cost nothing: about 1 ms a call otherwise); in
+    a gap in a take (A is B) the frames the output keeps of it (to ``a_end``, from ``b_start``:
+    never the gap's own), once per pair of seams. The last few are kept."""
+    same = ta is tb
+    key = (id(ta), id(tb)) + ((a_end, b_start) if same else ())
     kept = eng._clip_limbs.get(key)
     if kept is None or kept[0] is not ta or kept[1] is not tb:
         sk = eng.skeleton
-        parts = [(ta.motion, slice(0, a_end + 1)), (tb.motion, slice(b_start, None))]
+        parts = ([(ta.motion, slice(0, a_end + 1)), (tb.motion, slice(b_start, None))] if same
+                 else [(ta.motion, slice(None)), (tb.motion, slice(None))])
         rots = np.concatenate([m.rotations[s] for m, s in parts])
         positions = np.concatenate([np.broadcast_to(m.positions, m.rotations.shape[:-1] + (3,))[s] for m, s in parts])
         kept = (ta, tb, hinges.packed(hinges.find(sk.parents, leg_chains(sk) + arm_chains(sk), rots, positions),
