@@ -206,14 +206,14 @@ def test_slerp_track_goes_on_round_a_half_turn(jit, t):
 
 
 @pytest.mark.parametrize("t", [0.33, 0.59])
-def test_slerp_track_fade_columns_meet_an_end_at_a_half_turn_and_never_wind(jit, t):
+def test_slerp_track_fade_columns_meet_an_end_when_the_arc_winds_and_never_turn_over(jit, t):
     # Track b turns away from track a through a half turn and on, round to within 9 degrees of
-    # a whole turn (that is, back next to a from the other side), then 15 degrees past it. On
-    # the arc that goes on, a blend at a fraction that stays ends a third of a whole turn from
-    # both (an arm 123 degrees in a frame into B's first) and turns over where the arc passes
-    # the whole turn; the fade columns take the short arc, their fraction moving to the nearer
-    # end from 120 degrees apart: at a half turn the blend is that end, on either side.
-    assert jit._FADE_FROM == kernels.FADE_FROM == np.radians(120.0)
+    # a whole turn (back next to a from the other side), then 15 degrees past it. On the arc
+    # that goes on, a blend at a fraction that stays ends a third of a whole turn from both (an
+    # arm 123 degrees in a frame into B's first) and turns over where the arc passes the whole
+    # turn; the fade columns are that arc up to a half turn round, then their fraction moves
+    # to the nearer end, all the way from three quarters of a turn.
+    assert jit._FADE_SPAN == kernels.FADE_SPAN == np.radians(90.0)
     rng = np.random.default_rng(15)
     n, m = 80, 6
     a = quat.exp(np.cumsum(rng.normal(scale=0.01, size=(n, m, 3)), axis=0))
@@ -231,26 +231,19 @@ def test_slerp_track_fade_columns_meet_an_end_at_a_half_turn_and_never_wind(jit,
     np.testing.assert_allclose(outs[1], outs[0], atol=1e-12)
     np.testing.assert_allclose(ends[1], ends[0], atol=1e-12)
     out = outs[1]
-    apart = quat.angle_between(a, b)  # the short arc's angle, 0 .. 180 degrees
+    on_round = quat.mul(a, quat.exp(t * angle[:, None, None] * axes[None]))  # t of the arc's angle
+    same = np.abs(np.sum(out * on_round, axis=-1))
+    # Up to a half turn round, every column is on the arc that goes on ...
+    np.testing.assert_allclose(same[angle <= np.pi], 1.0, atol=1e-9)
+    # ... past it the other columns stay on it (and turn over at the whole turn) ...
+    np.testing.assert_allclose(same[angle < 2.0 * np.pi - 1e-3][:, ~fade], 1.0, atol=1e-9)
+    assert quat.angle_between(out[1:, ~fade], out[:-1, ~fade]).max() > np.radians(30.0)
+    # ... and the fade columns reach the nearer end by three quarters of a turn, and stay there.
     end = a if t < 0.5 else b
-    # The fade columns: the short arc's SLERP while the two are under 120 degrees apart ...
-    short = quat.slerp(a, b, np.full((n, m), t))
-    under = apart < np.radians(120.0) - 1e-9
-    assert quat.angle_between(out[:, fade], short[:, fade])[under[:, fade]].max() < 1e-6
-    # ... the nearer end at a half turn ...
-    half = np.argmin(np.abs(angle - np.pi))
-    assert quat.angle_between(out[half, fade], end[half, fade]).max() < np.radians(0.5)
-    # ... and never a jump, nor a blend far from both tracks once they are close again.
+    late = angle >= 1.5 * np.pi
+    assert quat.angle_between(out[late][:, fade], end[late][:, fade]).max() < 1e-6
     steps = quat.angle_between(out[1:, fade], out[:-1, fade])
     assert steps.max() < 3.0 * np.radians(373.0 / (n - 1))  # three times the tracks' relative turn a frame
-    last = slice(n - 12, n)
-    assert np.all(quat.angle_between(out[last][:, fade], a[last][:, fade]) <= apart[last][:, fade] + 1e-6)
-    # The other columns go on round (their blend ends t of 375 degrees round) and do turn over.
-    want = quat.mul(a, quat.exp(t * angle[:, None, None] * axes[None]))
-    turned = angle < 2.0 * np.pi - 1e-3
-    np.testing.assert_allclose(np.abs(np.sum(out[turned][:, ~fade] * want[turned][:, ~fade], axis=-1)), 1.0,
-                               atol=1e-9)
-    assert quat.angle_between(out[1:, ~fade], out[:-1, ~fade]).max() > np.radians(30.0)
 
 
 @pytest.mark.parametrize("t", [0.0, 0.5, 1.0])

@@ -888,6 +888,10 @@ def test_the_mean_of_segments_keeps_each_ones_sign_through_a_half_turn_from_the_
     q = retrieval.sample_rotations(lib, i0, i1, f, joints)
     aligned = quat.normalize(np.sum(q * np.where(np.sum(q * q[:1], axis=-1, keepdims=True) < 0, -1.0, 1.0), axis=0))
     np.testing.assert_array_equal(retrieval.average_rotations(q), aligned)
+    # One sample: the first segment's sign, the same shape as the compiled mean's.
+    one = retrieval.average_rotations(q[:, :1])
+    assert one.shape == (1, 1, 4)
+    np.testing.assert_array_equal(one, aligned[:1])
 
 
 def test_compiled_replay_matches_the_numpy_reference(model):

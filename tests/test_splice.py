@@ -199,12 +199,18 @@ def test_compiled_splice_rotations_match_the_numpy_reference(alpha):
     a = quat.exp(np.cumsum(rng.normal(scale=0.2, size=(length, joints, 3)), axis=0))
     b = quat.exp(np.cumsum(rng.normal(scale=0.2, size=(length, joints, 3)), axis=0))
     b *= np.where(rng.random((length, joints, 1)) < 0.3, -1.0, 1.0)
-    for w in (splice_weights(length, alpha), np.sort(np.clip(rng.normal(0.5, 0.6, length), 0.0, 1.0))):
+    nan = splice_weights(length, 0.5)
+    nan[length // 2] = np.nan  # a weight that is no number: B's frame, as the compiled kernel has it
+    for w in (splice_weights(length, alpha), np.sort(np.clip(rng.normal(0.5, 0.6, length), 0.0, 1.0)), nan):
         got = np.empty(a.shape)
         retrieval_numba.splice_rotations(a, b, w, got)
         with kernels.numpy_backend():
             ref = splice_rotations(a, b, w)
         np.testing.assert_allclose(got, ref, atol=1e-12)
+        if np.isnan(w).any():  # that frame is B's, and every number is one
+            k = length // 2
+            assert np.all(np.isfinite(got)) and quat.angle_between(got[k], b[k]).max() < 1e-6
+            continue
         # The SLERP on the arc that goes on from frame to frame (some of these halves pass a half
         # turn apart, where the short arc would flip): a's frame turned by the fraction w of the
         # relative rotation a^-1 b, its sign kept from frame to frame (the short arc at the first).

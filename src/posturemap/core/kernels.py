@@ -27,7 +27,7 @@ from . import quat
 from .skeleton import chain_world
 from .skeleton import fk as _fk_reference
 
-FADE_FROM = np.radians(120.0)  # slerp_track's fade columns: from this angle apart to a half turn, toward an end
+FADE_SPAN = np.radians(90.0)  # slerp_track's fade columns: from a half turn round, toward an end over this
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
@@ -131,31 +131,28 @@ def slerp_track(a, b, t, out, fade):
     had their short arc flip to the other side of it from one frame to the next, and a blend of
     them jumped by up to a half turn in a frame; on this arc it goes on round.
 
-    The columns ``fade`` (M,) bool instead take the short arc, their fraction moving to the
-    nearer end (0 below a half, else 1) as the two come within :data:`FADE_FROM` of a half turn
-    apart (a smoothstep; all the way at a half turn): at a half turn the blend is one of the two
-    tracks, whichever side the arc is on, so it does not flip there either. For a fraction that
-    stays (a confidence): on the arc that goes on, tracks that passed a half turn apart and came
-    back together from the other side ended nearly a whole turn round, and the blend a third of
-    that from both (an arm 123 degrees in a frame into B's first); where it wound on past a
-    whole turn, its axis turned over (the hips 179 degrees in a frame).
+    On the columns ``fade`` (M,) bool, where the arc has gone on past a half turn round, the
+    fraction moves to the nearer end (0 below a half, else 1) over the next :data:`FADE_SPAN`
+    (a smoothstep; all the way from three quarters of a turn round): for a fraction that stays
+    (a confidence), tracks that passed a half turn apart and came back together from the other
+    side ended nearly a whole turn round on the arc, and the blend a third of that from both
+    (an arm 123 degrees in a frame into B's first); where the arc wound on past a whole turn,
+    its axis turned over (the hips 179 degrees in a frame). Up to a half turn round they are
+    blended as the other columns are.
 
     Returns the last frame's relative rotation on that arc (M, 4): its scalar part is negative
     where the arc ends more than a half turn round (the caller that places something at the
-    arc's end, B after a blended root, needs to know which way round it went); the short arc's
-    for the ``fade`` columns. N must be >= 1.
+    arc's end, B after a blended root, needs to know which way round it went). N must be >= 1.
     """
     t = np.broadcast_to(np.asarray(t, dtype=np.float64), (len(a),))[:, None, None]
     rel = quat.mul(quat.inv(a), b)
     flips = np.sum(rel[1:] * rel[:-1], axis=-1) < 0.0
     sign = np.where(rel[:1, :, 0] < 0.0, -1.0, 1.0) * np.concatenate(
         [np.ones((1,) + flips.shape[1:]), np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)])
+    theta = np.arccos(np.clip(sign * rel[..., 0], -1.0, 1.0))[..., None]
     fade = np.asarray(fade, dtype=bool)
     if fade.any():
-        sign = np.where(fade, np.where(rel[..., 0] < 0.0, -1.0, 1.0), sign)
-    theta = np.arccos(np.clip(sign * rel[..., 0], -1.0, 1.0))[..., None]
-    if fade.any():
-        near = np.clip((2.0 * theta - FADE_FROM) / (np.pi - FADE_FROM), 0.0, 1.0)
+        near = np.clip((2.0 * theta - np.pi) / FADE_SPAN, 0.0, 1.0)
         t = np.where(fade[:, None], t + (np.where(t >= 0.5, 1.0, 0.0) - t) * near * near * (3.0 - 2.0 * near), t)
     sin_theta = np.sin(theta)
     small = sin_theta < 1e-6

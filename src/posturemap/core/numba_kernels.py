@@ -17,7 +17,7 @@ import numpy as np
 _OPTS = dict(cache=True, nogil=True, fastmath=False)
 # Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
 _FAST = {"nsz", "arcp", "contract", "reassoc"}
-_FADE_FROM = float(np.radians(120.0))  # kernels.FADE_FROM (slerp_track's fade columns; a test holds them equal)
+_FADE_SPAN = float(np.radians(90.0))  # kernels.FADE_SPAN (slerp_track's fade columns; a test holds them equal)
 
 
 @nb.njit(**_OPTS)
@@ -547,7 +547,7 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_none, re
     parent) further back than ``leasts[k]`` turned about the hinge onto it, and its thigh turned
     to keep the ankle on its line from the hip (the whole way where the ankle is at least
     ``reach_full`` leg lengths from the hip, none within ``reach_none``, a share of the way
-    between); returns how many knees it turned."""
+    between), the bends read unwrapped over the frames; returns how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
@@ -1397,9 +1397,9 @@ def slerp(a, b, t, out):
 def slerp_track(a, b, t, out, fade):
     """:func:`posturemap.core.kernels.slerp_track` (the reference): the SLERP from ``a[n, m]`` to
     ``b[n, m]`` (N, M, 4) at the fraction ``t`` (a number, or (N,) one per frame) on the arc
-    that goes on from frame to frame, the columns ``fade`` (M,) on the short arc with their
-    fraction moving to the nearer end near a half turn apart; returns the last frame's relative
-    rotation on that arc (M, 4)."""
+    that goes on from frame to frame, the columns ``fade`` (M,) with their fraction moving to
+    the nearer end where the arc has gone on past a half turn round; returns the last frame's
+    relative rotation on that arc (M, 4)."""
     ends = np.empty((a.shape[1], 4))
     w = np.empty(a.shape[0])
     w[:] = t
@@ -1409,16 +1409,14 @@ def slerp_track(a, b, t, out, fade):
         for n in range(a.shape[0]):
             r0, r1, r2, r3 = _mul(a[n, m, 0], -a[n, m, 1], -a[n, m, 2], -a[n, m, 3],
                                   b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3])
-            tt = w[n]
-            if fade[m]:
-                sign = -1.0 if r0 < 0.0 else 1.0
-                near = min(max((2.0 * math.acos(min(max(sign * r0, -1.0), 1.0)) - _FADE_FROM)
-                               / (math.pi - _FADE_FROM), 0.0), 1.0)
-                tt += ((1.0 if tt >= 0.5 else 0.0) - tt) * near * near * (3.0 - 2.0 * near)
-            elif n == 0:
+            if n == 0:
                 sign = -1.0 if r0 < 0.0 else 1.0
             elif r0 * p0 + r1 * p1 + r2 * p2 + r3 * p3 < 0.0:
                 sign = -sign
+            tt = w[n]
+            if fade[m]:
+                near = min(max((2.0 * math.acos(min(max(sign * r0, -1.0), 1.0)) - math.pi) / _FADE_SPAN, 0.0), 1.0)
+                tt += ((1.0 if tt >= 0.5 else 0.0) - tt) * near * near * (3.0 - 2.0 * near)
             p0, p1, p2, p3 = r0, r1, r2, r3
             out[n, m, 0], out[n, m, 1], out[n, m, 2], out[n, m, 3] = _slerp_signed(
                 a[n, m, 0], a[n, m, 1], a[n, m, 2], a[n, m, 3], b[n, m, 0], b[n, m, 1], b[n, m, 2], b[n, m, 3],

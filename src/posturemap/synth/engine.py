@@ -455,6 +455,7 @@ def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start
     key = (id(ta), id(tb)) + ((a_end, b_start) if same else ())
     kept = eng._clip_limbs.get(key)
     if kept is None or kept[0] is not ta or kept[1] is not tb:
+        _forget_gone_clips(eng)  # a new pair: the clips replaced or dropped since go
         sk = eng.skeleton
         parts = ([(ta.motion, slice(0, a_end + 1)), (tb.motion, slice(b_start, None))] if same
                  else [(ta.motion, slice(None)), (tb.motion, slice(None))])
@@ -500,6 +501,8 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     eng._limb_bends = {k: v for k, v in eng._limb_bends.items() if live.get(k) is v[0]}
     eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[1]) is v[1]}
     eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}
+    eng._clip_limbs = {k: v for k, v in eng._clip_limbs.items() if live.get(id(v[0])) is v[0]
+                       and live.get(id(v[1])) is v[1]}
 
 
 def _interpolated(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest,

@@ -187,11 +187,14 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     part of the way, none within ``REACH_NONE`` (about 150 degrees): the ankle's line from the
     hip swings round as the ankle passes the hip, and the hip with it (a spline over 3.3 s
     folded a knee back through a half turn, and its straightened thigh turned 157 degrees in a
-    frame). The bends are read continuously from frame to frame (unwrapped, starting from
-    the first frame's in (-pi, pi]): a knee folded forward past a half turn, or bent sideways
-    past a quarter turn, reads about pi on one frame and about -pi on the next, which is not a
-    knee bent backward (read frame by frame, one interpolated knee folded forward past 180
-    degrees was snapped straight and back, a 176-degree turn in a frame each way). In place;
+    frame). The bends are read continuously from frame to frame (unwrapped, starting from the
+    first frame's in (-pi, pi]): a knee folded forward past a half turn, or bent sideways past
+    a quarter turn, reads about pi on one frame and about -pi on the next, which is not a knee
+    bent backward (read frame by frame, one interpolated knee folded forward past 180 degrees
+    was snapped straight and back, a 176-degree turn in a frame each way). A knee spun through
+    a whole turn (a baseline's, over seconds) reads its later bends a whole turn off, and is
+    straightened from there on; reading it afresh once near straight gave pops wherever that
+    switched the reading (47 degrees in a frame in a spline over 3.3 s). In place;
     returns how many knees (frames times legs) it turned. Where this process uses numba, one
     compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts = limits

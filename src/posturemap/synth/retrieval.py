@@ -1138,8 +1138,8 @@ def average_rotations(q: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     if len(q) == 1:
         return quat.normalize(q[0])
     flips = np.sum(q[:, 1:] * q[:, :-1], axis=-1) < 0.0  # a segment's own sign changes
-    par = np.concatenate([np.ones(flips[:, :1].shape), np.where(np.cumsum(flips, axis=1) % 2 == 1, -1.0, 1.0)],
-                         axis=1)
+    par = np.concatenate([np.ones((len(q), 1) + flips.shape[2:]),
+                          np.where(np.cumsum(flips, axis=1) % 2 == 1, -1.0, 1.0)], axis=1)
     side = np.where(np.sum(q[:, :1] * q[:1, :1], axis=-1) < 0.0, -1.0, 1.0)  # at the first sample
     sign = (side * par * par[:1])[..., None]
     if weights is not None:

@@ -154,7 +154,7 @@ def splice_rotations(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     for t, wt in enumerate(w.tolist()):
         if wt <= 0.0:
             out[t] = a[t]
-        elif wt >= 1.0:  # B, each joint in the hemisphere of the frame before
+        elif not 0.0 < wt < 1.0:  # B (from 1 on, or NaN), each joint in the hemisphere of the frame before
             out[t] = b[t] if t == 0 else np.where((np.sum(b[t] * out[t - 1], axis=-1) < 0.0)[:, None], -b[t], b[t])
     return out
 
