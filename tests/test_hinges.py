@@ -81,6 +81,12 @@ def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twi
     assert find(parents, [chain], rots, pos[0]) == [None]
 
 
+def library_knees(rng, twist: bool = False) -> list:
+    """:func:`find` over a seeded library of 300 knees bent 0..90 degrees: the bound at straight."""
+    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
+    return find(parents, [chain], lib_rots, lib_pos[0])
+
+
 def backend(compiled: bool):
     """The compiled kernels (from here on in this process) or numpy's, for the block."""
     if compiled:
@@ -93,8 +99,7 @@ def backend(compiled: bool):
 @pytest.mark.parametrize("twist", [False, True])
 def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(twist, compiled):
     rng = np.random.default_rng(2)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
-    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    knees = library_knees(rng, twist)
     (path, hinge, least), = knees
     assert least == 0.0
     flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
@@ -132,8 +137,7 @@ def test_unbend_reads_a_knee_folded_forward_past_a_half_turn_as_forward(twist, c
     # frame and back (a Bandai in-betweening, walk into dash, the default method). Read over the
     # frames, it goes on forward and is left; a knee bent backward after it is still turned.
     rng = np.random.default_rng(12)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), twist, rng)
-    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    knees = library_knees(rng, twist)
     (path, hinge, least), = knees
     flex = np.radians([160.0, 172.0, 178.0, 183.0, 190.0, 184.0, 176.0, 150.0, 60.0, 5.0, -20.0])
     parents, chain, rots, pos = leg(flex, twist, rng)
@@ -174,8 +178,7 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
     # straightened there (a 9-10 degree kick each way). About the hinge it reads about as much
     # as it bends backward, and the knee turns that much at most, frame after frame alike.
     rng = np.random.default_rng(5)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
-    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    knees = library_knees(rng)
     (path, hinge, least), = knees
     assert least == 0.0
     turn = np.radians(np.linspace(80.0, 100.0, 11))  # the plane's normal from the hinge (X) toward -Z and past
@@ -207,8 +210,7 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
     # turn the hip does not swing round with the ankle's line (a spline's thigh turned 157
     # degrees in a frame so).
     rng = np.random.default_rng(6)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
-    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    knees = library_knees(rng)
     # The leg's thigh and shin are 1 long each: the ankle 2 cos(bend / 2) from the hip.
     full, none = (2.0 * np.degrees(np.arccos(r)) for r in (REACH_FULL, REACH_NONE))  # 120, 151 degrees
     flex = -np.radians([180.0 - 1e-6, 30.0, full - 5.0, 0.5 * (full + none), none + 3.0, 170.0, 178.0, 182.0,
@@ -309,8 +311,7 @@ def test_unbend_leaves_a_frame_it_cannot_measure(compiled):
     # A NaN in a frame's leg (a translation) or in the bound: nothing turned there, as numpy's
     # `bends < least` leaves it; no NaN written into the hip.
     rng = np.random.default_rng(9)
-    parents, chain, lib_rots, lib_pos = leg(np.radians(rng.uniform(0.0, 90.0, 300)), rng=rng)
-    knees = find(parents, [chain], lib_rots, lib_pos[0])
+    knees = library_knees(rng)
     parents, chain, rots, pos = leg(np.radians([-20.0, -30.0]), rng=rng)
     pos[0, chain[2], 1] = np.nan
     before = rots.copy()

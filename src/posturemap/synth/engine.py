@@ -440,7 +440,8 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     if b_start < len(last):
         least = np.minimum(least, last[b_start])
     if legs_only:  # the limbs whose shin is a leg's
-        keep = np.isin(joints[bounds[:, 1] - 1], [c[1] for c in eng._legs])
+        shins = {c[1] for c in eng._legs}
+        keep = np.array([int(j) in shins for j in joints[bounds[:, 1] - 1]], dtype=bool)
         bounds, hinge, least = bounds[keep], hinge[keep], least[keep]
     hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
 
@@ -900,9 +901,9 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             if c <= 0.0:
                 out_r[:, mask] = rots_fb[:, mask]
             elif c < 1.0:  # no flip where the two pass a half turn apart (kernels.slerp_track)
-                # The root on the arc that goes on through the frames (B is placed at its end, by
-                # the way round it went); every other joint on the short arc, toward whichever
-                # of the two the confidence is nearer where they are nearly a half turn apart.
+                # On the arc that goes on through the frames; the root all the way (B is placed
+                # at its end, by the way round it went), every other joint moving to whichever of
+                # the two the confidence is nearer where the arc goes past a half turn round.
                 part = out_r[:, mask]
                 fade = np.ones(part.shape[1], dtype=bool)
                 if mask is rt.lower_mask:
