@@ -69,13 +69,15 @@ def test_hinges_tell_forward_from_backward_and_how_far_back_the_library_goes(twi
     flex = np.radians(rng.uniform(0.0, 90.0, 400))
     flex[:3] = np.radians([-2.0, -1.0, -0.5])  # the library's few knees a hair past straight
     parents, chain, rots, pos = leg(flex, twist, rng)
-    (path, hinge, least), = find(parents, [chain], rots, pos[0])
+    (path, hinge, least, most), = find(parents, [chain], rots, pos[0])
     t, s = leg_vectors(rots, pos, path)
     signed = signed_bends(t, s, hinge)
     np.testing.assert_allclose(np.abs(signed), bends_of(parents, chain, rots, pos), atol=1e-9)
     np.testing.assert_allclose(signed, flex, atol=1e-9)  # forward positive, backward negative
     assert least == pytest.approx(np.percentile(flex, 0.1))
     assert np.radians(-2.0) < least < np.radians(-0.5)
+    assert most == pytest.approx(np.percentile(flex, 99.9))  # and how far forward
+    assert np.radians(89.0) < most < np.radians(90.0)
     # A library whose knees never bend has no hinge to tell them apart: no bound.
     parents, chain, rots, pos = leg(np.zeros(50), twist, rng)
     assert find(parents, [chain], rots, pos[0]) == [None]
@@ -100,7 +102,7 @@ def backend(compiled: bool):
 def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(twist, compiled):
     rng = np.random.default_rng(2)
     knees = library_knees(rng, twist)
-    (path, hinge, least), = knees
+    (path, hinge, least, _), = knees
     assert least == 0.0
     flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
     parents, chain, rots, pos = leg(flex, twist, rng)
@@ -133,22 +135,35 @@ def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(t
 @pytest.mark.parametrize("twist", [False, True])
 def test_unbend_reads_a_knee_folded_forward_past_a_half_turn_as_forward(twist, compiled):
     # An interpolated knee folding on past 180 degrees reads -179 frame by frame (the bend's
-    # angle wraps): not a knee bent backward. Snapped onto the bound, it turned 176 degrees in a
-    # frame and back (a Bandai in-betweening, walk into dash, the default method). Read over the
-    # frames, it goes on forward and is left; a knee bent backward after it is still turned.
+    # angle wraps): not a knee bent backward. Snapped onto the backward bound, it turned 176
+    # degrees in a frame and back (a Bandai in-betweening, walk into dash, the default method).
+    # Read over the frames, it goes on forward: folded further than the library's knees, it is
+    # turned back onto their forward bound, frame after frame alike; a knee bent backward after
+    # it is still turned onto the backward one, the knees within both left.
     rng = np.random.default_rng(12)
     knees = library_knees(rng, twist)
-    (path, hinge, least), = knees
+    (path, hinge, least, most), = knees
     flex = np.radians([160.0, 172.0, 178.0, 183.0, 190.0, 184.0, 176.0, 150.0, 60.0, 5.0, -20.0])
     parents, chain, rots, pos = leg(flex, twist, rng)
     t, s = leg_vectors(rots, pos, path)
     assert np.all(signed_bends(t, s, hinge)[3:6] < np.radians(-160.0))  # frame by frame: "backward"
     before = rots.copy()
     with backend(compiled):
-        assert unbend(packed(knees, parents), rots, pos) == 1  # the last frame only
-    np.testing.assert_array_equal(rots[:-1], before[:-1])
+        assert unbend(packed(knees, parents), rots, pos) == 9  # the eight folded, the last
+    np.testing.assert_array_equal(rots[8:10], before[8:10])
     t, s = leg_vectors(rots, pos, path)
-    assert signed_bends(t, s, hinge)[-1] == pytest.approx(least, abs=1e-7)
+    bends = signed_bends(t, s, hinge)
+    np.testing.assert_allclose(bends[:8], most, atol=1e-7)
+    assert bends[-1] == pytest.approx(least, abs=1e-7)
+    # The folded knees turn in their own plane, their hips as they were (an ankle near the hip
+    # has no steady line from it to keep); only the shin's rotation changes.
+    hip, shin, ankle = chain
+    changed = np.flatnonzero(np.any(rots[:8] != before[:8], axis=-1).any(axis=0))
+    assert list(changed) == [shin]
+    _, gp0 = fk(parents, before, pos)
+    _, gp = fk(parents, rots, pos)
+    normal = np.cross(gp0[:8, ankle] - gp0[:8, hip], gp0[:8, shin] - gp0[:8, hip])
+    np.testing.assert_allclose(np.sum((gp[:8, ankle] - gp0[:8, hip]) * normal, axis=-1), 0.0, atol=1e-9)
 
 
 @pytest.mark.parametrize("compiled", [False, True])
@@ -179,7 +194,7 @@ def test_unbend_leaves_a_knee_bent_sideways_as_its_plane_turns_through_the_hinge
     # as it bends backward, and the knee turns that much at most, frame after frame alike.
     rng = np.random.default_rng(5)
     knees = library_knees(rng)
-    (path, hinge, least), = knees
+    (path, hinge, least, _), = knees
     assert least == 0.0
     turn = np.radians(np.linspace(80.0, 100.0, 11))  # the plane's normal from the hinge (X) toward -Z and past
     axis = np.stack([np.cos(turn), np.zeros_like(turn), -np.sin(turn)], axis=-1)
@@ -240,14 +255,14 @@ def test_unbend_leaves_the_hip_of_a_leg_folded_back_onto_itself(compiled):
 
 def hinged_legs_and_frames(seed: int, twist: bool):
     """Two legs' hinges found in a seeded library of knees bent -3..90 degrees, packed with a
-    leg without a hinge between them and the second leg's bound at -10 degrees, and 40 seeded
+    leg without a hinge between them and the second leg's bounds at -10 and 40 degrees, and 40 seeded
     frames of knees bent -60..60 degrees with translations that vary per frame: (chains,
     limits, rots, pos)."""
     rng = np.random.default_rng(seed)
     parents, chains, lib_rots, lib_pos = two_legs(np.radians(rng.uniform(-3.0, 90.0, 500)),
                                                   np.radians(rng.uniform(-3.0, 90.0, 500)), twist, rng)
     left, right = find(parents, chains, lib_rots, lib_pos[0])
-    limits = packed([left, None, (right[0], right[1], np.radians(-10.0))], parents)
+    limits = packed([left, None, (right[0], right[1], np.radians(-10.0), np.radians(40.0))], parents)
     _, _, rots, pos = two_legs(np.radians(rng.uniform(-60.0, 60.0, 40)), np.radians(rng.uniform(-60.0, 60.0, 40)),
                                twist, rng)
     pos += rng.normal(scale=0.01, size=pos.shape)
@@ -319,8 +334,8 @@ def test_unbend_leaves_a_frame_it_cannot_measure(compiled):
         assert unbend(packed(knees, parents), rots, pos) == 1
     np.testing.assert_array_equal(rots[0], before[0])
     assert np.all(np.isfinite(rots))
-    path, hinge, _ = knees[0]
-    limits = packed([(path, hinge, np.nan)], parents)
+    path, hinge, *_ = knees[0]
+    limits = packed([(path, hinge, np.nan, np.nan)], parents)
     with backend(compiled):
         assert unbend(limits, rots, pos) == 0
     assert np.all(np.isfinite(rots))
@@ -370,7 +385,7 @@ def test_unbend_leaves_a_hip_that_would_move_more_than_its_leg(compiled):
     with backend(compiled):
         assert unbend(limits, rots, pos) == 4
     np.testing.assert_array_equal(rots[:, 0], before[:, 0])  # the pelvis as it was
-    for (path, hinge, _), flex_back in zip(knees, ([True, False, True], [False, True, True])):
+    for (path, hinge, *_), flex_back in zip(knees, ([True, False, True], [False, True, True])):
         t, s = leg_vectors(rots, pos, path)
         bends = signed_bends(t, s, hinge)
         np.testing.assert_allclose(bends[flex_back], 0.0, atol=1e-7)

@@ -524,15 +524,25 @@ def test_a_map_without_library_uses_the_fallback(clips):
     eng.generate("w", "w", length=20, a_end=60, b_start=81, method="retrieval")
     assert eng.last["retrieval"]["own"]
     # ... not where too few of them are left (A's first 11 frames, B's last 11: a segment of the
-    # shortest warp has 16), nor without it.
+    # shortest warp has 16), nor without it: there it is the fallback's motion, its knees and
+    # elbows held to how far the clip's kept frames bend them (without a library: its left
+    # elbow folds further than the walker's ever does in the second).
+    from posturemap.synth import engine as engine_module
+
+    turned = []
     for seconds, a_end in ((eng.own_seconds, 10), (0.0, 60)):
         eng.own_seconds = seconds
         b_start = len(clips["walk_angry_001"]) - 11 if seconds else a_end + 21
-        r, _ = eng.generate("w", "w", length=20, a_end=a_end, b_start=b_start, method="retrieval")
+        kw = dict(length=20, a_end=a_end, b_start=b_start, foot_lock=False)
+        r, _ = eng.generate("w", "w", method="retrieval", **kw)
         r = r.copy()
         assert eng.last["retrieval"] is None
-        fb, _ = eng.generate("w", "w", length=20, a_end=a_end, b_start=b_start, method=retrieval.fallback_method(20, 30.0))
+        fb, fb_p = (x.copy() for x in eng.generate("w", "w", method=retrieval.fallback_method(20, 30.0), **kw))
+        raw = fb.copy()
+        engine_module._unbend_limbs(eng, eng.tracks["w"], eng.tracks["w"], a_end, b_start, fb, fb_p)
         assert np.array_equal(r, fb)
+        turned.append(not np.array_equal(fb, raw))
+    assert turned[1]
 
 
 _LOADS_PROBE = """
@@ -645,8 +655,9 @@ def test_a_replaced_clip_is_let_go_after_the_next_transition(model, clips):
 
 
 def test_a_clips_knee_bounds_are_those_of_its_kept_frames_and_warm_up_makes_them(model, clips):
-    # A transition reads how far back each knee and elbow goes in A up to its end and in B from
-    # its start: two rows of running minima, made once per clip (in warm_up for the clips added).
+    # A transition reads how far back and how far forward each knee and elbow goes in A up to
+    # its end and in B from its start: four rows of running minima and maxima, made once per
+    # clip (in warm_up for the clips added).
     from posturemap.synth import engine as engine_module, hinges
 
     eng = TransitionEngine(model)
@@ -656,12 +667,51 @@ def test_a_clips_knee_bounds_are_those_of_its_kept_frames_and_warm_up_makes_them
     limbs = engine_module._library_limbs(eng, model.library_)
     assert len(limbs[3]) and len(eng._limb_bends) == 3
     for track in eng.tracks.values():
-        first, last = engine_module._limb_bends(eng, track, limbs)
+        first, last, first_max, last_max = engine_module._limb_bends(eng, track, limbs)
         bends = hinges.bend_frames(limbs[:3], track.motion.rotations, track.motion.positions)
         assert bends.min() < bends.max()
         for f in (0, 7, len(bends) // 2, len(bends) - 1):
             np.testing.assert_array_equal(first[f], bends[:f + 1].min(axis=0))
             np.testing.assert_array_equal(last[f], bends[f:].min(axis=0))
+            np.testing.assert_array_equal(first_max[f], bends[:f + 1].max(axis=0))
+            np.testing.assert_array_equal(last_max[f], bends[f:].max(axis=0))
+
+
+def test_no_new_knee_folds_further_than_the_library_and_the_clips_kept_frames(engine):
+    # damped, the retrieval's fallback, carries a walk's swinging shins on through 45 frames
+    # into a run and folds a knee 179 degrees, the heel through the thigh (one of the library's
+    # runs folds 118 at most); so did a 5 s fallback between two dashes, whose foot lock then
+    # turned the folded leg's thigh 72 and 109 degrees in two frames. The limbs are held to the
+    # furthest forward the library's knees and elbows go (or A's up to its end, B's from its
+    # start), as to the furthest back: the knees past it turned back onto it, the rest as they were.
+    from posturemap.synth import engine as engine_module, hinges
+
+    a, b, kw = "walk_angry_001", "run_proud_001", dict(length=45, a_end=10, b_start=71, foot_lock=False)
+    rots, pos = (x.copy() for x in engine.generate(a, b, method="damped", **kw))
+    limbs = engine_module._library_limbs(engine, engine.model.library_)
+    _, _, _, least, most = limbs
+    ta, tb = engine.tracks[a], engine.tracks[b]
+    least = np.minimum(least, np.minimum(engine_module._limb_bends(engine, ta, limbs)[0][kw["a_end"]],
+                                         engine_module._limb_bends(engine, tb, limbs)[1][kw["b_start"]]))
+    most = np.maximum(most, np.maximum(engine_module._limb_bends(engine, ta, limbs)[2][kw["a_end"]],
+                                       engine_module._limb_bends(engine, tb, limbs)[3][kw["b_start"]]))
+    before = np.unwrap(hinges.bend_frames(limbs[:3], rots, pos), axis=0)  # as unbend reads them
+    folded, back = before > most, before < least
+    assert np.degrees(before - most).max() > 45.0 and folded.sum() > 10
+    assert np.degrees(before).max() > 180.0  # folded past a half turn: reads -179 frame by frame
+    held = rots.copy()
+    engine_module._unbend_limbs(engine, ta, tb, kw["a_end"], kw["b_start"], held, pos)
+    after = hinges.bend_frames(limbs[:3], held, pos)
+    np.testing.assert_allclose(after[folded], np.broadcast_to(most, folded.shape)[folded], atol=1e-7)
+    np.testing.assert_allclose(after[back], np.broadcast_to(least, back.shape)[back], atol=1e-7)
+    np.testing.assert_array_equal(after[~folded & ~back], before[~folded & ~back])
+    untouched = ~(folded | back).any(axis=1)
+    assert untouched.sum() > 5
+    np.testing.assert_array_equal(held[untouched], rots[untouched])
+    # The default there: retrieved legs, no knee past the bound either.
+    out, out_p = engine.generate(a, b, method="auto", **kw)
+    assert engine.last["method"] == "retrieval"
+    assert np.all(hinges.bend_frames(limbs[:3], out, out_p) <= most + 1e-7)
 
 
 def test_warm_up_needs_a_clip_and_leaves_the_last_transition(model, engine, clips):

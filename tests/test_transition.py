@@ -817,7 +817,7 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     sk = model.skeleton_
     thigh, shin, ankle = leg_chains(sk)[0]
     lib = model.library_
-    (path, hinge, least), _ = hinges.find(sk.parents, leg_chains(sk), lib.rots, sk.offsets)
+    (path, hinge, least, _), _ = hinges.find(sk.parents, leg_chains(sk), lib.rots, sk.offsets)
     assert np.degrees(least) > -1.0
     made = {}
 

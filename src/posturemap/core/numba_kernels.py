@@ -540,14 +540,15 @@ def limb_bends(rots, positions, joints, bounds, hinges, out):
 
 
 @nb.njit(**_OPTS)
-def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_none, reach_full):
+def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_none, reach_full):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
     (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``,
     -1 for none to turn) whose knee bends about ``hinges[k]`` (in the frame of the shin's
     parent) further back than ``leasts[k]`` turned about the hinge onto it, and its thigh turned
     to keep the ankle on its line from the hip (the whole way where the ankle is at least
     ``reach_full`` leg lengths from the hip, none within ``reach_none``, a share of the way
-    between), the bends read unwrapped over the frames; returns how many knees it turned."""
+    between); one folded further forward than ``mosts[k]`` turned back onto that, its thigh
+    left; the bends read unwrapped over the frames; returns how many knees it turned."""
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
@@ -567,6 +568,14 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, reach_none, re
                     fix += wrapped - step
             seen, prev = True, bend
             bend += fix
+            if bend > mosts[k]:  # folded too far: the shin turned back onto the bound, the thigh left
+                half = 0.5 * (bend - mosts[k])
+                c, sn = math.cos(half), math.sin(half)
+                rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
+                    c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2],
+                    rots[f, shin, 3])
+                turned += 1
+                continue
             if not bend < leasts[k]:  # within the bound (or NaN: left as it is, as numpy's)
                 continue
             half = 0.5 * (bend - leasts[k])

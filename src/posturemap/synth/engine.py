@@ -414,16 +414,16 @@ def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: Tran
 
 def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int, out_r: np.ndarray,
                   out_p: np.ndarray, own: MotionLibrary | None = None, legs_only: bool = False) -> None:
-    """No knee or elbow of the new frames bent further back than the motion library's go or
-    the frames the output keeps of A (to ``a_end``) and of B (from ``b_start``), whichever goes
-    further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
+    """No knee or elbow of the new frames bent further back, or folded further forward, than the
+    motion library's go or the frames the output keeps of A (to ``a_end``) and of B (from
+    ``b_start``), whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
     clip's bends about them once per clip). Without a library, the hinges are found in ``own``
     (the clips' own motion the transition searched, :func:`_own_retriever`), and without that
     in the frames the output keeps of A and B (:func:`_clip_limbs`).
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
-    library's hinge, and their bound is as far back as they go. Only the kept frames count: a
+    library's hinge, and their bound is as far back (and forward) as they go. Only the kept frames count: a
     gap in a take (A and B one clip) is never read, however its knees bend. ``legs_only``: the
     knees alone (an interpolating method's, before its foot lock: the lock touches the legs
     only, and the rest of the baseline stays as it is)."""
@@ -432,18 +432,18 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         lib = own
     limbs = (_clip_limbs(eng, ta, tb, a_end, b_start) if lib is None or not len(lib)
              else _library_limbs(eng, lib))
-    joints, bounds, hinge, least = limbs
+    joints, bounds, hinge, least, most = limbs
     if not len(least):
         return
-    first, last = _limb_bends(eng, ta, limbs)[0], _limb_bends(eng, tb, limbs)[1]
-    least = np.minimum(least, first[a_end])
-    if b_start < len(last):
-        least = np.minimum(least, last[b_start])
+    a_bends, b_bends = _limb_bends(eng, ta, limbs), _limb_bends(eng, tb, limbs)
+    least, most = np.minimum(least, a_bends[0][a_end]), np.maximum(most, a_bends[2][a_end])
+    if b_start < len(b_bends[1]):
+        least, most = np.minimum(least, b_bends[1][b_start]), np.maximum(most, b_bends[3][b_start])
     if legs_only:  # the limbs whose shin is a leg's
         shins = {c[1] for c in eng._legs}
         keep = np.array([int(j) in shins for j in joints[bounds[:, 1] - 1]], dtype=bool)
-        bounds, hinge, least = bounds[keep], hinge[keep], least[keep]
-    hinges.unbend((joints, bounds, hinge, least), out_r, out_p)
+        bounds, hinge, least, most = bounds[keep], hinge[keep], least[keep], most[keep]
+    hinges.unbend((joints, bounds, hinge, least, most), out_r, out_p)
 
 
 def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int) -> tuple:
@@ -478,18 +478,19 @@ def _library_limbs(eng: TransitionEngine, lib: MotionLibrary) -> tuple:
         sk.parents, leg_chains(sk) + arm_chains(sk), lib.rots, sk.offsets), sk.parents))
 
 
-def _limb_bends(eng: TransitionEngine, track: Track, limbs: tuple) -> tuple[np.ndarray, np.ndarray]:
+def _limb_bends(eng: TransitionEngine, track: Track, limbs: tuple) -> tuple[np.ndarray, ...]:
     """How far back each knee and elbow of ``limbs`` (:func:`posturemap.synth.hinges.packed`)
-    goes in ``track``'s frames up to each frame and from each frame on: (N, limbs) each, the
-    running minimum of :func:`posturemap.synth.hinges.bend_frames` from the clip's first frame and
-    from its last. Once per clip and limbs (a clip's first transition, or :meth:`TransitionEngine.warm_up`),
-    so a transition reads two rows, whatever the clip's length."""
+    goes in ``track``'s frames up to each frame and from each frame on, and how far forward:
+    (N, limbs) each, the running minimum of :func:`posturemap.synth.hinges.bend_frames` from the
+    clip's first frame and from its last, then the running maximum likewise. Once per clip and
+    limbs (a clip's first transition, or :meth:`TransitionEngine.warm_up`), so a transition
+    reads four rows, whatever the clip's length."""
     kept = eng._limb_bends.get(id(track))
     if kept is None or kept[0] is not track or kept[1] is not limbs:
         _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
         bends = hinges.bend_frames(limbs[:3], track.motion.rotations, track.motion.positions)
-        kept = track, limbs, (np.minimum.accumulate(bends, axis=0),
-                              np.minimum.accumulate(bends[::-1], axis=0)[::-1])
+        kept = track, limbs, (np.minimum.accumulate(bends, axis=0), np.minimum.accumulate(bends[::-1], axis=0)[::-1],
+                              np.maximum.accumulate(bends, axis=0), np.maximum.accumulate(bends[::-1], axis=0)[::-1])
         eng._limb_bends[id(track)] = kept
     return kept[2]
 

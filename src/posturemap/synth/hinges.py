@@ -1,4 +1,5 @@
-"""Knees and elbows bend one way: no new frame bends one backward past what the motion library's do.
+"""Knees and elbows bend one way, and only so far: no new frame bends one backward past what the
+motion library's do, nor folds one further forward than they do.
 
 Interpolation and extrapolation work on each joint's rotation alone and know nothing of a
 knee's hinge, and retrieval's seam offsets add a rotation to a knee whatever its bend: where A's
@@ -25,8 +26,17 @@ frames) the spline, retrieval's fallback there, matching B's knee flexing 35 deg
 from straight, carried the knee 49 degrees backward, and the straightened leg raised the toe to
 46 cm; it came down 15 cm into B's first frame, an acceleration 2.1x the clips' largest. With
 the hip turned the toe keeps the spline's path: the largest acceleration there 0.91x, the knee's
-at B's seam.) Below, "leg", "thigh", "shin" and "knee" stand for an arm's upper arm, forearm and
-elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
+at B's seam.)
+
+Nor does extrapolation know how far a knee folds: ``damped``, carrying a walk's swinging shins
+on through 45 frames into a run, folded a knee 179 degrees, the heel through the thigh (Bandai's
+knees fold 128-141 degrees in 999 frames of 1,000, its elbows 142); over a 5 s fallback between
+two dashes the ankle came within 2 cm of the hip, and the foot lock's IK, with no steady line
+from hip to ankle to aim along, turned that thigh 72 and 109 degrees in two frames. The library
+gives each leg how far forward it goes too (the ``100 - LEAST_PERCENTILE``-th percentile), and
+:func:`unbend` turns a knee folded further back onto that bound about the hinge, its hip left as
+it is (the ankle near the hip has no steady line to keep). Below, "leg", "thigh", "shin" and
+"knee" stand for an arm's upper arm, forearm and elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`), and to any method's knees before its
 foot lock, which bends a knee in its own plane (a knee bent backward would be bent on backward);
 otherwise the interpolating methods, the baselines, stay as they are.
@@ -39,7 +49,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..core.joints import subtree_mask
 
-LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
+LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go (100 less it: forward)
 HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under which a leg has no hinge
 # The hip-to-ankle distance, in leg lengths (thigh plus shin), from which unbend turns the hip the
 # whole way onto the ankle's line, and under which it leaves the hip as it is (a fraction between).
@@ -102,11 +112,12 @@ def signed_bends(thigh: np.ndarray, shin: np.ndarray, hinge: np.ndarray) -> np.n
 
 
 def find(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
-    """Per leg of ``chains`` ((thigh, shin, ankle) each): ``(path, hinge (3,), least)``, the
-    leg's joints (:func:`leg_path`), its hinge in the frame of the shin's parent (unit) and the
+    """Per leg of ``chains`` ((thigh, shin, ankle) each): ``(path, hinge (3,), least, most)``,
+    the leg's joints (:func:`leg_path`), its hinge in the frame of the shin's parent (unit), the
     furthest back its knee goes in ``rots`` (N, J, 4; a bend about the hinge in radians, 0 at
-    most: the ``LEAST_PERCENTILE``-th percentile); None for a leg whose knees never bend (no
-    hinge to tell backward from forward)."""
+    most: the ``LEAST_PERCENTILE``-th percentile) and the furthest forward (0 at least: the
+    ``100 - LEAST_PERCENTILE``-th); None for a leg whose knees never bend (no hinge to tell
+    backward from forward)."""
     out = []
     for thigh, shin, ankle in chains:
         path = leg_path(parents, thigh, shin, ankle)
@@ -117,12 +128,12 @@ def find(parents, chains, rots: np.ndarray, offsets: np.ndarray) -> list:
             out.append(None)
             continue
         hinge = normal / np.linalg.norm(normal)
-        least = min(0.0, float(np.percentile(signed_bends(t, s, hinge), LEAST_PERCENTILE)))
-        out.append((path, hinge, least))
+        least, most = np.percentile(signed_bends(t, s, hinge), [LEAST_PERCENTILE, 100.0 - LEAST_PERCENTILE])
+        out.append((path, hinge, min(0.0, float(least)), max(0.0, float(most))))
     return out
 
 
-def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`find`' legs that have a hinge as arrays for :func:`unbend`: ``joints`` (every
     leg's joints below the thigh down to the ankle, in turn), ``bounds`` (K, 4) each leg's
     ``[first, shin's end, last]`` in ``joints`` (its shin is ``joints[mid - 1]``) and its thigh
@@ -130,10 +141,10 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     -1 where turning it would move more than this leg: the skeleton's root, or a joint with
     another child that has children of its own, as a rig without thigh joints has its pelvis
     above the spine and the other leg; a leaf beside the leg, a twist helper's, turns with it),
-    ``hinge`` (K, 3) and ``least`` (K,)."""
+    ``hinge`` (K, 3), ``least`` (K,) and ``most`` (K,)."""
     legs = [k for k in knees if k is not None]
     joints, bounds = [], []
-    for (to_shin, to_ankle), _, _ in legs:
+    for (to_shin, to_ankle), *_ in legs:
         bounds.append([len(joints), len(joints) + len(to_shin), len(joints) + len(to_shin) + len(to_ankle),
                        int(parents[to_shin[0]])])
         joints += list(to_shin) + list(to_ankle)
@@ -148,7 +159,7 @@ def packed(knees: list, parents) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
             leg[3] = -1
     return (np.array(joints, dtype=np.int64), np.array(bounds, dtype=np.int64).reshape(-1, 4),
             np.array([k[1] for k in legs], dtype=np.float64).reshape(-1, 3),
-            np.array([k[2] for k in legs], dtype=np.float64))
+            np.array([k[2] for k in legs], dtype=np.float64), np.array([k[3] for k in legs], dtype=np.float64))
 
 
 def bend_frames(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -175,8 +186,9 @@ def bend_frames(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndar
 
 def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     """Each knee of the frames ``rots`` (N, J, 4; local translations ``positions`` (N, J, 3))
-    bent about its hinge further back than its leg's bound (``limits``: :func:`packed` of
-    :func:`find`; :func:`signed_bends`) turned forward about the hinge onto the bound: the
+    folded further forward than its leg's bound (``limits``: :func:`packed` of :func:`find`;
+    :func:`signed_bends`) turned back about the hinge onto it, the hip left as it is; each bent
+    about its hinge further back than its leg's backward bound turned forward onto that: the
     shin's local rotation turned about the hinge, in the frame of the shin's parent, by as much
     as it is past the bound (a knee bent in the hinge's plane turns in its own plane; one bent
     sideways keeps its sideways part); then the thigh's local rotation turned by the shortest
@@ -197,23 +209,31 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     switched the reading (47 degrees in a frame in a spline over 3.3 s). In place;
     returns how many knees (frames times legs) it turned. Where this process uses numba, one
     compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
-    joints, bounds, hinge_rows, leasts = limits
+    joints, bounds, hinge_rows, leasts, mosts = limits
     if kernels.backend() == "numba":
-        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, REACH_NONE,
-                                                   REACH_FULL))
+        return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, mosts,
+                                                   REACH_NONE, REACH_FULL))
     turned = 0
-    for (first, mid, last, top), hinge, least in zip(bounds.tolist(), hinge_rows, leasts.tolist()):
+    for (first, mid, last, top), hinge, least, most in zip(bounds.tolist(), hinge_rows, leasts.tolist(),
+                                                         mosts.tolist()):
         path = (joints[first:mid].tolist(), joints[mid:last].tolist())
         t, s, frame = _leg_frame(rots, positions, path)
         bends = signed_bends(t, s, hinge)
         ok = np.isfinite(bends)
         bends[ok] = np.unwrap(bends[ok])  # continuous over the frames it can measure (see above)
+        shin = path[0][-1]
+        # Folded further than the library's: the shin turned back about the hinge onto the bound
+        # (a turn about +hinge lowers the bend), the hip left (a folded leg's ankle near the hip
+        # has no steady line from it).
+        fold = np.flatnonzero(bends > most)
+        rots[fold, shin] = quat.mul(quat.from_axis_angle(np.broadcast_to(hinge, (len(fold), 3)),
+                                                         bends[fold] - most), rots[fold, shin])
+        turned += len(fold)
         back = np.flatnonzero(bends < least)
         if not len(back):
             continue
         # About the hinge the shin turns toward the thigh's line, onto the bound (never past
-        # the line: the bound is at most 0); a turn about +hinge lowers the bend.
-        shin = path[0][-1]
+        # the line: the bound is at most 0).
         turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)), bends[back] - least)
         rots[back, shin] = quat.mul(turn, rots[back, shin])
         turned += len(back)
