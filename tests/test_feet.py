@@ -655,6 +655,40 @@ def test_a_seams_planted_foot_is_told_by_that_clips_floor_not_by_the_new_frames(
             np.testing.assert_allclose(out["numpy"][0], out["numba"][0], atol=IK_ATOL)
 
 
+def test_a_foot_planted_at_both_seams_farther_apart_than_a_step_is_not_held(sample_clips):
+    # A standing pose carried along the floor (a body gliding over a standing segment), its
+    # contacts planted all through, each seam's foot planted where the glide starts and ends.
+    # Held on A's spot, then stepping to B's in the middle, the spot crossed the gliding foot
+    # and the softly limited pull swapped sides: in-betweening a whole sidestep clip (5 m in
+    # 150 frames), Foot_R moved 35 and 36 cm in two frames. Spots a step apart are held through
+    # with one step, as before; spots farther apart than STEP_MOST legs are not held: the foot
+    # goes as the motion takes it, compiled and numpy alike.
+    m = sample_clips["walk"]
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)[:1]
+    leg = leg_length(sk, chains)
+    length = 40
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    contacts = np.ones((length, 1), dtype=bool)
+    for way, held in ((0.5, True), (feet.STEP_MOST + 0.05, False), (3.0, False)):
+        rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+        glide = np.linspace(0.0, way * leg, length + 2)
+        pos[:, 0] += glide[1:-1, None] * side
+        g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
+        a_feet = np.stack([g[0] - glide[1] * side, g[0] - glide[1] * side])[:, None]
+        b_feet = np.stack([g[-1] + (glide[-1] - glide[-2]) * side] * 2)[:, None]
+        floors = (float(g[0, up]), float(g[0, up]))
+        out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, m.fps, contacts, seam_floors=floors)
+        for r, w in out.values():
+            assert w[:, 0].all() if held else not w[:, 0].any(), (way, w[:, 0])
+            gr = fk(sk.parents, r, pos)[1][:, chains[0][2]]
+            steps = np.linalg.norm(np.diff(gr, axis=0), axis=-1)
+            if not held:  # the motion's own glide (its toe lifted clear of the floor), no jump
+                assert steps.max() < 1.5 * way * leg / (length + 1), (way, steps.max() / (way * leg / (length + 1)))
+        np.testing.assert_allclose(out["numpy"][1], out["numba"][1], atol=1e-12)
+        np.testing.assert_allclose(out["numpy"][0], out["numba"][0], atol=IK_ATOL)
+
+
 def test_the_compiled_lock_matches_numpy_on_runs_held_to_one_seam(sample_clips, monkeypatch):
     # Seeded random stances, sliding or not, with contacts given or detected, seam floors or
     # not, gaps of 1-25 frames at 1-60 fps (a step of 0-18 frames): the compiled lock makes the

@@ -1027,7 +1027,7 @@ def _stance_windows(moves, length, step, least):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
-              curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, a_toes, b_toes, toe_most, toe_gap,
+              curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, farthest, a_toes, b_toes, toe_most, toe_gap,
               toe_catch, pace, accel, least, carry, knee_accel, knee_passes, knee_plain, knee_relax, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
@@ -1054,7 +1054,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     through, or without contacts whose motion keeps the ankle under ``lift`` above its floor and
     within ``drift_lo`` legs of the line between them, step one after another
     (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step lifts the foot (by
-    the rest of its way, ``lift`` at most); weights (L, n) out.
+    the rest of its way, ``lift`` at most); farthest (length unit): ``STEP_MOST`` of a leg, beyond
+    which a run planted at both seams on spots that far apart is not held; weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a
@@ -1173,6 +1174,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 k0, k = windows[leg, 0], windows[leg, 1]
             xa, xb = a_feet[1, leg, a_], a_feet[1, leg, b_]
             ya, yb = b_feet[0, leg, a_], b_feet[0, leg, b_]
+            if from_a and to_b and math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2) > farthest:
+                on[start:stop] = False  # no step makes it: the motion's own foot, not held (feet.STEP_MOST)
+                continue
             # A run on one seam's spot steps where the foot's other end lies beyond the drift.
             stepping = from_a and to_b
             if not stepping and 0 < step <= n - 2 and (from_a or to_b):

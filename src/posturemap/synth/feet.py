@@ -10,7 +10,9 @@ in-between frames are made:
    otherwise the foot's position in the middle of the run. Whether a foot is planted at a seam
    is judged against that clip's own floor (its lowest ankle over ``FLOOR_S``). A foot planted
    all through a gap, on A's spot at one end and B's at the other, makes a step between them in
-   the middle of the run (lifted, over ``STEP_S`` seconds) instead of jumping; so does a run
+   the middle of the run (lifted, over ``STEP_S`` seconds) instead of jumping, where the spots
+   lie at most ``STEP_MOST`` apart (farther, no standing foot's step makes it, and the run is
+   not held: the motion glides the foot there); so does a run
    held to one seam's spot that lies farther than ``MAX_DRIFT[0]`` from the foot's other end
    (where it lands, or lifts off), rather than dragging the foot there. A run that reaches a
    seam where that clip's foot is not planted is let go over its last (or first) ``STEP_S``
@@ -94,6 +96,9 @@ MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while 
 #                           less toward it, never past the second (soft_limit): dragged, not stretched
 STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, or a seam's spot and
 #               where the foot lands or lifts off far from it), and of a run let go at a seam
+STEP_MOST = 1.0  # leg lengths: a foot planted at both seams on spots farther apart is not held through the
+#                  gap (no step of a standing foot makes it; held, its spot crossed the gliding foot
+#                  and the softly limited pull swapped sides: 35 cm a frame twice)
 STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
 STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fifth, comes down in place
 #                  over the last, and travels in between (travelling from the first frame, low, it slid)
@@ -521,7 +526,7 @@ def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
                              speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None,
-                             toe_seams=None, shuffle=0.0, accel=np.inf):
+                             toe_seams=None, shuffle=0.0, accel=np.inf, farthest=np.inf):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -542,7 +547,9 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     with a smoothstep (in place over the step's first and last ``STEP_LAG``, less where that would
     set the foot off faster than ``accel`` per frame squared: :func:`step_lag`) while the foot rises
     by ``lift`` (at most the step's length beyond ``shuffle``) on a squared sine and comes
-    down on B's spot. The lift (L,) is added to the ankle's height.
+    down on B's spot. The lift (L,) is added to the ankle's height. Where the two spots lie
+    farther apart than ``farthest``, no step of a standing foot makes it (the motion carries
+    the foot there: a body gliding over a standing segment), and the run is not held.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
 
@@ -595,6 +602,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         n = stop - start
         spot = np.empty((n, 3))
         ref = np.zeros(n)  # where the spot is between the run's first spot and its last, 0 to 1
+        if from_a and to_b and np.linalg.norm(b_spot - a_spot) > farthest:
+            continue  # no step makes it: the motion's own foot
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
             ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle, accel)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
@@ -1022,6 +1031,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, STEP_LAG, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
+                      STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
                       *passes, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, weights)
         return weights
@@ -1068,7 +1078,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                                                           on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
                                                           None if windows[leg, 0] < 0 else windows[leg],
                                                           (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams,
-                                                          STAND_STEP * body, passes[1])
+                                                          STAND_STEP * body, passes[1], STEP_MOST * body)
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz

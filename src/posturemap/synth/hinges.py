@@ -205,7 +205,9 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     bent backward (read frame by frame, one interpolated knee folded forward past 180 degrees
     was snapped straight and back, a 176-degree turn in a frame each way). A knee spun through
     a whole turn (a baseline's, over seconds) reads its later bends a whole turn off, and is
-    straightened from there on; reading it afresh once near straight gave pops wherever that
+    held on a bound from there on (straightened after a backward spin, folded as far as the
+    library's after a forward one, up to the gap's end, however far that is from B's first
+    frame); reading it afresh once near straight gave pops wherever that
     switched the reading (47 degrees in a frame in a spline over 3.3 s). In place;
     returns how many knees (frames times legs) it turned. Where this process uses numba, one
     compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
