@@ -416,17 +416,18 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
                   out_p: np.ndarray, own: MotionLibrary | None = None, legs_only: bool = False) -> None:
     """No knee or elbow of the new frames bent further back, or folded further forward, than the
     motion library's go or the frames the output keeps of A (to ``a_end``) and of B (from
-    ``b_start``), whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges found once per library, each
-    clip's bends about them once per clip). Without a library, the hinges are found in ``own``
-    (the clips' own motion the transition searched, :func:`_own_retriever`), and without that
-    in the frames the output keeps of A and B (:func:`_clip_limbs`).
+    ``b_start``), whichever goes further (:mod:`posturemap.synth.hinges`; the limbs' hinges
+    found once per library, each clip's bends about them once per clip). Without a library,
+    the hinges are found in ``own`` (the clips' own motion the transition searched,
+    :func:`_own_retriever`), and without that in the frames the output keeps of A and B
+    (:func:`_clip_limbs`).
 
     The clips' own bound keeps real motion real where the library's hinges are not its legs'
     (an unrelated library, another rig's knees): there the clips' knees go "backward" by the
-    library's hinge, and their bound is as far back (and forward) as they go. Only the kept frames count: a
-    gap in a take (A and B one clip) is never read, however its knees bend. ``legs_only``: the
-    knees alone (an interpolating method's, before its foot lock: the lock touches the legs
-    only, and the rest of the baseline stays as it is)."""
+    library's hinge, and their bound is as far back (and forward) as they go. Only the kept
+    frames count: a gap in a take (A and B one clip) is never read, however its knees bend.
+    ``legs_only``: the knees alone (an interpolating method's, before its foot lock: the lock
+    touches the legs only, and the rest of the baseline stays as it is)."""
     lib = getattr(eng.model, "library_", None)
     if lib is None or not len(lib):
         lib = own

@@ -34,9 +34,10 @@ knees fold 128-141 degrees in 999 frames of 1,000, its elbows 142); over a 5 s f
 two dashes the ankle came within 2 cm of the hip, and the foot lock's IK, with no steady line
 from hip to ankle to aim along, turned that thigh 72 and 109 degrees in two frames. The library
 gives each leg how far forward it goes too (the ``100 - LEAST_PERCENTILE``-th percentile), and
-:func:`unbend` turns a knee folded further back onto that bound about the hinge, its hip left as
+:func:`unbend` turns a knee folded past that bound back onto it about the hinge, its hip left as
 it is (the ankle near the hip has no steady line to keep). Below, "leg", "thigh", "shin" and
-"knee" stand for an arm's upper arm, forearm and elbow too. The engine does this to ``retrieval``'s and ``auto``'s frames before the foot lock
+"knee" stand for an arm's upper arm, forearm and elbow too. The engine does this to
+``retrieval``'s and ``auto``'s frames before the foot lock
 (:func:`posturemap.synth.engine.TransitionEngine.generate`), and to any method's knees before its
 foot lock, which bends a knee in its own plane (a knee bent backward would be bent on backward);
 otherwise the interpolating methods, the baselines, stay as they are.
@@ -49,7 +50,8 @@ import numpy as np
 from ..core import kernels, quat
 from ..core.joints import subtree_mask
 
-LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go (100 less it: forward)
+LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
+#                         (100 less it: the furthest forward)
 HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under which a leg has no hinge
 # The hip-to-ankle distance, in leg lengths (thigh plus shin), from which unbend turns the hip the
 # whole way onto the ankle's line, and under which it leaves the hip as it is (a fraction between).
