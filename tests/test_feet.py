@@ -493,15 +493,22 @@ def test_soft_limit_is_the_value_until_its_start_then_bends_onto_the_limit():
         np.testing.assert_allclose([jit._soft_limit(v, st, lim) for v in xs], soft_limit(xs, st, lim), rtol=1e-12)
 
 
+def standing(m, length):
+    """``m``'s first leg standing still on its frame 30 for ``length`` frames: ``(sk, up, chains,
+    leg, rots, pos)``, the chains that one leg's, ``leg`` its length, the frames' local
+    rotations and translations (copies)."""
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)[:1]
+    frames = np.full(length, 30)
+    return sk, up, chains, leg_length(sk, chains), m.rotations[frames].copy(), m.positions[frames].copy()
+
+
 def sliding_stance(m, length=20):
     """A run of ``length`` frames of ``m`` standing on one frame, its first leg's foot sliding
     sideways 0 to 0.6 leg lengths while its contacts say planted (the last frame not), A's end
     planted on the first frame's spot, B's far away: ``(sk, chains, rots, pos, up, a_feet,
     b_feet, contacts, g, leg, side)``, ``g`` the ankle's global positions before the slide."""
-    sk, up = m.skeleton, up_axis(m)
-    chains = leg_chains(sk)[:1]
-    leg = leg_length(sk, chains)
-    rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+    sk, up, chains, leg, rots, pos = standing(m, length)
     g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
     side = (np.arange(3) == (up + 1) % 3).astype(float)
     pos[:, 0] -= np.linspace(0.0, 0.6 * leg, length)[:, None] * side
@@ -632,12 +639,9 @@ def test_a_seams_planted_foot_is_told_by_that_clips_floor_not_by_the_new_frames(
     # looked lifted and the run reaching it was let go at that seam; against the seam's own
     # floor it is held there. The other seam's foot is in the air: let go over its `step` frames.
     m = sample_clips["walk"]
-    sk, up = m.skeleton, up_axis(m)
-    chains = leg_chains(sk)[:1]
-    leg = leg_length(sk, chains)
     length = 20
     step = round(feet.STEP_S * m.fps)
-    rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+    sk, up, chains, leg, rots, pos = standing(m, length)
     g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]
     pos[:, 0, up] -= 3 * feet.CONTACT_HEIGHT * leg
     ground = np.repeat(g[:1], 2, axis=0)[:, None]
@@ -664,14 +668,11 @@ def test_a_foot_planted_at_both_seams_farther_apart_than_a_step_is_not_held(samp
     # with one step, as before; spots farther apart than STEP_MOST legs are not held: the foot
     # goes as the motion takes it, compiled and numpy alike.
     m = sample_clips["walk"]
-    sk, up = m.skeleton, up_axis(m)
-    chains = leg_chains(sk)[:1]
-    leg = leg_length(sk, chains)
     length = 40
-    side = (np.arange(3) == (up + 1) % 3).astype(float)
     contacts = np.ones((length, 1), dtype=bool)
     for way, held in ((0.5, True), (feet.STEP_MOST + 0.05, False), (3.0, False)):
-        rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+        sk, up, chains, leg, rots, pos = standing(m, length)
+        side = (np.arange(3) == (up + 1) % 3).astype(float)
         glide = np.linspace(0.0, way * leg, length + 2)
         pos[:, 0] += glide[1:-1, None] * side
         g = fk(sk.parents, rots, pos)[1][:, chains[0][2]]

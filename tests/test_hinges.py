@@ -89,6 +89,14 @@ def library_knees(rng, twist: bool = False) -> list:
     return find(parents, [chain], lib_rots, lib_pos[0])
 
 
+def knees_and_leg(seed: int, flex: np.ndarray, twist: bool = False):
+    """:func:`library_knees` and a :func:`leg` bent ``flex`` (radians) per frame, from one
+    seeded generator: ``(knees, parents, chain, rots, pos)``."""
+    rng = np.random.default_rng(seed)
+    knees = library_knees(rng, twist)
+    return (knees,) + leg(flex, twist, rng)
+
+
 def backend(compiled: bool):
     """The compiled kernels (from here on in this process) or numpy's, for the block."""
     if compiled:
@@ -100,12 +108,10 @@ def backend(compiled: bool):
 @pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("twist", [False, True])
 def test_unbend_turns_a_knee_bent_backward_forward_in_its_plane_onto_the_bound(twist, compiled):
-    rng = np.random.default_rng(2)
-    knees = library_knees(rng, twist)
+    flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
+    knees, parents, chain, rots, pos = knees_and_leg(2, flex, twist)
     (path, hinge, least, _), = knees
     assert least == 0.0
-    flex = np.radians([30.0, 5.0, 0.0, -3.0, -40.0, -57.0, -10.0, 20.0])
-    parents, chain, rots, pos = leg(flex, twist, rng)
     before = rots.copy()
     _, gp0 = fk(parents, rots, pos)
     with backend(compiled):
@@ -140,11 +146,9 @@ def test_unbend_reads_a_knee_folded_forward_past_a_half_turn_as_forward(twist, c
     # Read over the frames, it goes on forward: folded further than the library's knees, it is
     # turned back onto their forward bound, frame after frame alike; a knee bent backward after
     # it is still turned onto the backward one, the knees within both left.
-    rng = np.random.default_rng(12)
-    knees = library_knees(rng, twist)
+    knees, parents, chain, rots, pos = knees_and_leg(
+        12, np.radians([160.0, 172.0, 178.0, 183.0, 190.0, 184.0, 176.0, 150.0, 60.0, 5.0, -20.0]), twist)
     (path, hinge, least, most), = knees
-    flex = np.radians([160.0, 172.0, 178.0, 183.0, 190.0, 184.0, 176.0, 150.0, 60.0, 5.0, -20.0])
-    parents, chain, rots, pos = leg(flex, twist, rng)
     t, s = leg_vectors(rots, pos, path)
     assert np.all(signed_bends(t, s, hinge)[3:6] < np.radians(-160.0))  # frame by frame: "backward"
     before = rots.copy()
@@ -325,9 +329,7 @@ def test_a_share_of_the_hips_turn_is_the_same_compiled():
 def test_unbend_leaves_a_frame_it_cannot_measure(compiled):
     # A NaN in a frame's leg (a translation) or in the bound: nothing turned there, as numpy's
     # `bends < least` leaves it; no NaN written into the hip.
-    rng = np.random.default_rng(9)
-    knees = library_knees(rng)
-    parents, chain, rots, pos = leg(np.radians([-20.0, -30.0]), rng=rng)
+    knees, parents, chain, rots, pos = knees_and_leg(9, np.radians([-20.0, -30.0]))
     pos[0, chain[2], 1] = np.nan
     before = rots.copy()
     with backend(compiled):
