@@ -568,22 +568,16 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_n
                     fix += wrapped - step
             seen, prev = True, bend
             bend += fix
-            if bend > mosts[k]:  # folded too far: the shin turned back onto the bound, the thigh left
-                half = 0.5 * (bend - mosts[k])
-                c, sn = math.cos(half), math.sin(half)
-                rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
-                    c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2],
-                    rots[f, shin, 3])
-                turned += 1
+            folded = bend > mosts[k]
+            if not (folded or bend < leasts[k]):  # within both bounds
                 continue
-            if not bend < leasts[k]:  # within the bound (or NaN: left as it is, as numpy's)
-                continue
-            half = 0.5 * (bend - leasts[k])
+            # The shin turned about the hinge onto the bound it is past.
+            half = 0.5 * (bend - (mosts[k] if folded else leasts[k]))
             c, sn = math.cos(half), math.sin(half)
             rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
                 c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
             turned += 1
-            if top < 0:  # a hip that would move more than this leg (hinges.packed)
+            if folded or top < 0:  # a folded leg's hip stays; so does one that would move more than the leg
                 continue
             # The hip-to-ankle line before and after the shin's turn, in the thigh's frame.
             nx, ny, nz = _rotate(c, sn * hx, sn * hy, sn * hz, sx, sy, sz)

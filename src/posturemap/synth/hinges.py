@@ -225,23 +225,23 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         bends = signed_bends(t, s, hinge)
         ok = np.isfinite(bends)
         bends[ok] = np.unwrap(bends[ok])  # continuous over the frames it can measure (see above)
-        shin = path[0][-1]
-        # Folded further than the library's: the shin turned back about the hinge onto the bound
-        # (a turn about +hinge lowers the bend), the hip left (a folded leg's ankle near the hip
-        # has no steady line from it).
-        fold = np.flatnonzero(bends > most)
-        rots[fold, shin] = quat.mul(quat.from_axis_angle(np.broadcast_to(hinge, (len(fold), 3)),
-                                                         bends[fold] - most), rots[fold, shin])
-        turned += len(fold)
-        back = np.flatnonzero(bends < least)
-        if not len(back):
+        # Past either bound, the shin turns about the hinge onto it (a turn about +hinge lowers
+        # the bend): a knee bent backward toward the thigh's line (never past it: that bound is
+        # at most 0), a folded one back.
+        folded, backward = bends > most, bends < least  # NaN (a bend or a bound): neither
+        past = np.flatnonzero(folded | backward)
+        if not len(past):
             continue
-        # About the hinge the shin turns toward the thigh's line, onto the bound (never past
-        # the line: the bound is at most 0).
-        turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(back), 3)), bends[back] - least)
-        rots[back, shin] = quat.mul(turn, rots[back, shin])
-        turned += len(back)
-        if top < 0:  # a hip that would move more than this leg (packed)
+        shin = path[0][-1]
+        turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(past), 3)),
+                                    bends[past] - np.where(folded[past], most, least))
+        rots[past, shin] = quat.mul(turn, rots[past, shin])
+        turned += len(past)
+        # Only a knee bent backward turns its hip (a folded leg's ankle near the hip has no
+        # steady line from it), and only a hip that moves this leg alone (packed).
+        backward = backward[past]
+        back, turn = past[backward], turn[backward]
+        if top < 0 or not len(back):
             continue
         # The hip turns the leg so that the ankle, now further from it, is on the old line:
         # hip-to-ankle before and after, in the thigh's frame.
