@@ -205,6 +205,53 @@ def test_slerp_track_goes_on_round_a_half_turn(jit, t):
     assert steps.max() <= np.radians(3.0) * t + 1e-6  # t of b's own step from a, never a jump
 
 
+@pytest.mark.parametrize("align", [True, False])
+@pytest.mark.parametrize("c", [0.0, 0.55, 1.0])
+def test_blend_root_turns_about_up_and_tilts_on_the_short_arc(jit, c, align):
+    # The fallback's root (under a turned ancestor, Bandai's rest a quarter turn about Z) turns
+    # about the up axis and tilts; the retrieved one leads it by 0.3 rad at the first frame,
+    # round past a whole turn by the last (a segment circling), with tilts of its own. The blend
+    # is the fallback's heading plus c of the lead, on round (no axis to swing where the two
+    # come back together), and the short arc between the tilts; where B stays put, the lead's
+    # whole turn at the last frame is taken off over the frames.
+    rng = np.random.default_rng(23)
+    n, up = 50, 1
+    rest = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.pi / 2)
+    yaw = lambda h: quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), h)  # noqa: E731
+    def tilted(scale):  # small turns about horizontal axes: no twist about up
+        v = rng.normal(scale=scale, size=(n, 3))
+        v[:, up] = 0.0
+        return quat.exp(v)
+    h_fb = np.cumsum(rng.normal(scale=0.05, size=n)) + 3.0  # across the +-pi seam of atan2
+    g_fb = quat.mul(quat.mul(yaw(h_fb), tilted(0.1)), rest)
+    rots = np.tile(quat.identity(), (n, 3, 1))
+    rots[:, 0] = random_quats(rng, (n,))  # the root's ancestor
+    rots[:, 1] = quat.mul(quat.inv(rots[:, 0]), g_fb) * np.where(rng.random((n, 1)) < 0.5, -1.0, 1.0)
+    u = np.arange(1, n + 1) / n
+    lead = 0.3 + (2.0 * np.pi * 1.04 - 0.3) * u * u * (3.0 - 2.0 * u)
+    heading = h_fb + lead + 2.0 * np.pi * 3  # the retrieved track counts whole turns of its own
+    tilt_ret = quat.mul(tilted(0.1), rest) * np.where(rng.random((n, 1)) < 0.5, -1.0, 1.0)
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        tilt, out = tilt_ret.copy(), np.empty(n)
+        went = impl.blend_root(np.array([0]), 1, up, rest, rots, tilt, heading, c, align, out)
+        outs.append((tilt, out, went))
+    np.testing.assert_allclose(outs[1][0], outs[0][0], atol=1e-12)
+    np.testing.assert_allclose(outs[1][1], outs[0][1], atol=1e-12)
+    assert abs(outs[1][2] - outs[0][2]) < 1e-12
+    tilt, out, went = outs[1]
+    assert went == pytest.approx(lead[-1], abs=1e-9)  # on round, past the whole turn
+    taken = 0.0 if align else 2.0 * np.pi * u * u * (3.0 - 2.0 * u)
+    np.testing.assert_allclose(out, h_fb + 6.0 * np.pi + c * (lead - taken), atol=1e-9)  # counted round as heading
+    tilt_fb = quat.mul(quat.inv(yaw(h_fb)), g_fb)
+    np.testing.assert_allclose(quat.angle_between(tilt, quat.slerp(tilt_fb, tilt_ret, c)), 0.0, atol=1e-7)
+    if c == 0.0:  # the fallback's own root, rebuilt
+        np.testing.assert_allclose(quat.angle_between(quat.mul(yaw(out), tilt), g_fb), 0.0, atol=1e-7)
+    blended = quat.mul(yaw(out), tilt)
+    steps = quat.angle_between(blended[1:], blended[:-1])
+    assert steps.max() < np.abs(np.diff(h_fb)).max() + c * np.diff(lead - taken).max() + 0.5  # never a jump
+
+
 @pytest.mark.parametrize("t", [0.33, 0.59])
 def test_slerp_track_fade_columns_meet_an_end_when_the_arc_winds_and_never_turn_over(jit, t):
     # Track b turns away from track a through a half turn and on, round to within 9 degrees of

@@ -28,6 +28,7 @@ from posturemap.core.joints import foot_joints, key_joints, leg_toes
 from posturemap.learn.model import MapFileError, PostureMap
 from posturemap.core.motion import Motion, concatenate
 from posturemap.core.skeleton import fk
+from posturemap.synth import engine as engine_module
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.request import RequestError
 
@@ -504,6 +505,56 @@ def test_partly_confident_legs_leave_the_gap_at_bs_velocity(model, clips, a, a_e
     change = np.linalg.norm(np.diff(hips, 2, axis=0), axis=1)  # change[t]: the velocity's at frame t + 1
     seam = a_end + length  # the velocity's change at B's first frame
     assert change[seam] <= change[seam + 1: seam + 6].max()
+
+
+@pytest.mark.parametrize("align, turns", [(False, 1.0), (True, 1.15)])
+def test_partly_confident_legs_blend_a_root_that_spins_a_whole_turn_without_a_jump(model, clips, monkeypatch, align,
+                                                                                     turns):
+    # The retrieved root turns a whole turn more than the fallback's over the gap (a segment
+    # running in a circle), the legs 0.55 confident. Blended as one rotation on the arc that goes
+    # on, the two roots came back nearly together from the other side, where that arc's axis
+    # swings round from frame to frame: 0.55 of a whole turn about a swinging axis turned the
+    # hips 75 and 179 degrees in two frames (a dash into a run, 150 frames). Blended as a turn
+    # about the up axis and a tilt, the hips turn at most by the clips' own steps plus 0.55 of
+    # the spin's, in the gap and into B, and B is met: placed the way round the blend went
+    # (between clips) or, where B stays put, with the whole turn taken off the blend.
+    eng = TransitionEngine(model)
+    a, a_end, b, b_start, length = "walk_angry_001", 30, "run_proud_001", 40, 45
+    eng.add("a", clips[a])
+    eng.add("b", clips[b] if align else clips[a])
+    if not align:
+        b, b_start = a, a_end + length + 1
+    u = np.arange(1, length + 1) / (length + 1.0)
+    spin = 2.0 * np.pi * turns * u * u * (3.0 - 2.0 * u)  # eased in and out
+    conf = retrieval.confidences
+    monkeypatch.setattr(retrieval, "confidences", lambda *x, **k: [0.55 * c for c in conf(*x, **k)])
+
+    def spinning(make):
+        def made(*x, **k):
+            res = make(*x, **k)
+            if res is not None and res.heading is not None:
+                res.heading = res.heading + spin
+                res.dtheta = res.dtheta + 2.0 * np.pi * turns
+            return res
+        return made
+
+    monkeypatch.setattr(retrieval, "replay", spinning(retrieval.replay))
+    monkeypatch.setattr(engine_module, "spliced", spinning(engine_module.spliced))
+    r, p = eng.generate("a", "b", length=length, a_end=a_end, b_start=b_start, align=align, method="retrieval",
+                        foot_lock=False)
+    c = eng.last["retrieval"]["parts"]["lower"]["confidence"]
+    assert 0.3 < c < 0.6
+    hips = clips[a].skeleton.index("Hips")
+
+    def steps(m):  # the hips' turn from frame to frame, degrees
+        g = m.global_transforms()[0][:, hips]
+        return np.degrees(2.0 * np.arccos(np.clip(np.abs(np.sum(g[1:] * g[:-1], axis=-1)), 0.0, 1.0)))
+
+    own = max(steps(clips[a]).max(), steps(clips[b]).max())
+    out = concatenate([clips[a][: a_end + 1], Motion(clips[a].skeleton, r.copy(), p.copy(), clips[a].fps),
+                       eng.continuation("b", b_start, align)[:3]])
+    turned = steps(out)[a_end - 1:]  # into the gap, through it and into B
+    assert turned.max() <= own + c * np.degrees(np.diff(spin).max()) + 3.0, (turned.max(), own)
 
 
 def test_a_related_library_is_confident_for_the_legs(engine, clips):

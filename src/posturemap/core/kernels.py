@@ -31,7 +31,7 @@ FADE_SPAN = np.radians(90.0)  # slerp_track's fade columns: from a half turn rou
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
-       "project_to_map", "key_from_blend", "slerp", "slerp_track", "turn_toward")
+       "project_to_map", "key_from_blend", "slerp", "slerp_track", "turn_toward", "blend_root")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
 
@@ -161,6 +161,48 @@ def slerp_track(a, b, t, out, fade):
     wb = np.where(small, t, np.sin(t * theta) / safe) * sign[..., None]
     out[...] = quat.normalize(wa * a + wb * b)
     return sign[-1][:, None] * rel[-1]
+
+
+def blend_root(chain, root, up, rest, rots_fb, tilt, heading, c, align, out):
+    """The root blended at the fraction ``c`` from the fallback's to the retrieved one, as a
+    turn about the up axis and a tilt.
+
+    ``rots_fb (N, J, 4)``: the fallback's frames (the root's global rotation is that of its
+    ancestors ``chain``, top first, and its own); ``tilt (N, 4)``: the retrieved root's tilt,
+    replaced by the blend of the two tilts (the short arc; a tilt stays within a quarter turn of
+    upright); ``heading (N,)``: the retrieved root's turn about axis ``up`` (radians, as
+    :func:`compose_root` takes it); ``rest (4,)``: the root's upright orientation (headings are
+    measured on ``g * rest^-1``, :func:`posturemap.core.quat.heading_tilt`). ``out (N,)``: the
+    blended headings, the fallback's plus ``c`` of the retrieved one's lead over it, the short
+    way at the first frame, then on round through the frames as the two go (counted in whole
+    turns as ``heading`` is, so that they run on from frame to frame as it does). Where B stays where
+    it is (not ``align``), the whole turns of the lead at the last frame are taken off it over
+    the frames (a smoothstep): both roots end on B's heading, and the blend would end ``c`` of
+    them off it.
+
+    Returns the lead at the last frame, the way round it went (whole turns kept).
+    """
+    g = rots_fb[:, root]
+    for j in chain[::-1]:
+        g = quat.mul(rots_fb[:, j], g)
+    p = quat.mul(g, quat.inv(rest))
+    h_fb = 2.0 * np.arctan2(p[:, 1 + up], p[:, 0])
+    unturn = np.zeros_like(g)  # the heading's inverse: the fallback's tilt is unturn * g
+    unturn[:, 0], unturn[:, 1 + up] = np.cos(0.5 * h_fb), -np.sin(0.5 * h_fb)
+    tilt_fb = quat.mul(unturn, g)
+    two_pi = 2.0 * np.pi
+    lead = heading - h_fb
+    lead[0] -= two_pi * np.rint(lead[0] / two_pi)
+    lead[1:] -= two_pi * np.cumsum(np.rint(np.diff(lead) / two_pi))
+    went = float(lead[-1])
+    base = heading - lead  # the fallback's heading, counted round as the retrieved one's
+    turns = np.rint(went / two_pi)
+    if turns != 0.0 and not align:
+        u = np.arange(1, len(lead) + 1) / len(lead)
+        lead -= two_pi * turns * (u * u * (3.0 - 2.0 * u))
+    tilt[...] = quat.slerp(tilt_fb, tilt, c)
+    out[...] = base + c * lead
+    return went
 
 
 def turn_toward(chain, rots, other, t):

@@ -1433,6 +1433,50 @@ def slerp_track(a, b, t, out, fade):
 
 
 @nb.njit(**_OPTS)
+def blend_root(chain, root, up, rest, rots_fb, tilt, heading, c, align, out):
+    """:func:`posturemap.core.kernels.blend_root` (the reference): the root blended at the
+    fraction ``c`` from the fallback's (``rots_fb``) to the retrieved one (``tilt``, replaced by
+    the blended tilt; ``heading``) as a turn about the up axis and a tilt, the blended headings
+    into ``out``; returns the retrieved root's lead at the last frame, the way round it went."""
+    two_pi = 2.0 * math.pi
+    n = rots_fb.shape[0]
+    lead = np.empty(n)
+    prev = 0.0
+    turns = 0.0
+    for f in range(n):
+        g0, g1, g2, g3 = rots_fb[f, root, 0], rots_fb[f, root, 1], rots_fb[f, root, 2], rots_fb[f, root, 3]
+        for i in range(chain.shape[0] - 1, -1, -1):
+            j = chain[i]
+            g0, g1, g2, g3 = _mul(rots_fb[f, j, 0], rots_fb[f, j, 1], rots_fb[f, j, 2], rots_fb[f, j, 3],
+                                  g0, g1, g2, g3)
+        p = _mul(g0, g1, g2, g3, rest[0], -rest[1], -rest[2], -rest[3])
+        h = 2.0 * math.atan2(p[1 + up], p[0])
+        un = [math.cos(0.5 * h), 0.0, 0.0, 0.0]
+        un[1 + up] = -math.sin(0.5 * h)
+        t0, t1, t2, t3 = _mul(un[0], un[1], un[2], un[3], g0, g1, g2, g3)
+        d = t0 * tilt[f, 0] + t1 * tilt[f, 1] + t2 * tilt[f, 2] + t3 * tilt[f, 3]
+        sign = -1.0 if d < 0 else 1.0
+        tilt[f, 0], tilt[f, 1], tilt[f, 2], tilt[f, 3] = _slerp_signed(t0, t1, t2, t3, tilt[f, 0], tilt[f, 1],
+                                                                       tilt[f, 2], tilt[f, 3], abs(d), sign, c)
+        raw = heading[f] - h
+        if f == 0:
+            raw -= two_pi * np.rint(raw / two_pi)
+        else:
+            turns += np.rint((raw - prev) / two_pi)
+        prev = raw
+        lead[f] = raw - two_pi * turns
+    went = lead[n - 1]
+    whole = np.rint(went / two_pi)
+    for f in range(n):
+        x = lead[f]
+        if whole != 0.0 and not align:
+            u = (f + 1.0) / n
+            x -= two_pi * whole * (u * u * (3.0 - 2.0 * u))
+        out[f] = (heading[f] - lead[f]) + c * x  # the fallback's heading counted round as heading is, plus c of x
+    return went
+
+
+@nb.njit(**_OPTS)
 def turn_toward(chain, rots, other, t):
     """The last joint of ``chain`` (top first, the top without a parent) turned in place in
     ``rots (N, J, 4)`` so that its global rotation goes the fraction ``t`` of the short arc from

@@ -896,24 +896,24 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         for j in eng._chain.tolist():  # one joint at a time: basic indexing, no gather and scatter
             out_r[:, j] = rots_fb[:, j]
         out_p[:] = pos_fb
+        went = None  # the retrieved root's turn from the fallback's at the last frame, the way round it went
         if res.confidence[0] > 0.0:  # a part with confidence 0 was not replayed: the fallback's
-            kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, res.heading)
-        root_end = None  # the root's rotation from the fallback's to the retrieved one, at the last frame
+            heading = res.heading
+            if res.confidence[0] < 1.0:
+                heading, went = _blend_root(eng, rots_fb, out_r, heading, res.confidence[0], align)
+            kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, heading)
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
             if c <= 0.0:
                 out_r[:, mask] = rots_fb[:, mask]
             elif c < 1.0:  # no flip where the two pass a half turn apart (kernels.slerp_track)
-                # On the arc that goes on through the frames; the root all the way (B is placed
-                # at its end, by the way round it went), every other joint moving to whichever of
+                # On the arc that goes on through the frames, every joint moving to whichever of
                 # the two the confidence is nearer where the arc goes past a half turn round.
+                if mask is rt.lower_mask:  # but the root, blended already (_blend_root)
+                    mask = mask.copy()
+                    mask[eng._root] = False
                 part = out_r[:, mask]
-                fade = np.ones(part.shape[1], dtype=bool)
-                if mask is rt.lower_mask:
-                    fade[rt.root_column] = False
-                ends = kernels.slerp_track(rots_fb[:, mask], part, c, part, fade)
+                kernels.slerp_track(rots_fb[:, mask], part, c, part, np.ones(part.shape[1], dtype=bool))
                 out_r[:, mask] = part
-                if mask is rt.lower_mask:
-                    root_end = ends[rt.root_column]
         if 0.0 < res.confidence[0] < 1.0:
             r = eng._root
             out_p[:, r] = pos_fb[:, r] + res.confidence[0] * (out_p[:, r] - pos_fb[:, r])
@@ -926,7 +926,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             end_fb = rotate_about_up(g0, fb_last["dtheta"], eng._up) + fb_last["shift"]
             end = rotate_about_up(g0, dtheta, eng._up) + shift
             res_dtheta = dtheta
-            dtheta = fb_last["dtheta"] + c * _turn_round(eng, rots_fb, pos_fb, dtheta - fb_last["dtheta"], root_end)
+            dtheta = fb_last["dtheta"] + c * _turn_round(dtheta - fb_last["dtheta"], went)
             shift = end_fb + c * (end - end_fb) - rotate_about_up(g0, dtheta, eng._up)
             _meet_b_velocity(eng, tb, b_start, out_r, out_p, c, res_dtheta, fb_last["dtheta"], dtheta)
         # The retrieved segment's planted feet wherever its legs count and lie within
@@ -1040,12 +1040,35 @@ def _on_seam_path(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
     put_root(chain, r, rots, pos, gq, gp)
 
 
-def _turn_round(eng: TransitionEngine, rots_fb, pos_fb, turn: float, root_end: np.ndarray) -> float:
+def _blend_root(eng: TransitionEngine, rots_fb, out_r, heading, c: float, align: bool) -> tuple[np.ndarray, float]:
+    """The root of legs ``c`` confident (0 < c < 1): the retrieved one (its tilt in
+    ``out_r[:, root]``, its heading ``heading`` (L,)) blended with the fallback's (``rots_fb``)
+    as a turn about the up axis and a tilt (:func:`posturemap.core.kernels.blend_root`; the
+    tilt replaced in ``out_r``). Returns the blended headings (L,) (for
+    :func:`posturemap.core.kernels.compose_root`) and the retrieved root's lead at the last
+    frame, the way round it went (for :func:`_turn_round`).
+
+    Blended as one rotation, on the arc that goes on from frame to frame
+    (:func:`posturemap.core.kernels.slerp_track`), two roots whose headings drift a whole turn
+    apart (a retrieved run circling while the fallback's runs straight) end nearly the identity
+    apart on that arc, where its axis swings round from frame to frame: ``c`` of a whole turn
+    about a swinging axis turned the hips 75 and 179 degrees in two frames (150 frames between
+    a dash and a run, the legs 0.55 confident). A turn about the up axis is one angle, and
+    blends on round without an axis to lose.
+    """
+    out = np.empty(len(heading))
+    tilt = np.ascontiguousarray(out_r[:, eng._root])
+    went = kernels.blend_root(eng._chain, eng._root, eng._up, eng._rest, rots_fb, tilt,
+                              np.ascontiguousarray(heading, dtype=float), float(c), bool(align), out)
+    out_r[:, eng._root] = tilt
+    return out, float(went)
+
+
+def _turn_round(turn: float, went: float | None) -> float:
     """The turn about the up axis from the fallback's placement of B to the retrieved one
     (``turn``, modulo a whole turn) the way round that the blend of their roots went: the short
-    way, unless the roots' relative rotation went on past a half turn through the frames
-    (:func:`posturemap.core.kernels.slerp_track`; ``root_end``, its last frame's, in the frame
-    of the fallback's root).
+    way, unless the retrieved root's heading went on round past a half turn from the
+    fallback's (``went``, its lead at the last frame, from :func:`_blend_root`).
 
     B is placed by the blend of the two placements; turned the short way while the blended
     root had gone round the other way, B stood ``(1 - c)`` of a whole turn off the last new
@@ -1053,14 +1076,8 @@ def _turn_round(eng: TransitionEngine, rots_fb, pos_fb, turn: float, root_end: n
     in one frame into B.
     """
     short = turn - TWO_PI * round(turn / TWO_PI)
-    if root_end is None:
+    if went is None:
         return short
-    chain = eng._chain.tolist() + [eng._root]
-    g_fb = chain_world(chain, rots_fb[-1], pos_fb[-1])[0]
-    up = np.zeros(3)
-    up[eng._up] = 1.0
-    axis = quat.mul_vec(quat.inv(g_fb), up)  # the up axis in the fallback's root frame
-    went = 2.0 * np.arctan2(float(root_end[1:] @ axis), float(root_end[0]))  # (-2 pi, 2 pi]
     return short + TWO_PI * round((went - short) / TWO_PI)
 
 

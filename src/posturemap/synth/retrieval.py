@@ -166,7 +166,6 @@ class Retriever:
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
-        self.root_column = int(np.searchsorted(self.part_joints[0], engine._root))  # the root among the legs' joints
         self.upper_tops = upper_tops(sk.parents, engine._root, self.lower_mask, self.upper_mask)  # see lift_upper
         # The head and its ancestors, top first, where the upper body holds a head (see HEAD_GAZE).
         head = head_joint(sk)
