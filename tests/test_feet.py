@@ -284,6 +284,48 @@ def test_a_straight_knee_bends_about_the_legs_hinge_not_its_noise():
     assert knees[0.2][2] > 0.3 and abs(knees[0.2][0]) < 0.01  # forward, as the bent frames' knees
 
 
+@pytest.mark.parametrize("back, pull", [(0.1, 0.02), (0.05, 0.01), (0.03, 0.4)])
+def test_a_knee_bent_back_a_little_bends_forward_about_the_hinge_onto_the_target(back, pull):
+    # As above, but the fifth leg is over-straightened: its knee bent back (-Z) by ``back``
+    # radians at the hip, its own plane's normal against the hinge's, its ankle asked ``pull``
+    # closer to the hip (a bend of 20, 14 and 74 degrees). The knee's first bend is
+    # about the hinge, which outweighs that plane: measured on the hinge's side the knee is bent
+    # back, and it must turn through straight onto the target's bend. Measured unsigned it was
+    # turned by the difference of the two bends only: short of straight where the target asks
+    # for little bend, and the second bend (about the leg's own plane) bent it back onto the
+    # target, behind the line (CMU-rig walks at 60 fps: a one-frame knee pop of 4-7 cm).
+    parents = np.array([-1, 0, 1])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    bend = np.tile(quat.identity(), (5, 3, 1))
+    bend[:4, 0] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), -0.35)  # thigh forward
+    bend[:4, 1] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), 0.7)  # shin back under the hip
+    bend[4, 0] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), back)  # the knee behind the line
+    bend[4, 1] = quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), -2.0 * back)
+    pos = np.broadcast_to(offsets, (5, 3, 3)).copy()
+    grot, gpos = fk(parents, bend, pos)
+    target = gpos[:, 2] + pull * (gpos[:, 0] - gpos[:, 2]) / np.linalg.norm(gpos[:, 0] - gpos[:, 2], axis=-1)[:, None]
+    a_lr, b_lr = two_bone_ik(gpos[:, 0], gpos[:, 1], gpos[:, 2], target, grot[:, 0], grot[:, 1],
+                             bend[:, 0], bend[:, 1], hinge=0.2)
+    new = bend.copy()
+    new[:, 0], new[:, 1] = a_lr, b_lr
+    _, moved = fk(parents, new, pos)
+    np.testing.assert_allclose(moved[:, 2], target, atol=1e-6)
+    # The knee in the hinge's plane (hip, ankle and the knee forward of them), as far forward as
+    # the target's distance bends it: sqrt(1 - (d / 2)^2) from the hip-ankle line.
+    d = np.linalg.norm(target[4] - gpos[4, 0])
+    knee = moved[4, 1]
+    assert abs(knee[0]) < 0.02
+    assert knee[2] == pytest.approx(np.sqrt(1.0 - (d / 2.0) ** 2), abs=0.02)
+    # The compiled IK, frame by frame about the same hinge, the same.
+    from posturemap.core import kernels
+    jit = kernels.compiled()
+    hinge = jit._knee_hinge(grot, gpos, 0, 1, 2, np.ones(5, dtype=bool))
+    for f in range(5):
+        th, sh = jit.two_bone_ik_frame(bend, grot, gpos, f, 0, 1, 2, *target[f], 1e-5, 0.0, 0.2, *hinge)
+        np.testing.assert_allclose(np.abs(np.dot(th, a_lr[f])), 1.0, atol=1e-9)
+        np.testing.assert_allclose(np.abs(np.dot(sh, b_lr[f])), 1.0, atol=1e-9)
+
+
 def test_contact_runs():
     on = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
     assert contact_runs(on) == [(1, 3), (5, 6), (7, 10)]

@@ -487,6 +487,9 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
     ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
     ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
     ux, uy, uz = cx - ax, cy - ay, cz - az
+    wx, wy, wz = bx - ax, by - ay, bz - az
+    if (uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz < 0.0:
+        ac_ab_0, ba_bc_0 = -ac_ab_0, 2.0 * math.pi - ba_bc_0  # bent the other way about the normal
     vx, vy, vz = tx - ax, ty - ay, tz - az
     x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
     r0 = _axis_angle_in(a_gr, nx, ny, nz, ac_ab_1 - ac_ab_0)

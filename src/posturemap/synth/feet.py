@@ -207,7 +207,14 @@ def _unit_rows(v):
 
 def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     """:func:`two_bone_ik`'s step: the knee bent about ``axis0`` (unit, world; the bending
-    plane's normal) to the target's distance, then the hip-ankle line turned onto it."""
+    plane's normal) to the target's distance, then the hip-ankle line turned onto it.
+
+    The knee's angles are measured on the side of ``axis0``: a knee bent the other way about it
+    (a leg over-straightened, bent back a few degrees, while the hinge weighs more than its own
+    plane) is bent through straight onto the target's bend. Measured unsigned, as before, it
+    was turned by the difference of the two bends, the wrong way: it stopped near straight, and
+    the second bend, about that nearly straight leg's own plane, swung the knee sideways (a
+    one-frame knee pop of 4-7 cm on CMU-rig walks at 60 fps)."""
     def angle(u, v):
         return np.arccos(np.clip(np.sum(_unit_rows(u) * _unit_rows(v), axis=-1), -1.0, 1.0))
 
@@ -224,6 +231,9 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     ac_ab_1 = np.where(rigid, ac_ab_0, np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0)))
     ba_bc_1 = np.where(rigid, ba_bc_0, np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0)))
     ac_at_0 = np.where(rigid, 0.0, ac_at_0)
+    back = np.sum(np.cross(c - a, b - a) * axis0, axis=-1) < 0.0  # bent the other way about axis0
+    ac_ab_0 = np.where(back, -ac_ab_0, ac_ab_0)
+    ba_bc_0 = np.where(back, 2.0 * np.pi - ba_bc_0, ba_bc_0)
     axis1 = _unit_rows(np.cross(c - a, t - a))
     r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
     r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
