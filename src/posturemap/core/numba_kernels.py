@@ -18,6 +18,7 @@ _OPTS = dict(cache=True, nogil=True, fastmath=False)
 # Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
 _FAST = {"nsz", "arcp", "contract", "reassoc"}
 _FADE_SPAN = float(np.radians(90.0))  # kernels.FADE_SPAN (slerp_track's fade columns; a test holds them equal)
+_KNEE_BACK = float(np.cos(np.radians(30.0)))  # feet.KNEE_BACK (a test holds them equal)
 
 
 @nb.njit(**_OPTS)
@@ -431,7 +432,7 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     if hinge <= 0.0:
         nx, ny, nz = _unit(nx, ny, nz)
         return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft,
-                           nx, ny, nz)
+                           nx, ny, nz, False)
     lab = math.sqrt(vx * vx + vy * vy + vz * vz)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lac = math.sqrt(ux * ux + uy * uy + uz * uz)
@@ -442,10 +443,13 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     # The normal in the thigh's frame plus the hinge weighed by the leg's size, back in the world.
     lx, ly, lz = _rotate(a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3], nx, ny, nz)
     w = hinge * lac * lab
+    # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (feet.two_bone_ik).
+    back = (lx * (lx + w * hx) + ly * (ly + w * hy) + lz * (lz + w * hz) < 0.0
+            and lx * hx + ly * hy + lz * hz < -_KNEE_BACK * math.sqrt(lx * lx + ly * ly + lz * lz))
     nx, ny, nz = _rotate(a_gr[0], a_gr[1], a_gr[2], a_gr[3], lx + w * hx, ly + w * hy, lz + w * hz)
     nx, ny, nz = _unit(nx, ny, nz)
     th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
-                         nx, ny, nz)
+                         nx, ny, nz, back)
     # The leg after the first bend (joints between thigh and shin keep their locals).
     pa = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
     pa = _mul(pa[0], pa[1], pa[2], pa[3], th[0], th[1], th[2], th[3])
@@ -463,14 +467,14 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     ux, uy, uz = cx - ax, cy - ay, cz - az
     vx, vy, vz = bx - ax, by - ay, bz - az
     nx, ny, nz = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz)
+    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz, False)
 
 
 @nb.njit(**_OPTS)
-def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz):
+def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz, back):
     """:func:`posturemap.synth.feet._bend` of one frame: the knee bent about the unit normal
-    (nx, ny, nz) to the target's distance, the hip-ankle line turned onto it; the thigh's and
-    shin's new local rotations."""
+    (nx, ny, nz) to the target's distance (``back``: bent back about it, measured on its side),
+    the hip-ankle line turned onto it; the thigh's and shin's new local rotations."""
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
@@ -486,10 +490,9 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
     ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
     ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
     ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
+    if back:
+        ac_ab_0, ba_bc_0 = -ac_ab_0, 2.0 * math.pi - ba_bc_0
     ux, uy, uz = cx - ax, cy - ay, cz - az
-    wx, wy, wz = bx - ax, by - ay, bz - az
-    if (uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz < 0.0:
-        ac_ab_0, ba_bc_0 = -ac_ab_0, 2.0 * math.pi - ba_bc_0  # bent the other way about the normal
     vx, vy, vz = tx - ax, ty - ay, tz - az
     x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
     r0 = _axis_angle_in(a_gr, nx, ny, nz, ac_ab_1 - ac_ab_0)
@@ -671,13 +674,15 @@ def _second_most(c):
 
 
 @nb.njit(**_OPTS)
-def _rest_bounded(c, accel, passes, plain, relax, lo, hi):
+def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi):
     """:func:`posturemap.synth.feet.rest_bounded` in place on ``c`` (L,), each value within ``lo``
     and ``hi`` (L,): the same sweeps, in the same order (``passes``, ``plain``, ``relax``:
-    ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``), and the same scaling of what they leave.
+    ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``), where they stop short the same projection
+    (:func:`_rest_projected`, ``exact``: ``REST_EXACT``), and the same scaling of what is left.
     Centre ``m`` of the second differences is the frame ``m - 2`` of ``c`` (-1: A's last frame,
     ``L``: B's first); values outside ``c`` are the clips', 0."""
     n = c.shape[0]
+    first_c = c.copy()
     for sweep in range(passes):
         if _second_most(c) - accel <= accel * 1e-4:
             break
@@ -696,12 +701,76 @@ def _rest_bounded(c, accel, passes, plain, relax, lo, hi):
                         c[t] = min(max(c[t] + w, lo[t]), hi[t])
     worst = _second_most(c)
     if worst - accel > accel * 1e-4:
-        for t in range(n):
-            c[t] *= accel / worst
+        _rest_projected(first_c, accel, lo, hi, exact, c)
+        worst = _second_most(c)
+        if worst - accel > accel * 1e-4:
+            for t in range(n):
+                c[t] *= accel / worst
 
 
 @nb.njit(**_OPTS)
-def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, work, moves):
+def _rest_projected(change, accel, lo, hi, iters, out):
+    """:func:`posturemap.synth.feet.rest_projected` (the reference) into ``out`` (L,): the least
+    squares projection of ``change`` onto the bound and the box by ADMM, the pentadiagonal
+    ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands)."""
+    n = change.shape[0]
+    rho = 1.0 / accel
+    diag, sub1, sub2 = np.empty(n), np.zeros(n), np.zeros(n)  # L[i, i], L[i, i - 1], L[i, i - 2]
+    for i in range(n):
+        l2 = rho / diag[i - 2] if i >= 2 else 0.0
+        l1 = (-4.0 * rho - (l2 * sub1[i - 1] if i >= 2 else 0.0)) / diag[i - 1] if i >= 1 else 0.0
+        sub2[i], sub1[i] = l2, l1
+        diag[i] = math.sqrt(1.0 + 7.0 * rho - l1 * l1 - l2 * l2)
+    y, u = np.empty(n + 2), np.zeros(n + 2)
+    w, v = np.empty(n), np.zeros(n)
+    rhs, dc = np.empty(n), np.empty(n + 2)
+    for m in range(n + 2):
+        second = _at(change, m - 2) - 2.0 * _at(change, m - 1) + _at(change, m)
+        y[m] = min(max(second, -accel), accel)
+    for t in range(n):
+        w[t] = min(max(change[t], lo[t]), hi[t])
+        out[t] = change[t]
+    for _ in range(iters):
+        for t in range(n):  # change + r D'(y - u) + r (w - v)
+            rhs[t] = change[t] + rho * ((y[t] - u[t]) - 2.0 * (y[t + 1] - u[t + 1]) + (y[t + 2] - u[t + 2])) \
+                + rho * (w[t] - v[t])
+        for t in range(n):  # L x = rhs
+            x = rhs[t]
+            if t >= 1:
+                x -= sub1[t] * rhs[t - 1]
+            if t >= 2:
+                x -= sub2[t] * rhs[t - 2]
+            rhs[t] = x / diag[t]
+        step = 0.0
+        for t in range(n - 1, -1, -1):  # L' out = x
+            x = rhs[t]
+            if t + 1 < n:
+                x -= sub1[t + 1] * out[t + 1]
+            if t + 2 < n:
+                x -= sub2[t + 2] * out[t + 2]
+            step = max(step, abs(x / diag[t] - out[t]))
+            out[t] = x / diag[t]
+        most = 0.0
+        inside = True
+        for m in range(n + 2):
+            dc[m] = _at(out, m - 2) - 2.0 * _at(out, m - 1) + _at(out, m)
+            most = max(most, abs(dc[m]))
+            y_new = min(max(dc[m] + u[m], -accel), accel)
+            u[m] += dc[m] - y_new
+            y[m] = y_new
+        for t in range(n):
+            w_new = min(max(out[t] + v[t], lo[t]), hi[t])
+            v[t] += out[t] - w_new
+            w[t] = w_new
+            inside = inside and lo[t] - 1e-12 <= out[t] <= hi[t] + 1e-12
+        if most <= accel * 1.001 and inside and step <= accel * 1e-3:
+            break
+    for t in range(n):
+        out[t] = min(max(out[t], lo[t]), hi[t])
+
+
+@nb.njit(**_OPTS)
+def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, exact, work, moves):
     """:func:`posturemap.synth.feet.knee_bounded` in place: ``goals`` (L, 3) the ankle's goals
     (the ankle itself where the lock leaves the leg), moved along the hip-goal line; the hip, knee
     and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``work``
@@ -734,7 +803,7 @@ def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, pla
         work[1, t] = dist
         work[2, t], work[3, t] = -own_bend, math.pi - own_bend
         work[4, t] = work[0, t]
-    _rest_bounded(work[0], accel, passes, plain, relax, work[2], work[3])
+    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[2], work[3])
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
@@ -1025,7 +1094,8 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, farthest, a_toes, b_toes, toe_most,
-              toe_gap, toe_catch, pace, accel, least, carry, knee_accel, knee_passes, knee_plain, knee_relax, weights):
+              toe_gap, toe_catch, pace, accel, least, carry, knee_accel, knee_passes, knee_plain, knee_relax,
+              knee_exact, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -1066,9 +1136,10 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
     the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel
-    (radians per frame squared), knee_passes, knee_plain and knee_relax: the bound on the lock's
-    change of the knees' bend and its sweeps (``KNEE_ACCEL``, ``KNEE_PASSES``, ``KNEE_PLAIN``,
-    ``KNEE_RELAX``; :func:`knee_bounded`); the IK is then
+    (radians per frame squared), knee_passes, knee_plain, knee_relax and knee_exact: the bound on
+    the lock's change of the knees' bend, its sweeps and the projection where they stop short
+    (``KNEE_ACCEL``, ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``;
+    :func:`knee_bounded`); the IK is then
     exact on the goals it leaves.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
@@ -1351,7 +1422,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 goals[t, up] += raised[t]
         if not ik.any():
             continue
-        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, knee_work,
+        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, knee_exact,
+                     knee_work,
                      ik)
         hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, ik)
         for t in range(n_l):

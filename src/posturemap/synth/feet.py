@@ -111,9 +111,12 @@ KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend a
 #                    (knee_bounded; walking knees' own bend accelerates under it in 97.7% of frames, bandai1)
 KNEE_PASSES = 200  # knee_bounded's sweeps at most (rest_bounded)
 KNEE_PLAIN = 20  # the sweeps that project onto each bound before they over-relax (rest_bounded)
+REST_EXACT = 500  # rest_bounded: where the sweeps stop short, iterations at most of the exact projection
 KNEE_RELAX = 1.9  # then each projection goes this far (below 2: the sweeps still converge)
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
 #                   leg's hinge (two_bone_ik): a straight leg's plane is noise
+KNEE_BACK = np.cos(np.radians(30.0))  # a knee whose own plane is within 30 degrees of the hinge's,
+#                   bent the other way, is bent back: the IK bends it forward through straight (_bend)
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
 #                   full speed; real toes keep it: 79-97% of bandai1's toe samples at 0.3-8 leg lengths
 #                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
@@ -189,9 +192,12 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
         reach = soft_limit(lat, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * (lab + lcb)), lab + lcb)
         t = a + (t - a) * (reach / np.maximum(lat, 1e-300))[:, None]
     local = quat.mul_vec(quat.inv(a_gr), np.cross(c - a, b - a))  # the normals in the thigh's frame
-    axis = quat.mul_vec(a_gr, local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None]
-                        * _unit_rows(local.sum(axis=0)))
-    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(axis))
+    leg_hinge = _unit_rows(local.sum(axis=0))
+    weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * leg_hinge
+    # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (turned back over).
+    back = ((np.sum(local * weighed, axis=-1) < 0.0)
+            & (local @ leg_hinge < -KNEE_BACK * np.linalg.norm(local, axis=-1)))
+    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(a_gr, weighed)), back)
     # The leg after the first bend (the joints between thigh and shin, if any, keep their locals).
     turn_a = quat.mul(quat.mul(a_gr, quat.inv(a_lr)), quat.mul(a1, quat.inv(a_gr)))
     ga = quat.mul(turn_a, a_gr)
@@ -205,16 +211,17 @@ def _unit_rows(v):
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
+def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0, back=None):
     """:func:`two_bone_ik`'s step: the knee bent about ``axis0`` (unit, world; the bending
     plane's normal) to the target's distance, then the hip-ankle line turned onto it.
 
-    The knee's angles are measured on the side of ``axis0``: a knee bent the other way about it
-    (a leg over-straightened, bent back a few degrees, while the hinge weighs more than its own
-    plane) is bent through straight onto the target's bend. Measured unsigned, as before, it
-    was turned by the difference of the two bends, the wrong way: it stopped near straight, and
-    the second bend, about that nearly straight leg's own plane, swung the knee sideways (a
-    one-frame knee pop of 4-7 cm on CMU-rig walks at 60 fps)."""
+    ``back`` (N,) bool, where given: the frames whose knee is bent back about ``axis0`` (the
+    leg over-straightened in the hinge's own plane, :data:`KNEE_BACK`), measured on the side of
+    the axis: bent forward through straight onto the target's bend. Measured as the other
+    frames are (the bend's size only), such a knee asked to bend a little more was turned by
+    the difference of the two sizes, still back, and the second bend (about its own plane) bent
+    it further back onto the target; asked for twice its size or more, it was turned forward,
+    and flipped across from one frame to the next where the lock's bend grew past that."""
     def angle(u, v):
         return np.arccos(np.clip(np.sum(_unit_rows(u) * _unit_rows(v), axis=-1), -1.0, 1.0))
 
@@ -231,9 +238,9 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     ac_ab_1 = np.where(rigid, ac_ab_0, np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0)))
     ba_bc_1 = np.where(rigid, ba_bc_0, np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0)))
     ac_at_0 = np.where(rigid, 0.0, ac_at_0)
-    back = np.sum(np.cross(c - a, b - a) * axis0, axis=-1) < 0.0  # bent the other way about axis0
-    ac_ab_0 = np.where(back, -ac_ab_0, ac_ab_0)
-    ba_bc_0 = np.where(back, 2.0 * np.pi - ba_bc_0, ba_bc_0)
+    if back is not None:
+        ac_ab_0 = np.where(back, -ac_ab_0, ac_ab_0)
+        ba_bc_0 = np.where(back, 2.0 * np.pi - ba_bc_0, ba_bc_0)
     axis1 = _unit_rows(np.cross(c - a, t - a))
     r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
     r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
@@ -270,11 +277,20 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
     as far as the least squares projection onto the bound (median 1.00; scipy's SLSQP, for the
     comparison). The sweeps before these moved only the frame over the bound, a quarter of its
     excess, and stalled where a seam's frame was held at the bound: they left 39 of the 282
-    over it, one at 3.8x, and moved 1.2x as far (median). What the sweeps leave over the bound
-    (a change far beyond a knee's, 14 radians over 20 frames at 30 fps, needs some 500; a
-    whole 0.3 s plateau at 120 fps, where the bound per frame squared is a sixteenth of 30
-    fps's, more than ``KNEE_PASSES``) is scaled down toward 0 until it is within it: a smaller
-    change, within every bound (0 is, and the bounds are convex and symmetric about it).
+    over it, one at 3.8x, and moved 1.2x as far (median).
+
+    A sweep moves a value by its neighbours' excess only: a change over many frames needs
+    sweeps as the square of its frames. Where ``KNEE_PASSES`` sweeps leave the change over the
+    bound (a whole 0.3 s plateau at 120 fps, where the bound per frame squared is a sixteenth of
+    30 fps's; a change far beyond a knee's, 14 radians over 20 frames at 30 fps, needs some 500),
+    the least squares projection onto the bound and the box is found instead
+    (:func:`rest_projected`, at most ``REST_EXACT`` iterations; some 70 there). Before it, what
+    the sweeps left was scaled down toward 0: a lock at 120 fps that lifted a toe out of the
+    floor while the hips rose out of a crouch had its knee's change cut to a seventh, and the
+    ankle, put along the hip-goal line at the distance of that bend, went 21 cm under the floor.
+    What is left over the bound after that (only a change the iterations cannot bring within
+    it) is scaled down toward 0 until it is within it: a smaller change, within every bound (0
+    is, and the bounds are convex and symmetric about it).
 
     The box: ``knee_bounded`` clips the bend to [0, pi]; the projection rings below 0 beside a
     block of positive change (by up to 1.3 times the bound), and a nearly straight leg's bend,
@@ -303,8 +319,59 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
             c = np.clip(c, low, high)
     worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() if n else 0.0
     if worst - accel > accel * 1e-4:
-        c *= accel / worst
+        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2])
+        worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max()
+        if worst - accel > accel * 1e-4:
+            c *= accel / worst
     return c[2:-2]
+
+
+def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The least squares projection of ``change`` (L,) onto :func:`rest_bounded`'s bound (every
+    second difference at most ``accel``, the clips' two frames on either side 0) and the box
+    ``[lo, hi]`` (L,), by ADMM (the alternating direction method of multipliers): each iteration
+    one solve of ``(1 + r) I + r D'D`` (pentadiagonal, factored once; ``D`` the second
+    differences, ``r = 1 / accel``), then the second differences clipped onto the bound and the
+    values onto the box. Stops where every second difference is within 1.001 of the bound, every
+    value within the box and no value moved by more than a thousandth of the bound in the last
+    iteration, at most ``REST_EXACT`` iterations; the values are clipped onto the
+    box (the caller scales what is still over the bound). The numpy steps of the compiled
+    :func:`posturemap.core.numba_kernels._rest_projected`.
+
+    Stopped where the values move by under a thousandth of the bound from one iteration to the
+    next as well: stopped as soon as they were within it, the projection of a 1.2 radian block
+    over 8 frames moved 1.07x as far as the least squares one (SLSQP's); so, 1.002x at most over
+    the seven changes of ``tests/test_feet.py``, in 36-102 iterations."""
+    from scipy.linalg import cho_solve_banded, cholesky_banded
+
+    n = len(change)
+    rho = 1.0 / accel
+    band = np.zeros((3, n))  # upper form: the diagonal last
+    band[0, 2:], band[1, 1:], band[2] = rho, -4.0 * rho, 1.0 + 7.0 * rho
+    factor = cholesky_banded(band)
+
+    def second(x):  # D x: the second differences at A's last frame, the new ones and B's first
+        return np.diff(np.concatenate([[0.0, 0.0], x, [0.0, 0.0]]), 2)
+
+    def spread(z):  # D' z
+        return z[:-2] - 2.0 * z[1:-1] + z[2:]
+
+    y = np.clip(second(change), -accel, accel)
+    w = np.clip(change, lo, hi)
+    u, v = np.zeros(n + 2), np.zeros(n)
+    c = change
+    for _ in range(REST_EXACT):
+        before = c
+        c = cho_solve_banded((factor, False), change + rho * spread(y - u) + rho * (w - v))
+        dc = second(c)
+        y = np.clip(dc + u, -accel, accel)
+        w = np.clip(c + v, lo, hi)
+        u += dc - y
+        v += c - w
+        if (np.abs(dc).max() <= accel * 1.001 and np.all(c >= lo - 1e-12) and np.all(c <= hi + 1e-12)
+                and np.abs(c - before).max() <= accel * 1e-3):
+            break
+    return np.clip(c, lo, hi)
 
 
 def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, soft: float,
@@ -1043,7 +1110,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      *passes, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, weights)
+                      *passes, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, REST_EXACT, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
