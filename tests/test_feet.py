@@ -320,7 +320,7 @@ def test_a_knee_bent_back_a_little_bends_forward_about_the_hinge_onto_the_target
     from posturemap.core import kernels
     jit = kernels.compiled()
     assert jit._KNEE_BACK == feet.KNEE_BACK
-    hinge = jit._knee_hinge(grot, gpos, 0, 1, 2, np.ones(5, dtype=bool))
+    hinge = jit._knee_hinge(grot, bend, gpos, 0, 1, 2, np.ones(5, dtype=bool))
     for f in range(5):
         th, sh = jit.two_bone_ik_frame(bend, grot, gpos, f, 0, 1, 2, *target[f], 1e-5, 0.0, 0.2, *hinge)
         np.testing.assert_allclose(np.abs(np.dot(th, a_lr[f])), 1.0, atol=1e-9)

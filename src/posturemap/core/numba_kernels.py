@@ -416,7 +416,7 @@ def _soft_limit(x, start, limit):
 @nb.njit(**_OPTS)
 def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft, hinge, hx, hy, hz):
     """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` and ``hinge`` as
-    there; (hx, hy, hz) the leg's unit hinge in the thigh's frame, :func:`_knee_hinge`): returns
+    there; (hx, hy, hz) the leg's unit hinge in the hips' frame, :func:`_knee_hinge`): returns
     the thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that
     keeps the foot's global rotation)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
@@ -440,13 +440,15 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
         lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
         k = _soft_limit(lat, max(lac, (1.0 - soft) * (lab + lcb)), lab + lcb) / max(lat, 1e-300)
         tx, ty, tz = ax + (tx - ax) * k, ay + (ty - ay) * k, az + (tz - az) * k
-    # The normal in the thigh's frame plus the hinge weighed by the leg's size, back in the world.
-    lx, ly, lz = _rotate(a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3], nx, ny, nz)
+    # The normal in the hips' frame (the thigh's parent's) plus the hinge weighed by the leg's
+    # size, back in the world.
+    fr = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
+    lx, ly, lz = _rotate(fr[0], -fr[1], -fr[2], -fr[3], nx, ny, nz)
     w = hinge * lac * lab
     # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (feet.two_bone_ik).
     back = (lx * (lx + w * hx) + ly * (ly + w * hy) + lz * (lz + w * hz) < 0.0
             and lx * hx + ly * hy + lz * hz < -_KNEE_BACK * math.sqrt(lx * lx + ly * ly + lz * lz))
-    nx, ny, nz = _rotate(a_gr[0], a_gr[1], a_gr[2], a_gr[3], lx + w * hx, ly + w * hy, lz + w * hz)
+    nx, ny, nz = _rotate(fr[0], fr[1], fr[2], fr[3], lx + w * hx, ly + w * hy, lz + w * hz)
     nx, ny, nz = _unit(nx, ny, nz)
     th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
                          nx, ny, nz, back)
@@ -633,10 +635,10 @@ def _between(ax, ay, az, bx, by, bz):
 
 
 @nb.njit(**_OPTS)
-def _knee_hinge(grot, gpos, thigh, shin, ankle, moves):
-    """The leg's hinge in the thigh's frame (unit; 0 where the legs are straight): the knee's
-    plane normals of the frames the lock moves (``moves`` (L,) bool) summed there, as
-    :func:`posturemap.synth.feet.two_bone_ik` sums them."""
+def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, moves):
+    """The leg's hinge in the hips' frame (the thigh's parent's; unit, 0 where the legs are
+    straight): the knee's plane normals of the frames the lock moves (``moves`` (L,) bool)
+    summed there, as :func:`posturemap.synth.feet.two_bone_ik` sums them."""
     sx, sy, sz = 0.0, 0.0, 0.0
     for t in range(gpos.shape[0]):
         if not moves[t]:
@@ -645,7 +647,8 @@ def _knee_hinge(grot, gpos, thigh, shin, ankle, moves):
             gpos[t, ankle, 2] - gpos[t, thigh, 2]
         vx, vy, vz = gpos[t, shin, 0] - gpos[t, thigh, 0], gpos[t, shin, 1] - gpos[t, thigh, 1], \
             gpos[t, shin, 2] - gpos[t, thigh, 2]
-        q = grot[t, thigh]
+        q = _mul(grot[t, thigh, 0], grot[t, thigh, 1], grot[t, thigh, 2], grot[t, thigh, 3],
+                 rots[t, thigh, 0], -rots[t, thigh, 1], -rots[t, thigh, 2], -rots[t, thigh, 3])
         x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
         sx, sy, sz = sx + x, sy + y, sz + z
     return _unit(sx, sy, sz)
@@ -1425,7 +1428,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
         knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, knee_exact,
                      knee_work,
                      ik)
-        hx, hy, hz = _knee_hinge(grot, gpos, thigh, shin, ankle, ik)
+        hx, hy, hz = _knee_hinge(grot, rots, gpos, thigh, shin, ankle, ik)
         for t in range(n_l):
             if not ik[t]:
                 continue

@@ -75,7 +75,7 @@ in-between frames are made:
    the bend goes as the square root of the leg's shortening, and a foot lifted from a straight
    leg bent the knee 38 degrees in one frame. A nearly
    straight knee bends toward the leg's own hinge (``KNEE_HINGE``: the knee's bending planes
-   over the gap, in the thigh's frame), not about its plane of the moment, which is noise: it
+   over the gap, in the hips' frame), not about its plane of the moment, which is noise: it
    swung sideways from frame to frame. The foot keeps its global orientation (so the toe moves
    as the ankle does: the offsets above already turn it about the toe).
 
@@ -177,8 +177,12 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
 
     ``hinge`` > 0: the knee first bends about its plane's normal plus ``hinge`` (a sine: the
     weight of a knee bent that far from straight) times the leg's hinge, the normals of the N
-    frames summed in the thigh's frame (the bent frames weigh the most); then, from there, about
-    its new plane's normal onto the target exactly. A straight leg's bending plane is noise:
+    frames summed in the frame of the thigh's parent (the hips; the bent frames weigh the most);
+    then, from there, about its new plane's normal onto the target exactly. Summed in the
+    thigh's own frame, they turned with the thigh about its bone, which no position shows and
+    a rig's clips set as they please (CMU-rig walks: a knee's plane 130-150 degrees from that
+    hinge for whole steps, and the lock's knee popped where it crossed over). A straight leg's
+    bending plane is noise:
     bent about it, the knee swung sideways from one frame to the next, and between different
     clips (the bench's cross-clip pairs, held-out styles) the knees' jerk in the lock's frames
     rose 21,000 cm/s^3 on average over the unlocked motion's, up to 205,000 in one transition;
@@ -191,13 +195,14 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
     if soft > 0:  # the target where it will be reached, for both bends
         reach = soft_limit(lat, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * (lab + lcb)), lab + lcb)
         t = a + (t - a) * (reach / np.maximum(lat, 1e-300))[:, None]
-    local = quat.mul_vec(quat.inv(a_gr), np.cross(c - a, b - a))  # the normals in the thigh's frame
+    frame = quat.mul(a_gr, quat.inv(a_lr))  # the thigh's parent's (the hips')
+    local = quat.mul_vec(quat.inv(frame), np.cross(c - a, b - a))  # the normals in that frame
     leg_hinge = _unit_rows(local.sum(axis=0))
     weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * leg_hinge
     # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (turned back over).
     back = ((np.sum(local * weighed, axis=-1) < 0.0)
             & (local @ leg_hinge < -KNEE_BACK * np.linalg.norm(local, axis=-1)))
-    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(a_gr, weighed)), back)
+    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(frame, weighed)), back)
     # The leg after the first bend (the joints between thigh and shin, if any, keep their locals).
     turn_a = quat.mul(quat.mul(a_gr, quat.inv(a_lr)), quat.mul(a1, quat.inv(a_gr)))
     ga = quat.mul(turn_a, a_gr)
