@@ -150,3 +150,30 @@ def test_the_numbered_rig_keeps_the_motion_and_reads_as_the_named_one(bandai_pat
         "names": list(m.skeleton.names)}}, "machine": {"cpu": "x", "cpus": 1, "python": "3"}, "date": "d"}, "c")
     assert "legs UpperLeg_L > LowerLeg_L > Foot_L; UpperLeg_R > LowerLeg_R > Foot_R" in report
     assert "| 5 | 3 | 1 | 0.5 | 2 |" in report
+
+
+def test_the_clip_pairs_script_counts_pops_and_feet_under_the_floor(bandai_paths, tmp_path, monkeypatch):
+    from posturemap.core.motion import Motion
+
+    monkeypatch.syspath_prepend(str(BENCH))
+    mod = _module("clip_pairs")
+    names = ["walk_normal_001", "run_normal_001", "bow_normal_001"]
+    paths = bandai_paths(names)
+    walk = bvh.read(paths["walk_normal_001"])
+    # A body held still does not accelerate; one frame carried 10 cm off does, that much twice over.
+    still = Motion(walk.skeleton, walk.rotations[[5] * 8], walk.positions[[5] * 8], walk.fps)
+    assert mod.largest_acceleration(still) == 0.0
+    jump = Motion(walk.skeleton, still.rotations.copy(), still.positions.copy(), walk.fps)
+    jump.positions[4, 0, 0] += 10.0
+    assert abs(mod.largest_acceleration(jump) - 20.0) < 1e-9
+    for n, p in paths.items():  # the clips are read where they are: links in a folder of their own
+        (tmp_path / f"{n}.bvh").symlink_to(p)
+    result = mod.run(tmp_path, seconds=(0.5,), log=lambda *a: None)
+    row = result["lengths"]["15"]["methods"]
+    assert set(row) == {mod.label(m, f) for m, f in mod.METHODS}
+    assert all(s["pairs"] == 6 and s["largest"] >= 0.0 and s["deepest_cm"] >= s["depth_mean_cm"] >= 0.0
+               for s in row.values())
+    # SLERP leaves A's velocity at once and meets B's at once: its joints jerk at both seams; the
+    # default continues A's motion into B's.
+    assert row["slerp"]["pops"] > row["auto+feet"]["pops"]
+    assert "| auto+feet |" in mod.markdown(result, "python bench/clip_pairs.py")
