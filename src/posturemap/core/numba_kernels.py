@@ -18,7 +18,7 @@ _OPTS = dict(cache=True, nogil=True, fastmath=False)
 # Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
 _FAST = {"nsz", "arcp", "contract", "reassoc"}
 _FADE_SPAN = float(np.radians(90.0))  # kernels.FADE_SPAN (slerp_track's fade columns; a test holds them equal)
-_KNEE_BACK = float(np.cos(np.radians(30.0)))  # feet.KNEE_BACK (a test holds them equal)
+_REST_RHO, _REST_OVER = 0.3, 1.6  # feet.REST_RHO and REST_OVER (a test holds them equal)
 
 
 @nb.njit(**_OPTS)
@@ -432,7 +432,7 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     if hinge <= 0.0:
         nx, ny, nz = _unit(nx, ny, nz)
         return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft,
-                           nx, ny, nz, False)
+                           nx, ny, nz)
     lab = math.sqrt(vx * vx + vy * vy + vz * vz)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lac = math.sqrt(ux * ux + uy * uy + uz * uz)
@@ -445,13 +445,10 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     fr = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
     lx, ly, lz = _rotate(fr[0], -fr[1], -fr[2], -fr[3], nx, ny, nz)
     w = hinge * lac * lab
-    # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (feet.two_bone_ik).
-    back = (lx * (lx + w * hx) + ly * (ly + w * hy) + lz * (lz + w * hz) < 0.0
-            and lx * hx + ly * hy + lz * hz < -_KNEE_BACK * math.sqrt(lx * lx + ly * ly + lz * lz))
     nx, ny, nz = _rotate(fr[0], fr[1], fr[2], fr[3], lx + w * hx, ly + w * hy, lz + w * hz)
     nx, ny, nz = _unit(nx, ny, nz)
     th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
-                         nx, ny, nz, back)
+                         nx, ny, nz)
     # The leg after the first bend (joints between thigh and shin keep their locals).
     pa = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
     pa = _mul(pa[0], pa[1], pa[2], pa[3], th[0], th[1], th[2], th[3])
@@ -469,14 +466,14 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     ux, uy, uz = cx - ax, cy - ay, cz - az
     vx, vy, vz = bx - ax, by - ay, bz - az
     nx, ny, nz = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz, False)
+    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz)
 
 
 @nb.njit(**_OPTS)
-def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz, back):
+def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz):
     """:func:`posturemap.synth.feet._bend` of one frame: the knee bent about the unit normal
-    (nx, ny, nz) to the target's distance (``back``: bent back about it, measured on its side),
-    the hip-ankle line turned onto it; the thigh's and shin's new local rotations."""
+    (nx, ny, nz) to the target's distance, the hip-ankle line turned onto it; the thigh's and
+    shin's new local rotations."""
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
     lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
     lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
@@ -492,8 +489,6 @@ def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr
     ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
     ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
     ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
-    if back:
-        ac_ab_0, ba_bc_0 = -ac_ab_0, 2.0 * math.pi - ba_bc_0
     ux, uy, uz = cx - ax, cy - ay, cz - az
     vx, vy, vz = tx - ax, ty - ay, tz - az
     x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
@@ -717,7 +712,7 @@ def _rest_projected(change, accel, lo, hi, iters, out):
     squares projection of ``change`` onto the bound and the box by ADMM, the pentadiagonal
     ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands)."""
     n = change.shape[0]
-    rho = 1.0 / accel
+    rho = _REST_RHO / accel
     diag, sub1, sub2 = np.empty(n), np.zeros(n), np.zeros(n)  # L[i, i], L[i, i - 1], L[i, i - 2]
     for i in range(n):
         l2 = rho / diag[i - 2] if i >= 2 else 0.0
@@ -758,12 +753,14 @@ def _rest_projected(change, accel, lo, hi, iters, out):
         for m in range(n + 2):
             dc[m] = _at(out, m - 2) - 2.0 * _at(out, m - 1) + _at(out, m)
             most = max(most, abs(dc[m]))
-            y_new = min(max(dc[m] + u[m], -accel), accel)
-            u[m] += dc[m] - y_new
+            relaxed = _REST_OVER * dc[m] + (1.0 - _REST_OVER) * y[m]
+            y_new = min(max(relaxed + u[m], -accel), accel)
+            u[m] += relaxed - y_new
             y[m] = y_new
         for t in range(n):
-            w_new = min(max(out[t] + v[t], lo[t]), hi[t])
-            v[t] += out[t] - w_new
+            relaxed = _REST_OVER * out[t] + (1.0 - _REST_OVER) * w[t]
+            w_new = min(max(relaxed + v[t], lo[t]), hi[t])
+            v[t] += relaxed - w_new
             w[t] = w_new
             inside = inside and lo[t] - 1e-12 <= out[t] <= hi[t] + 1e-12
         if most <= accel * 1.001 and inside and step <= accel * 1e-3:
@@ -1529,9 +1526,9 @@ def blend_root(chain, root, up, rest, rots_fb, tilt, heading, c, align, out):
                                   g0, g1, g2, g3)
         p = _mul(g0, g1, g2, g3, rest[0], -rest[1], -rest[2], -rest[3])
         h = 2.0 * math.atan2(p[1 + up], p[0])
-        un = [math.cos(0.5 * h), 0.0, 0.0, 0.0]
-        un[1 + up] = -math.sin(0.5 * h)
-        t0, t1, t2, t3 = _mul(un[0], un[1], un[2], un[3], g0, g1, g2, g3)
+        sh = -math.sin(0.5 * h)  # the heading's inverse, about axis up
+        t0, t1, t2, t3 = _mul(math.cos(0.5 * h), sh if up == 0 else 0.0, sh if up == 1 else 0.0,
+                              sh if up == 2 else 0.0, g0, g1, g2, g3)
         d = t0 * tilt[f, 0] + t1 * tilt[f, 1] + t2 * tilt[f, 2] + t3 * tilt[f, 3]
         sign = -1.0 if d < 0 else 1.0
         tilt[f, 0], tilt[f, 1], tilt[f, 2], tilt[f, 3] = _slerp_signed(t0, t1, t2, t3, tilt[f, 0], tilt[f, 1],

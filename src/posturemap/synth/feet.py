@@ -112,11 +112,11 @@ KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend a
 KNEE_PASSES = 200  # knee_bounded's sweeps at most (rest_bounded)
 KNEE_PLAIN = 20  # the sweeps that project onto each bound before they over-relax (rest_bounded)
 REST_EXACT = 500  # rest_bounded: where the sweeps stop short, iterations at most of the exact projection
+REST_RHO = 0.3  # ... its ADMM penalty, over the bound (rest_projected)
+REST_OVER = 1.6  # ... and its over-relaxation
 KNEE_RELAX = 1.9  # then each projection goes this far (below 2: the sweeps still converge)
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
 #                   leg's hinge (two_bone_ik): a straight leg's plane is noise
-KNEE_BACK = np.cos(np.radians(30.0))  # a knee whose own plane is within 30 degrees of the hinge's,
-#                   bent the other way, is bent back: the IK bends it forward through straight (_bend)
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
 #                   full speed; real toes keep it: 79-97% of bandai1's toe samples at 0.3-8 leg lengths
 #                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
@@ -197,12 +197,8 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
         t = a + (t - a) * (reach / np.maximum(lat, 1e-300))[:, None]
     frame = quat.mul(a_gr, quat.inv(a_lr))  # the thigh's parent's (the hips')
     local = quat.mul_vec(quat.inv(frame), np.cross(c - a, b - a))  # the normals in that frame
-    leg_hinge = _unit_rows(local.sum(axis=0))
-    weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * leg_hinge
-    # Bent back about the axis, its own plane within KNEE_BACK of the hinge's (turned back over).
-    back = ((np.sum(local * weighed, axis=-1) < 0.0)
-            & (local @ leg_hinge < -KNEE_BACK * np.linalg.norm(local, axis=-1)))
-    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(frame, weighed)), back)
+    weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * _unit_rows(local.sum(axis=0))
+    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(frame, weighed)))
     # The leg after the first bend (the joints between thigh and shin, if any, keep their locals).
     turn_a = quat.mul(quat.mul(a_gr, quat.inv(a_lr)), quat.mul(a1, quat.inv(a_gr)))
     ga = quat.mul(turn_a, a_gr)
@@ -216,17 +212,18 @@ def _unit_rows(v):
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0, back=None):
+def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     """:func:`two_bone_ik`'s step: the knee bent about ``axis0`` (unit, world; the bending
     plane's normal) to the target's distance, then the hip-ankle line turned onto it.
 
-    ``back`` (N,) bool, where given: the frames whose knee is bent back about ``axis0`` (the
-    leg over-straightened in the hinge's own plane, :data:`KNEE_BACK`), measured on the side of
-    the axis: bent forward through straight onto the target's bend. Measured as the other
-    frames are (the bend's size only), such a knee asked to bend a little more was turned by
-    the difference of the two sizes, still back, and the second bend (about its own plane) bent
-    it further back onto the target; asked for twice its size or more, it was turned forward,
-    and flipped across from one frame to the next where the lock's bend grew past that."""
+    The knee is turned by the difference of its bend's size and the target's: a knee bent back
+    about ``axis0`` (a leg over-straightened against the hinge) asked to bend a little more is
+    bent further back, and forward only once asked for twice its bend. Measured on the axis's
+    side instead (bent forward through straight), it flipped across wherever that side changed
+    from one frame to the next: with the side judged by the knee's plane within 30 degrees of the
+    hinge's, a knee bent back 9 degrees whose plane turned a quarter of a degree across that edge
+    jumped 7.7 cm (1 m legs; a cold review); on Xia's CMU-rig walks joined pair by pair it popped
+    knees as often as it mended (docs/clip-pairs.md)."""
     def angle(u, v):
         return np.arccos(np.clip(np.sum(_unit_rows(u) * _unit_rows(v), axis=-1), -1.0, 1.0))
 
@@ -243,9 +240,6 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0, back=None):
     ac_ab_1 = np.where(rigid, ac_ab_0, np.arccos(np.clip((lcb**2 - lab**2 - lat**2) / (-2 * lab * lat), -1.0, 1.0)))
     ba_bc_1 = np.where(rigid, ba_bc_0, np.arccos(np.clip((lat**2 - lab**2 - lcb**2) / (-2 * lab * lcb), -1.0, 1.0)))
     ac_at_0 = np.where(rigid, 0.0, ac_at_0)
-    if back is not None:
-        ac_ab_0 = np.where(back, -ac_ab_0, ac_ab_0)
-        ba_bc_0 = np.where(back, 2.0 * np.pi - ba_bc_0, ba_bc_0)
     axis1 = _unit_rows(np.cross(c - a, t - a))
     r0 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), axis0), ac_ab_1 - ac_ab_0)
     r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axis0), ba_bc_1 - ba_bc_0)
@@ -350,7 +344,7 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
     n = len(change)
-    rho = 1.0 / accel
+    rho = REST_RHO / accel
     band = np.zeros((3, n))  # upper form: the diagonal last
     band[0, 2:], band[1, 1:], band[2] = rho, -4.0 * rho, 1.0 + 7.0 * rho
     factor = cholesky_banded(band)
@@ -369,10 +363,12 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
         before = c
         c = cho_solve_banded((factor, False), change + rho * spread(y - u) + rho * (w - v))
         dc = second(c)
-        y = np.clip(dc + u, -accel, accel)
-        w = np.clip(c + v, lo, hi)
-        u += dc - y
-        v += c - w
+        dc_r = REST_OVER * dc + (1.0 - REST_OVER) * y  # over-relaxed
+        c_r = REST_OVER * c + (1.0 - REST_OVER) * w
+        y = np.clip(dc_r + u, -accel, accel)
+        w = np.clip(c_r + v, lo, hi)
+        u += dc_r - y
+        v += c_r - w
         if (np.abs(dc).max() <= accel * 1.001 and np.all(c >= lo - 1e-12) and np.all(c <= hi + 1e-12)
                 and np.abs(c - before).max() <= accel * 1e-3):
             break
