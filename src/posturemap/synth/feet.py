@@ -330,11 +330,12 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
     second difference at most ``accel``, the clips' two frames on either side 0) and the box
     ``[lo, hi]`` (L,), by ADMM (the alternating direction method of multipliers): each iteration
     one solve of ``(1 + r) I + r D'D`` (pentadiagonal, factored once; ``D`` the second
-    differences, ``r = REST_RHO / accel``), then the second differences clipped onto the bound and the
-    values onto the box (both over-relaxed by ``REST_OVER``). Stops where every second difference is within 1.001 of the bound, every
-    value within the box and no value moved by more than a thousandth of the bound in the last
-    iteration, at most ``REST_EXACT`` iterations; the values are clipped onto the
-    box (the caller scales what is still over the bound). The numpy steps of the compiled
+    differences, ``r = REST_RHO / accel``), then the second differences clipped onto the bound
+    and the values onto the box (both over-relaxed by ``REST_OVER``). Stops where every second
+    difference is within 1.001 of the bound, every value within the box and no value moved by
+    more than a thousandth of the bound in the last iteration, at most ``REST_EXACT``
+    iterations; the values are clipped onto the box (the caller scales what is still over the
+    bound). The numpy steps of the compiled
     :func:`posturemap.core.numba_kernels._rest_projected`.
 
     Stopped where the values move by under a thousandth of the bound from one iteration to the
