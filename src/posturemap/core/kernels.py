@@ -185,11 +185,10 @@ def blend_root(chain, root, up, rest, rots_fb, tilt, heading, c, align, out):
     g = rots_fb[:, root]
     for j in chain[::-1]:
         g = quat.mul(rots_fb[:, j], g)
-    p = quat.mul(g, quat.inv(rest))
-    h_fb = 2.0 * np.arctan2(p[:, 1 + up], p[:, 0])
-    unturn = np.zeros_like(g)  # the heading's inverse: the fallback's tilt is unturn * g
-    unturn[:, 0], unturn[:, 1 + up] = np.cos(0.5 * h_fb), -np.sin(0.5 * h_fb)
-    tilt_fb = quat.mul(unturn, g)
+    axis = np.zeros(3)
+    axis[up] = 1.0
+    turn, tilt_fb = quat.heading_tilt(g, axis, rest)
+    h_fb = 2.0 * np.arctan2(turn[:, 1 + up], turn[:, 0])
     two_pi = 2.0 * np.pi
     lead = heading - h_fb
     lead[0] -= two_pi * np.rint(lead[0] / two_pi)

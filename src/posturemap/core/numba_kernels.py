@@ -450,8 +450,7 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
                          nx, ny, nz)
     # The leg after the first bend (joints between thigh and shin keep their locals).
-    pa = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
-    pa = _mul(pa[0], pa[1], pa[2], pa[3], th[0], th[1], th[2], th[3])
+    pa = _mul(fr[0], fr[1], fr[2], fr[3], th[0], th[1], th[2], th[3])  # fr: the hips' frame, above
     turn = _mul(pa[0], pa[1], pa[2], pa[3], a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3])
     ga = _mul(turn[0], turn[1], turn[2], turn[3], a_gr[0], a_gr[1], a_gr[2], a_gr[3])
     gb = _mul(turn[0], turn[1], turn[2], turn[3], b_gr[0], b_gr[1], b_gr[2], b_gr[3])

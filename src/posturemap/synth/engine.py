@@ -909,8 +909,7 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
                 # On the arc that goes on through the frames, every joint moving to whichever of
                 # the two the confidence is nearer where the arc goes past a half turn round.
                 if mask is rt.lower_mask:  # but the root, blended already (_blend_root)
-                    mask = mask.copy()
-                    mask[eng._root] = False
+                    mask = rt.legs_mask
                 part = out_r[:, mask]
                 kernels.slerp_track(rots_fb[:, mask], part, c, part, np.ones(part.shape[1], dtype=bool))
                 out_r[:, mask] = part

@@ -200,7 +200,7 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
     weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * _unit_rows(local.sum(axis=0))
     a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(frame, weighed)))
     # The leg after the first bend (the joints between thigh and shin, if any, keep their locals).
-    turn_a = quat.mul(quat.mul(a_gr, quat.inv(a_lr)), quat.mul(a1, quat.inv(a_gr)))
+    turn_a = quat.mul(frame, quat.mul(a1, quat.inv(a_gr)))
     ga = quat.mul(turn_a, a_gr)
     gb = quat.mul(quat.mul(turn_a, b_gr), quat.mul(quat.inv(b_lr), b1))
     b2 = a + quat.mul_vec(turn_a, b - a)

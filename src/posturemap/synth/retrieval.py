@@ -166,6 +166,8 @@ class Retriever:
         self.lower_mask, self.upper_mask = part_masks(sk, engine._root)
         self.part_joints = (np.flatnonzero(self.lower_mask), np.flatnonzero(self.upper_mask))
         self.open_joints = np.flatnonzero(~(self.lower_mask | self.upper_mask))  # above the root
+        self.legs_mask = self.lower_mask.copy()  # the lower body but its root (engine._blend_root's)
+        self.legs_mask[engine._root] = False
         self.upper_tops = upper_tops(sk.parents, engine._root, self.lower_mask, self.upper_mask)  # see lift_upper
         # The head and its ancestors, top first, where the upper body holds a head (see HEAD_GAZE).
         head = head_joint(sk)
