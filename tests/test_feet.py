@@ -24,9 +24,28 @@ from posturemap.synth.trajectory import rotate_about_up
 
 
 # The compiled foot lock against the numpy one, rotations: the IK's angles are arc cosines,
-# which turn rounding differences of 1e-16 in a nearly straight leg (a spot out of reach, the
-# second bend of two_bone_ik) into about 1e-8.
+# which turn rounding differences of 1e-16 in a nearly straight leg (a spot out of reach) into
+# about 1e-8.
 IK_ATOL = 3e-8
+
+
+def compiled_ik(rots, grot, gpos, chain, targets, hinge=feet.KNEE_HINGE):
+    """The compiled lock's IK of each frame onto ``targets`` (L, 3), unbounded (the kernels
+    ``lock_legs`` calls: the leg's hinge over all the frames, each frame's axis, the turn
+    ``knee_bounded`` asks, ``hinge_ik_frame``), as :func:`feet.two_bone_ik` with ``hinge``:
+    the thigh's and shin's new local rotations (L, 4) each."""
+    from posturemap.core import kernels
+    jit = kernels.compiled()
+    thigh, shin, ankle = chain
+    n = len(targets)
+    h = jit._knee_hinge(grot, rots, gpos, thigh, shin, ankle, ankle, np.ones(n, dtype=bool))
+    axes = np.array([jit._knee_axis(rots, grot, gpos, f, thigh, shin, ankle, hinge, *h) for f in range(n)])
+    work = np.empty((4, n))
+    jit.knee_bounded(np.ascontiguousarray(targets, dtype=float), gpos, axes, thigh, shin, ankle, 0.0,
+                     feet.KNEE_THROUGH, 1e9, 1, 1, 1.0, 1, work, np.ones(n, dtype=bool))
+    out = [jit.hinge_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, *targets[f], *axes[f], work[0, f], 1e-5)
+           for f in range(n)]
+    return np.array([o[0] for o in out]), np.array([o[1] for o in out])
 
 
 def lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps, *args, **kw):
@@ -311,13 +330,9 @@ def test_a_knee_bent_across_the_hinge_stays_on_its_side():
     _, moved = fk(parents, new, pos)
     np.testing.assert_allclose(moved[4:], gpos[4:], atol=1e-9)
     # The compiled IK, frame by frame about the same hinge, the same.
-    from posturemap.core import kernels
-    jit = kernels.compiled()
-    hinge = jit._knee_hinge(grot, bend, gpos, 0, 1, 2, np.ones(6, dtype=bool))
-    for f in range(6):
-        th, sh = jit.two_bone_ik_frame(bend, grot, gpos, f, 0, 1, 2, *gpos[f, 2], 1e-5, 0.0, 0.2, *hinge)
-        np.testing.assert_allclose(np.abs(np.dot(th, a_lr[f])), 1.0, atol=1e-9)
-        np.testing.assert_allclose(np.abs(np.dot(sh, b_lr[f])), 1.0, atol=1e-9)
+    th, sh = compiled_ik(bend, grot, gpos, (0, 1, 2), gpos[:, 2], hinge=0.2)
+    np.testing.assert_allclose(np.abs(np.sum(th * a_lr, axis=-1)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(sh * b_lr, axis=-1)), 1.0, atol=1e-9)
 
 
 def test_the_legs_hinge_is_read_in_the_hips_frame_not_the_turning_thighs():
@@ -352,12 +367,94 @@ def test_the_legs_hinge_is_read_in_the_hips_frame_not_the_turning_thighs():
     np.testing.assert_allclose(moved[:, 3], target, atol=1e-6)
     knee = moved[4, 2] - moved[4, 1]
     assert knee[2] > 0.3 and abs(knee[0]) < 0.01  # forward, as the bent frames' knees
-    from posturemap.core import kernels  # the compiled hinge and IK, the same
+    th, sh = compiled_ik(bend, grot, gpos, (1, 2, 3), target, hinge=0.2)  # the compiled hinge and IK, the same
+    np.testing.assert_allclose(np.abs(np.sum(th * a_lr, axis=-1)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(sh * b_lr, axis=-1)), 1.0, atol=1e-9)
+
+
+def test_signed_bend_takes_a_knee_bent_back_forward_through_straight_without_a_jump():
+    # A knee bent back 7 degrees (about its axis): straightened while its ankle needs less bend
+    # than that, bent forward once it needs KNEE_THROUGH times as much, and in between through
+    # straight, never further back than it was; a knee bent forward gets what it needs.
+    back = np.radians(7.0)
+    need = np.linspace(0.0, 0.8, 801)
+    got = feet.signed_bend(-back, need)
+    np.testing.assert_allclose(got[need <= back], -need[need <= back])
+    ahead = need >= feet.KNEE_THROUGH * back
+    np.testing.assert_allclose(got[ahead], need[ahead])
+    assert got.min() >= -back - 1e-12
+    slope = (feet.KNEE_THROUGH + 1.0) / (feet.KNEE_THROUGH - 1.0)
+    assert np.abs(np.diff(got)).max() <= slope * 0.001 * (1 + 1e-9)  # continuous in the need
+    np.testing.assert_allclose(feet.signed_bend(np.radians(12.0), need), need)
+    # ... and in the knee's own bend, through straight.
+    bends = np.linspace(-0.2, 0.2, 401)
+    assert np.abs(np.diff(feet.signed_bend(bends, 0.3))).max() < 0.01
+
+
+def test_a_knee_bent_back_asked_to_bend_more_swings_forward_without_a_jump():
+    # Hip -> knee -> ankle along -Y, bones of length 1: four frames bent forward (+Z) give the
+    # hinge; then 40 frames of a knee bent back 7 degrees, their ankles' goals drawn toward the
+    # hip so that the knee needs from 7 to 40 degrees of bend. Bent by the difference of the
+    # unsigned bends, it bent further back until asked for twice its bend, then flipped forward
+    # (the knee 24 cm across in a frame; CMU-rig walks popped so). About its axis, it passes
+    # through straight a frame at a time, ends bent forward, and reaches its goals but for a
+    # few millimetres in between (0.6% of the leg).
+    parents = np.array([-1, 0, 1])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
+    n = 44
+    x = np.array([1.0, 0.0, 0.0])
+    bend = np.tile(quat.identity(), (n, 3, 1))
+    bend[:4, 0] = quat.from_axis_angle(x, -0.35)  # forward: the hinge about X
+    bend[:4, 1] = quat.from_axis_angle(x, 0.7)
+    back = np.radians(7.0)
+    bend[4:, 0] = quat.from_axis_angle(x, back / 2)  # bent back, in the hinge's plane
+    bend[4:, 1] = quat.from_axis_angle(x, -back)
+    pos = np.broadcast_to(offsets, (n, 3, 3)).copy()
+    grot, gpos = fk(parents, bend, pos)
+    need = np.r_[np.full(4, 0.7), np.linspace(back, np.radians(40.0), n - 4)]
+    reach = np.sqrt(2.0 + 2.0 * np.cos(need))
+    line = (gpos[:, 2] - gpos[:, 0]) / np.linalg.norm(gpos[:, 2] - gpos[:, 0], axis=-1)[:, None]
+    target = gpos[:, 0] + reach[:, None] * line
+    a_lr, b_lr = two_bone_ik(gpos[:, 0], gpos[:, 1], gpos[:, 2], target, grot[:, 0], grot[:, 1], bend[:, 0],
+                             bend[:, 1], hinge=feet.KNEE_HINGE)
+    new = bend.copy()
+    new[:, 0], new[:, 1] = a_lr, b_lr
+    _, moved = fk(parents, new, pos)
+    knee = moved[4:, 1]
+    assert np.linalg.norm(np.diff(knee, axis=0), axis=-1).max() < 0.03  # no jump (the old: 0.24)
+    assert knee[0, 2] < -0.05 and knee[-1, 2] > 0.3  # from behind the hip-ankle line to before it
+    miss = np.linalg.norm(moved[:, 2] - target, axis=-1)
+    assert miss.max() < 0.006 * 2.0 and miss[-10:].max() < 1e-9  # 6 mm of a 1 m leg at most
+    th, sh = compiled_ik(bend, grot, gpos, (0, 1, 2), target)  # compiled, the same
+    np.testing.assert_allclose(np.abs(np.sum(th * a_lr, axis=-1)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(sh * b_lr, axis=-1)), 1.0, atol=1e-9)
+
+
+def test_the_legs_hinge_of_knees_all_bent_back_turns_toward_the_toes():
+    # Hip -> knee -> ankle -> toe, the knee bent back 7 degrees in every frame (the toes ahead,
+    # +Z): the normals alone say the knee bends backward; the toes turn the hinge about, so that a
+    # knee bent about it goes toward them, as a knee bends. Compiled, the same.
+    parents = np.array([-1, 0, 1, 2])
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 0.2]])
+    n = 6
+    x = np.array([1.0, 0.0, 0.0])
+    bend = np.tile(quat.identity(), (n, 4, 1))
+    bend[:, 0] = quat.from_axis_angle(x, np.linspace(0.05, 0.07, n))  # bent back, the hip a little forward
+    bend[:, 1] = quat.from_axis_angle(x, -np.radians(7.0) - np.linspace(0.0, 0.04, n))
+    bend[:, 2] = quat.inv(quat.mul(bend[:, 0], bend[:, 1]))  # the foot flat, toes ahead
+    pos = np.broadcast_to(offsets, (n, 4, 3)).copy()
+    grot, gpos = fk(parents, bend, pos)
+    assert (gpos[:, 3, 2] - gpos[:, 2, 2] > 0.19).all() and (gpos[:, 1, 2] < 0).all()
+    args = (gpos[:, 0], gpos[:, 1], gpos[:, 2], grot[:, 0], bend[:, 0])
+    back, ahead = feet.leg_hinge(*args), feet.leg_hinge(*args, toe=gpos[:, 3])
+    np.testing.assert_allclose(ahead, -back, atol=1e-12)
+    going = np.cross(ahead, gpos[:, 2] - gpos[:, 0])  # where a knee bent about it goes (the hips' frame is the world's)
+    assert (going[:, 2] > 0).all()
+    from posturemap.core import kernels
     jit = kernels.compiled()
-    hinge = jit._knee_hinge(grot, bend, gpos, 1, 2, 3, np.ones(5, dtype=bool))
-    th, sh = jit.two_bone_ik_frame(bend, grot, gpos, 4, 1, 2, 3, *target[4], 1e-5, 0.0, 0.2, *hinge)
-    np.testing.assert_allclose(np.abs(np.dot(th, a_lr[4])), 1.0, atol=1e-9)
-    np.testing.assert_allclose(np.abs(np.dot(sh, b_lr[4])), 1.0, atol=1e-9)
+    every = np.ones(n, dtype=bool)
+    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 3, every), ahead, atol=1e-12)
+    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 2, every), back, atol=1e-12)
 
 
 def test_contact_runs():
@@ -1915,8 +2012,22 @@ def straight_leg_lifted(n: int = 24, lift_at: int = 12, rng=None):
 
 def bends(goal, a, b, c):
     thigh, shin = np.linalg.norm(b[0] - a[0]), np.linalg.norm(c[0] - b[0])
-    return (feet.knee_bend(np.linalg.norm(goal - a, axis=-1), thigh, shin)
-            - feet.knee_bend(np.linalg.norm(c - a, axis=-1), thigh, shin))
+    return (feet.bend_for_reach(np.linalg.norm(goal - a, axis=-1), thigh, shin, 0.0)
+            - feet.bend_for_reach(np.linalg.norm(c - a, axis=-1), thigh, shin, 0.0))
+
+
+def plane_axes(a, b, c, straight=(0.0, 0.0, 1.0)):
+    """The knee's axes of a leg that bends in its own plane (the plane's normal; ``straight``
+    where the leg is straight): :func:`feet.knee_axes` of a leg whose hinge is its plane's."""
+    n = np.cross(c - a, b - a)
+    size = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(size > 1e-12, n / np.maximum(size, 1e-300), np.asarray(straight))
+
+
+def reached(turn, a, b, c, axes):
+    """The hip-ankle distance a leg reaches with its knee turned ``turn`` about ``axes``."""
+    theta0, psi = feet.knee_angles(a, b, c, axes)
+    return feet.knee_reach(theta0 + turn, np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1), psi)
 
 
 def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
@@ -1928,19 +2039,19 @@ def test_knee_bounded_starts_a_lift_from_a_straight_leg_a_few_frames_early():
     goal, a, b, c = straight_leg_lifted()
     before = bends(goal, a, b, c)
     assert np.degrees(np.diff(before).max()) > 15.0
-    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
-    after = np.concatenate([[0.0], bends(out, a, b, c), [0.0]])
+    axes = plane_axes(a, b, c)
+    out, bent = feet.knee_bounded(goal, a, b, c, axes, 0.0, accel)
+    after = np.concatenate([[0.0], out, [0.0]])
     # (The lift lasts to the last frame, whose change must come to rest at B's frame too.)
     assert np.abs(np.diff(after, 2)).max() <= accel * 1.001 and abs(after[-2]) <= accel * 1.001
     assert bent[:12].any() and after[12] > 0.0  # bending before the lift
-    # Only along the hip-goal line, and the goals the lock had where the bound leaves them.
-    along = np.cross(out - a, goal - a)
-    np.testing.assert_allclose(along, 0.0, atol=1e-9)
-    np.testing.assert_array_equal(out[~bent], goal[~bent])
-    # A bound that nothing exceeds leaves every goal.
-    slow, none = feet.knee_bounded(goal, a, b, c, 0.0, 10.0)
+    # Where the bound leaves the turn, it reaches the goal's distance.
+    np.testing.assert_allclose(reached(out, a, b, c, axes)[~bent], np.linalg.norm(goal - a, axis=-1)[~bent],
+                               atol=1e-9)
+    # A bound that nothing exceeds leaves every turn as the goals ask.
+    slow, none = feet.knee_bounded(goal, a, b, c, axes, 0.0, 10.0)
     assert not none.any()
-    np.testing.assert_array_equal(slow, goal)
+    np.testing.assert_allclose(slow, before, atol=1e-9)
 
 
 def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
@@ -1952,8 +2063,8 @@ def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
     accel = feet.KNEE_ACCEL / fps**2
     goal, a, b, c = straight_leg_lifted(lift_at=0)
     assert bends(goal, a, b, c)[0] > 2 * accel
-    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
-    after = np.concatenate([[0.0, 0.0], bends(out, a, b, c)])  # A's last two frames, then the new ones
+    out, bent = feet.knee_bounded(goal, a, b, c, plane_axes(a, b, c), 0.0, accel)
+    after = np.concatenate([[0.0, 0.0], out])  # A's last two frames, then the new ones
     assert bent[0] and abs(after[2]) <= accel * 1.001 and np.abs(np.diff(after, 2)[:-1]).max() <= accel * 1.001
     assert after[2 + 12] > 0.99 * bends(goal, a, b, c)[12]  # the lift itself reached a few frames on
     assert abs(after[-1]) <= accel * 1.001
@@ -2068,8 +2179,8 @@ def test_knee_bounded_keeps_a_straight_legs_bend_within_the_bound():
     c = np.tile([0.0, -2.0, 0.0], (n, 1))
     goal = c.copy()
     goal[2:12, 1] = -np.sqrt(2.0 + 2.0 * np.cos(0.52))
-    out, bent = feet.knee_bounded(goal, a, b, c, 0.0, accel)
-    after = feet.knee_bend(np.linalg.norm(out - a, axis=-1), 1.0, 1.0)  # the bend itself: the knee's own is 0
+    out, bent = feet.knee_bounded(goal, a, b, c, plane_axes(a, b, c), 0.0, accel)
+    after = out  # the bend itself: the knee's own is 0
     assert bent.any() and after.min() >= 0.0
     assert np.abs(at_rest(after)).max() <= accel * 1.001
 
@@ -2099,13 +2210,15 @@ def test_knee_bounded_applies_the_iks_soft_reach():
     # A goal beyond the reach is where the IK's soft reach puts it (the IK then runs without it).
     goal, a, b, c = straight_leg_lifted()
     goal[:, 1] -= 3.0  # 3 cm beyond the ankle: out of reach
-    out, bent = feet.knee_bounded(goal, a, b, c, feet.SOFT_REACH, 10.0)
+    axes = plane_axes(a, b, c)
+    out, bent = feet.knee_bounded(goal, a, b, c, axes, feet.SOFT_REACH, 10.0)
     assert not bent.any()
     reach = np.linalg.norm(b[0] - a[0]) + np.linalg.norm(c[0] - b[0])
     own = np.linalg.norm(c - a, axis=-1)
     want = feet.soft_limit(np.linalg.norm(goal - a, axis=-1), np.maximum(own, (1 - feet.SOFT_REACH) * reach), reach)
-    np.testing.assert_allclose(np.linalg.norm(out - a, axis=-1), want, rtol=1e-12)
-    assert (np.linalg.norm(out - a, axis=-1) < reach).all()
+    got = reached(out, a, b, c, axes)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert (got < reach).all()
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -2116,10 +2229,11 @@ def test_knee_bounded_is_the_same_compiled(seed):
     rng = np.random.default_rng(seed)
     goal, a, b, c = straight_leg_lifted(n=int(rng.integers(4, 40)), lift_at=int(rng.integers(1, 4)), rng=rng)
     for soft, accel in ((0.0, feet.KNEE_ACCEL / 900.0), (feet.SOFT_REACH, feet.KNEE_ACCEL / 3600.0)):
-        want, bent = feet.knee_bounded(goal, a, b, c, soft, accel)
+        axes = plane_axes(a, b, c)
+        want, bent = feet.knee_bounded(goal, a, b, c, axes, soft, accel)
         gpos = np.stack([a, b, c], axis=1)
-        got, moves = goal.copy(), np.zeros(len(goal), dtype=bool)
-        nk.knee_bounded(got, gpos, 0, 1, 2, soft, accel, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX,
-                         feet.REST_EXACT, np.empty((5, len(goal))), moves)
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+        work, moves = np.empty((4, len(goal))), np.zeros(len(goal), dtype=bool)
+        nk.knee_bounded(goal, gpos, axes, 0, 1, 2, soft, feet.KNEE_THROUGH, accel, feet.KNEE_PASSES, feet.KNEE_PLAIN,
+                        feet.KNEE_RELAX, feet.REST_EXACT, work, moves)
+        np.testing.assert_allclose(work[0], want, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(moves, bent)

@@ -414,11 +414,61 @@ def _soft_limit(x, start, limit):
 
 
 @nb.njit(**_OPTS)
-def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, soft, hinge, hx, hy, hz):
-    """:func:`posturemap.synth.feet.two_bone_ik` for frame ``f`` (``soft`` and ``hinge`` as
-    there; (hx, hy, hz) the leg's unit hinge in the hips' frame, :func:`_knee_hinge`): returns
-    the thigh's and shin's new local rotations (``lock_legs`` writes them, and the ankle's that
-    keeps the foot's global rotation)."""
+def _knee_axis(rots, grot, gpos, f, thigh, shin, ankle, weight, hx, hy, hz):
+    """:func:`posturemap.synth.feet.knee_axes` of frame ``f``: the knee's plane's normal plus
+    ``weight`` times the leg's unit hinge (hx, hy, hz) in the hips' frame (:func:`_knee_hinge`)
+    weighed by the leg's size, less its part along the thigh; unit (0 for none)."""
+    ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
+    ux, uy, uz = gpos[f, ankle, 0] - ax, gpos[f, ankle, 1] - ay, gpos[f, ankle, 2] - az
+    vx, vy, vz = gpos[f, shin, 0] - ax, gpos[f, shin, 1] - ay, gpos[f, shin, 2] - az
+    lab = math.sqrt(vx * vx + vy * vy + vz * vz)
+    w = weight * math.sqrt(ux * ux + uy * uy + uz * uz) * lab
+    fr = _mul(grot[f, thigh, 0], grot[f, thigh, 1], grot[f, thigh, 2], grot[f, thigh, 3],
+              rots[f, thigh, 0], -rots[f, thigh, 1], -rots[f, thigh, 2], -rots[f, thigh, 3])
+    wx, wy, wz = _rotate(fr[0], fr[1], fr[2], fr[3], w * hx, w * hy, w * hz)
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    k = (math.sqrt(nx * nx + ny * ny + nz * nz) / max(w, 1e-300)) ** 2  # (the sine over the weight) squared
+    nx, ny, nz = nx * k + wx, ny * k + wy, nz * k + wz
+    ex, ey, ez = _unit(vx, vy, vz)
+    k = nx * ex + ny * ey + nz * ez
+    nx, ny, nz = nx - k * ex, ny - k * ey, nz - k * ez
+    if math.sqrt(nx * nx + ny * ny + nz * nz) <= 1e-12:
+        return 0.0, 0.0, 0.0
+    return _unit(nx, ny, nz)
+
+
+@nb.njit(**_OPTS)
+def _knee_angles(gpos, f, thigh, shin, ankle, ex, ey, ez):
+    """:func:`posturemap.synth.feet.knee_angles` of frame ``f`` about the unit axis (ex, ey, ez):
+    (bend, sideways part)."""
+    tx, ty, tz = gpos[f, shin, 0] - gpos[f, thigh, 0], gpos[f, shin, 1] - gpos[f, thigh, 1], \
+        gpos[f, shin, 2] - gpos[f, thigh, 2]
+    sx, sy, sz = gpos[f, ankle, 0] - gpos[f, shin, 0], gpos[f, ankle, 1] - gpos[f, shin, 1], \
+        gpos[f, ankle, 2] - gpos[f, shin, 2]
+    across = (sy * tz - sz * ty) * ex + (sz * tx - sx * tz) * ey + (sx * ty - sy * tx) * ez
+    se = sx * ex + sy * ey + sz * ez
+    along = tx * sx + ty * sy + tz * sz - (tx * ex + ty * ey + tz * ez) * se
+    shin_len = max(math.sqrt(sx * sx + sy * sy + sz * sz), 1e-300)
+    return math.atan2(across, along), math.asin(min(max(se / shin_len, -1.0), 1.0))
+
+
+@nb.njit(**_OPTS)
+def _signed_bend(theta0, need, through):
+    """:func:`posturemap.synth.feet.signed_bend` of one frame (``through``: ``KNEE_THROUGH``)."""
+    back = max(-theta0, 0.0)
+    if need <= back:
+        return -need
+    if need >= through * back:
+        return need
+    return -back + (through + 1.0) / (through - 1.0) * (need - back)
+
+
+@nb.njit(**_OPTS)
+def hinge_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, ex, ey, ez, turn, eps):
+    """:func:`posturemap.synth.feet.hinge_ik` for frame ``f``: the knee's bend about the unit axis
+    (ex, ey, ez) increased by ``turn``, the leg swung about the hip onto the line to the target
+    (tx, ty, tz); the thigh's and shin's new local rotations (``lock_legs`` writes them, and the
+    ankle's that keeps the foot's global rotation)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
     bx, by, bz = gpos[f, shin, 0], gpos[f, shin, 1], gpos[f, shin, 2]
     cx, cy, cz = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
@@ -426,76 +476,22 @@ def two_bone_ik_frame(rots, grot, gpos, f, thigh, shin, ankle, tx, ty, tz, eps, 
     b_gr = (grot[f, shin, 0], grot[f, shin, 1], grot[f, shin, 2], grot[f, shin, 3])
     a_lr = (rots[f, thigh, 0], rots[f, thigh, 1], rots[f, thigh, 2], rots[f, thigh, 3])
     b_lr = (rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
-    ux, uy, uz = cx - ax, cy - ay, cz - az
-    vx, vy, vz = bx - ax, by - ay, bz - az
-    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-    if hinge <= 0.0:
-        nx, ny, nz = _unit(nx, ny, nz)
-        return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft,
-                           nx, ny, nz)
-    lab = math.sqrt(vx * vx + vy * vy + vz * vz)
-    lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
-    lac = math.sqrt(ux * ux + uy * uy + uz * uz)
-    if soft > 0.0:  # the target where it will be reached, for both bends
-        lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
-        k = _soft_limit(lat, max(lac, (1.0 - soft) * (lab + lcb)), lab + lcb) / max(lat, 1e-300)
-        tx, ty, tz = ax + (tx - ax) * k, ay + (ty - ay) * k, az + (tz - az) * k
-    # The normal in the hips' frame (the thigh's parent's) plus the hinge weighed by the leg's
-    # size, back in the world.
-    fr = _mul(a_gr[0], a_gr[1], a_gr[2], a_gr[3], a_lr[0], -a_lr[1], -a_lr[2], -a_lr[3])
-    lx, ly, lz = _rotate(fr[0], -fr[1], -fr[2], -fr[3], nx, ny, nz)
-    w = hinge * lac * lab
-    nx, ny, nz = _rotate(fr[0], fr[1], fr[2], fr[3], lx + w * hx, ly + w * hy, lz + w * hz)
-    nx, ny, nz = _unit(nx, ny, nz)
-    th, sh = _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, 0.0,
-                         nx, ny, nz)
-    # The leg after the first bend (joints between thigh and shin keep their locals).
-    pa = _mul(fr[0], fr[1], fr[2], fr[3], th[0], th[1], th[2], th[3])  # fr: the hips' frame, above
-    turn = _mul(pa[0], pa[1], pa[2], pa[3], a_gr[0], -a_gr[1], -a_gr[2], -a_gr[3])
-    ga = _mul(turn[0], turn[1], turn[2], turn[3], a_gr[0], a_gr[1], a_gr[2], a_gr[3])
-    gb = _mul(turn[0], turn[1], turn[2], turn[3], b_gr[0], b_gr[1], b_gr[2], b_gr[3])
-    rel = _mul(b_lr[0], -b_lr[1], -b_lr[2], -b_lr[3], sh[0], sh[1], sh[2], sh[3])
-    gb = _mul(gb[0], gb[1], gb[2], gb[3], rel[0], rel[1], rel[2], rel[3])
-    dx, dy, dz = _rotate(turn[0], turn[1], turn[2], turn[3], vx, vy, vz)
-    bx, by, bz = ax + dx, ay + dy, az + dz
-    dq = _mul(gb[0], gb[1], gb[2], gb[3], b_gr[0], -b_gr[1], -b_gr[2], -b_gr[3])
-    dx, dy, dz = _rotate(dq[0], dq[1], dq[2], dq[3], cx - gpos[f, shin, 0], cy - gpos[f, shin, 1],
-                         cz - gpos[f, shin, 2])
-    cx, cy, cz = bx + dx, by + dy, bz + dz
-    ux, uy, uz = cx - ax, cy - ay, cz - az
-    vx, vy, vz = bx - ax, by - ay, bz - az
-    nx, ny, nz = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    return _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, ga, gb, th, sh, eps, 0.0, nx, ny, nz)
-
-
-@nb.njit(**_OPTS)
-def _bend_frame(ax, ay, az, bx, by, bz, cx, cy, cz, tx, ty, tz, a_gr, b_gr, a_lr, b_lr, eps, soft, nx, ny, nz):
-    """:func:`posturemap.synth.feet._bend` of one frame: the knee bent about the unit normal
-    (nx, ny, nz) to the target's distance, the hip-ankle line turned onto it; the thigh's and
-    shin's new local rotations."""
     lab = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
-    lcb = math.sqrt((bx - cx) ** 2 + (by - cy) ** 2 + (bz - cz) ** 2)
-    lat = math.sqrt((tx - ax) ** 2 + (ty - ay) ** 2 + (tz - az) ** 2)
-    if soft > 0.0:  # soft IK (posturemap.synth.feet.two_bone_ik)
-        reach = lab + lcb
-        lat = _soft_limit(lat, max(math.sqrt((cx - ax) ** 2 + (cy - ay) ** 2 + (cz - az) ** 2), (1.0 - soft) * reach),
-                          reach)
+    lcb = math.sqrt((cx - bx) ** 2 + (cy - by) ** 2 + (cz - bz) ** 2)
     if min(lab, lcb) <= eps:  # a thigh or shin of no length cannot bend: the leg as it is
-        return (a_lr[0], a_lr[1], a_lr[2], a_lr[3]), (b_lr[0], b_lr[1], b_lr[2], b_lr[3])
-    lat = min(max(lat, eps), lab + lcb - eps)
-    ac_ab_0 = _angle(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)
-    ba_bc_0 = _angle(ax - bx, ay - by, az - bz, cx - bx, cy - by, cz - bz)
-    ac_at_0 = _angle(cx - ax, cy - ay, cz - az, tx - ax, ty - ay, tz - az)
-    ac_ab_1 = math.acos(min(max((lcb * lcb - lab * lab - lat * lat) / (-2 * lab * lat), -1.0), 1.0))
-    ba_bc_1 = math.acos(min(max((lat * lat - lab * lab - lcb * lcb) / (-2 * lab * lcb), -1.0), 1.0))
+        return a_lr, b_lr
+    if ex == 0.0 and ey == 0.0 and ez == 0.0:  # no axis: a straight leg, no hinge
+        turn = 0.0
+    r1 = _axis_angle_in(b_gr, ex, ey, ez, -turn)
+    h = -0.5 * turn
+    s = math.sin(h)
+    dx, dy, dz = _rotate(math.cos(h), s * ex, s * ey, s * ez, cx - bx, cy - by, cz - bz)
+    cx, cy, cz = bx + dx, by + dy, bz + dz
     ux, uy, uz = cx - ax, cy - ay, cz - az
     vx, vy, vz = tx - ax, ty - ay, tz - az
     x1, y1, z1 = _unit(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    r0 = _axis_angle_in(a_gr, nx, ny, nz, ac_ab_1 - ac_ab_0)
-    r1 = _axis_angle_in(b_gr, nx, ny, nz, ba_bc_1 - ba_bc_0)
-    r2 = _axis_angle_in(a_gr, x1, y1, z1, ac_at_0)
-    r20 = _mul(r2[0], r2[1], r2[2], r2[3], r0[0], r0[1], r0[2], r0[3])
-    th = _mul(a_lr[0], a_lr[1], a_lr[2], a_lr[3], r20[0], r20[1], r20[2], r20[3])
+    r2 = _axis_angle_in(a_gr, x1, y1, z1, _angle(ux, uy, uz, vx, vy, vz))
+    th = _mul(a_lr[0], a_lr[1], a_lr[2], a_lr[3], r2[0], r2[1], r2[2], r2[3])
     sh = _mul(b_lr[0], b_lr[1], b_lr[2], b_lr[3], r1[0], r1[1], r1[2], r1[3])
     return th, sh
 
@@ -629,10 +625,12 @@ def _between(ax, ay, az, bx, by, bz):
 
 
 @nb.njit(**_OPTS)
-def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, moves):
-    """The leg's hinge in the hips' frame (the thigh's parent's; unit, 0 where the legs are
-    straight): the knee's plane normals of the frames the lock moves (``moves`` (L,) bool)
-    summed there, as :func:`posturemap.synth.feet.two_bone_ik` sums them."""
+def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toe, moves):
+    """:func:`posturemap.synth.feet.leg_hinge` of the frames the lock moves (``moves`` (L,) bool):
+    the leg's hinge in the hips' frame (the thigh's parent's; unit, 0 where the legs are
+    straight), the knee's plane normals summed there, each weighed by its sine squared, and
+    turned about where a knee bent about it goes away from the toes (``toe``: the toe joint; the
+    ankle for none, which leaves it)."""
     sx, sy, sz = 0.0, 0.0, 0.0
     for t in range(gpos.shape[0]):
         if not moves[t]:
@@ -641,18 +639,30 @@ def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, moves):
             gpos[t, ankle, 2] - gpos[t, thigh, 2]
         vx, vy, vz = gpos[t, shin, 0] - gpos[t, thigh, 0], gpos[t, shin, 1] - gpos[t, thigh, 1], \
             gpos[t, shin, 2] - gpos[t, thigh, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        k = (nx * nx + ny * ny + nz * nz) / max((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz), 1e-300)
         q = _mul(grot[t, thigh, 0], grot[t, thigh, 1], grot[t, thigh, 2], grot[t, thigh, 3],
                  rots[t, thigh, 0], -rots[t, thigh, 1], -rots[t, thigh, 2], -rots[t, thigh, 3])
-        x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+        x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], nx * k, ny * k, nz * k)
         sx, sy, sz = sx + x, sy + y, sz + z
-    return _unit(sx, sy, sz)
-
-
-@nb.njit(**_OPTS)
-def _knee_bend(dist, thigh, shin):
-    """:func:`posturemap.synth.feet.knee_bend` of one distance."""
-    d = min(max(dist, 0.0), thigh + shin)
-    return math.pi - math.acos(min(max((thigh * thigh + shin * shin - d * d) / (2.0 * thigh * shin), -1.0), 1.0))
+    hx, hy, hz = _unit(sx, sy, sz)
+    if toe == ankle:
+        return hx, hy, hz
+    ahead = 0.0  # where a knee bent about the hinge goes, against the toes' way from the ankle
+    for t in range(gpos.shape[0]):
+        if not moves[t]:
+            continue
+        q = _mul(grot[t, thigh, 0], grot[t, thigh, 1], grot[t, thigh, 2], grot[t, thigh, 3],
+                 rots[t, thigh, 0], -rots[t, thigh, 1], -rots[t, thigh, 2], -rots[t, thigh, 3])
+        wx, wy, wz = _rotate(q[0], q[1], q[2], q[3], hx, hy, hz)
+        ux, uy, uz = gpos[t, ankle, 0] - gpos[t, thigh, 0], gpos[t, ankle, 1] - gpos[t, thigh, 1], \
+            gpos[t, ankle, 2] - gpos[t, thigh, 2]
+        ahead += (wy * uz - wz * uy) * (gpos[t, toe, 0] - gpos[t, ankle, 0]) \
+            + (wz * ux - wx * uz) * (gpos[t, toe, 1] - gpos[t, ankle, 1]) \
+            + (wx * uy - wy * ux) * (gpos[t, toe, 2] - gpos[t, ankle, 2])
+    if ahead < 0.0:
+        return -hx, -hy, -hz
+    return hx, hy, hz
 
 
 @nb.njit(**_OPTS)
@@ -769,52 +779,47 @@ def _rest_projected(change, accel, lo, hi, iters, out):
 
 
 @nb.njit(**_OPTS)
-def knee_bounded(goals, gpos, thigh_j, shin_j, ankle_j, soft, accel, passes, plain, relax, exact, work, moves):
-    """:func:`posturemap.synth.feet.knee_bounded` in place: ``goals`` (L, 3) the ankle's goals
-    (the ankle itself where the lock leaves the leg), moved along the hip-goal line; the hip, knee
-    and ankle of ``gpos`` (L, J, 3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``work``
-    (5, L) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves
-    one more."""
+def knee_bounded(goals, gpos, axes, thigh_j, shin_j, ankle_j, soft, through, accel, passes, plain, relax, exact,
+                 work, moves):
+    """:func:`posturemap.synth.feet.knee_bounded`: ``work[0]`` (L,) the lock's bounded turn of the
+    knee about its axis (``axes`` (L, 3), :func:`_knee_axis`) toward the ankle's ``goals`` (L, 3;
+    the ankle itself where the lock leaves the leg); the hip, knee and ankle of ``gpos`` (L, J,
+    3) at joints ``thigh_j``, ``shin_j``, ``ankle_j``; ``through``: ``KNEE_THROUGH``; ``work``
+    (4, L) scratch; ``moves`` (L,) bool, the frames the lock moves, set where the bound moves one
+    more."""
     n_l = goals.shape[0]
-    lengths = np.empty((2, n_l))  # each frame's own thigh and shin (a blend of two clips' bones may differ)
     for t in range(n_l):
-        lengths[0, t] = math.sqrt((gpos[t, shin_j, 0] - gpos[t, thigh_j, 0]) ** 2
-                                  + (gpos[t, shin_j, 1] - gpos[t, thigh_j, 1]) ** 2
-                                  + (gpos[t, shin_j, 2] - gpos[t, thigh_j, 2]) ** 2)
-        lengths[1, t] = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, shin_j, 0]) ** 2
-                                  + (gpos[t, ankle_j, 1] - gpos[t, shin_j, 1]) ** 2
-                                  + (gpos[t, ankle_j, 2] - gpos[t, shin_j, 2]) ** 2)
-        if min(lengths[0, t], lengths[1, t]) <= 1e-5:  # a rigid leg (feet.IK_EPS): nothing to bend
+        work[0, t] = 0.0
+    for t in range(n_l):  # a rigid leg (feet.IK_EPS): nothing to bend
+        thigh = math.sqrt((gpos[t, shin_j, 0] - gpos[t, thigh_j, 0]) ** 2 + (gpos[t, shin_j, 1] - gpos[t, thigh_j, 1]) ** 2
+                          + (gpos[t, shin_j, 2] - gpos[t, thigh_j, 2]) ** 2)
+        shin = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, shin_j, 0]) ** 2 + (gpos[t, ankle_j, 1] - gpos[t, shin_j, 1]) ** 2
+                         + (gpos[t, ankle_j, 2] - gpos[t, shin_j, 2]) ** 2)
+        if min(thigh, shin) <= 1e-5:
             return
-    # work[0]: the lock's change of the bend, bounded in place; work[1]: the goals' soft-limited
-    # distances; work[2], work[3]: the change that keeps the bend within [0, pi] (-own bend, pi -
-    # own bend); work[4]: the change unbounded.
-    for t in range(n_l):
-        thigh, shin = lengths[0, t], lengths[1, t]
-        dist = math.sqrt((goals[t, 0] - gpos[t, thigh_j, 0]) ** 2 + (goals[t, 1] - gpos[t, thigh_j, 1]) ** 2
-                         + (goals[t, 2] - gpos[t, thigh_j, 2]) ** 2)
-        own = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, thigh_j, 0]) ** 2 + (gpos[t, ankle_j, 1] - gpos[t, thigh_j, 1]) ** 2
-                        + (gpos[t, ankle_j, 2] - gpos[t, thigh_j, 2]) ** 2)
-        if soft > 0.0:
-            dist = _soft_limit(dist, max(own, (1.0 - soft) * (thigh + shin)), thigh + shin)
-        own_bend = _knee_bend(own, thigh, shin)
-        work[0, t] = _knee_bend(dist, thigh, shin) - own_bend
-        work[1, t] = dist
-        work[2, t], work[3, t] = -own_bend, math.pi - own_bend
-        work[4, t] = work[0, t]
-    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[2], work[3])
+    # work[0]: the turn, bounded in place; work[1], work[2]: its bounds (the knee no further back
+    # than the motion's, nor past pi); work[3]: the turn unbounded.
     for t in range(n_l):
         ax, ay, az = gpos[t, thigh_j, 0], gpos[t, thigh_j, 1], gpos[t, thigh_j, 2]
+        thigh = math.sqrt((gpos[t, shin_j, 0] - ax) ** 2 + (gpos[t, shin_j, 1] - ay) ** 2 + (gpos[t, shin_j, 2] - az) ** 2)
+        shin = math.sqrt((gpos[t, ankle_j, 0] - gpos[t, shin_j, 0]) ** 2 + (gpos[t, ankle_j, 1] - gpos[t, shin_j, 1]) ** 2
+                         + (gpos[t, ankle_j, 2] - gpos[t, shin_j, 2]) ** 2)
+        theta0, psi = _knee_angles(gpos, t, thigh_j, shin_j, ankle_j, axes[t, 0], axes[t, 1], axes[t, 2])
+        lean = 2.0 * thigh * shin * math.cos(psi)
+        full = math.sqrt(max(thigh * thigh + shin * shin + lean, 0.0))
         dist = math.sqrt((goals[t, 0] - ax) ** 2 + (goals[t, 1] - ay) ** 2 + (goals[t, 2] - az) ** 2)
-        new = work[1, t]
-        if abs(work[0, t] - work[4, t]) > 1e-9:
-            thigh, shin = lengths[0, t], lengths[1, t]
-            bend = min(max(work[0, t] - work[2, t], 0.0), math.pi)  # the own bend plus the change
-            new = math.sqrt(max(thigh * thigh + shin * shin + 2.0 * thigh * shin * math.cos(bend), 0.0))
+        own = math.sqrt((gpos[t, ankle_j, 0] - ax) ** 2 + (gpos[t, ankle_j, 1] - ay) ** 2
+                        + (gpos[t, ankle_j, 2] - az) ** 2)
+        if soft > 0.0:
+            dist = _soft_limit(dist, max(own, (1.0 - soft) * full), full)
+        need = math.acos(min(max((dist * dist - thigh * thigh - shin * shin) / max(lean, 1e-300), -1.0), 1.0))
+        work[0, t] = _signed_bend(theta0, need, through) - theta0
+        work[1, t], work[2, t] = min(-theta0, 0.0), math.pi - theta0
+        work[3, t] = work[0, t]
+    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[1], work[2])
+    for t in range(n_l):
+        if abs(work[0, t] - work[3, t]) > 1e-9:
             moves[t] = True
-        k = new / max(dist, 1e-300)
-        goals[t, 0], goals[t, 1], goals[t, 2] = ax + (goals[t, 0] - ax) * k, ay + (goals[t, 1] - ay) * k, \
-            az + (goals[t, 2] - az) * k
 
 
 @nb.njit(**_OPTS)
@@ -1093,8 +1098,8 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, farthest, a_toes, b_toes, toe_most,
-              toe_gap, toe_catch, pace, accel, least, carry, knee_accel, knee_passes, knee_plain, knee_relax,
-              knee_exact, weights):
+              toe_gap, toe_catch, pace, accel, least, carry, knee_through, knee_accel, knee_passes, knee_plain,
+              knee_relax, knee_exact, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -1134,12 +1139,12 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
-    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_accel
-    (radians per frame squared), knee_passes, knee_plain, knee_relax and knee_exact: the bound on
-    the lock's change of the knees' bend, its sweeps and the projection where they stop short
-    (``KNEE_ACCEL``, ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``;
-    :func:`knee_bounded`); the IK is then
-    exact on the goals it leaves.
+    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_through:
+    ``KNEE_THROUGH`` (:func:`_signed_bend`); knee_accel (radians per frame squared), knee_passes,
+    knee_plain, knee_relax and knee_exact: the bound on the lock's turn of the knees about their
+    axes, its sweeps and the projection where they stop short (``KNEE_ACCEL``, ``KNEE_PASSES``,
+    ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``; :func:`knee_bounded`); the IK
+    (:func:`hinge_ik_frame`) then turns each knee so and swings the leg onto its goal's line.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]
     a_, b_ = (up + 1) % 3, (up + 2) % 3
@@ -1190,7 +1195,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     widest = np.empty(n_l + 2 * clear_r)  # the largest deficit within clear_r of frame i - clear_r
     goals = np.empty((n_l, 3))  # the ankle's goals, every frame
     ik = np.empty(n_l, dtype=np.bool_)  # the frames the IK moves
-    knee_work = np.empty((5, n_l))  # knee_bounded's scratch
+    knee_work = np.empty((4, n_l))  # knee_bounded's scratch; row 0 the knee's turns
+    axes = np.empty((n_l, 3))  # each frame's knee axis (_knee_axis)
     for leg in range(n_legs):
         on, offset, raised = on_all[leg], offset_all[leg], raised_all[leg]
         thigh, shin, ankle = legs[leg, 0], legs[leg, 1], legs[leg, 2]
@@ -1421,15 +1427,16 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 goals[t, up] += raised[t]
         if not ik.any():
             continue
-        knee_bounded(goals, gpos, thigh, shin, ankle, soft, knee_accel, knee_passes, knee_plain, knee_relax, knee_exact,
-                     knee_work,
-                     ik)
-        hx, hy, hz = _knee_hinge(grot, rots, gpos, thigh, shin, ankle, ik)
+        hx, hy, hz = _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toes[leg], ik)
+        for t in range(n_l):
+            axes[t, 0], axes[t, 1], axes[t, 2] = _knee_axis(rots, grot, gpos, t, thigh, shin, ankle, hinge, hx, hy, hz)
+        knee_bounded(goals, gpos, axes, thigh, shin, ankle, soft, knee_through, knee_accel, knee_passes, knee_plain,
+                     knee_relax, knee_exact, knee_work, ik)
         for t in range(n_l):
             if not ik[t]:
                 continue
-            th, sh = two_bone_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goals[t, 0], goals[t, 1], goals[t, 2],
-                                       eps, 0.0, hinge, hx, hy, hz)
+            th, sh = hinge_ik_frame(rots, grot, gpos, t, thigh, shin, ankle, goals[t, 0], goals[t, 1], goals[t, 2],
+                                    axes[t, 0], axes[t, 1], axes[t, 2], knee_work[0, t], eps)
             # Keep the foot's global orientation: its parent chain turned (twist joints between
             # keep their local rotations and turn with the joint above).
             p = parents[thigh]

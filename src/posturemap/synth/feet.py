@@ -67,17 +67,24 @@ in-between frames are made:
    it only; a swinging toe's, over ``CLEAR_FADE_S``). The floor is where feet stand: the lowest
    toe over A's last ``FLOOR_S`` seconds and B's first (a stance in any gait), so a toe that dips
    under it is lifted out rather than taken for the floor;
-5. analytic two-bone IK on thigh and shin (Holden's formulation) puts the ankle on the moved
-   position; the last ``SOFT_REACH`` of the leg's reach is approached softly, so a spot near the
-   end of the leg's reach bends the knee smoothly instead of snapping it straight. Before it, the
-   lock's change of each knee's bend (its goals' bend less the motion's own) is bounded in
-   acceleration by ``KNEE_ACCEL`` over the whole gap (:func:`knee_bounded`): near full extension
-   the bend goes as the square root of the leg's shortening, and a foot lifted from a straight
-   leg bent the knee 38 degrees in one frame. A nearly
-   straight knee bends toward the leg's own hinge (``KNEE_HINGE``: the knee's bending planes
-   over the gap, in the hips' frame), not about its plane of the moment, which is noise: it
-   swung sideways from frame to frame. The foot keeps its global orientation (so the toe moves
-   as the ankle does: the offsets above already turn it about the toe).
+5. a two-bone IK on thigh and shin puts the ankle on the moved position (:func:`hinge_ik`):
+   the knee turns about its axis (:func:`knee_axes`: its own plane's normal where it is bent;
+   nearly straight, the leg's hinge, ``KNEE_HINGE``, the bending planes over the gap in the
+   hips' frame, turned toward the toes), then the leg swings about the hip onto the line to the
+   goal. Its bend is signed about that axis (:func:`knee_angles`), so a knee passes through
+   straight instead of flipping across it: a knee bent back (a performer standing
+   over-straightened) asked for more bend goes forward through straight (:func:`signed_bend`).
+   Bent by the size of its bend about its plane of the moment, a nearly straight knee swung
+   sideways from frame to frame, and one bent back was bent further back and then flipped
+   forward at once: CMU-rig walks joined pair by pair at 60 fps popped a knee in 41 of 110
+   transitions (docs/clip-pairs.md). The last ``SOFT_REACH`` of the leg's reach is approached
+   softly, so a spot near the end of the reach bends the knee smoothly instead of snapping it
+   straight. Before it, the lock's turn of each knee (its goal's bend less the motion's own) is
+   bounded in acceleration by ``KNEE_ACCEL`` over the whole gap (:func:`knee_bounded`): near
+   full extension the bend goes as the square root of the leg's shortening, and a foot lifted
+   from a straight leg bent the knee 38 degrees in one frame. The foot keeps its global
+   orientation (so the toe moves as the ankle does: the offsets above already turn it about
+   the toe).
 
 Legs are found by name, else in the hierarchy (:func:`posturemap.core.joints.leg_chains`);
 thresholds in leg lengths (:mod:`posturemap.core.joints`).
@@ -90,6 +97,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length, leg_toes
 from ..core.skeleton import Skeleton
+from . import hinges
 
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while the spot lies within
 #                           the first of where the motion put the foot; farther, it is moved ever
@@ -115,8 +123,11 @@ REST_EXACT = 500  # rest_bounded: where the sweeps stop short, iterations at mos
 REST_RHO = 0.3  # ... its ADMM penalty, over the bound (rest_projected)
 REST_OVER = 1.6  # ... and its over-relaxation
 KNEE_RELAX = 1.9  # then each projection goes this far (below 2: the sweeps still converge)
-KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal plus this much (a sine) of the
-#                   leg's hinge (two_bone_ik): a straight leg's plane is noise
+KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal and the leg's hinge, the two
+#                   weighing the same where the knee's sine is this (knee_axes): a straight leg's
+#                   plane is noise
+KNEE_THROUGH = 3.0  # a knee bent back is bent forward once the lock asks for this many times its back
+#                     bend, through straight between (signed_bend)
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
 #                   full speed; real toes keep it: 79-97% of bandai1's toe samples at 0.3-8 leg lengths
 #                   per second are at least as high as CLEAR_SPEED asks (CMU 01_01's are higher)
@@ -171,41 +182,133 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
     """Local rotations of joints a (thigh) and b (shin) that put c (ankle) on target t.
 
     Positions (N, 3), global rotations ``a_gr``/``b_gr`` and local rotations ``a_lr``/``b_lr``
-    (N, 4). Returns the new ``(a_lr, b_lr)``; the knee stays in its current bending plane.
-    ``soft`` > 0: the last ``soft`` of the leg's reach is approached softly (:func:`soft_limit`;
-    a target there is reached a little short).
+    (N, 4). Returns the new ``(a_lr, b_lr)``. ``soft`` > 0: the last ``soft`` of the leg's reach
+    is approached softly (:func:`soft_limit`; a target there is reached a little short).
 
-    ``hinge`` > 0: the knee first bends about its plane's normal plus ``hinge`` (a sine: the
-    weight of a knee bent that far from straight) times the leg's hinge, the normals of the N
-    frames summed in the frame of the thigh's parent (the hips; the bent frames weigh the most);
-    then, from there, about its new plane's normal onto the target exactly. Summed in the
-    thigh's own frame, they turned with the thigh about its bone, which no position shows and
-    a rig's clips set as they please (CMU-rig walks: a knee's plane 130-150 degrees from that
-    hinge for whole steps, and the lock's knee popped where it crossed over). A straight leg's
-    bending plane is noise:
-    bent about it, the knee swung sideways from one frame to the next, and between different
-    clips (the bench's cross-clip pairs, held-out styles) the knees' jerk in the lock's frames
-    rose 21,000 cm/s^3 on average over the unlocked motion's, up to 205,000 in one transition;
-    13,500 (52,000) with the hinge at 0.2.
+    ``hinge`` 0: the knee bends in its current plane (Holden's formulation). ``hinge`` > 0: the
+    knee bends about :func:`knee_axes` (its plane's normal plus ``hinge``, a sine, times the
+    leg's hinge: the normals of the N frames summed in the hips' frame, :func:`leg_hinge`) to
+    the bend :func:`signed_bend` asks for the target's distance, and the leg swings about the
+    hip onto the target's line (:func:`hinge_ik`): a nearly straight knee bends toward the
+    leg's hinge, not about the noise of its plane, and a knee bent back bends forward only
+    through straight. A knee bent sideways keeps its sideways part, so a target beyond the
+    reach that leaves is reached a little short (1 - cos of that part).
     """
     if hinge <= 0:
         return _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, _unit_rows(np.cross(c - a, b - a)))
-    lab, lcb = np.linalg.norm(b - a, axis=-1), np.linalg.norm(b - c, axis=-1)
-    lat = np.linalg.norm(t - a, axis=-1)
-    if soft > 0:  # the target where it will be reached, for both bends
-        reach = soft_limit(lat, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * (lab + lcb)), lab + lcb)
-        t = a + (t - a) * (reach / np.maximum(lat, 1e-300))[:, None]
-    frame = quat.mul(a_gr, quat.inv(a_lr))  # the thigh's parent's (the hips')
-    local = quat.mul_vec(quat.inv(frame), np.cross(c - a, b - a))  # the normals in that frame
-    weighed = local + hinge * (np.linalg.norm(c - a, axis=-1) * lab)[:, None] * _unit_rows(local.sum(axis=0))
-    a1, b1 = _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, 0.0, _unit_rows(quat.mul_vec(frame, weighed)))
-    # The leg after the first bend (the joints between thigh and shin, if any, keep their locals).
-    turn_a = quat.mul(frame, quat.mul(a1, quat.inv(a_gr)))
-    ga = quat.mul(turn_a, a_gr)
-    gb = quat.mul(quat.mul(turn_a, b_gr), quat.mul(quat.inv(b_lr), b1))
-    b2 = a + quat.mul_vec(turn_a, b - a)
-    c2 = b2 + quat.mul_vec(quat.mul(gb, quat.inv(b_gr)), c - b)
-    return _bend(a, b2, c2, t, ga, gb, a1, b1, eps, 0.0, _unit_rows(np.cross(c2 - a, b2 - a)))
+    axes = knee_axes(a, b, c, a_gr, a_lr, leg_hinge(a, b, c, a_gr, a_lr), hinge)
+    theta0, psi = knee_angles(a, b, c, axes)
+    thigh, shin = np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1)
+    dist = np.linalg.norm(t - a, axis=-1)
+    if soft > 0:
+        full = knee_reach(np.zeros(len(a)), thigh, shin, psi)
+        dist = soft_limit(dist, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * full), full)
+    turn = signed_bend(theta0, bend_for_reach(dist, thigh, shin, psi)) - theta0
+    return hinge_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, axes, turn, eps)
+
+
+def leg_hinge(a, b, c, a_gr, a_lr, toe=None) -> np.ndarray:
+    """The leg's hinge (3,) in the hips' frame (the thigh's parent's), unit (0 where every frame's
+    leg is straight): the knee's bending planes' normals of the N frames (hip ``a``, knee ``b``,
+    ankle ``c``, (N, 3); the thigh's global and local rotations ``a_gr``/``a_lr``) summed there,
+    each weighed by its sine squared (the angle at the hip): a few frames bent forward outweigh
+    many bent back a little (a knee straightened past straight, as CMU-rig walkers stand: 40
+    frames bent back 7 degrees outweighed 4 bent 40 degrees forward, and the hinge pointed
+    backward). With ``toe`` (N, 3), the toe joint's positions, the hinge is turned about where a
+    knee bent about it goes toward the toes, as a knee bends (only frames bent back: it pointed
+    backward). Summed in the thigh's own frame, the normals turned with the thigh about its
+    bone, which no position shows and a rig's clips set as they please (CMU-rig walks: a knee's
+    plane 130-150 degrees from that hinge for whole steps)."""
+    frame = quat.mul(a_gr, quat.inv(a_lr))
+    normal = np.cross(c - a, b - a)
+    sine2 = np.sum(normal**2, axis=-1) / np.maximum(np.sum((c - a) ** 2, axis=-1) * np.sum((b - a) ** 2, axis=-1),
+                                                      1e-300)
+    hinge = _unit_rows(quat.mul_vec(quat.inv(frame), normal * sine2[:, None]).sum(axis=0))
+    if toe is not None and np.sum(np.cross(quat.mul_vec(frame, np.broadcast_to(hinge, a.shape)), c - a)
+                                  * (toe - c)) < 0:
+        hinge = -hinge
+    return hinge
+
+
+def knee_axes(a, b, c, a_gr, a_lr, hinge: np.ndarray, weight: float) -> np.ndarray:
+    """Each frame's axis (N, 3; unit, normal to the thigh) the lock bends the knee about: the
+    knee's plane's normal, weighed by the square of its sine (the angle at the hip) over
+    ``weight`` (> 0), plus ``weight`` times the leg's ``hinge`` (:func:`leg_hinge`, in the hips'
+    frame), each times the leg's size, less the sum's part along the thigh. A bent knee bends in
+    its own plane (sine 0.2, about 23 degrees of bend, weighs as the hinge); a straight leg's
+    plane is noise, and its knee bends about the hinge: bent about its plane, the knee swung
+    sideways from one frame to the next (the bench's cross-clip pairs: the knees' jerk in the
+    lock's frames 21,000 cm/s^3 over the unlocked motion's on average, up to 205,000). Weighed
+    by the sine alone, a knee 5 degrees from straight, its plane flipping as it passed through,
+    still turned the axis by 14 degrees in a frame, and a lifted knee bent 95 degrees with it
+    swung 5 cm sideways (CMU-rig walks at 60 fps). The axis turns with the motion through
+    straight too (where the plane's normal flips, the hinge's part holds it), so the bend read
+    about it does not jump."""
+    frame = quat.mul(a_gr, quat.inv(a_lr))
+    size = np.linalg.norm(c - a, axis=-1) * np.linalg.norm(b - a, axis=-1)
+    normal = np.cross(c - a, b - a)
+    sine = np.linalg.norm(normal, axis=-1) / np.maximum(size, 1e-300)
+    h = normal * (sine / weight)[:, None] ** 2 + weight * size[:, None] * quat.mul_vec(frame, np.broadcast_to(hinge, a.shape))
+    e1 = _unit_rows(b - a)
+    return _unit_rows(h - np.sum(h * e1, axis=-1, keepdims=True) * e1)
+
+
+def knee_angles(a, b, c, axes) -> tuple[np.ndarray, np.ndarray]:
+    """The knee's bend about ``axes`` (N, 3; unit, normal to the thigh: :func:`knee_axes`) and its
+    sideways part, radians (N,) each: the bend the shin turns through about the axis from the
+    thigh's line (:func:`posturemap.synth.hinges.signed_bends`; negative bent back), and the
+    shin's angle out of the plane normal to the axis (which that turn keeps)."""
+    shin = c - b
+    theta = hinges.signed_bends(b - a, shin, axes)
+    psi = np.arcsin(np.clip(np.sum(shin * axes, axis=-1) / np.maximum(np.linalg.norm(shin, axis=-1), 1e-300),
+                            -1.0, 1.0))
+    return theta, psi
+
+
+def knee_reach(bend, thigh, shin, psi):
+    """The hip-ankle distance of a leg bent ``bend`` about its axis with sideways part ``psi``
+    (:func:`knee_angles`); arrays broadcast."""
+    return np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(psi) * np.cos(bend), 0.0))
+
+
+def bend_for_reach(dist, thigh, shin, psi):
+    """The bend about the axis (0 straight, up to pi; unsigned) that puts the ankle ``dist`` from
+    the hip (:func:`knee_reach`'s inverse; clipped to what the sideways part lets it reach)."""
+    cos = (dist**2 - thigh**2 - shin**2) / np.maximum(2.0 * thigh * shin * np.cos(psi), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def signed_bend(theta0, need):
+    """The bend about the knee's axis (signed, :func:`knee_angles`) the lock gives a knee bent
+    ``theta0`` whose ankle needs the unsigned bend ``need`` (:func:`bend_for_reach`); arrays
+    broadcast. A knee bent forward: ``need``. A knee bent back by ``back = -theta0``: straightened
+    toward 0 while ``need <= back`` (``-need``), bent forward once ``need >= KNEE_THROUGH * back``
+    (``need``), and between those through straight at twice the rate (``2 need - 3 back``: the
+    ankle a little short, a few millimetres for a knee bent back 7 degrees, 1 m legs). Bent back
+    further, as the unsigned bend did, a knee bent back 7 degrees and asked for 13 went to -13;
+    asked for 14, bent forward it jumped 27 degrees in a frame (CMU-rig walks at 60 fps: the
+    lock's knees popped in 28 of 110 transitions between two clips, up to 5x the clips' largest
+    acceleration)."""
+    theta0, need = np.broadcast_arrays(np.asarray(theta0, dtype=float), np.asarray(need, dtype=float))
+    back = np.maximum(-theta0, 0.0)
+    between = -back + (KNEE_THROUGH + 1.0) / (KNEE_THROUGH - 1.0) * (need - back)
+    return np.where(need <= back, -need, np.where(need >= KNEE_THROUGH * back, need, between))
+
+
+def hinge_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, axes, turn, eps=1e-5):
+    """Local rotations of the thigh and shin (as :func:`two_bone_ik`'s) with the knee's bend about
+    ``axes`` (N, 3; unit: :func:`knee_axes`) increased by ``turn`` (N,; radians), the shin turned
+    about the axis through the knee, then the leg swung about the hip by the shortest arc from
+    the hip-ankle line onto the hip-target one: the ankle lands on that line at
+    :func:`knee_reach` of the new bend. A thigh or shin of no length (``eps``) cannot bend: that
+    leg is left as it is."""
+    rigid = np.minimum(np.linalg.norm(b - a, axis=-1), np.linalg.norm(c - b, axis=-1)) <= eps
+    turn = np.where(rigid | (np.linalg.norm(axes, axis=-1) == 0), 0.0, turn)  # no axis: a straight leg, no hinge
+    r1 = quat.from_axis_angle(quat.mul_vec(quat.inv(b_gr), axes), -turn)  # in the shin's frame
+    c1 = b + quat.mul_vec(quat.from_axis_angle(axes, -turn), c - b)
+    swing = np.where(rigid, 0.0, np.arccos(np.clip(np.sum(_unit_rows(c1 - a) * _unit_rows(t - a), axis=-1), -1.0, 1.0)))
+    r2 = quat.from_axis_angle(quat.mul_vec(quat.inv(a_gr), _unit_rows(np.cross(c1 - a, t - a))), swing)
+    return quat.mul(a_lr, r2), quat.mul(b_lr, r1)
 
 
 def _unit_rows(v):
@@ -213,17 +316,12 @@ def _unit_rows(v):
 
 
 def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
-    """:func:`two_bone_ik`'s step: the knee bent about ``axis0`` (unit, world; the bending
-    plane's normal) to the target's distance, then the hip-ankle line turned onto it.
-
-    The knee is turned by the difference of its bend's size and the target's: a knee bent back
-    about ``axis0`` (a leg over-straightened against the hinge) asked to bend a little more is
-    bent further back, and forward only once asked for twice its bend. Measured on the axis's
-    side instead (bent forward through straight), it flipped across wherever that side changed
-    from one frame to the next: with the side judged by the knee's plane within 30 degrees of the
-    hinge's, a knee bent back 9 degrees whose plane turned a quarter of a degree across that edge
-    jumped 7.7 cm (1 m legs; a cold review); on Xia's CMU-rig walks joined pair by pair it popped
-    knees as often as it mended (docs/clip-pairs.md)."""
+    """:func:`two_bone_ik`'s plain IK (``hinge`` 0): the knee bent about ``axis0`` (unit, world;
+    the bending plane's normal) to the target's distance, then the hip-ankle line turned onto it.
+    The knee is turned by the difference of its bend's size and the target's, so a knee bent
+    back about ``axis0`` and asked to bend a little more is bent further back, and forward only
+    once asked for twice its bend, at once: the lock bends about :func:`knee_axes` by a signed
+    bend instead (:func:`hinge_ik`)."""
     def angle(u, v):
         return np.arccos(np.clip(np.sum(_unit_rows(u) * _unit_rows(v), axis=-1), -1.0, 1.0))
 
@@ -247,13 +345,6 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     # r0 (and the knee's r1) set the reach along the old thigh-ankle line, then r2 turns that
     # line onto the target; in the thigh's local frame the later rotation stands on the left.
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
-
-
-def knee_bend(dist: np.ndarray, thigh: np.ndarray, shin: np.ndarray) -> np.ndarray:
-    """The knee's bend (radians, 0 straight) of a leg whose thigh and shin are ``thigh`` and
-    ``shin`` long with its ankle ``dist`` from the hip (arrays broadcast; clipped to the reach)."""
-    d = np.clip(dist, 0.0, thigh + shin)
-    return np.pi - np.arccos(np.clip((thigh**2 + shin**2 - d**2) / (2.0 * thigh * shin), -1.0, 1.0))
 
 
 def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
@@ -379,24 +470,26 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
     return np.clip(c, lo, hi)
 
 
-def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, soft: float,
+def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, axes: np.ndarray, soft: float,
                  accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """The lock's ankle goals (L, 3) moved along the hip-goal line so that the lock's change of
-    the knee's bend accelerates at most ``accel`` (radians per frame squared), and which frames
-    moved (L,) bool.
+    """The lock's turn of each knee about its axis (L,; radians, :func:`hinge_ik`'s ``turn``),
+    bounded so that it accelerates at most ``accel`` (radians per frame squared), and which
+    frames the bound moved (L,) bool.
 
     ``a``, ``b``, ``c`` (L, 3): the hip (thigh joint), knee and ankle as the motion has them;
-    ``goal`` the ankle's goals, the ankle itself where the lock leaves the leg; ``soft``: the
-    IK's ``SOFT_REACH``, applied here (the goals returned are reached exactly: the IK is then
-    called without it). The change is the bend at the goal's distance (:func:`knee_bend`, soft
-    limited as :func:`two_bone_ik` limits it) less the motion's own bend, 0 in the clips' frames
-    beside the new ones, moved as little as :func:`rest_bounded` finds so that its second
-    differences stay within ``accel``, A's last frame's and B's first included (there, the first
-    and the last new frame's change itself). A bow's straight leg, its foot held while the hips
-    sank into the next clip, bent the knee 0.13 radians at once: the knee set off at 5 cm a frame
-    squared (30 fps) from A's still frames; a nearly straight leg whose carried offset had 2.4 cm
-    left at the last new frame bent its knee 7 cm off B's, which it snapped to at 9 cm a frame
-    squared. (Held feet at the seams then move along the hip-ankle line, a millimetre or two.)
+    ``goal`` the ankle's goals, the ankle itself where the lock leaves the leg; ``axes`` (L, 3)
+    :func:`knee_axes`; ``soft``: the IK's ``SOFT_REACH`` (the goal's distance soft-limited
+    toward the leg's reach about its axis). The turn asked is :func:`signed_bend` of the goal's
+    distance (:func:`bend_for_reach`) less the motion's own bend (:func:`knee_angles`), 0 in
+    the clips' frames beside the new ones; it is moved as little as :func:`rest_bounded` finds
+    so that its second differences stay within ``accel``, A's last frame's and B's first
+    included (there, the first and the last new frame's turn itself), and the knee bent no
+    further back than the motion's nor past pi. A bow's straight leg, its foot held while the
+    hips sank into the next clip, bent the knee 0.13 radians at once: the knee set off at 5 cm a
+    frame squared (30 fps) from A's still frames; a nearly straight leg whose carried offset had
+    2.4 cm left at the last new frame bent its knee 7 cm off B's, which it snapped to at 9 cm a
+    frame squared. (The ankle then lands on the goal's line from the hip at the bounded bend's
+    reach: held feet at the seams move along it, a millimetre or two.)
 
     Near full extension the bend goes as the square root of the leg's shortening: a held spot
     half a centimetre nearer the hip than the motion's nearly straight leg had its ankle bent the
@@ -407,19 +500,15 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     thigh = np.linalg.norm(b - a, axis=-1)  # each frame's own (a blend of two clips' bones may differ)
     shin = np.linalg.norm(c - b, axis=-1)
     if min(thigh.min(), shin.min()) <= IK_EPS:  # a rigid leg: nothing to bend (the IK leaves it as it is)
-        return goal, np.zeros(len(goal), dtype=bool)
-    reach = thigh + shin
+        return np.zeros(len(goal)), np.zeros(len(goal), dtype=bool)
+    theta0, psi = knee_angles(a, b, c, axes)
+    full = knee_reach(0.0, thigh, shin, psi)
     dist = np.linalg.norm(goal - a, axis=-1)
-    own = np.linalg.norm(c - a, axis=-1)
-    dist_s = soft_limit(dist, np.maximum(own, (1.0 - soft) * reach), reach) if soft > 0 else dist
-    own_bend = knee_bend(own, thigh, shin)
-    inner = knee_bend(dist_s, thigh, shin) - own_bend
-    change = rest_bounded(inner, accel, -own_bend, np.pi - own_bend)  # the bend within [0, pi]
-    bent = np.abs(change - inner) > 1e-9
-    bend = np.clip(own_bend + change, 0.0, np.pi)
-    new_dist = np.sqrt(np.maximum(thigh**2 + shin**2 + 2.0 * thigh * shin * np.cos(bend), 0.0))
-    scale = np.where(bent, new_dist, dist_s) / np.maximum(dist, 1e-300)
-    return a + (goal - a) * scale[:, None], bent
+    if soft > 0:
+        dist = soft_limit(dist, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * full), full)
+    inner = signed_bend(theta0, bend_for_reach(dist, thigh, shin, psi)) - theta0
+    turn = rest_bounded(inner, accel, np.minimum(-theta0, 0.0), np.pi - theta0)
+    return turn, np.abs(turn - inner) > 1e-9
 
 
 def slower_step(x: np.ndarray) -> np.ndarray:
@@ -1115,7 +1204,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      *passes, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, REST_EXACT, weights)
+                      *passes, KNEE_THROUGH, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, REST_EXACT,
+                      weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
@@ -1198,13 +1288,17 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         goal = gpos[:, ankle].copy()
         goal[frames] += offset[frames]
         goal[frames, up] = gpos[frames, ankle, up] + raised[frames]
-        goal, bent = knee_bounded(goal, gpos[:, thigh], gpos[:, shin], gpos[:, ankle], SOFT_REACH,
+        # The leg's hinge from the frames the lock moves; each frame's axis; the bounded turns.
+        hinge = leg_hinge(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], grot[frames, thigh],
+                          rots[frames, thigh], None if toes[leg] == ankle else gpos[frames, toes[leg]])
+        axes = knee_axes(gpos[:, thigh], gpos[:, shin], gpos[:, ankle], grot[:, thigh], rots[:, thigh], hinge,
+                         KNEE_HINGE)
+        turn, bent = knee_bounded(goal, gpos[:, thigh], gpos[:, shin], gpos[:, ankle], axes, SOFT_REACH,
                                   KNEE_ACCEL / fps**2)
         frames = np.flatnonzero(bent | (offset != 0).any(axis=1) | (raised != 0))
-        goal = goal[frames]
-        new_thigh, new_shin = two_bone_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal,
-                                          grot[frames, thigh], grot[frames, shin],
-                                          rots[frames, thigh], rots[frames, shin], IK_EPS, 0.0, KNEE_HINGE)
+        new_thigh, new_shin = hinge_ik(gpos[frames, thigh], gpos[frames, shin], gpos[frames, ankle], goal[frames],
+                                       grot[frames, thigh], grot[frames, shin], rots[frames, thigh],
+                                       rots[frames, shin], axes[frames], turn[frames], IK_EPS)
         foot_global = grot[frames, ankle]
         rots[frames, thigh] = new_thigh
         rots[frames, shin] = new_shin
