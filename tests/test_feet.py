@@ -38,7 +38,7 @@ def compiled_ik(rots, grot, gpos, chain, targets, hinge=feet.KNEE_HINGE):
     jit = kernels.compiled()
     thigh, shin, ankle = chain
     n = len(targets)
-    h = jit._knee_hinge(grot, rots, gpos, thigh, shin, ankle, ankle, np.ones(n, dtype=bool))
+    h = jit._knee_hinge(grot, rots, gpos, thigh, shin, ankle, ankle, feet.HINGE_SURE, np.ones(n, dtype=bool))
     axes = np.array([jit._knee_axis(rots, grot, gpos, f, thigh, shin, ankle, hinge, *h) for f in range(n)])
     work = np.empty((4, n))
     jit.knee_bounded(np.ascontiguousarray(targets, dtype=float), gpos, axes, thigh, shin, ankle, 0.0,
@@ -453,8 +453,36 @@ def test_the_legs_hinge_of_knees_all_bent_back_turns_toward_the_toes():
     from posturemap.core import kernels
     jit = kernels.compiled()
     every = np.ones(n, dtype=bool)
-    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 3, every), ahead, atol=1e-12)
-    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 2, every), back, atol=1e-12)
+    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 3, feet.HINGE_SURE, every), ahead, atol=1e-12)
+    np.testing.assert_allclose(jit._knee_hinge(grot, bend, gpos, 0, 1, 2, 2, feet.HINGE_SURE, every), back, atol=1e-12)
+    # A kneeling leg (bent 90 degrees, its toes behind the ankle) says which way its hinge points
+    # itself: the toes do not turn it.
+    kneel = bend.copy()
+    kneel[:, 0] = quat.from_axis_angle(x, np.full(n, -np.pi / 2))  # the thigh forward, level
+    kneel[:, 1] = quat.from_axis_angle(x, np.full(n, np.pi / 2))  # the shin down
+    kneel[:, 2] = quat.from_axis_angle(x, np.full(n, np.pi))  # the foot turned back: toes behind
+    grot, gpos = fk(parents, kneel, pos)
+    assert (gpos[:, 3, 2] < gpos[:, 2, 2]).all()
+    args = (gpos[:, 0], gpos[:, 1], gpos[:, 2], grot[:, 0], kneel[:, 0])
+    np.testing.assert_allclose(feet.leg_hinge(*args, toe=gpos[:, 3]), feet.leg_hinge(*args), atol=1e-12)
+    np.testing.assert_allclose(jit._knee_hinge(grot, kneel, gpos, 0, 1, 2, 3, feet.HINGE_SURE, every),
+                               feet.leg_hinge(*args), atol=1e-12)
+
+
+def test_a_knee_bent_far_back_reads_its_bend_about_the_hinge_without_a_flip():
+    # A knee bent back 15 to 35 degrees in the hinge's plane (hip above ankle, bones of 1; the
+    # hinge bends the knee toward +Z, the hips' frame the world's). The knee's own normal, against
+    # the hinge, cancelled it at about 23 degrees, the axis flipped over and the bend read about
+    # it jumped from -23 to +23 degrees (a cold review): now it reads -15 to -35 a step at a time.
+    back = np.radians(np.linspace(15.0, 35.0, 201))
+    n = len(back)
+    a = np.zeros((n, 3))
+    c = np.stack([np.zeros(n), -2.0 * np.cos(back / 2), np.zeros(n)], axis=-1)
+    b = np.stack([np.zeros(n), -np.cos(back / 2), -np.sin(back / 2)], axis=-1)  # behind: bent back
+    ident = np.tile(quat.identity(), (n, 1))
+    axes = feet.knee_axes(a, b, c, ident, ident, np.array([-1.0, 0.0, 0.0]), feet.KNEE_HINGE)
+    theta, _ = feet.knee_angles(a, b, c, axes)
+    np.testing.assert_allclose(theta, -back, atol=1e-9)
 
 
 def test_contact_runs():

@@ -415,20 +415,25 @@ def _soft_limit(x, start, limit):
 
 @nb.njit(**_OPTS)
 def _knee_axis(rots, grot, gpos, f, thigh, shin, ankle, weight, hx, hy, hz):
-    """:func:`posturemap.synth.feet.knee_axes` of frame ``f``: the knee's plane's normal plus
-    ``weight`` times the leg's unit hinge (hx, hy, hz) in the hips' frame (:func:`_knee_hinge`)
-    weighed by the leg's size, less its part along the thigh; unit (0 for none)."""
+    """:func:`posturemap.synth.feet.knee_axes` of frame ``f``: the knee's plane's normal weighed
+    by its sine squared and by its cosine to the hinge (0 from a right angle on), plus
+    ``weight`` cubed times the leg's unit hinge (hx, hy, hz) in the hips' frame
+    (:func:`_knee_hinge`), each times the leg's size, less the sum's part along the thigh; unit
+    (0 for none)."""
     ax, ay, az = gpos[f, thigh, 0], gpos[f, thigh, 1], gpos[f, thigh, 2]
     ux, uy, uz = gpos[f, ankle, 0] - ax, gpos[f, ankle, 1] - ay, gpos[f, ankle, 2] - az
     vx, vy, vz = gpos[f, shin, 0] - ax, gpos[f, shin, 1] - ay, gpos[f, shin, 2] - az
-    lab = math.sqrt(vx * vx + vy * vy + vz * vz)
-    w = weight * math.sqrt(ux * ux + uy * uy + uz * uz) * lab
+    size = math.sqrt(ux * ux + uy * uy + uz * uz) * math.sqrt(vx * vx + vy * vy + vz * vz)
     fr = _mul(grot[f, thigh, 0], grot[f, thigh, 1], grot[f, thigh, 2], grot[f, thigh, 3],
               rots[f, thigh, 0], -rots[f, thigh, 1], -rots[f, thigh, 2], -rots[f, thigh, 3])
-    wx, wy, wz = _rotate(fr[0], fr[1], fr[2], fr[3], w * hx, w * hy, w * hz)
+    wx, wy, wz = _rotate(fr[0], fr[1], fr[2], fr[3], hx, hy, hz)  # the hinge in the world
     nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-    k = (math.sqrt(nx * nx + ny * ny + nz * nz) / max(w, 1e-300)) ** 2  # (the sine over the weight) squared
-    nx, ny, nz = nx * k + wx, ny * k + wy, nz * k + wz
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    sine = length / max(size, 1e-300)
+    ux, uy, uz = _unit(nx, ny, nz)
+    k = sine * sine * max(ux * wx + uy * wy + uz * wz, 0.0)
+    w = weight * weight * weight * size
+    nx, ny, nz = nx * k + w * wx, ny * k + w * wy, nz * k + w * wz
     ex, ey, ez = _unit(vx, vy, vz)
     k = nx * ex + ny * ey + nz * ez
     nx, ny, nz = nx - k * ex, ny - k * ey, nz - k * ez
@@ -625,13 +630,15 @@ def _between(ax, ay, az, bx, by, bz):
 
 
 @nb.njit(**_OPTS)
-def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toe, moves):
+def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toe, sure, moves):
     """:func:`posturemap.synth.feet.leg_hinge` of the frames the lock moves (``moves`` (L,) bool):
     the leg's hinge in the hips' frame (the thigh's parent's; unit, 0 where the legs are
-    straight), the knee's plane normals summed there, each weighed by its sine squared, and
-    turned about where a knee bent about it goes away from the toes (``toe``: the toe joint; the
-    ankle for none, which leaves it)."""
+    straight), the knee's plane normals summed there, each weighed by its sine squared, and,
+    where that sum is under ``sure`` (``HINGE_SURE``) of the legs' sizes, turned about where a
+    knee bent about it goes away from the toes (``toe``: the toe joint; the ankle for none,
+    which leaves it), so that it goes toward them."""
     sx, sy, sz = 0.0, 0.0, 0.0
+    sizes = 0.0
     for t in range(gpos.shape[0]):
         if not moves[t]:
             continue
@@ -640,13 +647,15 @@ def _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toe, moves):
         vx, vy, vz = gpos[t, shin, 0] - gpos[t, thigh, 0], gpos[t, shin, 1] - gpos[t, thigh, 1], \
             gpos[t, shin, 2] - gpos[t, thigh, 2]
         nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        k = (nx * nx + ny * ny + nz * nz) / max((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz), 1e-300)
+        size2 = (ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz)
+        sizes += math.sqrt(size2)
+        k = (nx * nx + ny * ny + nz * nz) / max(size2, 1e-300)
         q = _mul(grot[t, thigh, 0], grot[t, thigh, 1], grot[t, thigh, 2], grot[t, thigh, 3],
                  rots[t, thigh, 0], -rots[t, thigh, 1], -rots[t, thigh, 2], -rots[t, thigh, 3])
         x, y, z = _rotate(q[0], -q[1], -q[2], -q[3], nx * k, ny * k, nz * k)
         sx, sy, sz = sx + x, sy + y, sz + z
     hx, hy, hz = _unit(sx, sy, sz)
-    if toe == ankle:
+    if toe == ankle or math.sqrt(sx * sx + sy * sy + sz * sz) >= sure * sizes:
         return hx, hy, hz
     ahead = 0.0  # where a knee bent about the hinge goes, against the toes' way from the ankle
     for t in range(gpos.shape[0]):
@@ -1098,8 +1107,8 @@ def _stance_windows(moves, length, step, least):
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
               curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, farthest, a_toes, b_toes, toe_most,
-              toe_gap, toe_catch, pace, accel, least, carry, knee_through, knee_accel, knee_passes, knee_plain,
-              knee_relax, knee_exact, weights):
+              toe_gap, toe_catch, pace, accel, least, carry, hinge_sure, knee_through, knee_accel, knee_passes,
+              knee_plain, knee_relax, knee_exact, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
 
     legs (n, 3) thigh, shin and ankle joints; rots (L, J, 4) local rotations, changed in place;
@@ -1139,8 +1148,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     average (``PASS_SPEED``), accel (per frame squared) its peak acceleration at most
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
-    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). knee_through:
-    ``KNEE_THROUGH`` (:func:`_signed_bend`); knee_accel (radians per frame squared), knee_passes,
+    the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). hinge_sure:
+    ``HINGE_SURE`` (:func:`_knee_hinge`); knee_through: ``KNEE_THROUGH`` (:func:`_signed_bend`); knee_accel (radians per frame squared), knee_passes,
     knee_plain, knee_relax and knee_exact: the bound on the lock's turn of the knees about their
     axes, its sweeps and the projection where they stop short (``KNEE_ACCEL``, ``KNEE_PASSES``,
     ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``; :func:`knee_bounded`); the IK
@@ -1427,7 +1436,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 goals[t, up] += raised[t]
         if not ik.any():
             continue
-        hx, hy, hz = _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toes[leg], ik)
+        hx, hy, hz = _knee_hinge(grot, rots, gpos, thigh, shin, ankle, toes[leg], hinge_sure, ik)
         for t in range(n_l):
             axes[t, 0], axes[t, 1], axes[t, 2] = _knee_axis(rots, grot, gpos, t, thigh, shin, ankle, hinge, hx, hy, hz)
         knee_bounded(goals, gpos, axes, thigh, shin, ankle, soft, knee_through, knee_accel, knee_passes, knee_plain,

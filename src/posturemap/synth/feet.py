@@ -126,6 +126,8 @@ KNEE_RELAX = 1.9  # then each projection goes this far (below 2: the sweeps stil
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal and the leg's hinge, the two
 #                   weighing the same where the knee's sine is this (knee_axes): a straight leg's
 #                   plane is noise
+HINGE_SURE = 0.0052  # (sine 0.17 cubed: knees bent 20 degrees) leg_hinge's normals weigh at least this
+#                      much of the legs' sizes to say which way the hinge points without the toes
 KNEE_THROUGH = 3.0  # a knee bent back is bent forward once the lock asks for this many times its back
 #                     bend, through straight between (signed_bend)
 TOE_CLEAR = 0.03  # leg lengths (2.4 cm on Bandai): a swinging toe's least height above the floor at
@@ -214,43 +216,53 @@ def leg_hinge(a, b, c, a_gr, a_lr, toe=None) -> np.ndarray:
     each weighed by its sine squared (the angle at the hip): a few frames bent forward outweigh
     many bent back a little (a knee straightened past straight, as CMU-rig walkers stand: 40
     frames bent back 7 degrees outweighed 4 bent 40 degrees forward, and the hinge pointed
-    backward). With ``toe`` (N, 3), the toe joint's positions, the hinge is turned about where a
-    knee bent about it goes toward the toes, as a knee bends (only frames bent back: it pointed
-    backward). Summed in the thigh's own frame, the normals turned with the thigh about its
-    bone, which no position shows and a rig's clips set as they please (CMU-rig walks: a knee's
-    plane 130-150 degrees from that hinge for whole steps)."""
+    backward). With ``toe`` (N, 3), the toe joint's positions, and little to go on (the sum's
+    length under ``HINGE_SURE`` of the legs' sizes: frames bent 20 degrees on average, or
+    fewer bent more), the hinge is turned about where a knee bent about it goes toward the toes,
+    as a knee bends; frames bent further say which way themselves (a kneeling leg, its toes
+    behind the ankle, kept its hinge). Summed in the thigh's own frame, the normals turned with
+    the thigh about its bone, which no position shows and a rig's clips set as they please
+    (CMU-rig walks: a knee's plane 130-150 degrees from that hinge for whole steps)."""
     frame = quat.mul(a_gr, quat.inv(a_lr))
     normal = np.cross(c - a, b - a)
-    sine2 = np.sum(normal**2, axis=-1) / np.maximum(np.sum((c - a) ** 2, axis=-1) * np.sum((b - a) ** 2, axis=-1),
-                                                      1e-300)
-    hinge = _unit_rows(quat.mul_vec(quat.inv(frame), normal * sine2[:, None]).sum(axis=0))
-    if toe is not None and np.sum(np.cross(quat.mul_vec(frame, np.broadcast_to(hinge, a.shape)), c - a)
-                                  * (toe - c)) < 0:
+    size2 = np.sum((c - a) ** 2, axis=-1) * np.sum((b - a) ** 2, axis=-1)
+    sine2 = np.sum(normal**2, axis=-1) / np.maximum(size2, 1e-300)
+    total = quat.mul_vec(quat.inv(frame), normal * sine2[:, None]).sum(axis=0)
+    hinge = _unit_rows(total)
+    if toe is not None and np.linalg.norm(total) < HINGE_SURE * np.sqrt(size2).sum() and np.sum(
+            np.cross(quat.mul_vec(frame, np.broadcast_to(hinge, a.shape)), c - a) * (toe - c)) < 0:
         hinge = -hinge
     return hinge
 
 
 def knee_axes(a, b, c, a_gr, a_lr, hinge: np.ndarray, weight: float) -> np.ndarray:
-    """Each frame's axis (N, 3; unit, normal to the thigh) the lock bends the knee about: the
-    knee's plane's normal, weighed by the square of its sine (the angle at the hip) over
-    ``weight`` (> 0), plus ``weight`` times the leg's ``hinge`` (:func:`leg_hinge`, in the hips'
-    frame), each times the leg's size, less the sum's part along the thigh. A bent knee bends in
-    its own plane (sine 0.2, about 23 degrees of bend, weighs as the hinge); a straight leg's
-    plane is noise, and its knee bends about the hinge: bent about its plane, the knee swung
-    sideways from one frame to the next (the bench's cross-clip pairs: the knees' jerk in the
-    lock's frames 21,000 cm/s^3 over the unlocked motion's on average, up to 205,000). Weighed
-    by the sine alone, a knee 5 degrees from straight, its plane flipping as it passed through,
-    still turned the axis by 14 degrees in a frame, and a lifted knee bent 95 degrees with it
-    swung 5 cm sideways (CMU-rig walks at 60 fps). The axis turns with the motion through
-    straight too (where the plane's normal flips, the hinge's part holds it), so the bend read
-    about it does not jump."""
+    """Each frame's axis (N, 3; unit, normal to the thigh; 0 where there is none) the lock bends
+    the knee about: the knee's plane's normal, weighed by the square of its sine (the angle at
+    the hip) and by how far it lies on the hinge's side (the cosine of the angle between them,
+    0 from a right angle on), plus ``weight`` cubed times the leg's ``hinge``
+    (:func:`leg_hinge`, in the hips' frame), each times the leg's size, less the sum's part
+    along the thigh. A knee bent forward bends in its own plane (sine ``weight``, 0.2: about 23
+    degrees of bend, weighs as the hinge); a straight leg's plane is noise, and its knee bends
+    about the hinge: bent about its plane, the knee swung sideways from one frame to the next
+    (the bench's cross-clip pairs: the knees' jerk in the lock's frames 21,000 cm/s^3 over the
+    unlocked motion's on average, up to 205,000). Weighed by the sine alone, a knee 5 degrees
+    from straight, its plane flipping as it passed through, still turned the axis by 14 degrees
+    in a frame, and a lifted knee bent 95 degrees with it swung 5 cm sideways (CMU-rig walks at
+    60 fps). A knee bent back adds nothing: its normal, against the hinge, cancelled it at about
+    23 degrees back, where the axis flipped over and the bend read about it jumped from -23 to
+    +23 degrees (a cold review). So the axis turns with the motion, through straight too, and
+    the bend read about it does not jump."""
     frame = quat.mul(a_gr, quat.inv(a_lr))
     size = np.linalg.norm(c - a, axis=-1) * np.linalg.norm(b - a, axis=-1)
     normal = np.cross(c - a, b - a)
+    along = quat.mul_vec(frame, np.broadcast_to(hinge, a.shape))
     sine = np.linalg.norm(normal, axis=-1) / np.maximum(size, 1e-300)
-    h = normal * (sine / weight)[:, None] ** 2 + weight * size[:, None] * quat.mul_vec(frame, np.broadcast_to(hinge, a.shape))
+    side = np.maximum(np.sum(_unit_rows(normal) * along, axis=-1), 0.0)
+    h = normal * (sine**2 * side)[:, None] + weight**3 * size[:, None] * along
     e1 = _unit_rows(b - a)
-    return _unit_rows(h - np.sum(h * e1, axis=-1, keepdims=True) * e1)
+    h = h - np.sum(h * e1, axis=-1, keepdims=True) * e1
+    norm = np.linalg.norm(h, axis=-1, keepdims=True)
+    return np.where(norm > 1e-12, h / np.maximum(norm, 1e-300), 0.0)
 
 
 def knee_angles(a, b, c, axes) -> tuple[np.ndarray, np.ndarray]:
@@ -1204,8 +1216,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      *passes, KNEE_THROUGH, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX, REST_EXACT,
-                      weights)
+                      *passes, HINGE_SURE, KNEE_THROUGH, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX,
+                      REST_EXACT, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
