@@ -1149,8 +1149,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     (``PASS_ACCEL``) and least (frames) the shortest run the widening leaves (``PASS_LEAST_S``;
     ``posturemap.synth.feet.pace_passes``); carry (frames): how long a run's rate is carried into
     the free frames at most (``CARRY_S``; ``posturemap.synth.feet.swing_offsets``). hinge_sure:
-    ``HINGE_SURE`` (:func:`_knee_hinge`); knee_through: ``KNEE_THROUGH`` (:func:`_signed_bend`); knee_accel (radians per frame squared), knee_passes,
-    knee_plain, knee_relax and knee_exact: the bound on the lock's turn of the knees about their
+    ``HINGE_SURE`` (:func:`_knee_hinge`); knee_through: ``KNEE_THROUGH`` (:func:`_signed_bend`);
+    knee_accel (radians per frame squared), knee_passes, knee_plain, knee_relax and knee_exact:
+    the bound on the lock's turn of the knees about their
     axes, its sweeps and the projection where they stop short (``KNEE_ACCEL``, ``KNEE_PASSES``,
     ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``; :func:`knee_bounded`); the IK
     (:func:`hinge_ik_frame`) then turns each knee so and swings the leg onto its goal's line.

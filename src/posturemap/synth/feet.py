@@ -188,8 +188,9 @@ def two_bone_ik(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps=1e-5, soft=0.0, hinge=0.
     is approached softly (:func:`soft_limit`; a target there is reached a little short).
 
     ``hinge`` 0: the knee bends in its current plane (Holden's formulation). ``hinge`` > 0: the
-    knee bends about :func:`knee_axes` (its plane's normal plus ``hinge``, a sine, times the
-    leg's hinge: the normals of the N frames summed in the hips' frame, :func:`leg_hinge`) to
+    knee bends about :func:`knee_axes` (its plane's normal and the leg's hinge, weighing the
+    same at a sine of ``hinge``; the hinge: the normals of the N frames summed in the hips'
+    frame, :func:`leg_hinge`) to
     the bend :func:`signed_bend` asks for the target's distance, and the leg swings about the
     hip onto the target's line (:func:`hinge_ik`): a nearly straight knee bends toward the
     leg's hinge, not about the noise of its plane, and a knee bent back bends forward only
