@@ -394,11 +394,12 @@ def test_signed_bend_takes_a_knee_bent_back_forward_through_straight_without_a_j
 def test_a_knee_bent_back_asked_to_bend_more_swings_forward_without_a_jump():
     # Hip -> knee -> ankle along -Y, bones of length 1: four frames bent forward (+Z) give the
     # hinge; then 40 frames of a knee bent back 7 degrees, their ankles' goals drawn toward the
-    # hip so that the knee needs from 7 to 40 degrees of bend. Bent by the difference of the
-    # unsigned bends, it bent further back until asked for twice its bend, then flipped forward
-    # (the knee 24 cm across in a frame; CMU-rig walks popped so). About its axis, it passes
-    # through straight a frame at a time, ends bent forward, and reaches its goals but for a
-    # few millimetres in between (0.6% of the leg).
+    # hip so that the knee needs from 7 to 40 degrees of bend. The IK before, its hinge the plain
+    # sum of the normals (the 40 frames bent back outweighed the 4 forward), bent this knee back
+    # all the way to 40 degrees; with a hinge that pointed forward, it bent further back until
+    # asked for twice its bend, then flipped forward in a frame (CMU-rig walks popped so). About
+    # its axis, it passes through straight a frame at a time, ends bent forward, and reaches its
+    # goals but for a few millimetres in between (0.6% of the leg).
     parents = np.array([-1, 0, 1])
     offsets = np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, -1.0, 0.0]])
     n = 44
@@ -421,7 +422,7 @@ def test_a_knee_bent_back_asked_to_bend_more_swings_forward_without_a_jump():
     new[:, 0], new[:, 1] = a_lr, b_lr
     _, moved = fk(parents, new, pos)
     knee = moved[4:, 1]
-    assert np.linalg.norm(np.diff(knee, axis=0), axis=-1).max() < 0.03  # no jump (the old: 0.24)
+    assert np.linalg.norm(np.diff(knee, axis=0), axis=-1).max() < 0.03  # a frame at a time: no jump
     assert knee[0, 2] < -0.05 and knee[-1, 2] > 0.3  # from behind the hip-ankle line to before it
     miss = np.linalg.norm(moved[:, 2] - target, axis=-1)
     assert miss.max() < 0.006 * 2.0 and miss[-10:].max() < 1e-9  # 6 mm of a 1 m leg at most
