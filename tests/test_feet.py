@@ -13,7 +13,8 @@ from posturemap.evaluate import metrics
 from posturemap.core import quat
 from posturemap.core.joints import key_joints, leg_chains, leg_length, leg_toes
 from posturemap.core.motion import up_axis
-from posturemap.synth import feet
+from posturemap.synth import feet, rest
+from posturemap.synth.rest import at_rest
 from posturemap.synth.feet import (CLEAR_FADE_S, CLEAR_S, CLEAR_SPEED, FLOOR_S, MAX_DRIFT, STEP_S, TOE_CLEAR,
                                    clearance_lift, contact_runs, lock_weights_and_targets, soft_limit, swing_offsets,
                                    two_bone_ik)
@@ -2099,105 +2100,6 @@ def test_knee_bounded_sets_a_knee_off_from_as_still_frames_within_the_bound():
     assert abs(after[-1]) <= accel * 1.001
 
 
-def at_rest(change):
-    """The second differences of a change of the new frames, 0 in the clips' two frames either side."""
-    return np.diff(np.concatenate([[0.0, 0.0], change, [0.0, 0.0]]), 2)
-
-
-def least_squares_at_rest(change, accel, lo=None, hi=None):
-    """The nearest change whose second differences (at_rest) are within accel (and its values
-    within ``lo`` and ``hi``, where given): scipy's SLSQP."""
-    from scipy.optimize import Bounds, minimize
-
-    n = len(change)
-    d = np.array([at_rest(e) for e in np.eye(n)]).T  # (n + 2, n): the second differences' matrix
-    bound = [{"type": "ineq", "fun": lambda x, s=s: accel - s * (d @ x), "jac": lambda x, s=s: -s * d}
-             for s in (1.0, -1.0)]
-    box = None if lo is None else Bounds(lo, hi)
-    res = minimize(lambda x: 0.5 * ((x - change) ** 2).sum(), np.zeros(n), jac=lambda x: x - change,
-                   method="SLSQP", constraints=bound, bounds=box, options={"maxiter": 500, "ftol": 1e-14})
-    assert res.success
-    return res.x
-
-
-def steep_changes():
-    """Changes a lock makes of a knee's bend, too steep for the bound (0.15): a ramp onto a plateau
-    (the sweeps before rest_bounded left 2.75x the bound: the first frame held at it, its
-    neighbour's own second difference within it, nothing moved on), a step at the last frame,
-    a bump, and seeded smooth walks, 1.5 radians at most."""
-    rng = np.random.default_rng(7)
-    out = [np.array([0.0, 0.75] + [1.5] * 10), np.r_[np.zeros(8), 0.9], 1.5 * np.exp(-0.5 * ((np.arange(30) - 12) / 1.5) ** 2)]
-    for n in (8, 20, 60):  # a bend changes by less than pi: these by 1.5 radians at most
-        walk = np.convolve(np.cumsum(rng.normal(size=n)), np.ones(5) / 5, mode="same")
-        out.append(walk * 1.5 / np.abs(walk).max())
-    return out
-
-
-def test_rest_bounded_brings_every_second_difference_within_the_bound_seams_included():
-    accel = 0.15
-    for change in steep_changes():
-        assert np.abs(at_rest(change)).max() > 2 * accel
-        got = feet.rest_bounded(change, accel)
-        assert np.abs(at_rest(got)).max() <= accel * (1 + 1e-4)
-        # As little as it must: as near the change as the least squares projection onto the bound,
-        # within 20 % (0 is within the bound too, but not near).
-        best = least_squares_at_rest(change, accel)
-        assert np.linalg.norm(got - change) <= 1.2 * np.linalg.norm(best - change) + 1e-9
-    # A change within the bound is left as it is.
-    calm = 0.3 * np.sin(np.linspace(0.0, np.pi, 40)) ** 2
-    assert np.abs(at_rest(calm)).max() < accel
-    np.testing.assert_array_equal(feet.rest_bounded(calm, accel), calm)
-
-
-def test_rest_bounded_keeps_within_its_box_and_scales_what_the_sweeps_leave(monkeypatch):
-    accel = 0.15
-    change = np.r_[np.zeros(6), np.full(8, 1.2), np.zeros(10)]  # a block: the projection rings below 0 beside it
-    assert feet.rest_bounded(change, accel).min() < -0.01
-    got = feet.rest_bounded(change, accel, np.zeros(len(change)), np.full(len(change), 2.0))
-    assert got.min() >= 0.0 and np.abs(at_rest(got)).max() <= accel * (1 + 1e-4)
-    # Two sweeps leave the plateau far over the bound: projected onto it instead, as near the
-    # change as the least squares projection (SLSQP's) within 5 %, within the box; with two
-    # iterations of that too, scaled toward 0 onto it.
-    monkeypatch.setattr(feet, "KNEE_PASSES", 2)
-    few = feet.rest_bounded(change, accel)
-    assert np.abs(at_rest(few)).max() <= accel * (1 + 1e-4)
-    best = least_squares_at_rest(change, accel)
-    assert np.linalg.norm(few - change) <= 1.05 * np.linalg.norm(best - change)
-    boxed = feet.rest_bounded(change, accel, np.zeros(len(change)), np.full(len(change), 2.0))
-    assert boxed.min() >= 0.0 and np.abs(at_rest(boxed)).max() <= accel * (1 + 1e-4)
-    monkeypatch.setattr(feet, "REST_EXACT", 2)
-    few = feet.rest_bounded(change, accel)
-    assert np.abs(at_rest(few)).max() == pytest.approx(accel)
-    assert 0.0 < np.abs(few).max() < np.abs(change).max()  # less than the sweeps took it, not 0
-
-
-def test_rest_bounded_projects_a_change_over_many_frames_the_sweeps_cannot_bring_within_the_bound():
-    # A knee's change over 90 frames at 120 fps (the bound per frame squared a sixteenth of 30
-    # fps's): 1.5 radians for 0.3 s in the middle, within a box that holds a nearly straight
-    # leg's bend at 0 near B. The sweeps need thousands of passes for it; what they left was
-    # scaled down toward 0, to a seventh of what the bound allows (a lock lifting a toe out of
-    # the floor while the hips rose out of a crouch put the ankle 21 cm under it). Now projected:
-    # as near the change as the least squares projection (SLSQP's), within the bound and the box.
-    n, accel = 90, feet.KNEE_ACCEL / 120.0**2
-    t = np.arange(n)
-    change = 1.5 * np.exp(-0.5 * ((t - 45) / 12.0) ** 8)
-    lo, hi = np.full(n, -1.0), np.full(n, 3.0)
-    lo[-12:] = -1e-3  # a straight leg near B: its bend cannot go below straight
-    got = feet.rest_bounded(change, accel, lo, hi)
-    assert np.abs(at_rest(got)).max() <= accel * (1 + 1e-4)
-    assert np.all(got >= lo) and np.all(got <= hi)
-    best = least_squares_at_rest(change, accel, lo, hi)
-    assert np.linalg.norm(got - change) <= 1.01 * np.linalg.norm(best - change)
-    assert got.max() > 0.9 * change.max()
-    from posturemap.core import kernels  # the compiled projection, the same
-
-    assert (kernels.compiled()._REST_RHO, kernels.compiled()._REST_OVER) == (feet.REST_RHO, feet.REST_OVER)
-    same = change.copy()
-    kernels.compiled()._rest_bounded(same, accel, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX,
-                                     feet.REST_EXACT, lo, hi)
-    np.testing.assert_allclose(same, got, rtol=0, atol=1e-9)
-
-
 def test_knee_bounded_keeps_a_straight_legs_bend_within_the_bound():
     # A straight leg (the knee's own bend 0) bent 0.52 radians in frames 2-11 of 36 at 60 fps:
     # bounded, the change rings below 0 beside the block, and a straight knee cannot bend back,
@@ -2212,27 +2114,6 @@ def test_knee_bounded_keeps_a_straight_legs_bend_within_the_bound():
     after = out  # the bend itself: the knee's own is 0
     assert bent.any() and after.min() >= 0.0
     assert np.abs(at_rest(after)).max() <= accel * 1.001
-
-
-def test_rest_bounded_is_the_same_compiled(monkeypatch):
-    from posturemap.core import kernels
-
-    nk = kernels.compiled()
-    for change in steep_changes() + [np.array([0.4]), np.array([0.3, -0.3])]:
-        got = change.copy()
-        nk._rest_bounded(got, 0.15, feet.KNEE_PASSES, feet.KNEE_PLAIN, feet.KNEE_RELAX, feet.REST_EXACT,
-                         np.full(len(got), -np.inf), np.full(len(got), np.inf))
-        np.testing.assert_allclose(got, feet.rest_bounded(change, 0.15), rtol=0, atol=1e-12)
-        # Within a box too, projected where the sweeps cannot reach it (the two Cholesky factors,
-        # LAPACK's and the kernel's, round apart), and scaled where that cannot either.
-        lo, hi = np.minimum(change, 0.0) - 0.01, np.maximum(change, 0.0) + 0.01
-        for passes, exact in ((feet.KNEE_PASSES, feet.REST_EXACT), (3, feet.REST_EXACT), (3, 2)):
-            got = change.copy()
-            nk._rest_bounded(got, 0.15, passes, feet.KNEE_PLAIN, feet.KNEE_RELAX, exact, lo, hi)
-            monkeypatch.setattr(feet, "KNEE_PASSES", passes)
-            monkeypatch.setattr(feet, "REST_EXACT", exact)
-            want = feet.rest_bounded(change, 0.15, lo, hi)
-            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 if passes > 3 else 1e-9)
 
 
 def test_knee_bounded_applies_the_iks_soft_reach():
@@ -2262,7 +2143,7 @@ def test_knee_bounded_is_the_same_compiled(seed):
         want, bent = feet.knee_bounded(goal, a, b, c, axes, soft, accel)
         gpos = np.stack([a, b, c], axis=1)
         work, moves = np.empty((4, len(goal))), np.zeros(len(goal), dtype=bool)
-        nk.knee_bounded(goal, gpos, axes, 0, 1, 2, soft, feet.KNEE_THROUGH, accel, feet.KNEE_PASSES, feet.KNEE_PLAIN,
-                        feet.KNEE_RELAX, feet.REST_EXACT, work, moves)
+        nk.knee_bounded(goal, gpos, axes, 0, 1, 2, soft, feet.KNEE_THROUGH, accel, rest.REST_PASSES, rest.REST_PLAIN,
+                        rest.REST_RELAX, rest.REST_EXACT, work, moves)
         np.testing.assert_allclose(work[0], want, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(moves, bent)

@@ -863,9 +863,9 @@ ELSEWHERE = {
                                                          "numba_kernels:_pass_accel", "numba_kernels:_pass_second",
                                                          "numba_kernels:_step_high"),
     "test_feet.py::test_knee_bounded_is_the_same_compiled": ("numba_kernels:knee_bounded",),
-    "test_feet.py::test_rest_bounded_projects_a_change_over_many_frames_the_sweeps_cannot_bring_within_the_bound": (
+    "test_rest.py::test_rest_bounded_projects_a_change_over_many_frames_the_sweeps_cannot_bring_within_the_bound": (
         "numba_kernels:_rest_projected",),
-    "test_feet.py::test_rest_bounded_is_the_same_compiled": ("numba_kernels:_rest_bounded", "numba_kernels:_at",
+    "test_rest.py::test_rest_bounded_is_the_same_compiled": ("numba_kernels:_rest_bounded", "numba_kernels:_at",
                                                              "numba_kernels:_second_most"),
     "test_hinges.py::test_unbend_is_the_same_compiled": ("numba_kernels:unbend_limbs",),
     "test_hinges.py::test_a_share_of_the_hips_turn_is_the_same_compiled": ("numba_kernels:_turn_share",),

@@ -18,7 +18,7 @@ _OPTS = dict(cache=True, nogil=True, fastmath=False)
 # Fast-math without the no-NaN/no-inf assumptions: linear dimensions have period inf.
 _FAST = {"nsz", "arcp", "contract", "reassoc"}
 _FADE_SPAN = float(np.radians(90.0))  # kernels.FADE_SPAN (slerp_track's fade columns; a test holds them equal)
-_REST_RHO, _REST_OVER = 0.3, 1.6  # feet.REST_RHO and REST_OVER (a test holds them equal)
+_REST_RHO, _REST_OVER = 0.3, 1.6  # rest.REST_RHO and REST_OVER (a test holds them equal)
 
 
 @nb.njit(**_OPTS)
@@ -682,7 +682,7 @@ def _at(c, t):
 
 @nb.njit(**_OPTS)
 def _second_most(c):
-    """The largest second difference of ``c`` (L,) with two 0 on either side (feet.rest_bounded)."""
+    """The largest second difference of ``c`` (L,) with two 0 on either side (rest.rest_bounded)."""
     worst = 0.0
     for m in range(1, c.shape[0] + 3):
         worst = max(worst, abs(_at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)))
@@ -691,9 +691,9 @@ def _second_most(c):
 
 @nb.njit(**_OPTS)
 def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi):
-    """:func:`posturemap.synth.feet.rest_bounded` in place on ``c`` (L,), each value within ``lo``
+    """:func:`posturemap.synth.rest.rest_bounded` in place on ``c`` (L,), each value within ``lo``
     and ``hi`` (L,): the same sweeps, in the same order (``passes``, ``plain``, ``relax``:
-    ``KNEE_PASSES``, ``KNEE_PLAIN``, ``KNEE_RELAX``), where they stop short the same projection
+    ``REST_PASSES``, ``REST_PLAIN``, ``REST_RELAX``), where they stop short the same projection
     (:func:`_rest_projected`, ``exact``: ``REST_EXACT``), and the same scaling of what is left.
     Centre ``m`` of the second differences is the frame ``m - 2`` of ``c`` (-1: A's last frame,
     ``L``: B's first); values outside ``c`` are the clips', 0."""
@@ -726,7 +726,7 @@ def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi):
 
 @nb.njit(**_OPTS)
 def _rest_projected(change, accel, lo, hi, iters, out):
-    """:func:`posturemap.synth.feet.rest_projected` (the reference) into ``out`` (L,): the least
+    """:func:`posturemap.synth.rest.rest_projected` (the reference) into ``out`` (L,): the least
     squares projection of ``change`` onto the bound and the box by ADMM, the pentadiagonal
     ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands)."""
     n = change.shape[0]
@@ -1152,8 +1152,8 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     ``HINGE_SURE`` (:func:`_knee_hinge`); knee_through: ``KNEE_THROUGH`` (:func:`_signed_bend`);
     knee_accel (radians per frame squared), knee_passes, knee_plain, knee_relax and knee_exact:
     the bound on the lock's turn of the knees about their
-    axes, its sweeps and the projection where they stop short (``KNEE_ACCEL``, ``KNEE_PASSES``,
-    ``KNEE_PLAIN``, ``KNEE_RELAX``, ``REST_EXACT``; :func:`knee_bounded`); the IK
+    axes, its sweeps and the projection where they stop short (``KNEE_ACCEL``, ``REST_PASSES``,
+    ``REST_PLAIN``, ``REST_RELAX``, ``REST_EXACT``; :func:`knee_bounded`); the IK
     (:func:`hinge_ik_frame`) then turns each knee so and swings the leg onto its goal's line.
     """
     n_l, n_legs = rots.shape[0], legs.shape[0]

@@ -97,7 +97,7 @@ import numpy as np
 from ..core import kernels, quat
 from ..core.joints import CONTACT_HEIGHT, CONTACT_SPEED, leg_length, leg_toes
 from ..core.skeleton import Skeleton
-from . import hinges
+from . import hinges, rest
 
 MAX_DRIFT = (0.2, 0.4)  # leg lengths: a planted foot is held on its spot while the spot lies within
 #                           the first of where the motion put the foot; farther, it is moved ever
@@ -117,12 +117,6 @@ IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside 
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend accelerates at most this
 #                    (knee_bounded; walking knees' own bend accelerates under it in 97.7% of frames, bandai1)
-KNEE_PASSES = 200  # knee_bounded's sweeps at most (rest_bounded)
-KNEE_PLAIN = 20  # the sweeps that project onto each bound before they over-relax (rest_bounded)
-REST_EXACT = 500  # rest_bounded: where the sweeps stop short, iterations at most of the exact projection
-REST_RHO = 0.3  # ... its ADMM penalty, over the bound (rest_projected)
-REST_OVER = 1.6  # ... and its over-relaxation
-KNEE_RELAX = 1.9  # then each projection goes this far (below 2: the sweeps still converge)
 KNEE_HINGE = 0.2  # the IK bends a knee about its own plane's normal and the leg's hinge, the two
 #                   weighing the same where the knee's sine is this (knee_axes): a straight leg's
 #                   plane is noise
@@ -361,129 +355,6 @@ def _bend(a, b, c, t, a_gr, b_gr, a_lr, b_lr, eps, soft, axis0):
     return quat.mul(a_lr, quat.mul(r2, r0)), quat.mul(b_lr, r1)
 
 
-def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
-                 hi: np.ndarray | None = None) -> np.ndarray:
-    """``change`` (L,) moved as little as the sweeps find so that, 0 in the two frames before it
-    and the two after it (the clips' frames beside the new ones), every second difference is at
-    most ``accel``: the one at each new frame, and at A's last frame and B's first (there the
-    first and the last value themselves); each value within ``lo`` and ``hi`` (L,) where given
-    (``change`` must be; 0 is). A change of the new frames that sets off from rest and comes to
-    rest within a bound on its acceleration.
-
-    Each bound is a slab in the values it touches (one, two or three of them); a sweep projects
-    the values onto the slabs they break (Kaczmarz's projections onto convex sets: a point
-    within every bound near the nearest one, not that one), the second differences three frames
-    apart at once (they share no value), then onto ``[lo, hi]``, and after ``KNEE_PLAIN``
-    sweeps over-relaxed by ``KNEE_RELAX`` (still converging: a relaxation below 2), for at most
-    ``KNEE_PASSES`` sweeps. Of 817 knee changes the lock made between seeded pairs of bandai1's
-    clips and of LaFAN1's subject 5 (its own map of subjects 1-4; 30 and 60 fps), the 282 that
-    broke the bound ended within 1.0001 of it after at most 44 sweeps, and moved at most 1.16x
-    as far as the least squares projection onto the bound (median 1.00; scipy's SLSQP, for the
-    comparison). The sweeps before these moved only the frame over the bound, a quarter of its
-    excess, and stalled where a seam's frame was held at the bound: they left 39 of the 282
-    over it, one at 3.8x, and moved 1.2x as far (median).
-
-    A sweep moves a value by its neighbours' excess only: a change over many frames needs
-    sweeps as the square of its frames. Where ``KNEE_PASSES`` sweeps leave the change over the
-    bound (a whole 0.3 s plateau at 120 fps, where the bound per frame squared is a sixteenth of
-    30 fps's; a change far beyond a knee's, 14 radians over 20 frames at 30 fps, needs some 500),
-    the least squares projection onto the bound and the box is found instead
-    (:func:`rest_projected`, at most ``REST_EXACT`` iterations; some 230 there). Before it, what
-    the sweeps left was scaled down toward 0: a lock at 120 fps that lifted a toe out of the
-    floor while the hips rose out of a crouch had its knee's change cut to a seventh, and the
-    ankle, put along the hip-goal line at the distance of that bend, went 21 cm under the floor.
-    What is left over the bound after that (only a change the iterations cannot bring within
-    it) is scaled down toward 0 until it is within it: a smaller change, within every bound (0
-    is, and the bounds are convex and symmetric about it).
-
-    The box: ``knee_bounded`` clips the bend to [0, pi]; the projection rings below 0 beside a
-    block of positive change (by up to 1.3 times the bound), and a nearly straight leg's bend,
-    clipped there, broke the bound again (1.67x; a cold review).
-    """
-    n = len(change)
-    c = np.zeros(n + 4)  # the clips' two frames on either side, 0
-    c[2:-2] = change
-    free = np.zeros(n + 4)
-    free[2:-2] = 1.0
-    centres = np.arange(1, n + 3)  # every second difference bounded: A's last frame to B's first
-    norm2 = free[centres - 1] + 4.0 * free[centres] + free[centres + 1]
-    low = np.full(n + 4, -np.inf) if lo is None else np.concatenate([[0.0, 0.0], lo, [0.0, 0.0]])
-    high = np.full(n + 4, np.inf) if hi is None else np.concatenate([[0.0, 0.0], hi, [0.0, 0.0]])
-    for sweep in range(KNEE_PASSES):
-        if np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() - accel <= accel * 1e-4:
-            break
-        relax = 1.0 if sweep < KNEE_PLAIN else KNEE_RELAX
-        for first in range(3):
-            m = centres[first::3]
-            second = c[m - 1] - 2.0 * c[m] + c[m + 1]
-            f = relax * np.sign(second) * np.maximum(np.abs(second) - accel, 0.0) / norm2[m - 1]
-            c[m - 1] -= f * free[m - 1]
-            c[m] += 2.0 * f * free[m]
-            c[m + 1] -= f * free[m + 1]
-            c = np.clip(c, low, high)
-    worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() if n else 0.0
-    if worst - accel > accel * 1e-4:
-        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2])
-        worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max()
-        if worst - accel > accel * 1e-4:
-            c *= accel / worst
-    return c[2:-2]
-
-
-def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The least squares projection of ``change`` (L,) onto :func:`rest_bounded`'s bound (every
-    second difference at most ``accel``, the clips' two frames on either side 0) and the box
-    ``[lo, hi]`` (L,), by ADMM (the alternating direction method of multipliers): each iteration
-    one solve of ``(1 + r) I + r D'D`` (pentadiagonal, factored once; ``D`` the second
-    differences, ``r = REST_RHO / accel``), then the second differences clipped onto the bound
-    and the values onto the box (both over-relaxed by ``REST_OVER``). Stops where every second
-    difference is within 1.001 of the bound, every value within the box and no value moved by
-    more than a thousandth of the bound in the last iteration, at most ``REST_EXACT``
-    iterations; the values are clipped onto the box (the caller scales what is still over the
-    bound). The numpy steps of the compiled
-    :func:`posturemap.core.numba_kernels._rest_projected`.
-
-    Stopped where the values move by under a thousandth of the bound from one iteration to the
-    next as well: stopped as soon as they were within it, the projection of a 1.2 radian block
-    over 8 frames moved 1.07x as far as the least squares one (SLSQP's); so, within 1.0015x of
-    it over the seven changes of ``tests/test_feet.py``, in 21-246 iterations, and 253 on a 0.3 s
-    plateau at 120 fps (with the penalty at 1 over the bound and no over-relaxation: 500, the
-    cap, and still 1.01x over the bound there; a cold review). Compiled, 0.3 / 0.4 / 0.8 ms for
-    60 / 90 / 180 frames, after the sweeps that stopped short (0.8 / 1.1 / 2.2 ms)."""
-    from scipy.linalg import cho_solve_banded, cholesky_banded
-
-    n = len(change)
-    rho = REST_RHO / accel
-    band = np.zeros((3, n))  # upper form: the diagonal last
-    band[0, 2:], band[1, 1:], band[2] = rho, -4.0 * rho, 1.0 + 7.0 * rho
-    factor = cholesky_banded(band)
-
-    def second(x):  # D x: the second differences at A's last frame, the new ones and B's first
-        return np.diff(np.concatenate([[0.0, 0.0], x, [0.0, 0.0]]), 2)
-
-    def spread(z):  # D' z
-        return z[:-2] - 2.0 * z[1:-1] + z[2:]
-
-    y = np.clip(second(change), -accel, accel)
-    w = np.clip(change, lo, hi)
-    u, v = np.zeros(n + 2), np.zeros(n)
-    c = change
-    for _ in range(REST_EXACT):
-        before = c
-        c = cho_solve_banded((factor, False), change + rho * spread(y - u) + rho * (w - v))
-        dc = second(c)
-        dc_r = REST_OVER * dc + (1.0 - REST_OVER) * y  # over-relaxed
-        c_r = REST_OVER * c + (1.0 - REST_OVER) * w
-        y = np.clip(dc_r + u, -accel, accel)
-        w = np.clip(c_r + v, lo, hi)
-        u += dc_r - y
-        v += c_r - w
-        if (np.abs(dc).max() <= accel * 1.001 and np.all(c >= lo - 1e-12) and np.all(c <= hi + 1e-12)
-                and np.abs(c - before).max() <= accel * 1e-3):
-            break
-    return np.clip(c, lo, hi)
-
-
 def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, axes: np.ndarray, soft: float,
                  accel: float) -> tuple[np.ndarray, np.ndarray]:
     """The lock's turn of each knee about its axis (L,; radians, :func:`hinge_ik`'s ``turn``),
@@ -495,9 +366,10 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     :func:`knee_axes`; ``soft``: the IK's ``SOFT_REACH`` (the goal's distance soft-limited
     toward the leg's reach about its axis). The turn asked is :func:`signed_bend` of the goal's
     distance (:func:`bend_for_reach`) less the motion's own bend (:func:`knee_angles`), 0 in
-    the clips' frames beside the new ones; it is moved as little as :func:`rest_bounded` finds
-    so that its second differences stay within ``accel``, A's last frame's and B's first
-    included (there, the first and the last new frame's turn itself), and the knee bent no
+    the clips' frames beside the new ones; it is moved as little as
+    :func:`~posturemap.synth.rest.rest_bounded` finds so that its second differences stay within
+    ``accel``, A's last frame's and B's first included (there, the first and the last new frame's
+    turn itself), and the knee bent no
     further back than the motion's nor past pi. A bow's straight leg, its foot held while the
     hips sank into the next clip, bent the knee 0.13 radians at once: the knee set off at 5 cm a
     frame squared (30 fps) from A's still frames; a nearly straight leg whose carried offset had
@@ -521,7 +393,7 @@ def knee_bounded(goal: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, 
     if soft > 0:
         dist = soft_limit(dist, np.maximum(np.linalg.norm(c - a, axis=-1), (1.0 - soft) * full), full)
     inner = signed_bend(theta0, bend_for_reach(dist, thigh, shin, psi)) - theta0
-    turn = rest_bounded(inner, accel, np.minimum(-theta0, 0.0), np.pi - theta0)
+    turn = rest.rest_bounded(inner, accel, np.minimum(-theta0, 0.0), np.pi - theta0)
     return turn, np.abs(turn - inner) > 1e-9
 
 
@@ -1218,8 +1090,8 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
                       STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
-                      *passes, HINGE_SURE, KNEE_THROUGH, KNEE_ACCEL / fps**2, KNEE_PASSES, KNEE_PLAIN, KNEE_RELAX,
-                      REST_EXACT, weights)
+                      *passes, HINGE_SURE, KNEE_THROUGH, KNEE_ACCEL / fps**2, rest.REST_PASSES, rest.REST_PLAIN,
+                      rest.REST_RELAX, rest.REST_EXACT, weights)
         return weights
     flat = np.ones(3)
     flat[up] = 0.0
