@@ -27,6 +27,7 @@ from posturemap.synth.bases import (DAMPED_PEAK, DAMPED_SAMPLES, DAMPED_TAU_S, d
                                    hermite_basis, inertialize_basis, key_spline_basis, keys_spline_basis,
                                    linear_basis, reach_parts)
 from posturemap.synth import periodic, trajectory
+from posturemap.synth.rest import at_rest
 from posturemap.synth.engine import TransitionEngine, transition
 from posturemap.synth.keys import ACCEPT
 from posturemap.synth.request import KEY_POSTURE, KEYED, METHODS, RequestError, TransitionRequest
@@ -807,8 +808,9 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     # made to bend the left knee 40 degrees backward in the middle of the gap, as damped did
     # carrying a dash's knee on past straight: retrieval and auto turn it forward onto the
     # library's bound (its knees never go past straight by more than a hair), in its plane,
-    # the hip turning the leg so the ankle keeps its line from it, and change nothing else; the
-    # interpolating methods themselves are left as they are.
+    # the turn fading in before and out after it, the hip turning the leg so the ankle keeps
+    # its line from it, and change nothing else; the interpolating methods themselves are left
+    # as they are.
     from posturemap.synth import engine as engine_module, hinges, retrieval
     from posturemap.core.joints import leg_chains
 
@@ -849,15 +851,27 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     if method in ("damped", "spline"):
         np.testing.assert_array_equal(r, made["rots"])
         return
-    np.testing.assert_allclose(bend[back], least, atol=1e-7)
-    np.testing.assert_array_equal(bend[~back], made_bend[~back])
+    # Forward only, none past the bound; the knee slows onto it and leaves it within the
+    # acceleration where the gap has the frames for it (a knee thrown 40 degrees back in a
+    # frame is turned from before it: 20 frames have them, 5 do not). The spline's first frame
+    # is past the bound already, by more than a turn from rest reaches in a frame: turned onto
+    # it at once there.
+    assert bend.min() >= least - 1e-7
+    assert np.all(bend >= made_bend - 1e-9)
+    turned = bend - made_bend > 1e-9
+    assert turned[back].all() and turned.sum() > back.sum()
+    if length == 20:
+        accel = hinges.UNBEND_ACCEL / clips[WALK].fps ** 2
+        second = at_rest(bend - made_bend)
+        assert second[0] == pytest.approx(least - made_bend[0], abs=1e-7) and second[0] > accel
+        assert np.abs(second[1:]).max() <= accel * 1.001
     others = np.ones(sk.num_joints, dtype=bool)
     others[[thigh, shin]] = False
     np.testing.assert_array_equal(r[:, others], made["rots"][:, others])
     # The hip turned the straightened leg onto the line from the hip to where the ankle was.
     _, made_g = fk(sk.parents, made["rots"], made["pos"])
     _, g = fk(sk.parents, r, p)
-    reach0, reach = made_g[back, ankle] - made_g[back, thigh], g[back, ankle] - g[back, thigh]
+    reach0, reach = made_g[turned, ankle] - made_g[turned, thigh], g[turned, ankle] - g[turned, thigh]
     np.testing.assert_allclose(np.cross(reach, reach0 / np.linalg.norm(reach0, axis=-1, keepdims=True)), 0.0,
                                atol=1e-6)
     assert np.all(np.sum(reach * reach0, axis=-1) > 0.0)

@@ -543,7 +543,8 @@ def limb_bends(rots, positions, joints, bounds, hinges, out):
 
 
 @nb.njit(**_OPTS)
-def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_none, reach_full):
+def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_none, reach_full, accel, passes, plain,
+                 relax, exact):
     """:func:`posturemap.synth.hinges.unbend` (the reference) in place: each leg of ``bounds``
     (K, 4; its joints in ``joints``, the shin ``joints[mid - 1]``, the thigh ``bounds[k, 3]``,
     -1 for none to turn) whose knee bends about ``hinges[k]`` (in the frame of the shin's
@@ -551,16 +552,26 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_n
     to keep the ankle on its line from the hip (the whole way where the ankle is at least
     ``reach_full`` leg lengths from the hip, none within ``reach_none``, a share of the way
     between); one folded further forward than ``mosts[k]`` turned back onto that, its thigh
-    left; the bends read unwrapped over the frames; returns how many knees it turned."""
+    left; the bends read unwrapped over the frames. The turn of each leg's frames set off and
+    brought to rest within ``accel`` (radians per frame squared; ``inf``: none) by
+    :func:`_rest_bounded` (``passes``, ``plain``, ``relax``, ``exact``: ``REST_PASSES``,
+    ``REST_PLAIN``, ``REST_RELAX``, ``REST_EXACT``), the bounds kept; a knee turned forward
+    turns its thigh. Returns how many knees it turned."""
+    n = rots.shape[0]
+    change, lo, hi, low, high, bends = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    measured = np.empty(n, dtype=np.bool_)
     turned = 0
     for k in range(bounds.shape[0]):
         first, mid, last, top = bounds[k, 0], bounds[k, 1], bounds[k, 2], bounds[k, 3]
         shin = joints[mid - 1]
         hx, hy, hz = hinges[k, 0], hinges[k, 1], hinges[k, 2]
         seen, prev, fix = False, 0.0, 0.0
-        for f in range(rots.shape[0]):
-            bend, parent, tx, ty, tz, sx, sy, sz = _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz)
-            if bend != bend:  # NaN: left as it is, as numpy's, and not a step of the unwrapping
+        past = False
+        for f in range(n):  # the change of each bend that keeps it within both bounds
+            bend = _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz)[0]
+            measured[f] = bend == bend
+            lo[f], hi[f], change[f], bends[f] = -np.inf, np.inf, 0.0, bend
+            if not measured[f]:  # NaN: left as it is, as numpy's, and not a step of the unwrapping
                 continue
             if seen:  # unwrapped as np.unwrap does it over the measured frames: each step within a half turn
                 step = bend - prev
@@ -571,16 +582,39 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_n
                     fix += wrapped - step
             seen, prev = True, bend
             bend += fix
-            folded = bend > mosts[k]
-            if not (folded or bend < leasts[k]):  # within both bounds
+            bends[f] = bend
+            if leasts[k] == leasts[k]:  # a NaN bound: none
+                lo[f] = leasts[k] - bend
+            if mosts[k] == mosts[k]:
+                hi[f] = mosts[k] - bend
+            change[f] = min(max(0.0, lo[f]), hi[f])
+            past = past or change[f] != 0.0
+        if not past:
+            continue
+        if accel < np.inf:  # set off and brought to rest within the bound, the bounds kept
+            middle = 0.5 * (leasts[k] + mosts[k])
+            for f in range(n):  # each frame turned toward the middle of the range only, within reach of rest
+                low[f], high[f] = lo[f], hi[f]
+                if bends[f] < middle:
+                    low[f] = max(lo[f], 0.0)
+                elif bends[f] > middle:
+                    high[f] = min(hi[f], 0.0)
+                reach = 0.5 * accel * min((f + 1) * (f + 2), (n - f) * (n - f + 1))
+                low[f], high[f] = min(low[f], reach), max(high[f], -reach)
+            _rest_bounded(change, accel, passes, plain, relax, exact, low, high)
+            for f in range(n):
+                change[f] = min(max(change[f], lo[f]), hi[f]) if measured[f] else 0.0
+        for f in range(n):
+            if change[f] == 0.0:
                 continue
-            # The shin turned about the hinge onto the bound it is past.
-            half = 0.5 * (bend - (mosts[k] if folded else leasts[k]))
+            bend, parent, tx, ty, tz, sx, sy, sz = _limb_bend(rots, positions, f, joints, first, mid, last, hx, hy, hz)
+            # The shin turned about the hinge by the change (a turn about +hinge lowers the bend).
+            half = -0.5 * change[f]
             c, sn = math.cos(half), math.sin(half)
             rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3] = _mul(
                 c, sn * hx, sn * hy, sn * hz, rots[f, shin, 0], rots[f, shin, 1], rots[f, shin, 2], rots[f, shin, 3])
             turned += 1
-            if folded or top < 0:  # a folded leg's hip stays; so does one that would move more than the leg
+            if change[f] < 0.0 or top < 0:  # a folded leg's hip stays; so does one that would move more than the leg
                 continue
             # The hip-to-ankle line before and after the shin's turn, in the thigh's frame.
             nx, ny, nz = _rotate(c, sn * hx, sn * hy, sn * hz, sx, sy, sz)

@@ -444,7 +444,7 @@ def _unbend_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_sta
         shins = {c[1] for c in eng._legs}
         keep = np.array([int(j) in shins for j in joints[bounds[:, 1] - 1]], dtype=bool)
         bounds, hinge, least, most = bounds[keep], hinge[keep], least[keep], most[keep]
-    hinges.unbend((joints, bounds, hinge, least, most), out_r, out_p)
+    hinges.unbend((joints, bounds, hinge, least, most), out_r, out_p, hinges.UNBEND_ACCEL / ta.motion.fps**2)
 
 
 def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start: int) -> tuple:

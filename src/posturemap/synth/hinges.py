@@ -20,7 +20,9 @@ the most) and how far back it goes (the 0.1st percentile of the bends about the 
 most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
 its hinge to that bound: it locks straight, as a real one does, and the hip turns the straight
 leg onto the line from the hip to where the ankle was, so the ankle keeps the motion's line, a
-little further out; frames within the library's range are left exactly as they are. (Turning the
+little further out. The turn sets off before the bound and comes to rest after it within
+``UNBEND_ACCEL``: the knee slows onto the bound instead of stopping dead on it, and frames far
+from it are left exactly as they are. (Turning the
 shin alone left the thigh where the bent-back leg had it: between two held-out dashes (10
 frames) the spline, retrieval's fallback there, matching B's knee flexing 35 degrees a frame
 from straight, carried the knee 49 degrees backward, and the straightened leg raised the toe to
@@ -49,6 +51,7 @@ import numpy as np
 
 from ..core import kernels, quat
 from ..core.joints import subtree_mask
+from . import rest
 
 LEAST_PERCENTILE = 0.1  # of the library's signed knee bends: the furthest back a new frame's knee may go
 #                         (100 less it: the furthest forward)
@@ -56,6 +59,9 @@ HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under
 # The hip-to-ankle distance, in leg lengths (thigh plus shin), from which unbend turns the hip the
 # whole way onto the ankle's line, and under which it leaves the hip as it is (a fraction between).
 REACH_FULL, REACH_NONE = 0.5, 0.25
+UNBEND_ACCEL = 60.0  # radians per second^2: unbend's turn of a knee sets off and comes to rest within this
+#                      (pops between CMU-rig walks at 120 fps and 0.5 / 1 s: 6 / 11 turned at once, 5 / 5
+#                      at 135, the lock's KNEE_ACCEL, 4 / 2 at 60 and at 30)
 
 
 def leg_path(parents, thigh: int, shin: int, ankle: int) -> tuple[list[int], list[int]]:
@@ -186,7 +192,7 @@ def bend_frames(legs: tuple, rots: np.ndarray, positions: np.ndarray) -> np.ndar
     return out
 
 
-def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
+def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray, accel: float | None = None) -> int:
     """Each knee of the frames ``rots`` (N, J, 4; local translations ``positions`` (N, J, 3))
     folded further forward than its leg's bound (``limits``: :func:`packed` of :func:`find`;
     :func:`signed_bends`) turned back about the hinge onto it, the hip left as it is; each bent
@@ -210,13 +216,29 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
     held on a bound from there on (straightened after a backward spin, folded as far as the
     library's after a forward one, up to the gap's end, however far that is from B's first
     frame); reading it afresh once near straight gave pops wherever that
-    switched the reading (47 degrees in a frame in a spline over 3.3 s). In place;
-    returns how many knees (frames times legs) it turned. Where this process uses numba, one
-    compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
+    switched the reading (47 degrees in a frame in a spline over 3.3 s).
+
+    ``accel`` (radians per frame squared; the engine's: ``UNBEND_ACCEL`` over the frame rate
+    squared): the turn of each leg's frames is then moved as little as
+    :func:`posturemap.synth.rest.rest_bounded` finds so that it sets off from rest at A's seam
+    and comes to rest at B's with its second differences within ``accel``, each frame's bend
+    kept within both bounds and turned toward the middle of the range only (a knee nearing the
+    backward bound forward: not wound up the other way first), and no further than a turn from
+    rest at either seam reaches (a knee past the bound in the first new frame is turned onto it
+    there at once, the one place it breaks ``accel``). So the knee slows onto the bound a few
+    frames before it, and leaves it as gently. Turned onto the bound from the frame it passed
+    it, a knee swinging backward stopped dead, and its rate jumped: between CMU-rig walks at 120
+    fps (docs/clip-pairs.md) a toe's path kinked, 3.35x the clips' own largest acceleration.
+    ``None``: onto the bound at once, every frame within it left exactly as it is.
+
+    In place; returns how many knees (frames times legs) it turned. Where this process uses
+    numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
     joints, bounds, hinge_rows, leasts, mosts = limits
     if kernels.backend() == "numba":
         return int(kernels.compiled().unbend_limbs(rots, positions, joints, bounds, hinge_rows, leasts, mosts,
-                                                   REACH_NONE, REACH_FULL))
+                                                   REACH_NONE, REACH_FULL, np.inf if accel is None else accel,
+                                                   rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX,
+                                                   rest.REST_EXACT))
     turned = 0
     for (first, mid, last, top), hinge, least, most in zip(bounds.tolist(), hinge_rows, leasts.tolist(),
                                                          mosts.tolist()):
@@ -225,21 +247,40 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray) -> int:
         bends = signed_bends(t, s, hinge)
         ok = np.isfinite(bends)
         bends[ok] = np.unwrap(bends[ok])  # continuous over the frames it can measure (see above)
-        # Past either bound, the shin turns about the hinge onto it (a turn about +hinge lowers
-        # the bend): a knee bent backward toward the thigh's line (never past it: that bound is
-        # at most 0), a folded one back.
-        folded, backward = bends > most, bends < least  # NaN (a bend or a bound): neither
-        past = np.flatnonzero(folded | backward)
-        if not len(past):
+        # The change of each frame's bend that keeps it within both bounds (NaN, a bend or a
+        # bound: any), and the least one: 0 within them, onto the bound past either.
+        with np.errstate(invalid="ignore"):
+            lo, hi = least - bends, most - bends
+        lo[np.isnan(lo)], hi[np.isnan(hi)] = -np.inf, np.inf
+        if not (lo > 0.0).any() and not (hi < 0.0).any():
             continue
+        change = np.clip(0.0, lo, hi)
+        if accel is not None:  # set off and brought to rest within the bound, the bounds kept
+            # Each frame turned toward the middle of the range only (a knee nearer the backward
+            # bound forward), not wound up the other way before it is turned back.
+            with np.errstate(invalid="ignore"):
+                below, above = bends < 0.5 * (least + most), bends > 0.5 * (least + most)
+            low, high = np.where(below, np.maximum(lo, 0.0), lo), np.where(above, np.minimum(hi, 0.0), hi)
+            # No further than a change from rest at either seam reaches (a knee already past the
+            # bound in the first new frame is turned onto it there, by the clip below, rather
+            # than leaving the bound nowhere to be met, and the sweeps with it).
+            n = len(bends)
+            frames = np.arange(n)
+            reach = 0.5 * accel * np.minimum((frames + 1) * (frames + 2), (n - frames) * (n - frames + 1))
+            low, high = np.minimum(low, reach), np.maximum(high, -reach)
+            change = np.clip(rest.rest_bounded(change, accel, low, high), lo, hi)
+        change[~ok] = 0.0
+        past = np.flatnonzero(change)
         shin = path[0][-1]
-        turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(past), 3)),
-                                    bends[past] - np.where(folded[past], most, least))
+        # The shin turns about the hinge (a turn about +hinge lowers the bend): a knee bent
+        # backward toward the thigh's line (never past it: that bound is at most 0), a folded
+        # one back.
+        turn = quat.from_axis_angle(np.broadcast_to(hinge, (len(past), 3)), -change[past])
         rots[past, shin] = quat.mul(turn, rots[past, shin])
         turned += len(past)
-        # Only a knee bent backward turns its hip (a folded leg's ankle near the hip has no
+        # Only a knee turned forward turns its hip (a folded leg's ankle near the hip has no
         # steady line from it), and only a hip that moves this leg alone (packed).
-        backward = backward[past]
+        backward = change[past] > 0.0
         back, turn = past[backward], turn[backward]
         if top < 0 or not len(back):
             continue
