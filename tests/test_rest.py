@@ -100,7 +100,7 @@ def test_rest_bounded_projects_a_change_over_many_frames_the_sweeps_cannot_bring
     assert (kernels.compiled()._REST_RHO, kernels.compiled()._REST_OVER) == (rest.REST_RHO, rest.REST_OVER)
     same = change.copy()
     kernels.compiled()._rest_bounded(same, accel, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX,
-                                     rest.REST_EXACT, lo, hi)
+                                     rest.REST_EXACT, lo, hi, np.zeros(n + 2))
     np.testing.assert_allclose(same, got, rtol=0, atol=1e-9)
 
 
@@ -109,15 +109,56 @@ def test_rest_bounded_is_the_same_compiled(monkeypatch):
     for change in steep_changes() + [np.array([0.4]), np.array([0.3, -0.3])]:
         got = change.copy()
         nk._rest_bounded(got, 0.15, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX, rest.REST_EXACT,
-                         np.full(len(got), -np.inf), np.full(len(got), np.inf))
+                         np.full(len(got), -np.inf), np.full(len(got), np.inf), np.zeros(len(got) + 2))
         np.testing.assert_allclose(got, rest.rest_bounded(change, 0.15), rtol=0, atol=1e-12)
         # Within a box too, projected where the sweeps cannot reach it (the two Cholesky factors,
         # LAPACK's and the kernel's, round apart), and scaled where that cannot either.
         lo, hi = np.minimum(change, 0.0) - 0.01, np.maximum(change, 0.0) + 0.01
         for passes, exact in ((rest.REST_PASSES, rest.REST_EXACT), (3, rest.REST_EXACT), (3, 2)):
             got = change.copy()
-            nk._rest_bounded(got, 0.15, passes, rest.REST_PLAIN, rest.REST_RELAX, exact, lo, hi)
+            nk._rest_bounded(got, 0.15, passes, rest.REST_PLAIN, rest.REST_RELAX, exact, lo, hi, np.zeros(len(got) + 2))
             monkeypatch.setattr(rest, "REST_PASSES", passes)
             monkeypatch.setattr(rest, "REST_EXACT", exact)
             want = rest.rest_bounded(change, 0.15, lo, hi)
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 if passes > 3 else 1e-9)
+
+
+def knee_held_at_straight(frames: int, seed: int = 3):
+    """A knee's bend (radians) swinging back past straight and forward again, quickly (a seeded
+    smooth walk plus a 40 degree backward bump over six frames), and the change that holds it
+    at straight (0 where it is bent forward): ``(bend, hard, lo, own)``, ``own`` the bend's
+    second differences at the new frames with two new neighbours (rest_bounded's)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(frames)
+    bend = np.radians(20.0 + 5.0 * np.sin(t / 5.0 + rng.uniform(0.0, 6.0)))
+    bend -= np.radians(60.0) * np.where(np.abs(t - frames // 2) < 3, np.cos(np.pi * (t - frames // 2) / 6.0) ** 2, 0.0)
+    lo = -bend
+    hard = np.maximum(lo, 0.0)
+    own = np.zeros(frames + 2)
+    own[2:frames] = np.diff(bend, 2)
+    return bend, hard, lo, own
+
+
+def test_rest_bounded_bounds_the_sum_with_the_motions_own_second_differences():
+    # Bounding the change alone, a knee held on a bound that the motion swings across quickly
+    # is pushed off it: the change cannot follow the motion's own acceleration there, and the
+    # knee bent 14 degrees forward here (25-32 in a cold review's bumps). Given the motion's own
+    # second differences, the sum is bounded instead, by accel or by the motion's own where
+    # that is larger: the knee rests on the bound, follows the motion off it, and slows onto it.
+    accel = 60.0 / 30.0**2
+    bend, hard, lo, own = knee_held_at_straight(40)
+    assert np.abs(own).max() > 3 * accel  # the bump's own acceleration
+    alone = rest.rest_bounded(hard, accel, lo, np.full(40, np.inf))
+    summed = rest.rest_bounded(hard, accel, lo, np.full(40, np.inf), own)
+    bound = np.maximum(accel, np.abs(own))
+    assert np.all(np.abs(at_rest(summed) + own) <= bound * (1 + 1e-4))
+    assert np.all(summed >= lo - 1e-12)
+    knee_alone, knee = bend + alone, bend + summed
+    held = hard > 0.0
+    assert np.degrees(knee_alone[held]).max() > 10.0  # pushed far off the bound
+    assert np.degrees(knee[held]).max() < 2.0
+    # Compiled, the same.
+    got = hard.copy()
+    kernels.compiled()._rest_bounded(got, accel, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX, rest.REST_EXACT,
+                                     lo, np.full(40, np.inf), own)
+    np.testing.assert_allclose(got, summed, rtol=0, atol=1e-12)

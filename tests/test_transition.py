@@ -851,20 +851,17 @@ def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, meth
     if method in ("damped", "spline"):
         np.testing.assert_array_equal(r, made["rots"])
         return
-    # Forward only, none past the bound; the knee slows onto it and leaves it within the
-    # acceleration where the gap has the frames for it (a knee thrown 40 degrees back in a
-    # frame is turned from before it: 20 frames have them, 5 do not). The spline's first frame
-    # is past the bound already, by more than a turn from rest reaches in a frame: turned onto
-    # it at once there.
+    # Forward only, none past the bound, each frame's knee accelerating within the bound
+    # (UNBEND_ACCEL) or the made motion's own, larger there: a knee thrown 40 degrees back in a
+    # frame is held on the bound through it rather than pushed off it, and the turn fades in
+    # before the bound where the motion nears it steadily.
     assert bend.min() >= least - 1e-7
     assert np.all(bend >= made_bend - 1e-9)
     turned = bend - made_bend > 1e-9
-    assert turned[back].all() and turned.sum() > back.sum()
+    assert turned[back].all()
     if length == 20:
         accel = hinges.UNBEND_ACCEL / clips[WALK].fps ** 2
-        second = at_rest(bend - made_bend)
-        assert second[0] == pytest.approx(least - made_bend[0], abs=1e-7) and second[0] > accel
-        assert np.abs(second[1:]).max() <= accel * 1.001
+        assert np.all(np.abs(np.diff(bend, 2)) <= np.maximum(accel, np.abs(np.diff(made_bend, 2))) * 1.002)
     others = np.ones(sk.num_joints, dtype=bool)
     others[[thigh, shin]] = False
     np.testing.assert_array_equal(r[:, others], made["rots"][:, others])

@@ -591,19 +591,12 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_n
             past = past or change[f] != 0.0
         if not past:
             continue
-        if accel < np.inf:  # set off and brought to rest within the bound, the bounds kept
-            middle = 0.5 * (leasts[k] + mosts[k])
-            for f in range(n):  # each frame turned toward the middle of the range only, within reach of rest
-                low[f], high[f] = lo[f], hi[f]
-                if bends[f] < middle:
-                    low[f] = max(lo[f], 0.0)
-                elif bends[f] > middle:
-                    high[f] = min(hi[f], 0.0)
-                reach = 0.5 * accel * min((f + 1) * (f + 2), (n - f) * (n - f + 1))
-                low[f], high[f] = min(low[f], reach), max(high[f], -reach)
-            _rest_bounded(change, accel, passes, plain, relax, exact, low, high)
-            for f in range(n):
-                change[f] = min(max(change[f], lo[f]), hi[f]) if measured[f] else 0.0
+        if accel < np.inf:  # set off and brought to rest within the bound (hinges.faded)
+            _faded(bends, lo, hi, 0.5 * (leasts[k] + mosts[k]), accel, passes, plain, relax, exact, change, low,
+                   high)
+        for f in range(n):
+            if not measured[f]:
+                change[f] = 0.0
         for f in range(n):
             if change[f] == 0.0:
                 continue
@@ -632,6 +625,57 @@ def unbend_limbs(rots, positions, joints, bounds, hinges, leasts, mosts, reach_n
             rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3] = _mul(
                 rots[f, top, 0], rots[f, top, 1], rots[f, top, 2], rots[f, top, 3], a0, a1, a2, a3)
     return turned
+
+
+@nb.njit(**_OPTS)
+def _faded(bends, lo, hi, middle, accel, passes, plain, relax, exact, change, low, high):
+    """:func:`posturemap.synth.hinges.faded` (the reference) into ``change`` (L,; on entry the
+    change onto the bounds at once, ``lo`` and ``hi`` clipped to 0), ``low`` and ``high`` (L,)
+    its scratch: the change moved as little as :func:`_rest_bounded` finds so that the knee's
+    second differences stay within ``accel`` or the motion's own, each frame turned toward
+    ``middle`` only and no further than a change from rest at either seam reaches; the change
+    at once where none is found; turns under 1e-12 radians none."""
+    n = bends.shape[0]
+    own = np.zeros(n + 2)
+    for m in range(2, n):  # the motion's second differences, at the new frames with two new neighbours
+        second = bends[m - 2] - 2.0 * bends[m - 1] + bends[m]
+        own[m] = second if math.isfinite(second) else 0.0
+    for f in range(n):
+        low[f], high[f] = lo[f], hi[f]
+        if bends[f] < middle:
+            low[f] = max(lo[f], 0.0)
+        elif bends[f] > middle:
+            high[f] = min(hi[f], 0.0)
+    # The furthest a change from rest at either seam goes (each second difference within its bound).
+    up_a, down_a, up_sum, down_sum = 0.0, 0.0, 0.0, 0.0
+    for f in range(n):  # from A's side: the second differences up to frame f's
+        bound = max(accel, abs(own[f]))
+        up_sum += bound - own[f]
+        down_sum += bound + own[f]
+        up_a += up_sum
+        down_a += down_sum
+        low[f], high[f] = min(low[f], up_a), max(high[f], -down_a)
+    up_b, down_b, up_sum, down_sum = 0.0, 0.0, 0.0, 0.0
+    for f in range(n - 1, -1, -1):  # from B's side
+        bound = max(accel, abs(own[f + 2]))
+        up_sum += bound - own[f + 2]
+        down_sum += bound + own[f + 2]
+        up_b += up_sum
+        down_b += down_sum
+        low[f], high[f] = min(low[f], up_b), max(high[f], -down_b)
+    hard = change.copy()
+    _rest_bounded(change, accel, passes, plain, relax, exact, low, high, own)
+    found = True
+    for m in range(n + 2):
+        bound = max(accel, abs(own[m]))
+        found = found and _second_size(change, own, m) <= bound * 1.002
+    for f in range(n):
+        slack = 2e-3 * abs(change[f]) + 1e-9
+        found = found and low[f] - slack <= change[f] <= high[f] + slack
+    for f in range(n):
+        change[f] = min(max(change[f], lo[f]), hi[f]) if found else hard[f]
+        if found and abs(change[f]) < 1e-12:
+            change[f] = 0.0
 
 
 @nb.njit(**_OPTS)
@@ -715,32 +759,42 @@ def _at(c, t):
 
 
 @nb.njit(**_OPTS)
-def _second_most(c):
-    """The largest second difference of ``c`` (L,) with two 0 on either side (rest.rest_bounded)."""
-    worst = 0.0
-    for m in range(1, c.shape[0] + 3):
-        worst = max(worst, abs(_at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)))
-    return worst
+def _second_size(c, own, m):
+    """The size of second difference ``m`` of ``c`` (L,) with two 0 on either side, the motion's
+    own (``own`` (L + 2,)) added: centre ``m`` is the frame ``m - 1`` (rest.rest_bounded)."""
+    return abs(_at(c, m - 2) - 2.0 * _at(c, m - 1) + _at(c, m) + own[m])
 
 
 @nb.njit(**_OPTS)
-def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi):
+def _within(c, accel, own):
+    """Whether every second difference of ``c`` (with the motion's ``own``) is within its bound,
+    ``accel`` or the motion's own size where larger, to a ten-thousandth (rest.rest_bounded)."""
+    for m in range(c.shape[0] + 2):
+        bound = max(accel, abs(own[m]))
+        if _second_size(c, own, m) - bound > bound * 1e-4:
+            return False
+    return True
+
+
+@nb.njit(**_OPTS)
+def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi, own):
     """:func:`posturemap.synth.rest.rest_bounded` in place on ``c`` (L,), each value within ``lo``
-    and ``hi`` (L,): the same sweeps, in the same order (``passes``, ``plain``, ``relax``:
-    ``REST_PASSES``, ``REST_PLAIN``, ``REST_RELAX``), where they stop short the same projection
+    and ``hi`` (L,), the motion's own second differences ``own`` (L + 2,; zeros for none): the
+    same sweeps, in the same order (``passes``, ``plain``, ``relax``: ``REST_PASSES``,
+    ``REST_PLAIN``, ``REST_RELAX``), where they stop short the same projection
     (:func:`_rest_projected`, ``exact``: ``REST_EXACT``), and the same scaling of what is left.
     Centre ``m`` of the second differences is the frame ``m - 2`` of ``c`` (-1: A's last frame,
     ``L``: B's first); values outside ``c`` are the clips', 0."""
     n = c.shape[0]
     first_c = c.copy()
     for sweep in range(passes):
-        if _second_most(c) - accel <= accel * 1e-4:
+        if _within(c, accel, own):
             break
         lam = 1.0 if sweep < plain else relax
         for first in range(3):
             for m in range(1 + first, n + 3, 3):
-                second = _at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1)
-                excess = abs(second) - accel
+                second = _at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1) + own[m - 1]
+                excess = abs(second) - max(accel, abs(own[m - 1]))
                 if excess <= 0.0:
                     continue
                 norm2 = (1.0 if 0 <= m - 3 < n else 0.0) + (4.0 if 0 <= m - 2 < n else 0.0) \
@@ -749,20 +803,25 @@ def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi):
                 for t, w in ((m - 3, -f), (m - 2, 2.0 * f), (m - 1, -f)):
                     if 0 <= t < n:
                         c[t] = min(max(c[t] + w, lo[t]), hi[t])
-    worst = _second_most(c)
-    if worst - accel > accel * 1e-4:
-        _rest_projected(first_c, accel, lo, hi, exact, c)
-        worst = _second_most(c)
-        if worst - accel > accel * 1e-4:
-            for t in range(n):
-                c[t] *= accel / worst
+    if n == 0 or _within(c, accel, own):
+        return
+    _rest_projected(first_c, accel, lo, hi, own, exact, c)
+    scale = 1.0
+    for m in range(n + 2):  # scaled toward 0 (within every bound) until within
+        bound, size, ours = max(accel, abs(own[m])), _second_size(c, own, m), abs(own[m])
+        if size - bound > bound * 1e-4:
+            scale = min(scale, (bound - ours) / (size - ours))
+    if scale < 1.0:
+        for t in range(n):
+            c[t] *= scale
 
 
 @nb.njit(**_OPTS)
-def _rest_projected(change, accel, lo, hi, iters, out):
+def _rest_projected(change, accel, lo, hi, own, iters, out):
     """:func:`posturemap.synth.rest.rest_projected` (the reference) into ``out`` (L,): the least
     squares projection of ``change`` onto the bound and the box by ADMM, the pentadiagonal
-    ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands)."""
+    ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands); ``own`` (L + 2,) the motion's
+    own second differences (rest.rest_bounded)."""
     n = change.shape[0]
     rho = _REST_RHO / accel
     diag, sub1, sub2 = np.empty(n), np.zeros(n), np.zeros(n)  # L[i, i], L[i, i - 1], L[i, i - 2]
@@ -776,7 +835,8 @@ def _rest_projected(change, accel, lo, hi, iters, out):
     rhs, dc = np.empty(n), np.empty(n + 2)
     for m in range(n + 2):
         second = _at(change, m - 2) - 2.0 * _at(change, m - 1) + _at(change, m)
-        y[m] = min(max(second, -accel), accel)
+        bound = max(accel, abs(own[m]))
+        y[m] = min(max(second, -bound - own[m]), bound - own[m])
     for t in range(n):
         w[t] = min(max(change[t], lo[t]), hi[t])
         out[t] = change[t]
@@ -800,13 +860,13 @@ def _rest_projected(change, accel, lo, hi, iters, out):
                 x -= sub2[t + 2] * out[t + 2]
             step = max(step, abs(x / diag[t] - out[t]))
             out[t] = x / diag[t]
-        most = 0.0
         inside = True
         for m in range(n + 2):
             dc[m] = _at(out, m - 2) - 2.0 * _at(out, m - 1) + _at(out, m)
-            most = max(most, abs(dc[m]))
+            bound = max(accel, abs(own[m]))
+            inside = inside and abs(dc[m] + own[m]) <= bound * 1.001
             relaxed = _REST_OVER * dc[m] + (1.0 - _REST_OVER) * y[m]
-            y_new = min(max(relaxed + u[m], -accel), accel)
+            y_new = min(max(relaxed + u[m], -bound - own[m]), bound - own[m])
             u[m] += relaxed - y_new
             y[m] = y_new
         for t in range(n):
@@ -815,7 +875,7 @@ def _rest_projected(change, accel, lo, hi, iters, out):
             v[t] += relaxed - w_new
             w[t] = w_new
             inside = inside and lo[t] - 1e-12 <= out[t] <= hi[t] + 1e-12
-        if most <= accel * 1.001 and inside and step <= accel * 1e-3:
+        if inside and step <= accel * 1e-3:
             break
     for t in range(n):
         out[t] = min(max(out[t], lo[t]), hi[t])
@@ -859,7 +919,7 @@ def knee_bounded(goals, gpos, axes, thigh_j, shin_j, ankle_j, soft, through, acc
         work[0, t] = _signed_bend(theta0, need, through) - theta0
         work[1, t], work[2, t] = min(-theta0, 0.0), math.pi - theta0
         work[3, t] = work[0, t]
-    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[1], work[2])
+    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[1], work[2], np.zeros(n_l + 2))
     for t in range(n_l):
         if abs(work[0, t] - work[3, t]) > 1e-9:
             moves[t] = True

@@ -20,9 +20,9 @@ the most) and how far back it goes (the 0.1st percentile of the bends about the 
 most). :func:`unbend` turns each knee and elbow of the new frames that goes further back about
 its hinge to that bound: it locks straight, as a real one does, and the hip turns the straight
 leg onto the line from the hip to where the ankle was, so the ankle keeps the motion's line, a
-little further out. The turn sets off before the bound and comes to rest after it within
-``UNBEND_ACCEL``: the knee slows onto the bound instead of stopping dead on it, and frames far
-from it are left exactly as they are. (Turning the
+little further out. The knee slows onto the bound within ``UNBEND_ACCEL`` instead of stopping
+dead on it, rests on it while the motion would take it past, and leaves it as gently
+(:func:`faded`); frames far from it are left exactly as they are. (Turning the
 shin alone left the thigh where the bent-back leg had it: between two held-out dashes (10
 frames) the spline, retrieval's fallback there, matching B's knee flexing 35 degrees a frame
 from straight, carried the knee 49 degrees backward, and the straightened leg raised the toe to
@@ -219,17 +219,15 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray, accel: float 
     switched the reading (47 degrees in a frame in a spline over 3.3 s).
 
     ``accel`` (radians per frame squared; the engine's: ``UNBEND_ACCEL`` over the frame rate
-    squared): the turn of each leg's frames is then moved as little as
-    :func:`posturemap.synth.rest.rest_bounded` finds so that it sets off from rest at A's seam
-    and comes to rest at B's with its second differences within ``accel``, each frame's bend
-    kept within both bounds and turned toward the middle of the range only (a knee nearing the
-    backward bound forward: not wound up the other way first), and no further than a turn from
-    rest at either seam reaches (a knee past the bound in the first new frame is turned onto it
-    there at once, the one place it breaks ``accel``). So the knee slows onto the bound a few
-    frames before it, and leaves it as gently. Turned onto the bound from the frame it passed
-    it, a knee swinging backward stopped dead, and its rate jumped: between CMU-rig walks at 120
-    fps (docs/clip-pairs.md) a toe's path kinked, 3.35x the clips' own largest acceleration.
-    ``None``: onto the bound at once, every frame within it left exactly as it is.
+    squared): the change of each leg's bends is :func:`faded`'s, so that the knee's own second
+    differences stay within ``accel`` or within the motion's own where those are larger: it
+    slows onto the bound a few frames before it, rests on it, and leaves it as gently. Turned
+    onto the bound from the frame it passed it, a knee swinging backward stopped dead, and its
+    rate jumped: between CMU-rig walks at 120 fps (docs/clip-pairs.md) a toe's path kinked,
+    3.35x the clips' own largest acceleration. (Bounding the turn's acceleration instead of the
+    knee's, a knee on the bound through a quick reversal was pushed off it, 14-49 degrees
+    forward past the motion, and snapped back: a cold review.) ``None``: onto the bound at once,
+    every frame within it left exactly as it is.
 
     In place; returns how many knees (frames times legs) it turned. Where this process uses
     numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""
@@ -254,21 +252,7 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray, accel: float 
         lo[np.isnan(lo)], hi[np.isnan(hi)] = -np.inf, np.inf
         if not (lo > 0.0).any() and not (hi < 0.0).any():
             continue
-        change = np.clip(0.0, lo, hi)
-        if accel is not None:  # set off and brought to rest within the bound, the bounds kept
-            # Each frame turned toward the middle of the range only (a knee nearer the backward
-            # bound forward), not wound up the other way before it is turned back.
-            with np.errstate(invalid="ignore"):
-                below, above = bends < 0.5 * (least + most), bends > 0.5 * (least + most)
-            low, high = np.where(below, np.maximum(lo, 0.0), lo), np.where(above, np.minimum(hi, 0.0), hi)
-            # No further than a change from rest at either seam reaches (a knee already past the
-            # bound in the first new frame is turned onto it there, by the clip below, rather
-            # than leaving the bound nowhere to be met, and the sweeps with it).
-            n = len(bends)
-            frames = np.arange(n)
-            reach = 0.5 * accel * np.minimum((frames + 1) * (frames + 2), (n - frames) * (n - frames + 1))
-            low, high = np.minimum(low, reach), np.maximum(high, -reach)
-            change = np.clip(rest.rest_bounded(change, accel, low, high), lo, hi)
+        change = np.clip(0.0, lo, hi) if accel is None else faded(bends, lo, hi, 0.5 * (least + most), accel)
         change[~ok] = 0.0
         past = np.flatnonzero(change)
         shin = path[0][-1]
@@ -298,3 +282,41 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray, accel: float 
         onto[part] = quat.exp(share[some][part, None] * quat.log(onto[part]))
         rots[back[some], top] = quat.mul(rots[back[some], top], onto)
     return turned
+
+
+def faded(bends: np.ndarray, lo: np.ndarray, hi: np.ndarray, middle: float, accel: float) -> np.ndarray:
+    """The change (L,) of each frame's knee bend ``bends`` (L,; unwrapped, NaN where not
+    measured) that keeps it within both bounds (each frame's change within ``lo`` and ``hi``,
+    the bounds less the bend), set off and brought to rest within ``accel`` (radians per frame
+    squared): the change is moved as little as :func:`posturemap.synth.rest.rest_bounded` finds
+    so that the knee's own second differences (its bend plus the change) stay within ``accel``,
+    or within the motion's own where that is larger: a knee held on a bound follows the motion's
+    swing there, and one swinging onto it slows onto it. Each frame is turned toward the
+    ``middle`` of the range only (a knee nearer the backward bound forward: not wound up the
+    other way first), no further than a change from rest at either seam reaches (a knee already
+    past the bound in the first new frame is turned onto it there at once, the clip below). Where
+    no such change is found (the bounds and the box leave none), the change onto the bound at
+    once (as ``accel`` None does). Turns under 1e-12 radians are none."""
+    n = len(bends)
+    hard = np.clip(0.0, lo, hi)
+    own = np.zeros(n + 2)  # the motion's second differences, at the new frames with two new neighbours
+    if n >= 3:
+        own[2:n] = bends[:-2] - 2.0 * bends[1:-1] + bends[2:]
+    own[~np.isfinite(own)] = 0.0
+    bound = np.maximum(accel, np.abs(own))
+    with np.errstate(invalid="ignore"):
+        below, above = bends < middle, bends > middle
+    low, high = np.where(below, np.maximum(lo, 0.0), lo), np.where(above, np.minimum(hi, 0.0), hi)
+
+    def reach(most):  # the furthest a change from rest at either seam goes, its second differences at most `most`
+        return np.minimum(np.cumsum(np.cumsum(most))[:n], np.cumsum(np.cumsum(most[::-1]))[:n][::-1])
+
+    low, high = np.minimum(low, reach(bound - own)), np.maximum(high, -reach(bound + own))
+    change = rest.rest_bounded(hard, accel, low, high, own)
+    slack = 2e-3 * np.abs(change) + 1e-9
+    if (np.any(np.abs(rest.at_rest(change) + own) > bound * 1.002) or np.any(change < low - slack)
+            or np.any(change > high + slack)):
+        return hard
+    change = np.clip(change, lo, hi)
+    change[np.abs(change) < 1e-12] = 0.0
+    return change

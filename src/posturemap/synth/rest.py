@@ -31,13 +31,20 @@ def at_rest(change: np.ndarray) -> np.ndarray:
 
 
 def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
-                 hi: np.ndarray | None = None) -> np.ndarray:
+                 hi: np.ndarray | None = None, own: np.ndarray | None = None) -> np.ndarray:
     """``change`` (L,) moved as little as the sweeps find so that, 0 in the two frames before it
     and the two after it (the clips' frames beside the new ones), every second difference is at
     most ``accel``: the one at each new frame, and at A's last frame and B's first (there the
     first and the last value themselves); each value within ``lo`` and ``hi`` (L,) where given
     (``change`` must be). A change of the new frames that sets off from rest and comes to
     rest within a bound on its acceleration.
+
+    ``own`` (L + 2,): the second differences (as :func:`at_rest` gives them) of the motion the
+    change is added to, where it is the sum that is bounded: each second difference of the
+    change plus the motion's own within ``accel``, or within the motion's own size where that
+    is larger (the change may follow the motion's own acceleration, never exceed it; 0 is
+    always within). :func:`posturemap.synth.hinges.unbend`'s: a knee held on a bound follows
+    the motion's own swing, and slows onto the bound within ``accel``.
 
     Each bound is a slab in the values it touches (one, two or three of them); a sweep projects
     the values onto the slabs they break (Kaczmarz's projections onto convex sets: a point
@@ -81,28 +88,36 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
     norm2 = free[centres - 1] + 4.0 * free[centres] + free[centres + 1]
     low = np.full(n + 4, -np.inf) if lo is None else np.concatenate([[0.0, 0.0], lo, [0.0, 0.0]])
     high = np.full(n + 4, np.inf) if hi is None else np.concatenate([[0.0, 0.0], hi, [0.0, 0.0]])
+    own = np.zeros(n + 2) if own is None else own
+    bound = np.maximum(accel, np.abs(own))
+
+    def size(x):  # each second difference's size, the motion's own added (x padded with the clips' 0)
+        return np.abs(x[:-2] - 2.0 * x[1:-1] + x[2:] + own)
+
     for sweep in range(REST_PASSES):
-        if np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() - accel <= accel * 1e-4:
+        if np.all(size(c) - bound <= bound * 1e-4):
             break
         relax = 1.0 if sweep < REST_PLAIN else REST_RELAX
         for first in range(3):
             m = centres[first::3]
-            second = c[m - 1] - 2.0 * c[m] + c[m + 1]
-            f = relax * np.sign(second) * np.maximum(np.abs(second) - accel, 0.0) / norm2[m - 1]
+            second = c[m - 1] - 2.0 * c[m] + c[m + 1] + own[m - 1]
+            f = relax * np.sign(second) * np.maximum(np.abs(second) - bound[m - 1], 0.0) / norm2[m - 1]
             c[m - 1] -= f * free[m - 1]
             c[m] += 2.0 * f * free[m]
             c[m + 1] -= f * free[m + 1]
             c = np.clip(c, low, high)
-    worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max() if n else 0.0
-    if worst - accel > accel * 1e-4:
-        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2])
-        worst = np.abs(c[:-2] - 2.0 * c[1:-1] + c[2:]).max()
-        if worst - accel > accel * 1e-4:
-            c *= accel / worst
+    if n and not np.all(size(c) - bound <= bound * 1e-4):
+        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2], own)
+        now = size(c)
+        past = now - bound > bound * 1e-4
+        if past.any():  # scaled toward 0 (within every bound: |s + own| <= |s| + |own|) until within
+            ours = np.abs(own[past])
+            c *= np.min((bound[past] - ours) / (now[past] - ours))
     return c[2:-2]
 
 
-def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray,
+                   own: np.ndarray | None = None) -> np.ndarray:
     """The least squares projection of ``change`` (L,) onto :func:`rest_bounded`'s bound (every
     second difference at most ``accel``, the clips' two frames on either side 0) and the box
     ``[lo, hi]`` (L,), by ADMM (the alternating direction method of multipliers): each iteration
@@ -133,7 +148,10 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
     def spread(z):  # D' z
         return z[:-2] - 2.0 * z[1:-1] + z[2:]
 
-    y = np.clip(at_rest(change), -accel, accel)
+    own = np.zeros(n + 2) if own is None else own
+    bound = np.maximum(accel, np.abs(own))
+    least, most = -bound - own, bound - own  # each second difference of the change (own: rest_bounded)
+    y = np.clip(at_rest(change), least, most)
     w = np.clip(change, lo, hi)
     u, v = np.zeros(n + 2), np.zeros(n)
     c = change
@@ -143,11 +161,11 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
         dc = at_rest(c)
         dc_r = REST_OVER * dc + (1.0 - REST_OVER) * y  # over-relaxed
         c_r = REST_OVER * c + (1.0 - REST_OVER) * w
-        y = np.clip(dc_r + u, -accel, accel)
+        y = np.clip(dc_r + u, least, most)
         w = np.clip(c_r + v, lo, hi)
         u += dc_r - y
         v += c_r - w
-        if (np.abs(dc).max() <= accel * 1.001 and np.all(c >= lo - 1e-12) and np.all(c <= hi + 1e-12)
+        if (np.all(np.abs(dc + own) <= bound * 1.001) and np.all(c >= lo - 1e-12) and np.all(c <= hi + 1e-12)
                 and np.abs(c - before).max() <= accel * 1e-3):
             break
     return np.clip(c, lo, hi)
