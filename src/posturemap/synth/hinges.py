@@ -59,9 +59,9 @@ HINGE_MIN = 1e-3  # the normals' mean length (in squared leg-bone lengths) under
 # The hip-to-ankle distance, in leg lengths (thigh plus shin), from which unbend turns the hip the
 # whole way onto the ankle's line, and under which it leaves the hip as it is (a fraction between).
 REACH_FULL, REACH_NONE = 0.5, 0.25
-UNBEND_ACCEL = 60.0  # radians per second^2: unbend's turn of a knee sets off and comes to rest within this
-#                      (pops between CMU-rig walks at 120 fps and 0.5 / 1 s: 6 / 11 turned at once, 5 / 5
-#                      at 135, the lock's KNEE_ACCEL, 4 / 2 at 60 and at 30)
+UNBEND_ACCEL = 60.0  # radians per second^2: a knee unbend turns slows onto its bound and leaves it within
+#                      this (faded; pops between CMU-rig walks at 120 fps and 0.5 / 1 s: 6 / 11 turned at
+#                      once, 5 / 5 at 135, the lock's KNEE_ACCEL, 4 / 2 at 60 and at 30)
 
 
 def leg_path(parents, thigh: int, shin: int, ankle: int) -> tuple[list[int], list[int]]:

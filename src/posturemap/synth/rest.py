@@ -6,7 +6,8 @@ holds a knee or elbow within the library's range (:func:`posturemap.synth.hinges
 each such a change: made frame by frame they jump where the goal jumps or where a bend passes a
 bound, and a jump in a joint's angle, or in its rate, is a pop the eye sees. Both ask the same
 of it: 0 in the two clip frames on either side of the new ones (the clips' motion is kept), and
-every second difference, A's last frame's and B's first included, at most the bound.
+every second difference, A's last frame's and B's first included, at most the bound (for the
+lock, the turn's own; for ``unbend``, the knee's: the turn's plus the motion's, ``own``).
 :func:`rest_bounded` finds it by projections onto each bound, and where they stop short by the
 least squares projection (:func:`rest_projected`). The compiled twins are
 :func:`posturemap.core.numba_kernels._rest_bounded` and ``_rest_projected``.
@@ -119,7 +120,8 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
 def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray,
                    own: np.ndarray | None = None) -> np.ndarray:
     """The least squares projection of ``change`` (L,) onto :func:`rest_bounded`'s bound (every
-    second difference at most ``accel``, the clips' two frames on either side 0) and the box
+    second difference at most ``accel``, the clips' two frames on either side 0; with ``own``,
+    the sum's, as there) and the box
     ``[lo, hi]`` (L,), by ADMM (the alternating direction method of multipliers): each iteration
     one solve of ``(1 + r) I + r D'D`` (pentadiagonal, factored once; ``D`` the second
     differences, ``r = REST_RHO / accel``), then the second differences clipped onto the bound
