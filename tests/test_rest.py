@@ -100,7 +100,7 @@ def test_rest_bounded_projects_a_change_over_many_frames_the_sweeps_cannot_bring
     assert (kernels.compiled()._REST_RHO, kernels.compiled()._REST_OVER) == (rest.REST_RHO, rest.REST_OVER)
     same = change.copy()
     kernels.compiled()._rest_bounded(same, accel, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX,
-                                     rest.REST_EXACT, lo, hi, np.zeros(n + 2))
+                                     rest.REST_EXACT, lo, hi, np.zeros(n + 2), np.full(n + 2, accel))
     np.testing.assert_allclose(same, got, rtol=0, atol=1e-9)
 
 
@@ -109,14 +109,16 @@ def test_rest_bounded_is_the_same_compiled(monkeypatch):
     for change in steep_changes() + [np.array([0.4]), np.array([0.3, -0.3])]:
         got = change.copy()
         nk._rest_bounded(got, 0.15, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX, rest.REST_EXACT,
-                         np.full(len(got), -np.inf), np.full(len(got), np.inf), np.zeros(len(got) + 2))
+                         np.full(len(got), -np.inf), np.full(len(got), np.inf), np.zeros(len(got) + 2),
+                         np.full(len(got) + 2, 0.15))
         np.testing.assert_allclose(got, rest.rest_bounded(change, 0.15), rtol=0, atol=1e-12)
         # Within a box too, projected where the sweeps cannot reach it (the two Cholesky factors,
         # LAPACK's and the kernel's, round apart), and scaled where that cannot either.
         lo, hi = np.minimum(change, 0.0) - 0.01, np.maximum(change, 0.0) + 0.01
         for passes, exact in ((rest.REST_PASSES, rest.REST_EXACT), (3, rest.REST_EXACT), (3, 2)):
             got = change.copy()
-            nk._rest_bounded(got, 0.15, passes, rest.REST_PLAIN, rest.REST_RELAX, exact, lo, hi, np.zeros(len(got) + 2))
+            nk._rest_bounded(got, 0.15, passes, rest.REST_PLAIN, rest.REST_RELAX, exact, lo, hi, np.zeros(len(got) + 2),
+                             np.full(len(got) + 2, 0.15))
             monkeypatch.setattr(rest, "REST_PASSES", passes)
             monkeypatch.setattr(rest, "REST_EXACT", exact)
             want = rest.rest_bounded(change, 0.15, lo, hi)
@@ -160,5 +162,5 @@ def test_rest_bounded_bounds_the_sum_with_the_motions_own_second_differences():
     # Compiled, the same.
     got = hard.copy()
     kernels.compiled()._rest_bounded(got, accel, rest.REST_PASSES, rest.REST_PLAIN, rest.REST_RELAX, rest.REST_EXACT,
-                                     lo, np.full(40, np.inf), own)
+                                     lo, np.full(40, np.inf), own, np.maximum(accel, np.abs(own)))
     np.testing.assert_allclose(got, summed, rtol=0, atol=1e-12)

@@ -636,10 +636,15 @@ def _faded(bends, lo, hi, middle, accel, passes, plain, relax, exact, change, lo
     ``middle`` only and no further than a change from rest at either seam reaches; the change
     at once where none is found; turns under 1e-12 radians none."""
     n = bends.shape[0]
-    own = np.zeros(n + 2)
+    own, bound = np.zeros(n + 2), np.full(n + 2, accel)
     for m in range(2, n):  # the motion's second differences, at the new frames with two new neighbours
         second = bends[m - 2] - 2.0 * bends[m - 1] + bends[m]
-        own[m] = second if math.isfinite(second) else 0.0
+        if not math.isfinite(second):  # a frame not measured: no bound there
+            bound[m] = np.inf
+            continue
+        own[m] = second
+        if lo[m - 2] <= 0.0 <= hi[m - 2] and lo[m - 1] <= 0.0 <= hi[m - 1] and lo[m] <= 0.0 <= hi[m]:
+            bound[m] = max(accel, abs(second))  # within the range: the motion's own where larger
     for f in range(n):
         low[f], high[f] = lo[f], hi[f]
         if bends[f] < middle:
@@ -649,26 +654,23 @@ def _faded(bends, lo, hi, middle, accel, passes, plain, relax, exact, change, lo
     # The furthest a change from rest at either seam goes (each second difference within its bound).
     up_a, down_a, up_sum, down_sum = 0.0, 0.0, 0.0, 0.0
     for f in range(n):  # from A's side: the second differences up to frame f's
-        bound = max(accel, abs(own[f]))
-        up_sum += bound - own[f]
-        down_sum += bound + own[f]
+        up_sum += bound[f] - own[f]
+        down_sum += bound[f] + own[f]
         up_a += up_sum
         down_a += down_sum
         low[f], high[f] = min(low[f], up_a), max(high[f], -down_a)
     up_b, down_b, up_sum, down_sum = 0.0, 0.0, 0.0, 0.0
     for f in range(n - 1, -1, -1):  # from B's side
-        bound = max(accel, abs(own[f + 2]))
-        up_sum += bound - own[f + 2]
-        down_sum += bound + own[f + 2]
+        up_sum += bound[f + 2] - own[f + 2]
+        down_sum += bound[f + 2] + own[f + 2]
         up_b += up_sum
         down_b += down_sum
         low[f], high[f] = min(low[f], up_b), max(high[f], -down_b)
     hard = change.copy()
-    _rest_bounded(change, accel, passes, plain, relax, exact, low, high, own)
+    _rest_bounded(change, accel, passes, plain, relax, exact, low, high, own, bound)
     found = True
     for m in range(n + 2):
-        bound = max(accel, abs(own[m]))
-        found = found and _second_size(change, own, m) <= bound * 1.002
+        found = found and _second_size(change, own, m) <= bound[m] * 1.002
     for f in range(n):
         slack = 2e-3 * abs(change[f]) + 1e-9
         found = found and low[f] - slack <= change[f] <= high[f] + slack
@@ -766,20 +768,20 @@ def _second_size(c, own, m):
 
 
 @nb.njit(**_OPTS)
-def _within(c, accel, own):
-    """Whether every second difference of ``c`` (with the motion's ``own``) is within its bound,
-    ``accel`` or the motion's own size where larger, to a ten-thousandth (rest.rest_bounded)."""
+def _within(c, own, bound):
+    """Whether every second difference of ``c`` (with the motion's ``own``) is within its
+    ``bound`` (L + 2,), to a ten-thousandth (rest.rest_bounded)."""
     for m in range(c.shape[0] + 2):
-        bound = max(accel, abs(own[m]))
-        if _second_size(c, own, m) - bound > bound * 1e-4:
+        if _second_size(c, own, m) - bound[m] > bound[m] * 1e-4:
             return False
     return True
 
 
 @nb.njit(**_OPTS)
-def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi, own):
+def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi, own, bound):
     """:func:`posturemap.synth.rest.rest_bounded` in place on ``c`` (L,), each value within ``lo``
-    and ``hi`` (L,), the motion's own second differences ``own`` (L + 2,; zeros for none): the
+    and ``hi`` (L,), the motion's own second differences ``own`` (L + 2,; zeros for none) and the
+    bound on each second difference of the sum ``bound`` (L + 2,; ``accel`` each for none): the
     same sweeps, in the same order (``passes``, ``plain``, ``relax``: ``REST_PASSES``,
     ``REST_PLAIN``, ``REST_RELAX``), where they stop short the same projection
     (:func:`_rest_projected`, ``exact``: ``REST_EXACT``), and the same scaling of what is left.
@@ -788,13 +790,13 @@ def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi, own):
     n = c.shape[0]
     first_c = c.copy()
     for sweep in range(passes):
-        if _within(c, accel, own):
+        if _within(c, own, bound):
             break
         lam = 1.0 if sweep < plain else relax
         for first in range(3):
             for m in range(1 + first, n + 3, 3):
                 second = _at(c, m - 3) - 2.0 * _at(c, m - 2) + _at(c, m - 1) + own[m - 1]
-                excess = abs(second) - max(accel, abs(own[m - 1]))
+                excess = abs(second) - bound[m - 1]
                 if excess <= 0.0:
                     continue
                 norm2 = (1.0 if 0 <= m - 3 < n else 0.0) + (4.0 if 0 <= m - 2 < n else 0.0) \
@@ -803,25 +805,25 @@ def _rest_bounded(c, accel, passes, plain, relax, exact, lo, hi, own):
                 for t, w in ((m - 3, -f), (m - 2, 2.0 * f), (m - 1, -f)):
                     if 0 <= t < n:
                         c[t] = min(max(c[t] + w, lo[t]), hi[t])
-    if n == 0 or _within(c, accel, own):
+    if n == 0 or _within(c, own, bound):
         return
-    _rest_projected(first_c, accel, lo, hi, own, exact, c)
+    _rest_projected(first_c, accel, lo, hi, own, bound, exact, c)
     scale = 1.0
     for m in range(n + 2):  # scaled toward 0 (within every bound) until within
-        bound, size, ours = max(accel, abs(own[m])), _second_size(c, own, m), abs(own[m])
-        if size - bound > bound * 1e-4:
-            scale = min(scale, (bound - ours) / (size - ours))
+        size, ours = _second_size(c, own, m), abs(own[m])
+        if size - bound[m] > bound[m] * 1e-4:
+            scale = max(min(scale, (bound[m] - ours) / (size - ours)), 0.0)
     if scale < 1.0:
         for t in range(n):
             c[t] *= scale
 
 
 @nb.njit(**_OPTS)
-def _rest_projected(change, accel, lo, hi, own, iters, out):
+def _rest_projected(change, accel, lo, hi, own, bound, iters, out):
     """:func:`posturemap.synth.rest.rest_projected` (the reference) into ``out`` (L,): the least
     squares projection of ``change`` onto the bound and the box by ADMM, the pentadiagonal
     ``(1 + r) I + r D'D`` factored here (Cholesky, its three bands); ``own`` (L + 2,) the motion's
-    own second differences (rest.rest_bounded)."""
+    own second differences, ``bound`` (L + 2,) each one's bound (rest.rest_bounded)."""
     n = change.shape[0]
     rho = _REST_RHO / accel
     diag, sub1, sub2 = np.empty(n), np.zeros(n), np.zeros(n)  # L[i, i], L[i, i - 1], L[i, i - 2]
@@ -835,8 +837,7 @@ def _rest_projected(change, accel, lo, hi, own, iters, out):
     rhs, dc = np.empty(n), np.empty(n + 2)
     for m in range(n + 2):
         second = _at(change, m - 2) - 2.0 * _at(change, m - 1) + _at(change, m)
-        bound = max(accel, abs(own[m]))
-        y[m] = min(max(second, -bound - own[m]), bound - own[m])
+        y[m] = min(max(second, -bound[m] - own[m]), bound[m] - own[m])
     for t in range(n):
         w[t] = min(max(change[t], lo[t]), hi[t])
         out[t] = change[t]
@@ -863,10 +864,9 @@ def _rest_projected(change, accel, lo, hi, own, iters, out):
         inside = True
         for m in range(n + 2):
             dc[m] = _at(out, m - 2) - 2.0 * _at(out, m - 1) + _at(out, m)
-            bound = max(accel, abs(own[m]))
-            inside = inside and abs(dc[m] + own[m]) <= bound * 1.001
+            inside = inside and abs(dc[m] + own[m]) <= bound[m] * 1.001
             relaxed = _REST_OVER * dc[m] + (1.0 - _REST_OVER) * y[m]
-            y_new = min(max(relaxed + u[m], -bound - own[m]), bound - own[m])
+            y_new = min(max(relaxed + u[m], -bound[m] - own[m]), bound[m] - own[m])
             u[m] += relaxed - y_new
             y[m] = y_new
         for t in range(n):
@@ -919,7 +919,8 @@ def knee_bounded(goals, gpos, axes, thigh_j, shin_j, ankle_j, soft, through, acc
         work[0, t] = _signed_bend(theta0, need, through) - theta0
         work[1, t], work[2, t] = min(-theta0, 0.0), math.pi - theta0
         work[3, t] = work[0, t]
-    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[1], work[2], np.zeros(n_l + 2))
+    _rest_bounded(work[0], accel, passes, plain, relax, exact, work[1], work[2], np.zeros(n_l + 2),
+                  np.full(n_l + 2, accel))
     for t in range(n_l):
         if abs(work[0, t] - work[3, t]) > 1e-9:
             moves[t] = True

@@ -290,8 +290,10 @@ def faded(bends: np.ndarray, lo: np.ndarray, hi: np.ndarray, middle: float, acce
     the bounds less the bend), set off and brought to rest within ``accel`` (radians per frame
     squared): the change is moved as little as :func:`posturemap.synth.rest.rest_bounded` finds
     so that the knee's own second differences (its bend plus the change) stay within ``accel``,
-    or within the motion's own where that is larger: a knee held on a bound follows the motion's
-    swing there, and one swinging onto it slows onto it. Each frame is turned toward the
+    or within the motion's own where that is larger and the three frames are within the range
+    (none where one is not measured): a knee swinging onto the bound slows onto it, rests on it
+    while the motion would take it past (through a reversal there too), and follows the motion
+    where it is within the range. Each frame is turned toward the
     ``middle`` of the range only (a knee nearer the backward bound forward: not wound up the
     other way first), no further than a change from rest at either seam reaches (a knee already
     past the bound in the first new frame is turned onto it there at once, the clip below). Where
@@ -300,10 +302,16 @@ def faded(bends: np.ndarray, lo: np.ndarray, hi: np.ndarray, middle: float, acce
     n = len(bends)
     hard = np.clip(0.0, lo, hi)
     own = np.zeros(n + 2)  # the motion's second differences, at the new frames with two new neighbours
+    bound = np.full(n + 2, accel)
     if n >= 3:
         own[2:n] = bends[:-2] - 2.0 * bends[1:-1] + bends[2:]
-    own[~np.isfinite(own)] = 0.0
-    bound = np.maximum(accel, np.abs(own))
+        # The knee may follow the motion's own acceleration where all three frames are within the
+        # range (a reversal past the bound is no swing of the held knee's: there accel, so it
+        # rests on the bound instead of bouncing off it); none where a frame is not measured.
+        inside = (lo <= 0.0) & (hi >= 0.0)
+        bound[2:n] = np.where(inside[:-2] & inside[1:-1] & inside[2:], np.maximum(accel, np.abs(own[2:n])), accel)
+    unmeasured = ~np.isfinite(own)
+    own[unmeasured], bound[unmeasured] = 0.0, np.inf
     with np.errstate(invalid="ignore"):
         below, above = bends < middle, bends > middle
     low, high = np.where(below, np.maximum(lo, 0.0), lo), np.where(above, np.minimum(hi, 0.0), hi)
@@ -312,7 +320,7 @@ def faded(bends: np.ndarray, lo: np.ndarray, hi: np.ndarray, middle: float, acce
         return np.minimum(np.cumsum(np.cumsum(most))[:n], np.cumsum(np.cumsum(most[::-1]))[:n][::-1])
 
     low, high = np.minimum(low, reach(bound - own)), np.maximum(high, -reach(bound + own))
-    change = rest.rest_bounded(hard, accel, low, high, own)
+    change = rest.rest_bounded(hard, accel, low, high, own, bound)
     slack = 2e-3 * np.abs(change) + 1e-9
     if (np.any(np.abs(rest.at_rest(change) + own) > bound * 1.002) or np.any(change < low - slack)
             or np.any(change > high + slack)):

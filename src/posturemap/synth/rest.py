@@ -32,7 +32,8 @@ def at_rest(change: np.ndarray) -> np.ndarray:
 
 
 def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
-                 hi: np.ndarray | None = None, own: np.ndarray | None = None) -> np.ndarray:
+                 hi: np.ndarray | None = None, own: np.ndarray | None = None,
+                 bound: np.ndarray | None = None) -> np.ndarray:
     """``change`` (L,) moved as little as the sweeps find so that, 0 in the two frames before it
     and the two after it (the clips' frames beside the new ones), every second difference is at
     most ``accel``: the one at each new frame, and at A's last frame and B's first (there the
@@ -44,8 +45,8 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
     change is added to, where it is the sum that is bounded: each second difference of the
     change plus the motion's own within ``accel``, or within the motion's own size where that
     is larger (the change may follow the motion's own acceleration, never exceed it; 0 is
-    always within). :func:`posturemap.synth.hinges.unbend`'s: a knee held on a bound follows
-    the motion's own swing, and slows onto the bound within ``accel``.
+    always within), or within ``bound`` (L + 2,) where given: :func:`posturemap.synth.hinges.faded`'s,
+    the motion's own only where the knee is within its range, ``accel`` where it is past it.
 
     Each bound is a slab in the values it touches (one, two or three of them); a sweep projects
     the values onto the slabs they break (Kaczmarz's projections onto convex sets: a point
@@ -90,7 +91,7 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
     low = np.full(n + 4, -np.inf) if lo is None else np.concatenate([[0.0, 0.0], lo, [0.0, 0.0]])
     high = np.full(n + 4, np.inf) if hi is None else np.concatenate([[0.0, 0.0], hi, [0.0, 0.0]])
     own = np.zeros(n + 2) if own is None else own
-    bound = np.maximum(accel, np.abs(own))
+    bound = np.maximum(accel, np.abs(own)) if bound is None else bound
 
     def size(x):  # each second difference's size, the motion's own added (x padded with the clips' 0)
         return np.abs(x[:-2] - 2.0 * x[1:-1] + x[2:] + own)
@@ -108,17 +109,17 @@ def rest_bounded(change: np.ndarray, accel: float, lo: np.ndarray | None = None,
             c[m + 1] -= f * free[m + 1]
             c = np.clip(c, low, high)
     if n and not np.all(size(c) - bound <= bound * 1e-4):
-        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2], own)
+        c[2:-2] = rest_projected(change, accel, low[2:-2], high[2:-2], own, bound)
         now = size(c)
         past = now - bound > bound * 1e-4
         if past.any():  # scaled toward 0 (within every bound: |s + own| <= |s| + |own|) until within
             ours = np.abs(own[past])
-            c *= np.min((bound[past] - ours) / (now[past] - ours))
+            c *= max(np.min((bound[past] - ours) / (now[past] - ours)), 0.0)
     return c[2:-2]
 
 
 def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndarray,
-                   own: np.ndarray | None = None) -> np.ndarray:
+                   own: np.ndarray | None = None, bound: np.ndarray | None = None) -> np.ndarray:
     """The least squares projection of ``change`` (L,) onto :func:`rest_bounded`'s bound (every
     second difference at most ``accel``, the clips' two frames on either side 0; with ``own``,
     the sum's, as there) and the box
@@ -151,7 +152,7 @@ def rest_projected(change: np.ndarray, accel: float, lo: np.ndarray, hi: np.ndar
         return z[:-2] - 2.0 * z[1:-1] + z[2:]
 
     own = np.zeros(n + 2) if own is None else own
-    bound = np.maximum(accel, np.abs(own))
+    bound = np.maximum(accel, np.abs(own)) if bound is None else bound
     least, most = -bound - own, bound - own  # each second difference of the change (own: rest_bounded)
     y = np.clip(at_rest(change), least, most)
     w = np.clip(change, lo, hi)
