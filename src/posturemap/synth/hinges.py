@@ -220,14 +220,18 @@ def unbend(limits: tuple, rots: np.ndarray, positions: np.ndarray, accel: float 
 
     ``accel`` (radians per frame squared; the engine's: ``UNBEND_ACCEL`` over the frame rate
     squared): the change of each leg's bends is :func:`faded`'s, so that the knee's own second
-    differences stay within ``accel`` or within the motion's own where those are larger: it
-    slows onto the bound a few frames before it, rests on it, and leaves it as gently. Turned
+    differences stay within ``accel``, or within the motion's own where those are larger and
+    the knee within its range: it slows onto the bound a few frames before it, rests on it, and
+    leaves it as gently. Turned
     onto the bound from the frame it passed it, a knee swinging backward stopped dead, and its
     rate jumped: between CMU-rig walks at 120 fps (docs/clip-pairs.md) a toe's path kinked,
     3.35x the clips' own largest acceleration. (Bounding the turn's acceleration instead of the
     knee's, a knee on the bound through a quick reversal was pushed off it, 14-49 degrees
-    forward past the motion, and snapped back: a cold review.) ``None``: onto the bound at once,
-    every frame within it left exactly as it is.
+    forward past the motion, and snapped back: a cold review. Letting the knee follow the
+    motion's own acceleration past the bound too, it bounced off the bound at a quick reversal:
+    a second one.) A knee swinging onto the bound faster than ``accel`` can stop it in the room
+    it has turns back short of the bound, smoothly. ``None``: onto the bound at once, every
+    frame within it left exactly as it is.
 
     In place; returns how many knees (frames times legs) it turned. Where this process uses
     numba, one compiled call (:func:`posturemap.core.numba_kernels.unbend_limbs`)."""

@@ -7,7 +7,8 @@ each such a change: made frame by frame they jump where the goal jumps or where 
 bound, and a jump in a joint's angle, or in its rate, is a pop the eye sees. Both ask the same
 of it: 0 in the two clip frames on either side of the new ones (the clips' motion is kept), and
 every second difference, A's last frame's and B's first included, at most the bound (for the
-lock, the turn's own; for ``unbend``, the knee's: the turn's plus the motion's, ``own``).
+lock, the turn's own; for ``unbend``, the knee's: the turn's plus the motion's, ``own``, each
+within its own ``bound``).
 :func:`rest_bounded` finds it by projections onto each bound, and where they stop short by the
 least squares projection (:func:`rest_projected`). The compiled twins are
 :func:`posturemap.core.numba_kernels._rest_bounded` and ``_rest_projected``.
