@@ -632,7 +632,8 @@ def _faded(bends, lo, hi, middle, accel, passes, plain, relax, exact, change, lo
     """:func:`posturemap.synth.hinges.faded` (the reference) into ``change`` (L,; on entry the
     change onto the bounds at once, ``lo`` and ``hi`` clipped to 0), ``low`` and ``high`` (L,)
     its scratch: the change moved as little as :func:`_rest_bounded` finds so that the knee's
-    second differences stay within ``accel`` or the motion's own, each frame turned toward
+    second differences stay within ``accel``, or the motion's own where larger and the three
+    frames within the range (none where one is not measured), each frame turned toward
     ``middle`` only and no further than a change from rest at either seam reaches; the change
     at once where none is found; turns under 1e-12 radians none."""
     n = bends.shape[0]
