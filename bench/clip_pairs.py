@@ -26,7 +26,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import itertools
 import sys
@@ -36,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from transition_speed import machine, machine_line, save_outputs  # noqa: E402
+from transition_speed import machine, machine_line, report_parser, save_outputs  # noqa: E402
 
 METHODS = (("auto", True), ("auto", False), ("slerp", True), ("slerp", False))
 POP = (1.5, 3.0)  # a transition pops where its largest joint acceleration is this many times the clips'
@@ -164,16 +163,13 @@ def markdown(result: dict, command: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p = report_parser(__doc__.split("\n")[0], data=False)
     p.add_argument("--clips", required=True, help="folder of .bvh clips (one rig and rate) to join")
     p.add_argument("--map", default=None, help="map file (with its motion library) to use")
     p.add_argument("--train", default=None, help="folder of .bvh clips to train the map on (default: --clips)")
     p.add_argument("--seconds", default="0.5,1", help="gap lengths in seconds, comma-separated (0.5,1)")
     p.add_argument("--pairs", type=int, default=None, help="seeded draws of pairs and seams instead of every "
                                                            "ordered pair joined at A's end and B's start")
-    p.add_argument("--json", default=None, metavar="PATH", help="also write the result as JSON")
-    p.add_argument("--doc", default=None, metavar="PATH", help="Markdown file to write")
-    p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     args = p.parse_args(argv)
     seconds = tuple(float(s) for s in args.seconds.split(","))
     result = run(Path(args.clips), args.map, args.train, seconds, args.pairs, args.seed)

@@ -328,12 +328,14 @@ def markdown(result: dict, command: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def report_parser(description: str) -> argparse.ArgumentParser:
+def report_parser(description: str, data: bool = True) -> argparse.ArgumentParser:
     """The options of the quality reports (``foreign_skeleton.py``, ``other_dataset.py``):
-    ``--data``, ``--json``, ``--doc`` and ``--seed``; a script adds its own."""
+    ``--data`` (unless ``data`` is False: a report on clips of its own, ``clip_pairs.py``),
+    ``--json``, ``--doc`` and ``--seed``; a script adds its own."""
     p = argparse.ArgumentParser(description=description)
-    p.add_argument("--data", default=None, help="data folder holding bandai1/ (default: $POSTUREMAP_DATA or "
-                                                "../shared/data)")
+    if data:
+        p.add_argument("--data", default=None, help="data folder holding bandai1/ (default: $POSTUREMAP_DATA or "
+                                                    "../shared/data)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the result as JSON")
     p.add_argument("--doc", default=None, metavar="PATH", help="Markdown file to write")
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
