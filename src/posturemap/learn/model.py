@@ -25,6 +25,7 @@ from ..errors import UserError
 from .features import CLASSES, FeatureSpace
 from ..io.fileio import write_bytes_atomic
 from ..io.mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
+from ..core.glitches import steady_motion
 from ..core.joints import describe_legs
 from ..core.motion import Motion, same_fps
 from ..core.skeleton import Skeleton
@@ -98,6 +99,7 @@ class PostureMap:
                                       "rate: resample the clips to one rate first, posturemap.resample or "
                                       "posturemap resample)")
         t0 = time.perf_counter()
+        motions = [steady_motion(m) for m in motions]  # a flipped toe is no posture to learn
         space = features.fit_space(motions, self.features, self.classes)
         x = np.concatenate([space.encode(m) for m in motions])
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
@@ -170,6 +172,7 @@ class PostureMap:
             if not same_fps(m.fps, fps):
                 raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first "
                                      "(posturemap.resample; on the command line, posturemap resample)")
+        motions = [steady_motion(m) for m in motions]  # as fit reads them
         parts = self.space_.split(np.concatenate([self.space_.encode(m) for m in motions]))
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
         for c, m in enumerate(self.maps_):

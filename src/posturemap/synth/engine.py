@@ -191,6 +191,7 @@ class TransitionEngine:
         (:func:`posturemap.synth.trajectory.placement`: the joint above the root that carries
         root motion, else the root)."""
         track = self._track("b", b)
+        track = track.given or track  # as continuation places it
         return placement(track, self._chain, self._root, self._up, turn, shift, self._carrier(track))
 
     def _carry_chain(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, a_carrier: int,
@@ -243,6 +244,7 @@ class TransitionEngine:
         without ``align``, as they are."""
         track = self._track("b", b)
         b_start = frame_index("b_start", b_start, len(track.gpos), f"clip B {b!r}")
+        track = track.given or track  # B's frames as given, glitches and all (Track.given)
         if not align:
             return track.motion[b_start:]
         if (turn is None or shift is None) and "dtheta" not in self.last:

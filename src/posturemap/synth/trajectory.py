@@ -10,12 +10,13 @@ advanced by the mean turning rate.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
 
 from ..core import kernels, quat
+from ..core.glitches import steady_motion
 from ..core.joints import ancestors, leg_chains, leg_toes
 from ..core.motion import Motion, up_vector
 from ..core.skeleton import chain_world
@@ -40,6 +41,9 @@ class Track:
     carrier : where in the root's chain (its ancestors, top first) the highest joint that moves in
         the clip is (:func:`chain_carrier`), -1 where none does: that joint carries the clip's root
         motion and is placed with the body, where fixed ones stay put
+    given : None, or where the clip has glitch steps that :func:`posturemap.core.glitches.steadied`
+        takes out, the track of the clip as given: this track (what transitions read) is of the
+        steadied clip, the frames written after a transition are the given ones
     """
 
     motion: Motion
@@ -50,6 +54,7 @@ class Track:
     feet: np.ndarray
     toes: np.ndarray
     carrier: int = -1
+    given: "Track | None" = None
 
 
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
@@ -185,7 +190,16 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
 
 
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
-    """Split a clip into trajectory and posture (see :class:`Track`)."""
+    """Split a clip into trajectory and posture (see :class:`Track`), read from the clip with its
+    glitch steps taken out (:func:`posturemap.core.glitches.steady_motion`; the clip as given is
+    kept in ``given`` where that changed it)."""
+    steady = steady_motion(motion)
+    if steady is not motion:
+        return replace(_track(steady, root, up, rest, space), given=_track(motion, root, up, rest, None))
+    return _track(motion, root, up, rest, space)
+
+
+def _track(motion: Motion, root: int, up: int, rest: np.ndarray, space) -> Track:
     grot, gpos = root_global(motion, root)
     head_q, tilt = quat.heading_tilt(grot, up_vector(up), rest)
     heading = np.unwrap(heading_of(head_q, up))

@@ -1,0 +1,167 @@
+"""Glitch steps in recorded rotations (core/glitches.py) and what the engine makes of them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posturemap.core import glitches, quat
+from posturemap.core.glitches import glitch_steps, glitch_turn, steadied
+from posturemap.core.motion import Motion
+from posturemap.io import bvh
+from posturemap.learn.model import PostureMap
+from posturemap.synth.engine import TransitionEngine
+
+FPS = 30.0
+N = 120
+
+
+def swinging(seed: int = 0, n: int = N, fps: float = FPS) -> np.ndarray:
+    """(n, 4, 4) local rotations: four joints swinging about random axes, the fastest at 30
+    rad/s at its peak (57 degrees a frame at 30 fps, near the fastest Bandai joint's 35)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fps
+    axes = rng.normal(size=(4, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    amp = np.array([0.3, 0.8, 1.2, 1.0])
+    omega = np.array([4.0, 9.0, 25.0, 2.0])  # peak rates 1.2, 7.2, 30, 2 rad/s
+    phase = rng.uniform(0, 2 * np.pi, 4)
+    base = quat.exp(rng.normal(scale=0.5, size=(4, 3)))
+    angle = amp * np.sin(omega * t[:, None] + phase)
+    return quat.mul(quat.exp(axes * angle[..., None]), base)
+
+
+def half_turn(axis=(1.0, 0.0, 0.0)) -> np.ndarray:
+    return quat.from_axis_angle(np.asarray(axis, dtype=float), np.array(np.pi))
+
+
+def test_real_swings_have_no_glitch_and_come_back_as_they_are():
+    q = swinging()
+    assert not glitch_steps(q, FPS).any()
+    assert steadied(q, FPS) is q
+    # A joint turning 80 degrees a frame at a steady rate (a fast spin) is not a glitch: the
+    # frames around each step say it.
+    spin = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.radians(80.0) * np.arange(20))[:, None]
+    assert not glitch_steps(spin, FPS).any()
+
+
+def test_a_flipped_run_is_two_glitch_steps_and_is_turned_back():
+    q = swinging(1)
+    bad = q.copy()
+    bad[40:50, 1] = quat.mul(half_turn(), q[40:50, 1])  # half a turn, as a solver flips a toe
+    g = glitch_steps(bad, FPS)
+    assert {tuple(x) for x in np.argwhere(g)} == {(39, 1), (49, 1)}
+    out = steadied(bad, FPS)
+    assert out is not bad
+    others = np.ones(4, dtype=bool)
+    others[1] = False
+    assert np.array_equal(out[:, others], bad[:, others])  # the other joints untouched
+    assert np.array_equal(out[:40, 1], bad[:40, 1]) and np.array_equal(out[50:, 1], bad[50:, 1])
+    # The run continues the frame before it with no step, keeps its own frame-to-frame turns,
+    # and leads into the frame after it within the step of the frames around it.
+    assert quat.angle_between(out[39, 1], out[40, 1]) < 1e-6
+    np.testing.assert_allclose(quat.angle_between(out[40:50, 1][1:], out[40:50, 1][:-1]),
+                               quat.angle_between(q[40:50, 1][1:], q[40:50, 1][:-1]), atol=1e-7)
+    own = quat.angle_between(q[38:52, 1][1:], q[38:52, 1][:-1]).max()
+    assert quat.angle_between(out[49, 1], out[50, 1]) <= 2.0 * own + 1e-9
+    assert not glitch_steps(out, FPS).any()
+
+
+def test_a_one_frame_spike_is_levelled():
+    q = swinging(2)
+    bad = q.copy()
+    bad[60, 2] = quat.mul(quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(2.0)), q[60, 2])
+    assert {tuple(x) for x in np.argwhere(glitch_steps(bad, FPS))} == {(59, 2), (60, 2)}
+    out = steadied(bad, FPS)
+    assert quat.angle_between(out[60, 2], bad[59, 2]) < 1e-6
+    mask = np.ones(out.shape[:2], dtype=bool)
+    mask[60, 2] = False
+    assert np.array_equal(out[mask], bad[mask])
+
+
+def test_a_first_frame_in_a_reference_pose_takes_the_second_frames_pose():
+    q = swinging(3)
+    bad = q.copy()
+    # Arms out: 100 and 110 degrees from the second frame's pose.
+    bad[0, [0, 3]] = quat.mul(quat.exp(np.array([[0.0, 0.0, 1.75], [1.92, 0.0, 0.0]])), q[1, [0, 3]])
+    assert {tuple(x) for x in np.argwhere(glitch_steps(bad, FPS))} == {(0, 0), (0, 3)}
+    out = steadied(bad, FPS)
+    np.testing.assert_allclose(quat.angle_between(out[0, [0, 3]], bad[1, [0, 3]]), 0.0, atol=1e-6)
+    assert np.array_equal(out[1:], bad[1:]) and np.array_equal(out[0, [1, 2]], bad[0, [1, 2]])
+
+
+def test_the_bound_is_a_rate_a_30_degree_spike_is_a_glitch_at_120_fps_only():
+    assert glitch_turn(30.0) == pytest.approx(np.pi / 2)
+    assert glitch_turn(120.0) == pytest.approx(np.pi / 8)
+    assert glitch_turn(15.0) == pytest.approx(np.pi / 2)
+    for fps, expected in ((120.0, True), (30.0, False)):
+        q = swinging(4, fps=fps)
+        bad = q.copy()
+        bad[50, 0] = quat.mul(quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.radians(30.0)), q[50, 0])
+        assert glitch_steps(bad, fps)[49, 0] == expected, fps
+
+
+def test_a_lone_step_between_two_long_pieces_is_left():
+    # A joint that turns 120 degrees in a frame and stays: either side could be the wrong one.
+    q = swinging(5)
+    bad = q.copy()
+    bad[60:, 1] = quat.mul(quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(120.0)), q[60:, 1])
+    assert glitch_steps(bad, FPS)[59, 1]
+    assert np.array_equal(steadied(bad, FPS), bad)
+
+
+def test_short_clips_have_no_glitch():
+    q = swinging(6)[:2].copy()
+    q[1, 0] = quat.mul(half_turn(), q[1, 0])
+    assert not glitch_steps(q, FPS).any() and not glitch_steps(q[:1], FPS).any()
+
+
+# -- the engine ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def walks(bandai_paths):
+    names = ("walk_normal_001", "run_normal_001", "walk-back_normal_001")
+    return [bvh.read(p) for p in bandai_paths(names).values()]
+
+
+@pytest.fixture(scope="module")
+def walk_map(walks):
+    return PostureMap(seed=0).fit(walks)
+
+
+def flipped_first_frame(m: Motion, joint: int) -> Motion:
+    """``m`` with frame 0's ``joint`` turned half a turn about its bone (a solver's flip)."""
+    rots = m.rotations.copy()
+    rots[0, joint] = quat.mul(rots[0, joint], half_turn())
+    return Motion(m.skeleton, rots, m.positions.copy(), m.fps)
+
+
+@pytest.mark.parametrize("method", ["auto", "retrieval", "damped", "spline", "inertialize", "upm-valid"])
+def test_a_flip_in_bs_first_frame_does_not_spin_the_gap(walks, walk_map, method):
+    a, b = walks[0], walks[2]
+    toe = a.skeleton.names.index("Toes_R")
+    bad = flipped_first_frame(b, toe)
+    turns = {}
+    for name, clip in (("clean", b), ("flipped", bad)):
+        eng = TransitionEngine(walk_map)
+        eng.add("a", a)
+        eng.add("b", clip)
+        r, _ = eng.generate("a", "b", length=30, a_end=60, b_start=0, method=method)
+        turns[name] = np.degrees(quat.angle_between(r[1:, toe], r[:-1, toe])).max()
+    # Read as a velocity, the flip spun the toe at 146-180 degrees a frame (Xia's sexy_01_001).
+    assert turns["flipped"] <= turns["clean"] + 3.0, turns
+    # B's frames are written as given, the flip included.
+    assert np.array_equal(eng.continuation("b", 0, align=False).rotations, bad.rotations)
+
+
+def test_a_map_learns_no_flipped_toe(walks):
+    walk = walks[0]
+    toe = walk.skeleton.names.index("Toes_R")
+    rots = walk.rotations.copy()
+    rots[100:110, toe] = quat.mul(rots[100:110, toe], half_turn())
+    bad = Motion(walk.skeleton, rots, walk.positions.copy(), walk.fps)
+    lib = PostureMap(seed=0).fit([bad]).library_
+    assert lib.clip_start[1] == len(bad)  # the clip as recorded first (then played backward)
+    kept = lib.rots[: len(bad), toe].astype(np.float64)
+    own = quat.angle_between(walk.rotations[1:, toe], walk.rotations[:-1, toe]).max()
+    # The flip as given is two half-turn steps; in the library the toe steps as the walk's own.
+    assert quat.angle_between(kept[1:], kept[:-1]).max() <= own + np.radians(0.5)
