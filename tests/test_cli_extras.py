@@ -175,6 +175,40 @@ def test_cli_transition_warns_of_a_clip_turned_to_another_up_axis(sample_clips, 
                      "not line up (lying on the floor, or of another up axis?)"], lines
 
 
+def test_cli_transition_warns_of_a_seam_frame_that_is_a_glitch(sample_clips, tmp_path, capsys):
+    # CMU's 01_01 starts in a reference pose (its forearm 136 degrees from the second frame):
+    # the new frames read B's motion without it and turn into frame 0 as given over the gap,
+    # and the user is told how to leave it out (with --b-start 1, nothing to tell).
+    from posturemap.core import quat
+    from posturemap.core.motion import Motion
+
+    walk, run_ = sample_clips["walk"], sample_clips["run"]
+    rots = run_.rotations.copy()
+    j = 5
+    rots[0, j] = quat.mul(quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(2.4)), rots[1, j])
+    a, b = tmp_path / "walk.bvh", tmp_path / "run.bvh"
+    bvh.write(a, walk)
+    bvh.write(b, Motion(run_.skeleton, rots, run_.positions, run_.fps))
+    given = bvh.read(b)
+    name = walk.skeleton.names[j]
+    for start, warned in ((0, True), (1, False)):
+        out = tmp_path / f"out{start}.bvh"
+        assert cli.main(["transition", str(a), str(b), "-o", str(out), "--method", "spline", "--length", "10",
+                         "--b-start", str(start)]) == 0
+        err = capsys.readouterr().err
+        assert err == (f"posturemap: warning: {b}: its frame 0 is a glitch at {name} (138 degrees off the frames "
+                       "beside it: a reference pose or a flipped joint); the new frames turn into it over the gap "
+                       "(--b-start 1 starts B after it)\n" if warned else ""), err
+        written = bvh.read(out)
+        k = len(walk) + 10
+        assert quat.angle_between(written.rotations[k, j], given.rotations[start, j]) < 1e-6  # B as given
+        # Into B's frame as given, in even steps (at most 19 degrees): the spline read the glitch
+        # as B's velocity and swung the joint 110 degrees in the last step, 38-62 before it.
+        steps = np.degrees(quat.angle_between(written.rotations[k - 10: k + 1, j][1:],
+                                              written.rotations[k - 10: k + 1, j][:-1]))
+        assert steps.max() < 30.0, steps
+
+
 def test_cli_transition_writes_both_outputs_or_neither(sample_clips, tmp_path, capsys, monkeypatch):
     # The output was written before the filmstrip was drawn: a filmstrip that could not be
     # written (an immutable folder, a full disk) left the output behind with exit code 2.

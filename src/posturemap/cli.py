@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import sys
 
@@ -274,6 +275,11 @@ def _cmd_transition(args) -> int:
                   "the transition may not line up " + ("(a map trained on clips of this orientation would)" if given
                                                        else "(lying on the floor, or of another up axis?)"),
                   file=sys.stderr)
+    _warn_seam_glitches(((args.a, a, request.a_end, "its last frame" if request.a_end == len(a) - 1 else
+                          f"its frame {request.a_end}", f"--a-end {request.a_end - 1} ends A before it"
+                          if request.a_end > 0 else None),
+                         (args.b, b, request.b_start, f"its frame {args.b_start}",
+                          f"--b-start {args.b_start + 1} starts B after it" if request.b_start + 1 < len(b) else None)))
     report = {}
     try:
         out = transition(a, b, model, request, report=report)
@@ -319,6 +325,23 @@ def _cmd_transition(args) -> int:
               f"nor in the hierarchy (two like chains beside the spine; posturemap inspect {args.a} shows the "
               "skeleton)")
     return 0
+
+
+def _warn_seam_glitches(seams) -> None:
+    """A warning for each seam frame (``(path, clip, frame, what, way out)``) that the engine
+    reads steadied (:func:`posturemap.core.glitches.changed_joint`: a reference pose, a solver's
+    flip): the new frames read the seam's motion without the glitch and turn into the frame as
+    given over the gap (``engine._meet_given``)."""
+    from .core.glitches import changed_joint
+
+    for path, clip, frame, what, way_out in seams:
+        found = changed_joint(clip, frame)
+        if found is not None:
+            j, angle = found
+            print(f"posturemap: warning: {path}: {what} is a glitch at {clip.skeleton.names[j]} "
+                  f"({math.degrees(angle):.0f} degrees off the frames beside it: a reference pose or a flipped "
+                  "joint); the new frames turn into it over the gap" + (f" ({way_out})" if way_out else ""),
+                  file=sys.stderr)
 
 
 def _cmd_resample(args) -> int:

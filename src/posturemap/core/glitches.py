@@ -144,3 +144,16 @@ def steady_motion(motion: Motion) -> Motion:
     if rots is motion.rotations:
         return motion
     return Motion(motion.skeleton, rots, motion.positions.copy(), motion.fps, None)
+
+
+def changed_joint(motion: Motion, frame: int) -> tuple[int, float] | None:
+    """Where :func:`steadied` moves frame ``frame`` of ``motion`` by more than the glitch bound
+    (:func:`glitch_turn`): ``(joint, angle in radians)`` of the joint it moves the most, or None.
+    A transition from or to that frame meets the steadied pose, and the clip's own frame, as
+    given, stands apart from it by that much."""
+    rots = steadied(motion.rotations, motion.fps)
+    if rots is motion.rotations:
+        return None
+    moved = quat.angle_between(rots[frame], motion.rotations[frame])
+    j = int(np.argmax(moved))
+    return (j, float(moved[j])) if moved[j] > glitch_turn(motion.fps) else None

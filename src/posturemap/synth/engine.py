@@ -350,6 +350,7 @@ class TransitionEngine:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
         out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
         self.last.setdefault("method", req.method)  # auto names the method it chose
+        _meet_given(self, ta, tb, req, out_r)
         b_carrier = self._carrier(tb)
         if req.align and b_carrier >= 0:
             # B's chain carries root motion (a game rig's root bone): B is placed with it, and
@@ -397,6 +398,42 @@ class TransitionEngine:
         out = self._buffers.get(length) or (np.empty((length, j, 4)), np.empty((length, j, 3)))
         self._buffers[length] = out
         return out
+
+
+def _meet_given(eng: TransitionEngine, ta: Track, tb: Track, req: TransitionRequest, out_r: np.ndarray) -> None:
+    """Where A's last frame or B's first was read steadied (:attr:`Track.given`: a glitch step
+    taken out there), turn the new frames' joints (below the root) by an offset, in place, so
+    that they start from A's frame and land on B's as given: at each seam the given rotation
+    times the inverse of the steadied one, from the left, SLERPed from A's to B's across the
+    gap by a smoothstep. The method read the seams' velocities without the glitch; the frames
+    as given are what the output writes beside the new ones (a flipped toe at B's seam is
+    turned over the gap, as SLERP turns it, instead of spun by a half turn a frame)."""
+    changed = [_given_changed(t, f) for t, f in ((ta, req.a_end), (tb, req.b_start))]
+    if changed[0] is None and changed[1] is None:
+        return
+    either = np.zeros(eng.skeleton.num_joints, dtype=bool)
+    for c in changed:
+        if c is not None:
+            either |= c
+    either[eng._chain] = either[eng._root] = False  # the root's chain carries the trajectory
+    moved = np.nonzero(either)[0]
+    if not len(moved):
+        return
+    oa, ob = (quat.mul(t.given.rots[f, moved], quat.inv(t.rots[f, moved])) if c is not None
+              else quat.identity(len(moved)) for t, f, c in ((ta, req.a_end, changed[0]), (tb, req.b_start, changed[1])))
+    u = np.arange(1, req.length + 1) / (req.length + 1.0)
+    s = u * u * (3.0 - 2.0 * u)
+    turn = quat.slerp(oa[None], ob[None], np.broadcast_to(s[:, None], (len(s), len(moved))))
+    out_r[:, moved] = quat.normalize(quat.mul(turn, out_r[:, moved]))
+
+
+def _given_changed(track: Track, frame: int) -> np.ndarray | None:
+    """Which joints (J booleans) of ``track``'s frame ``frame`` were steadied (differ from the
+    clip as given), or None where none was."""
+    if track.given is None:
+        return None
+    changed = np.any(track.given.rots[frame] != track.rots[frame], axis=-1)
+    return changed if changed.any() else None
 
 
 # -- the methods ------------------------------------------------------------------------------
