@@ -77,7 +77,7 @@ def glitch_steps(rotations: np.ndarray, fps: float) -> np.ndarray:
     return out
 
 
-def steadied(rotations: np.ndarray, fps: float) -> np.ndarray:
+def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     """``rotations (F, J, 4)`` with their glitch steps (:func:`glitch_steps`) taken out where a
     piece of frames between them can be turned back: the same array where none is, otherwise a
     copy. Per joint, in time order, each piece that a glitch step begins and another ends is
@@ -87,8 +87,11 @@ def steadied(rotations: np.ndarray, fps: float) -> np.ndarray:
     turned back, a one-frame spike levelled); then a piece at either end of the clip, up to
     :data:`GLITCH_END_S` long and shorter than the piece beside it, whose step into it is
     still a glitch, is turned to lead into that piece (a first frame in a reference pose).
-    Any other step is left as it is: neither side says it is the wrong one."""
+    Any other step is left as it is: neither side says it is the wrong one. ``joints``: the
+    joints (indices) to steady, all by default."""
     glitches = glitch_steps(rotations, fps)
+    if joints is not None:
+        glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
     joints = np.nonzero(glitches.any(axis=0))[0]
     if not len(joints):
         return rotations
@@ -136,22 +139,21 @@ def _continued(q: np.ndarray, s: int, e: int, fixed: int, own: int, left: bool) 
     return -piece if np.dot(piece[own - s], q[fixed]) < 0.0 else piece
 
 
-def steady_motion(motion: Motion) -> Motion:
+def steady_motion(motion: Motion, joints=None) -> Motion:
     """``motion`` with its rotations :func:`steadied`: the same object where it has no glitch
     step, otherwise a copy (the translations as they are; without the file's own channel
-    values, which are the glitches' numbers)."""
-    rots = steadied(motion.rotations, motion.fps)
+    values, which are the glitches' numbers); ``joints`` as :func:`steadied` takes them."""
+    rots = steadied(motion.rotations, motion.fps, joints)
     if rots is motion.rotations:
         return motion
     return Motion(motion.skeleton, rots, motion.positions.copy(), motion.fps, None)
 
 
-def changed_joint(motion: Motion, frame: int) -> tuple[int, float] | None:
+def changed_joint(motion: Motion, frame: int, joints=None) -> tuple[int, float] | None:
     """Where :func:`steadied` moves frame ``frame`` of ``motion`` by more than the glitch bound
     (:func:`glitch_turn`): ``(joint, angle in radians)`` of the joint it moves the most, or None.
-    A transition from or to that frame meets the steadied pose, and the clip's own frame, as
-    given, stands apart from it by that much."""
-    rots = steadied(motion.rotations, motion.fps)
+    ``joints`` as :func:`steadied` takes them."""
+    rots = steadied(motion.rotations, motion.fps, joints)
     if rots is motion.rotations:
         return None
     moved = quat.angle_between(rots[frame], motion.rotations[frame])

@@ -79,8 +79,8 @@ from .library import MotionLibrary, own_frames, own_library
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
-from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
-                         rotate_about_up, seam_path, through_seams)
+from .trajectory import (Track, aligned, alignment, anchored, bend_fit, carry_chain, make_track, placement,
+                         put_root, rotate_about_up, seam_path, through_seams)
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
@@ -90,6 +90,9 @@ WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
 # several minutes is not searched whole for every transition). See _own_retriever.
 OWN_SECONDS = 60.0
 OWN_FRAMES = 1800  # ... and at most this many frames a side (60 s at 30 fps, 15 s at 120): the search takes every one
+# Tracks read from a frame as given (TransitionEngine._anchored) kept per clip with glitch steps:
+# each holds the clip's arrays once more.
+ANCHORED_KEPT = 4
 
 
 class TransitionEngine:
@@ -130,6 +133,9 @@ class TransitionEngine:
         self._retriever = None
         # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
         self._limb_bends: dict[int, tuple] = {}
+        # id(track) -> (track, {its frames' offsets: the track read from such a frame as given}),
+        # for clips with glitch steps (see _anchored).
+        self._anchored_tracks: dict[int, tuple] = {}
         # Without a motion library: (id(A), id(B)[, A's end, B's start: a gap in a take]) -> (A, B,
         # the hinges found in their frames, see _clip_limbs).
         self._clip_limbs: dict[tuple, tuple] = {}
@@ -226,6 +232,7 @@ class TransitionEngine:
         other."""
         _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
         shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {},
+                  id(self._anchored_tracks): {},
                   id(self._own_frames): {}, id(self._own_base): None}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
@@ -348,15 +355,39 @@ class TransitionEngine:
         req = TransitionRequest.of(request, **fields).resolved(len(ta.gpos), len(tb.gpos))
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
+        ta, tb = self._anchored(ta, req.a_end), self._anchored(tb, req.b_start)
         out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
         self.last.setdefault("method", req.method)  # auto names the method it chose
-        _meet_given(self, ta, tb, req, out_r)
         b_carrier = self._carrier(tb)
         if req.align and b_carrier >= 0:
             # B's chain carries root motion (a game rig's root bone): B is placed with it, and
             # the new frames take it there.
             self._carry_chain(ta, tb, req, out_r, out_p, self._carrier(ta), b_carrier)
         return out_r, out_p
+
+    def _anchored(self, track: Track, frame: int) -> Track:
+        """``track`` read from its frame ``frame`` as given (:func:`posturemap.synth.trajectory.anchored`:
+        itself, unless steadying changed that frame). The few last made are kept per clip
+        (:data:`ANCHORED_KEPT`): the frames of one piece between two glitch steps share one."""
+        if track.given is None:
+            return track
+        given, steady = track.given.motion.rotations[frame], track.motion.rotations[frame]
+        changed = np.any(given != steady, axis=-1)
+        if not changed.any():
+            return track
+        key = changed.tobytes() + quat.mul(given[changed], quat.inv(steady[changed])).round(9).tobytes()
+        kept = self._anchored_tracks.get(id(track))
+        if kept is None or kept[0] is not track:
+            kept = self._anchored_tracks[id(track)] = (track, {})
+        views = kept[1]
+        view = views.pop(key, None)
+        if view is None:
+            space = self.model.space_ if self.model is not None else None
+            view = anchored(track, frame, self._root, self._up, self._rest, space)
+            while len(views) >= ANCHORED_KEPT:
+                views.pop(next(iter(views)))
+        views[key] = view  # the newest last
+        return view
 
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
         """Pin the planted feet of the new frames (:func:`posturemap.synth.feet.lock_feet`), with
@@ -398,42 +429,6 @@ class TransitionEngine:
         out = self._buffers.get(length) or (np.empty((length, j, 4)), np.empty((length, j, 3)))
         self._buffers[length] = out
         return out
-
-
-def _meet_given(eng: TransitionEngine, ta: Track, tb: Track, req: TransitionRequest, out_r: np.ndarray) -> None:
-    """Where A's last frame or B's first was read steadied (:attr:`Track.given`: a glitch step
-    taken out there), turn the new frames' joints (below the root) by an offset, in place, so
-    that they start from A's frame and land on B's as given: at each seam the given rotation
-    times the inverse of the steadied one, from the left, SLERPed from A's to B's across the
-    gap by a smoothstep. The method read the seams' velocities without the glitch; the frames
-    as given are what the output writes beside the new ones (a flipped toe at B's seam is
-    turned over the gap, as SLERP turns it, instead of spun by a half turn a frame)."""
-    changed = [_given_changed(t, f) for t, f in ((ta, req.a_end), (tb, req.b_start))]
-    if changed[0] is None and changed[1] is None:
-        return
-    either = np.zeros(eng.skeleton.num_joints, dtype=bool)
-    for c in changed:
-        if c is not None:
-            either |= c
-    either[eng._chain] = either[eng._root] = False  # the root's chain carries the trajectory
-    moved = np.nonzero(either)[0]
-    if not len(moved):
-        return
-    oa, ob = (quat.mul(t.given.rots[f, moved], quat.inv(t.rots[f, moved])) if c is not None
-              else quat.identity(len(moved)) for t, f, c in ((ta, req.a_end, changed[0]), (tb, req.b_start, changed[1])))
-    u = np.arange(1, req.length + 1) / (req.length + 1.0)
-    s = u * u * (3.0 - 2.0 * u)
-    turn = quat.slerp(oa[None], ob[None], np.broadcast_to(s[:, None], (len(s), len(moved))))
-    out_r[:, moved] = quat.normalize(quat.mul(turn, out_r[:, moved]))
-
-
-def _given_changed(track: Track, frame: int) -> np.ndarray | None:
-    """Which joints (J booleans) of ``track``'s frame ``frame`` were steadied (differ from the
-    clip as given), or None where none was."""
-    if track.given is None:
-        return None
-    changed = np.any(track.given.rots[frame] != track.rots[frame], axis=-1)
-    return changed if changed.any() else None
 
 
 # -- the methods ------------------------------------------------------------------------------
@@ -492,7 +487,7 @@ def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start
     frames, once per pair (a slider's new seams cost nothing: about 1 ms a call otherwise); in
     a gap in a take (A is B) the frames the output keeps of it (to ``a_end``, from ``b_start``:
     never the gap's own), once per pair of seams. The last few are kept."""
-    same = ta is tb
+    same = ta is tb or (ta.given is not None and ta.given is tb.given)  # one take, read from two frames
     key = (id(ta), id(tb)) + ((a_end, b_start) if same else ())
     kept = eng._clip_limbs.get(key)
     if kept is None or kept[0] is not ta or kept[1] is not tb:
@@ -540,6 +535,9 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     tracks (replaced under their name, or dropped): a server that replaces its clips would
     otherwise keep every one, and a fork would copy them."""
     live = {id(t): t for t in eng.tracks.values()}
+    eng._anchored_tracks = {k: v for k, v in eng._anchored_tracks.items() if live.get(k) is v[0]}
+    for _, views in eng._anchored_tracks.values():  # a clip's anchored views live with it
+        live.update((id(v), v) for v in views.values())
     eng._limb_bends = {k: v for k, v in eng._limb_bends.items() if live.get(k) is v[0]}
     eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[1]) is v[1]}
     eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}

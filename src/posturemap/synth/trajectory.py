@@ -190,13 +190,43 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
 
 
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
-    """Split a clip into trajectory and posture (see :class:`Track`), read from the clip with its
-    glitch steps taken out (:func:`posturemap.core.glitches.steady_motion`; the clip as given is
-    kept in ``given`` where that changed it)."""
-    steady = steady_motion(motion)
+    """Split a clip into trajectory and posture (see :class:`Track`), read from the clip with the
+    glitch steps of its joints below the root taken out (:func:`posturemap.core.glitches.steady_motion`;
+    the clip as given is kept in ``given`` where that changed it)."""
+    steady = steady_motion(motion, steadied_joints(motion.skeleton, root))
     if steady is not motion:
         return replace(_track(steady, root, up, rest, space), given=_track(motion, root, up, rest, None))
     return _track(motion, root, up, rest, space)
+
+
+def steadied_joints(skeleton, root: int) -> np.ndarray:
+    """The joints whose glitch steps a track takes out: all but the root and its ancestors,
+    which carry the trajectory (a half turn of the root in a frame is a turn as far as any
+    frame can tell)."""
+    out = np.ones(skeleton.num_joints, dtype=bool)
+    out[ancestors(skeleton.parents, root) + [root]] = False
+    return np.nonzero(out)[0]
+
+
+def anchored(track: Track, frame: int, root: int, up: int, rest: np.ndarray, space=None) -> Track:
+    """``track`` read from its frame ``frame`` as given: where steadying changed that frame
+    (:attr:`Track.given`), a track of the steadied clip with each changed joint turned, on
+    every frame, by the one rotation (from the left) that takes its steadied rotation at
+    ``frame`` to the given one; otherwise ``track`` itself. The frame is then the clip's own,
+    and the frames beside it follow it without the glitch steps: a transition from or to it
+    starts from (lands on) the frame as given, at the motion's own velocity."""
+    if track.given is None:
+        return track
+    given, steady = track.given.motion.rotations[frame], track.motion.rotations[frame]
+    changed = np.nonzero(np.any(given != steady, axis=-1))[0]
+    if not len(changed):
+        return track
+    rots = track.motion.rotations.copy()
+    turn = quat.mul(given[changed], quat.inv(steady[changed]))
+    rots[:, changed] = quat.normalize(quat.mul(turn[None], rots[:, changed]))
+    rots[frame, changed] = given[changed]  # the frame as given, to the bit
+    motion = Motion(track.motion.skeleton, rots, track.motion.positions, track.motion.fps)
+    return replace(_track(motion, root, up, rest, space), given=track.given)
 
 
 def _track(motion: Motion, root: int, up: int, rest: np.ndarray, space) -> Track:
