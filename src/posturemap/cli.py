@@ -328,14 +328,16 @@ def _cmd_transition(args) -> int:
 
 
 def _warn_seam_glitches(seams) -> None:
-    """A warning for each seam frame (``(path, clip, frame, what, way out)``) that the engine
-    reads steadied (:func:`posturemap.core.glitches.changed_joint`: a reference pose, a solver's
-    flip): the new frames read the seam's motion without the glitch and turn into the frame as
-    given over the gap (``engine._meet_given``)."""
+    """A warning for each seam frame (``(path, clip, frame, what, way out)``) that steadying
+    changes (:func:`posturemap.core.glitches.changed_joint`: a reference pose, a solver's flip):
+    the new frames start from (land on) the frame as given, at the velocity of the frames
+    beside it, so that they turn into it over the gap (:func:`posturemap.synth.trajectory.anchored`)."""
     from .core.glitches import changed_joint
+    from .core.motion import root_index
+    from .synth.trajectory import steadied_joints
 
     for path, clip, frame, what, way_out in seams:
-        found = changed_joint(clip, frame)
+        found = changed_joint(clip, frame, steadied_joints(clip.skeleton, root_index(clip)))
         if found is not None:
             j, angle = found
             print(f"posturemap: warning: {path}: {what} is a glitch at {clip.skeleton.names[j]} "

@@ -23,8 +23,10 @@ that its own frame-to-frame turns are kept) to continue the frame before it, whe
 leads into the frame after it with no glitch (a flipped run turned back, a one-frame spike
 levelled); a piece of at most :data:`GLITCH_END_S` at either end of the clip is turned to
 continue its neighbour (a first frame in a reference pose takes the second frame's pose). A
-lone step between two long pieces is left. The engine reads the seams, the motion library
-and the maps from steadied clips, and writes the clips' own frames as they are given.
+lone step between two long pieces is left. The maps and the motion library are learned from
+steadied clips; a transition reads each clip from its seam frame as given, the frames beside it
+steadied and turned to follow it (:func:`posturemap.synth.trajectory.anchored`), and writes
+the clips' own frames as they are given.
 """
 
 from __future__ import annotations

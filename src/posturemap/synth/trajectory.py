@@ -42,8 +42,9 @@ class Track:
         the clip is (:func:`chain_carrier`), -1 where none does: that joint carries the clip's root
         motion and is placed with the body, where fixed ones stay put
     given : None, or where the clip has glitch steps that :func:`posturemap.core.glitches.steadied`
-        takes out, the track of the clip as given: this track (what transitions read) is of the
-        steadied clip, the frames written after a transition are the given ones
+        takes out, the track of the clip as given: this track is of the steadied clip, a
+        transition reads it from its seam frame as given (:func:`anchored`), and the frames
+        written after a transition are the given ones
     """
 
     motion: Motion
