@@ -328,13 +328,13 @@ def _cmd_transition(args) -> int:
 
 
 def _warn_seam_glitches(seams) -> None:
-    """A warning for each seam frame (``(path, clip, frame, what, way out)``) that steadying
-    changes (:func:`posturemap.core.glitches.changed_joint`: a reference pose, a solver's flip):
-    the new frames start from (land on) the frame as given, at the velocity of the frames
-    beside it, so that they turn into it over the gap (:func:`posturemap.synth.trajectory.anchored`)."""
-    from .core.glitches import changed_joint
+    """A warning for each seam frame (``(path, clip, frame, what, way out)``) that is itself a
+    glitch, as a map would learn the clip (:func:`posturemap.core.glitches.changed_joint`: a
+    reference pose, a solver's flip): the new frames start from (land on) the frame as given, at
+    the velocity of the frames beside it, so that they turn into it over the gap
+    (:func:`posturemap.synth.trajectory.seam_view`)."""
+    from .core.glitches import changed_joint, steadied_joints
     from .core.motion import root_index
-    from .synth.trajectory import steadied_joints
 
     for path, clip, frame, what, way_out in seams:
         found = changed_joint(clip, frame, steadied_joints(clip.skeleton, root_index(clip)))

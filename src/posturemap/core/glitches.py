@@ -34,12 +34,14 @@ from __future__ import annotations
 import numpy as np
 
 from . import quat
+from .joints import ancestors
 from .motion import Motion
 
-# A step is a glitch when it and its prediction error are both over this at 30 fps or under,
-# and over this times 30 / fps above (45 degrees at 60 fps, 22.5 at 120): the same 47 rad/s.
-GLITCH_TURN = 0.5 * np.pi
-GLITCH_FPS = 30.0
+# A step is a glitch when it and both its prediction errors are over GLITCH_RATE / fps radians
+# (a quarter turn at 30 fps, 45 degrees at 60, 22.5 at 120), and at most GLITCH_TURN_MOST (135
+# degrees at 15 fps and below, where a frame is long enough for a real joint to turn that far).
+GLITCH_RATE = 15.0 * np.pi
+GLITCH_TURN_MOST = 0.75 * np.pi
 # A piece at either end of a clip is taken for a glitch (a reference pose, a flip the clip
 # starts or ends in) up to this long (s; at least one frame): a clip that ends half a turn
 # from where it was a second before may mean it.
@@ -48,8 +50,8 @@ GLITCH_END_S = 0.1
 
 def glitch_turn(fps: float) -> float:
     """The largest turn (radians) a joint's rotation may make in one frame at ``fps`` before
-    the step can be a glitch (:data:`GLITCH_TURN`, scaled down above :data:`GLITCH_FPS`)."""
-    return GLITCH_TURN * min(1.0, GLITCH_FPS / float(fps))
+    the step can be a glitch: :data:`GLITCH_RATE` over ``fps``, at most :data:`GLITCH_TURN_MOST`."""
+    return min(GLITCH_RATE / float(fps), GLITCH_TURN_MOST)
 
 
 def glitch_steps(rotations: np.ndarray, fps: float) -> np.ndarray:
@@ -72,25 +74,27 @@ def glitch_steps(rotations: np.ndarray, fps: float) -> np.ndarray:
     ahead[1:] = quat.angle_between(quat.mul(q[1:-1], quat.mul(quat.inv(q[:-2]), q[1:-1])), q[2:])
     back = np.full(step.shape, np.inf)
     back[:-1] = quat.angle_between(quat.mul(q[1:-1], quat.mul(quat.inv(q[2:]), q[1:-1])), q[:-2])
-    # At either end only one side predicts: there that side must say so; elsewhere either.
+    # Both sides must miss it (a real start or stop misses one: the still side's); at either
+    # end of the clip the one side there is.
     ahead[0] = back[0]
     back[-1] = ahead[-1]
-    out[:] = big & ((ahead > limit) | (back > limit))
+    out[:] = big & (ahead > limit) & (back > limit)
     return out
 
 
 def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
-    """``rotations (F, J, 4)`` with their glitch steps (:func:`glitch_steps`) taken out where a
-    piece of frames between them can be turned back: the same array where none is, otherwise a
-    copy. Per joint, in time order, each piece that a glitch step begins and another ends is
-    turned as a whole (one rotation from the left or from the right, whichever leads into the
-    next piece the closer; its own frame-to-frame turns kept) to continue the frame before it,
-    and kept so only where its last frame then leads into the next with no glitch (a flipped run
-    turned back, a one-frame spike levelled); then a piece at either end of the clip, up to
-    :data:`GLITCH_END_S` long and shorter than the piece beside it, whose step into it is
-    still a glitch, is turned to lead into that piece (a first frame in a reference pose).
-    Any other step is left as it is: neither side says it is the wrong one. ``joints``: the
-    joints (indices) to steady, all by default."""
+    """``rotations (F, J, 4)`` with their glitch steps (:func:`glitch_steps`) taken out where the
+    wrong side can be told: the same array where none is, otherwise a copy. Per joint: a piece
+    of at most :data:`GLITCH_END_S` at either end of the clip, shorter than the piece beside
+    it, is turned (as a whole: one rotation, its own frame-to-frame turns kept) to continue
+    that piece (a first frame in a reference pose); then, in time order, each piece that a
+    glitch step begins and another ends is turned to continue the frame before it (from the
+    parent's side or the joint's own, whichever leads into the next piece the closer), and kept
+    so only where it then leads into the next with no glitch (a flipped run turned back, a
+    one-frame spike levelled); last, where fewer than half the frames are left as given, the
+    joint is turned back as a whole onto its longest turned piece as given (the clip's own
+    state is the one it holds most). Any other step is left as it is: neither side says it is
+    the wrong one. ``joints``: the joints (indices) to steady, all by default."""
     glitches = glitch_steps(rotations, fps)
     if joints is not None:
         glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
@@ -104,25 +108,78 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     for j in joints:
         cuts = [int(t) + 1 for t in np.nonzero(glitches[:, j])[0]]  # each a piece's first frame
         q = out[:, j]
+        first, last = cuts[0], cuts[-1]
+        if first <= end and first < (cuts[1] if len(cuts) > 1 else n) - first:
+            q[:first] = _continued(q, 0, first, first, first - 1, True)
+        if n - last <= end and n - last < last - (cuts[-2] if len(cuts) > 1 else 0):
+            q[last:] = _continued(q, last, n, last - 1, last, True)
         for k in range(len(cuts) - 1):  # the pieces between two glitch steps
             s, e = cuts[k], cuts[k + 1]
             if _angle(q[s - 1], q[s]) <= limit:
                 continue  # turned back with the piece before it
-            # Turned in the parent's frame (from the left) or in the joint's own (from the
-            # right: a flip about the bone), whichever leads into the next piece the closer.
             turned = [_continued(q, s, e, s - 1, s, left) for left in (True, False)]
             step = [_angle(t[-1], q[e]) for t in turned]
             best = int(np.argmin(step))
             if step[best] <= limit:
                 q[s:e] = turned[best]
-        first, last = cuts[0], cuts[-1]
-        after_first = cuts[1] if len(cuts) > 1 else n
-        if first <= end and first < after_first - first and _angle(q[first - 1], q[first]) > limit:
-            q[:first] = _continued(q, 0, first, first, first - 1, True)
-        before_last = cuts[-2] if len(cuts) > 1 else 0
-        if n - last <= end and n - last < last - before_last and _angle(q[last - 1], q[last]) > limit:
-            q[last:] = _continued(q, last, n, last - 1, last, True)
+        _most_as_given(q, rotations[:, j], cuts)
     return out
+
+
+def _most_as_given(q: np.ndarray, given: np.ndarray, cuts: list[int]) -> None:
+    """Turn one joint's steadied rotations ``q (F, 4)`` (in place) as a whole so that its longest
+    turned piece is as given, where fewer than half its frames are as given."""
+    same = np.all(q == given, axis=-1)
+    if 2 * int(same.sum()) >= len(q):
+        return
+    bounds = [0] + cuts + [len(q)]
+    pieces = [(e - s, s) for s, e in zip(bounds[:-1], bounds[1:]) if not same[s]]
+    _, s = max(pieces)
+    turn = quat.mul(given[s], quat.inv(q[s]))
+    q[:] = quat.normalize(quat.mul(turn, q))
+    q[s] = given[s]
+
+
+def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, span: int,
+                joints=None) -> tuple[int, np.ndarray] | None:
+    """The frames a transition reads beside its seam at ``frame`` with the glitch steps among them
+    taken out, walking away from the seam: ``(first, rows)``, the rotations of frames ``first``
+    to ``first + len(rows)`` (those after the seam up to ``span`` on, with ``forward``: B's
+    start; else those before it up to ``span`` back: A's end); None where no glitch step lies
+    among them (:func:`glitch_steps`, read on those frames alone, so that a gap in a take is
+    never read). The seam frame is as given; past each glitch step the frames are turned as a
+    whole (one rotation, from the parent's side or the joint's own, whichever continues the
+    motion's velocity on the seam's side the better) to continue the frame on the seam's side
+    with no step. ``joints`` as :func:`steadied` takes them."""
+    n = len(rotations)
+    lo, hi = (frame, min(n, frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
+    q = rotations[lo:hi]
+    glitches = glitch_steps(q, fps)
+    if joints is not None:
+        glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
+    if not glitches.any():
+        return None
+    rows = np.array(q, dtype=float)
+    m = len(rows)
+    for j in np.nonzero(glitches.any(axis=0))[0]:
+        r = rows[:, j]
+        steps = np.nonzero(glitches[:, j])[0]
+        for t in (steps if forward else steps[::-1]):
+            near, far = (t, t + 1) if forward else (t + 1, t)
+            piece = slice(far, m) if forward else slice(0, far + 1)
+            s, e = piece.indices(m)[:2]
+            turned = [_continued(r, s, e, near, far, left) for left in (True, False)]
+            # The velocity on the seam's side, carried on across the step: the better continuation.
+            before = near - 1 if forward else near + 1
+            if 0 <= before < m:
+                guess = quat.mul(r[near], quat.mul(quat.inv(r[before]), r[near]))
+                nxt = far + 1 if forward else far - 1
+                if 0 <= nxt < m:
+                    miss = [_angle(guess, t[nxt - s]) for t in turned]
+                    r[s:e] = turned[int(np.argmin(miss))]
+                    continue
+            r[s:e] = turned[0]
+    return lo, rows
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -161,3 +218,12 @@ def changed_joint(motion: Motion, frame: int, joints=None) -> tuple[int, float] 
     moved = quat.angle_between(rots[frame], motion.rotations[frame])
     j = int(np.argmax(moved))
     return (j, float(moved[j])) if moved[j] > glitch_turn(motion.fps) else None
+
+
+def steadied_joints(skeleton, root: int) -> np.ndarray:
+    """The joints whose glitch steps are taken out: all but the root and its ancestors, which
+    carry the trajectory (a half turn of the root in a frame is a turn, as far as any frame
+    can tell)."""
+    out = np.ones(skeleton.num_joints, dtype=bool)
+    out[ancestors(skeleton.parents, root) + [root]] = False
+    return np.nonzero(out)[0]

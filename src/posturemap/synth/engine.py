@@ -63,7 +63,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..core import kernels, quat
+from ..core import glitches, kernels, quat
 from ..core.joints import ancestors, arm_chains, key_joints, leg_chains, leg_length, leg_toes
 from ..core.skeleton import chain_world
 from ..core.motion import Motion, concatenate, root_index, same_fps, up_axis
@@ -79,8 +79,8 @@ from .library import MotionLibrary, own_frames, own_library
 from .periodic import PERIODIC_MIN_SAMPLES, continued
 from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
-from .trajectory import (Track, aligned, alignment, anchored, bend_fit, carry_chain, make_track, placement,
-                         put_root, rotate_about_up, seam_path, through_seams)
+from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
+                         rotate_about_up, seam_path, seam_view, through_seams)
 
 # TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
 # upper body from travelling frames), and long (the legs in step).
@@ -90,9 +90,11 @@ WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
 # several minutes is not searched whole for every transition). See _own_retriever.
 OWN_SECONDS = 60.0
 OWN_FRAMES = 1800  # ... and at most this many frames a side (60 s at 30 fps, 15 s at 120): the search takes every one
-# Tracks read from a frame as given (TransitionEngine._anchored) kept per clip with glitch steps:
-# each holds the clip's arrays once more.
-ANCHORED_KEPT = 4
+# A seam reads this many seconds of its clip beside it without their glitch steps (TransitionEngine.
+# _seam_view; damped's context is a third of a second), and the last SEAM_VIEWS_KEPT such tracks
+# are kept (each holds the clip's rotations once more).
+SEAM_WINDOW_S = 0.5
+SEAM_VIEWS_KEPT = 2
 
 
 class TransitionEngine:
@@ -133,9 +135,11 @@ class TransitionEngine:
         self._retriever = None
         # id(track) -> (track, the hinges, each knee's and elbow's bend about them in each frame)
         self._limb_bends: dict[int, tuple] = {}
-        # id(track) -> (track, {its frames' offsets: the track read from such a frame as given}),
-        # for clips with glitch steps (see _anchored).
-        self._anchored_tracks: dict[int, tuple] = {}
+        # (id(track), seam frame, whether B's) -> (track, the track as that seam reads it), for
+        # seams beside a glitch step (see _seam_view).
+        self._seam_views: dict[tuple, tuple] = {}
+        self._steadied = None  # the joints whose glitch steps a seam's view takes out
+        self._learned: dict[int, tuple] = {}  # id(track) -> (track, its rotations as a map learns them)
         # Without a motion library: (id(A), id(B)[, A's end, B's start: a gap in a take]) -> (A, B,
         # the hinges found in their frames, see _clip_limbs).
         self._clip_limbs: dict[tuple, tuple] = {}
@@ -197,7 +201,6 @@ class TransitionEngine:
         (:func:`posturemap.synth.trajectory.placement`: the joint above the root that carries
         root motion, else the root)."""
         track = self._track("b", b)
-        track = track.given or track  # as continuation places it
         return placement(track, self._chain, self._root, self._up, turn, shift, self._carrier(track))
 
     def _carry_chain(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, a_carrier: int,
@@ -232,7 +235,7 @@ class TransitionEngine:
         other."""
         _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
         shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {},
-                  id(self._anchored_tracks): {},
+                  id(self._seam_views): {}, id(self._learned): {},
                   id(self._own_frames): {}, id(self._own_base): None}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
@@ -251,7 +254,6 @@ class TransitionEngine:
         without ``align``, as they are."""
         track = self._track("b", b)
         b_start = frame_index("b_start", b_start, len(track.gpos), f"clip B {b!r}")
-        track = track.given or track  # B's frames as given, glitches and all (Track.given)
         if not align:
             return track.motion[b_start:]
         if (turn is None or shift is None) and "dtheta" not in self.last:
@@ -355,7 +357,7 @@ class TransitionEngine:
         req = TransitionRequest.of(request, **fields).resolved(len(ta.gpos), len(tb.gpos))
         if req.keyed and self.model is None:
             raise RequestError("method", f"method {req.method!r} needs a posture map")
-        ta, tb = self._anchored(ta, req.a_end), self._anchored(tb, req.b_start)
+        ta, tb = self._seam_view(ta, req.a_end, False), self._seam_view(tb, req.b_start, True)
         out_r, out_p = _RUN[req.method](self, ta, tb, a, b, req)
         self.last.setdefault("method", req.method)  # auto names the method it chose
         b_carrier = self._carrier(tb)
@@ -365,28 +367,23 @@ class TransitionEngine:
             self._carry_chain(ta, tb, req, out_r, out_p, self._carrier(ta), b_carrier)
         return out_r, out_p
 
-    def _anchored(self, track: Track, frame: int) -> Track:
-        """``track`` read from its frame ``frame`` as given (:func:`posturemap.synth.trajectory.anchored`:
-        itself, unless steadying changed that frame). The few last made are kept per clip
-        (:data:`ANCHORED_KEPT`): the frames of one piece between two glitch steps share one."""
-        if track.given is None:
-            return track
-        given, steady = track.given.motion.rotations[frame], track.motion.rotations[frame]
-        changed = np.any(given != steady, axis=-1)
-        if not changed.any():
-            return track
-        key = changed.tobytes() + quat.mul(given[changed], quat.inv(steady[changed])).round(9).tobytes()
-        kept = self._anchored_tracks.get(id(track))
-        if kept is None or kept[0] is not track:
-            kept = self._anchored_tracks[id(track)] = (track, {})
-        views = kept[1]
-        view = views.pop(key, None)
-        if view is None:
-            space = self.model.space_ if self.model is not None else None
-            view = anchored(track, frame, self._root, self._up, self._rest, space)
-            while len(views) >= ANCHORED_KEPT:
-                views.pop(next(iter(views)))
-        views[key] = view  # the newest last
+    def _seam_view(self, track: Track, frame: int, forward: bool) -> Track:
+        """``track`` as its seam at ``frame`` reads it (:func:`posturemap.synth.trajectory.seam_view`):
+        itself unless a glitch step lies within :data:`SEAM_WINDOW_S` of the seam on its side
+        (after it with ``forward``, B's; before it, A's). The last few are kept
+        (:data:`SEAM_VIEWS_KEPT`: a slider's new alpha reads the same seams)."""
+        key = (id(track), frame, forward)
+        kept = self._seam_views.get(key)
+        if kept is not None and kept[0] is track:
+            return kept[1]
+        if self._steadied is None:
+            self._steadied = glitches.steadied_joints(self.skeleton, self._root)
+        span = max(2, round(SEAM_WINDOW_S * track.motion.fps))
+        view = seam_view(track, frame, forward, span, self._steadied)
+        if view is not track:
+            while len(self._seam_views) >= SEAM_VIEWS_KEPT:
+                self._seam_views.pop(next(iter(self._seam_views)))
+            self._seam_views[key] = (track, view)
         return view
 
     def _lock_feet(self, ta: Track, tb: Track, req: TransitionRequest, out_r, out_p, dtheta, shift, contacts=None):
@@ -487,7 +484,8 @@ def _clip_limbs(eng: TransitionEngine, ta: Track, tb: Track, a_end: int, b_start
     frames, once per pair (a slider's new seams cost nothing: about 1 ms a call otherwise); in
     a gap in a take (A is B) the frames the output keeps of it (to ``a_end``, from ``b_start``:
     never the gap's own), once per pair of seams. The last few are kept."""
-    same = ta is tb or (ta.given is not None and ta.given is tb.given)  # one take, read from two frames
+    ta, tb = ta.base or ta, tb.base or tb  # kept for the clips (a seam's view reads the same frames)
+    same = ta is tb
     key = (id(ta), id(tb)) + ((a_end, b_start) if same else ())
     kept = eng._clip_limbs.get(key)
     if kept is None or kept[0] is not ta or kept[1] is not tb:
@@ -520,6 +518,7 @@ def _limb_bends(eng: TransitionEngine, track: Track, limbs: tuple) -> tuple[np.n
     clip's first frame and from its last, then the running maximum likewise. Once per clip and
     limbs (a clip's first transition, or :meth:`TransitionEngine.warm_up`), so a transition
     reads four rows, whatever the clip's length."""
+    track = track.base or track  # kept per clip (a seam's view bends its knees as the clip does)
     kept = eng._limb_bends.get(id(track))
     if kept is None or kept[0] is not track or kept[1] is not limbs:
         _forget_gone_clips(eng)  # a clip's first transition: the clips replaced or dropped since go
@@ -535,9 +534,8 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     tracks (replaced under their name, or dropped): a server that replaces its clips would
     otherwise keep every one, and a fork would copy them."""
     live = {id(t): t for t in eng.tracks.values()}
-    eng._anchored_tracks = {k: v for k, v in eng._anchored_tracks.items() if live.get(k) is v[0]}
-    for _, views in eng._anchored_tracks.values():  # a clip's anchored views live with it
-        live.update((id(v), v) for v in views.values())
+    eng._seam_views = {k: v for k, v in eng._seam_views.items() if live.get(k[0]) is v[0]}
+    eng._learned = {k: v for k, v in eng._learned.items() if live.get(k) is v[0]}
     eng._limb_bends = {k: v for k, v in eng._limb_bends.items() if live.get(k) is v[0]}
     eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[1]) is v[1]}
     eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}
@@ -881,8 +879,8 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
         # A library that holds the take being in-betweened (a map trained on it) would replay the
         # frames this transition replaces: that clip is left out (its kept frames are the clips'
         # own motion, below). Between clips (B placed to continue A) nothing is replaced.
-        skip = (lib.take_clips(rt.part_joints[1], ta.rots[a_end], tb.rots[b_start], b_start - a_end)
-                if not align and b_start > a_end + 1 else None)
+        skip = (lib.take_clips(rt.part_joints[1], _learned_rows(eng, ta)[a_end], _learned_rows(eng, tb)[b_start],
+                               b_start - a_end) if not align and b_start > a_end + 1 else None)
         found = retrieval.match(rt, ta, tb, a_end, b_start, length, req.alpha, align, shared=shared, skip=skip)
     # The clips' own motion (A's up to its end, B's from its start) searched as well where B
     # stays where it is (a gap in a take), or where no library is; its match is taken where it
@@ -1003,6 +1001,7 @@ def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, 
     per-frame key joints and ankles once per clip."""
     if eng.model is None or eng.own_seconds <= 0 or not same_fps(ta.motion.fps, tb.motion.fps):
         return None
+    ta, tb = ta.base or ta, tb.base or tb  # the clips' frames as given, kept per clip (not a seam's view)
     span = max(min(int(eng.own_seconds * ta.motion.fps), OWN_FRAMES), 2)
     shortest = max(1, round(min(retrieval.WARPS) * (length + 1.0)))  # a segment's fewest frames, less one
     sides = [p for p in ((a, ta, max(0, a_end + 1 - span), a_end + 1),
@@ -1035,8 +1034,22 @@ def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, 
     return own
 
 
+def _learned_rows(eng: TransitionEngine, track: Track) -> np.ndarray:
+    """``track``'s rotations as a map learns them (:func:`posturemap.core.glitches.steadied`, as
+    :meth:`posturemap.learn.model.PostureMap.fit` reads a clip): its own where it has no glitch
+    step, which is nearly every clip; kept per clip. What a library that holds the clip holds."""
+    track = track.base or track
+    kept = eng._learned.get(id(track))
+    if kept is None or kept[0] is not track:
+        if eng._steadied is None:
+            eng._steadied = glitches.steadied_joints(eng.skeleton, eng._root)
+        kept = eng._learned[id(track)] = (track, glitches.steadied(track.rots, track.motion.fps, eng._steadied))
+    return kept[1]
+
+
 def _own_frames(eng: TransitionEngine, track: Track, keys: np.ndarray) -> dict:
     """:func:`posturemap.synth.library.own_frames` of ``track``, once per clip."""
+    track = track.base or track
     kept = eng._own_frames.get(id(track))
     if kept is None or kept[0] is not track or not np.array_equal(kept[1], keys):
         _forget_gone_clips(eng)

@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..core import kernels, quat
-from ..core.glitches import steady_motion
+from ..core.glitches import seam_window
 from ..core.joints import ancestors, leg_chains, leg_toes
 from ..core.motion import Motion, up_vector
 from ..core.skeleton import chain_world
@@ -41,10 +41,8 @@ class Track:
     carrier : where in the root's chain (its ancestors, top first) the highest joint that moves in
         the clip is (:func:`chain_carrier`), -1 where none does: that joint carries the clip's root
         motion and is placed with the body, where fixed ones stay put
-    given : None, or where the clip has glitch steps that :func:`posturemap.core.glitches.steadied`
-        takes out, the track of the clip as given: this track is of the steadied clip, a
-        transition reads it from its seam frame as given (:func:`anchored`), and the frames
-        written after a transition are the given ones
+    base : None, or for a track that reads the frames beside a seam without their glitch steps
+        (:func:`seam_view`), the clip's own track: what is kept per clip is kept for that one
     """
 
     motion: Motion
@@ -55,7 +53,7 @@ class Track:
     feet: np.ndarray
     toes: np.ndarray
     carrier: int = -1
-    given: "Track | None" = None
+    base: "Track | None" = None
 
 
 def heading_of(q: np.ndarray, up: int) -> np.ndarray:
@@ -190,47 +188,26 @@ def seam_path(ta: Track, tb: Track, a_end: int, b_start: int, length: int, up: i
     return out
 
 
+def seam_view(track: Track, frame: int, forward: bool, span: int, joints) -> Track:
+    """``track`` as a transition reads it beside its seam at ``frame``: where a glitch step lies
+    among the ``span`` frames the seam reads (after it with ``forward``, B's start; before it,
+    A's end; :func:`posturemap.core.glitches.seam_window`), a track whose rotations there (of
+    ``joints``) continue the seam frame without it, the seam frame as given; otherwise
+    ``track`` itself. The rest of the track (the trajectory, the feet, the posture vectors)
+    is the clip's own, and so is every frame outside those."""
+    found = seam_window(track.motion.rotations, track.motion.fps, frame, forward, span, joints)
+    if found is None:
+        return track
+    lo, rows = found
+    hi = lo + len(rows)
+    motion_rots, rots = track.motion.rotations.copy(), track.rots.copy()
+    motion_rots[lo:hi, joints] = rots[lo:hi, joints] = rows[:, joints]
+    motion = Motion(track.motion.skeleton, motion_rots, track.motion.positions, track.motion.fps)
+    return replace(track, motion=motion, rots=rots, base=track.base or track)
+
+
 def make_track(motion: Motion, root: int, up: int, rest: np.ndarray, space=None) -> Track:
-    """Split a clip into trajectory and posture (see :class:`Track`), read from the clip with the
-    glitch steps of its joints below the root taken out (:func:`posturemap.core.glitches.steady_motion`;
-    the clip as given is kept in ``given`` where that changed it)."""
-    steady = steady_motion(motion, steadied_joints(motion.skeleton, root))
-    if steady is not motion:
-        return replace(_track(steady, root, up, rest, space), given=_track(motion, root, up, rest, None))
-    return _track(motion, root, up, rest, space)
-
-
-def steadied_joints(skeleton, root: int) -> np.ndarray:
-    """The joints whose glitch steps a track takes out: all but the root and its ancestors,
-    which carry the trajectory (a half turn of the root in a frame is a turn as far as any
-    frame can tell)."""
-    out = np.ones(skeleton.num_joints, dtype=bool)
-    out[ancestors(skeleton.parents, root) + [root]] = False
-    return np.nonzero(out)[0]
-
-
-def anchored(track: Track, frame: int, root: int, up: int, rest: np.ndarray, space=None) -> Track:
-    """``track`` read from its frame ``frame`` as given: where steadying changed that frame
-    (:attr:`Track.given`), a track of the steadied clip with each changed joint turned, on
-    every frame, by the one rotation (from the left) that takes its steadied rotation at
-    ``frame`` to the given one; otherwise ``track`` itself. The frame is then the clip's own,
-    and the frames beside it follow it without the glitch steps: a transition from or to it
-    starts from (lands on) the frame as given, at the motion's own velocity."""
-    if track.given is None:
-        return track
-    given, steady = track.given.motion.rotations[frame], track.motion.rotations[frame]
-    changed = np.nonzero(np.any(given != steady, axis=-1))[0]
-    if not len(changed):
-        return track
-    rots = track.motion.rotations.copy()
-    turn = quat.mul(given[changed], quat.inv(steady[changed]))
-    rots[:, changed] = quat.normalize(quat.mul(turn[None], rots[:, changed]))
-    rots[frame, changed] = given[changed]  # the frame as given, to the bit
-    motion = Motion(track.motion.skeleton, rots, track.motion.positions, track.motion.fps)
-    return replace(_track(motion, root, up, rest, space), given=track.given)
-
-
-def _track(motion: Motion, root: int, up: int, rest: np.ndarray, space) -> Track:
+    """Split a clip into trajectory and posture (see :class:`Track`)."""
     grot, gpos = root_global(motion, root)
     head_q, tilt = quat.heading_tilt(grot, up_vector(up), rest)
     heading = np.unwrap(heading_of(head_q, up))
