@@ -91,9 +91,9 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     glitch step begins and another ends is turned to continue the frame before it (from the
     parent's side or the joint's own, whichever leads into the next piece the closer), and kept
     so only where it then leads into the next with no glitch (a flipped run turned back, a
-    one-frame spike levelled); last, where fewer than half the frames are left as given, the
-    joint is turned back as a whole onto its longest turned piece as given (the clip's own
-    state is the one it holds most). Any other step is left as it is: neither side says it is
+    one-frame spike levelled); last, each stretch between the glitch steps left, where fewer
+    than half its frames are as given, is turned as a whole onto its longest turned piece as
+    given (the clip's own state is the one it holds most). Any other step is left as it is: neither side says it is
     the wrong one. ``joints``: the joints (indices) to steady, all by default."""
     glitches = glitch_steps(rotations, fps)
     if joints is not None:
@@ -122,22 +122,25 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
             best = int(np.argmin(step))
             if step[best] <= limit:
                 q[s:e] = turned[best]
-        _most_as_given(q, rotations[:, j], cuts)
+        _most_as_given(q, rotations[:, j], cuts, limit)
     return out
 
 
-def _most_as_given(q: np.ndarray, given: np.ndarray, cuts: list[int]) -> None:
-    """Turn one joint's steadied rotations ``q (F, 4)`` (in place) as a whole so that its longest
-    turned piece is as given, where fewer than half its frames are as given."""
-    same = np.all(q == given, axis=-1)
-    if 2 * int(same.sum()) >= len(q):
-        return
+def _most_as_given(q: np.ndarray, given: np.ndarray, cuts: list[int], limit: float) -> None:
+    """Turn one joint's steadied rotations ``q (F, 4)`` (in place), each stretch between the
+    glitch steps left as a whole, so that its longest turned piece is as given, where fewer
+    than half of the stretch's frames are."""
+    left = [c for c in cuts if _angle(q[c - 1], q[c]) > limit]
     bounds = [0] + cuts + [len(q)]
-    pieces = [(e - s, s) for s, e in zip(bounds[:-1], bounds[1:]) if not same[s]]
-    _, s = max(pieces)
-    turn = quat.mul(given[s], quat.inv(q[s]))
-    q[:] = quat.normalize(quat.mul(turn, q))
-    q[s] = given[s]
+    for s, e in zip([0] + left, left + [len(q)]):
+        same = np.all(q[s:e] == given[s:e], axis=-1)
+        if 2 * int(same.sum()) >= e - s:
+            continue
+        pieces = [(b - a, a) for a, b in zip(bounds[:-1], bounds[1:]) if s <= a < e and not same[a - s]]
+        _, a = max(pieces)
+        turn = quat.mul(given[a], quat.inv(q[a]))
+        q[s:e] = quat.normalize(quat.mul(turn, q[s:e]))
+        q[a] = given[a]
 
 
 def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, span: int,
