@@ -46,10 +46,6 @@ GLITCH_TURN_MOST = 0.75 * np.pi
 # starts or ends in) up to this long (s; at least one frame): a clip that ends half a turn
 # from where it was a second before may mean it.
 GLITCH_END_S = 0.1
-# A glitch step left between two pieces that turns further than this is a flip (a half turn in
-# a frame, which no frame rate can tell the direction of): the rest of the clip is turned to
-# continue the frame before it, whatever its length, and the state most frames hold is kept.
-FLIP_TURN = np.radians(150.0)
 
 
 def glitch_turn(fps: float) -> float:
@@ -95,11 +91,9 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     glitch step begins and another ends is turned to continue the frame before it (from the
     parent's side or the joint's own, whichever leads into the next piece the closer), and kept
     so only where it then leads into the next with no glitch (a flipped run turned back, a
-    one-frame spike levelled); then past each flip left (over :data:`FLIP_TURN`) the rest of
-    the clip is turned to continue the frame before it; last, each stretch between the glitch
-    steps left, where fewer than half its frames are near their state as given (within the
-    bound), is turned as a whole onto its longest turned piece as given (the clip's own state
-    is the one it holds most). Any other step is left as it is: neither side says it is
+    one-frame spike levelled); last, each stretch between the glitch steps left, where fewer
+    than half its frames are as given, is turned as a whole onto its longest turned piece as
+    given (the clip's own state is the one it holds most). Any other step is left as it is: neither side says it is
     the wrong one. ``joints``: the joints (indices) to steady, all by default."""
     glitches = glitch_steps(rotations, fps)
     if joints is not None:
@@ -128,9 +122,6 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
             best = int(np.argmin(step))
             if step[best] <= limit:
                 q[s:e] = turned[best]
-        for c in cuts:  # a half turn left between two pieces: the rest turned to continue
-            if _angle(q[c - 1], q[c]) > FLIP_TURN:
-                q[c:] = _continued(q, c, n, c - 1, c, True)
         _most_as_given(q, rotations[:, j], cuts, limit)
     return out
 
@@ -138,11 +129,11 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
 def _most_as_given(q: np.ndarray, given: np.ndarray, cuts: list[int], limit: float) -> None:
     """Turn one joint's steadied rotations ``q (F, 4)`` (in place), each stretch between the
     glitch steps left as a whole, so that its longest turned piece is as given, where fewer
-    than half of the stretch's frames are within ``limit`` of their rotation as given."""
+    than half of the stretch's frames are."""
     left = [c for c in cuts if _angle(q[c - 1], q[c]) > limit]
     bounds = [0] + cuts + [len(q)]
     for s, e in zip([0] + left, left + [len(q)]):
-        same = quat.angle_between(q[s:e], given[s:e]) <= limit  # in the state given, or near it
+        same = np.all(q[s:e] == given[s:e], axis=-1)
         if 2 * int(same.sum()) >= e - s:
             continue
         pieces = [(b - a, a) for a, b in zip(bounds[:-1], bounds[1:]) if s <= a < e and not same[a - s]]
