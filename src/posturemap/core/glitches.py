@@ -9,24 +9,22 @@ method that reads a seam's velocity reads such a step as one, and carried it thr
 a toe spun at 146-180 degrees a frame between two Xia clips, where SLERP turns it 2.
 
 A step is a glitch where a joint turns further than :func:`glitch_turn` in one frame and the
-step is as far from what the frame before it or the one after it predicts (each side's own
-velocity carried one frame on): the joint would reverse, start or stop within the frame at a
-speed no joint reaches. The bound is a quarter of a turn at 30 fps and below, the same rate
-above: 47 rad/s, where the fastest joint of 174 Bandai clips turns 35 rad/s (a punching
-forearm), of Motiondataset-2's 2,902 clips 25, of LaFAN1's 142 takes 37 (and one foot's
-64-degree step at 60 fps, a glitch by this rule). A fast swing turns far in a frame, but as the
-frames around it say.
+step is as far from what both the frame before it and the one after it predict (each side's own
+velocity carried one frame on; at a clip's end, the one side there): a flip or a spike misses
+both, a real start or stop only the still side's. The bound is one rate at every frame rate, 47
+rad/s (a quarter turn a frame at 30 fps, 22.5 degrees at 120), at most 135 degrees a frame: the
+fastest joint of 174 Bandai clips turns 35 rad/s (a punching forearm), of Motiondataset-2's
+2,902 clips 25, of LaFAN1's 142 takes 37, and none of them has a glitch step (nor bandai1
+resampled down to 10 fps). A fast swing turns far in a frame, but as the frames around it say.
 
-:func:`steadied` takes out the glitch steps it can tell the wrong side of: a piece of frames
-that one glitch step begins and another ends is turned as a whole (one constant rotation, so
-that its own frame-to-frame turns are kept) to continue the frame before it, where it then
-leads into the frame after it with no glitch (a flipped run turned back, a one-frame spike
-levelled); a piece of at most :data:`GLITCH_END_S` at either end of the clip is turned to
-continue its neighbour (a first frame in a reference pose takes the second frame's pose). A
-lone step between two long pieces is left. The maps and the motion library are learned from
-steadied clips; a transition reads each clip from its seam frame as given, the frames beside it
-steadied and turned to follow it (:func:`posturemap.synth.trajectory.anchored`), and writes
-the clips' own frames as they are given.
+:func:`steadied` (what the maps learn) takes out the glitch steps whose wrong side it can tell:
+a short piece at either end of the clip (a first frame in a reference pose), a piece between two
+glitch steps that then leads on with none (a flipped run, a one-frame spike), and keeps each
+stretch in the state most of its frames hold. :func:`seam_window` (what a transition reads
+beside a seam, :func:`posturemap.synth.trajectory.seam_view`) takes out every glitch step among
+the frames on the seam's side, walking away from the seam, whose frame stays as given: a gap in
+a take is never read, and the new frames start from A's frame and land on B's as given. The
+frames written are the clips' own.
 """
 
 from __future__ import annotations
@@ -93,8 +91,9 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     so only where it then leads into the next with no glitch (a flipped run turned back, a
     one-frame spike levelled); last, each stretch between the glitch steps left, where fewer
     than half its frames are as given, is turned as a whole onto its longest turned piece as
-    given (the clip's own state is the one it holds most). Any other step is left as it is: neither side says it is
-    the wrong one. ``joints``: the joints (indices) to steady, all by default."""
+    given (the clip's own state is the one it holds most). Any other step is left as it is:
+    neither side says it is the wrong one. ``joints``: the joints (indices) to steady, all by
+    default."""
     glitches = glitch_steps(rotations, fps)
     if joints is not None:
         glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
