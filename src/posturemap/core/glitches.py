@@ -44,6 +44,9 @@ GLITCH_TURN_MOST = 0.75 * np.pi
 # starts or ends in) up to this long (s; at least one frame): a clip that ends half a turn
 # from where it was a second before may mean it.
 GLITCH_END_S = 0.1
+# ... beside a piece with no glitch step at least this long (s): a short clip cannot say which
+# side of its step is the clip's own, nor can the clean frames beside a marker dropout.
+GLITCH_STEADY_S = 1.0
 
 
 def glitch_turn(fps: float) -> float:
@@ -83,11 +86,12 @@ def glitch_steps(rotations: np.ndarray, fps: float) -> np.ndarray:
 def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     """``rotations (F, J, 4)`` with their glitch steps (:func:`glitch_steps`) taken out where the
     wrong side can be told: the same array where none is, otherwise a copy. Per joint: a piece
-    of at most :data:`GLITCH_END_S` at either end of the clip, shorter than the piece beside
-    it, is turned (as a whole: one rotation, its own frame-to-frame turns kept) to continue
-    that piece (a first frame in a reference pose); then, in time order, each piece that a
-    glitch step begins and another ends is turned to continue the frame before it (from the
-    parent's side or the joint's own, whichever leads into the next piece the closer), and kept
+    of at most :data:`GLITCH_END_S` at either end of the clip, beside a piece of at least
+    :data:`GLITCH_STEADY_S` with no glitch step, is turned (as a whole: one rotation, its own frame-to-frame turns kept) to
+    continue that piece (a first frame in a reference pose; not clean frames beside a dropout
+    of random steps); then, in time order, each piece that a glitch step begins and another
+    ends is turned to continue the frame before it (from the joint's own side or the parent's,
+    whichever leads into the next piece the closer), and kept
     so only where it then leads into the next with no glitch (a flipped run turned back, a
     one-frame spike levelled); last, each stretch between the glitch steps left, where fewer
     than half its frames are as given, is turned as a whole onto its longest turned piece as
@@ -103,20 +107,23 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     out = np.array(rotations, dtype=float)
     limit = glitch_turn(fps)
     end = max(1, round(GLITCH_END_S * fps))
+    steady = max(end + 1, round(GLITCH_STEADY_S * fps))
     n = len(out)
     for j in joints:
         cuts = [int(t) + 1 for t in np.nonzero(glitches[:, j])[0]]  # each a piece's first frame
         q = out[:, j]
         first, last = cuts[0], cuts[-1]
-        if first <= end and first < (cuts[1] if len(cuts) > 1 else n) - first:
-            q[:first] = _continued(q, 0, first, first, first - 1, True)
-        if n - last <= end and n - last < last - (cuts[-2] if len(cuts) > 1 else 0):
-            q[last:] = _continued(q, last, n, last - 1, last, True)
+        beside = (cuts[1] if len(cuts) > 1 else n) - first  # the piece an end's piece would continue
+        if first <= end and beside >= steady:
+            q[:first] = _continued(q, 0, first, first, first - 1, False)
+        beside = last - (cuts[-2] if len(cuts) > 1 else 0)
+        if n - last <= end and beside >= steady:
+            q[last:] = _continued(q, last, n, last - 1, last, False)
         for k in range(len(cuts) - 1):  # the pieces between two glitch steps
             s, e = cuts[k], cuts[k + 1]
             if _angle(q[s - 1], q[s]) <= limit:
                 continue  # turned back with the piece before it
-            turned = [_continued(q, s, e, s - 1, s, left) for left in (True, False)]
+            turned = [_continued(q, s, e, s - 1, s, left) for left in (False, True)]
             step = [_angle(t[-1], q[e]) for t in turned]
             best = int(np.argmin(step))
             if step[best] <= limit:
@@ -150,9 +157,10 @@ def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, sp
     start; else those before it up to ``span`` back: A's end); None where no glitch step lies
     among them (:func:`glitch_steps`, read on those frames alone, so that a gap in a take is
     never read). The seam frame is as given; past each glitch step the frames are turned as a
-    whole (one rotation, from the parent's side or the joint's own, whichever continues the
-    motion's velocity on the seam's side the better) to continue the frame on the seam's side
-    with no step. ``joints`` as :func:`steadied` takes them."""
+    whole (one rotation, from the joint's own side or the parent's, whichever continues the
+    motion's velocity on the seam's side the better; the joint's own where no frame there tells,
+    or both continue it alike: a solver flips a joint about its bone) to continue the frame on
+    the seam's side with no step. ``joints`` as :func:`steadied` takes them."""
     n = len(rotations)
     lo, hi = (frame, min(n, frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
     q = rotations[lo:hi]
@@ -170,15 +178,17 @@ def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, sp
             near, far = (t, t + 1) if forward else (t + 1, t)
             piece = slice(far, m) if forward else slice(0, far + 1)
             s, e = piece.indices(m)[:2]
-            turned = [_continued(r, s, e, near, far, left) for left in (True, False)]
-            # The velocity on the seam's side, carried on across the step: the better continuation.
+            # From the joint's own side first (a solver's flip about the bone), then the parent's.
+            turned = [_continued(r, s, e, near, far, left) for left in (False, True)]
+            # The velocity on the seam's side, carried on across the step: the better continuation
+            # (the joint's own side where that cannot tell, or both continue it alike).
             before = near - 1 if forward else near + 1
             if 0 <= before < m:
                 guess = quat.mul(r[near], quat.mul(quat.inv(r[before]), r[near]))
                 nxt = far + 1 if forward else far - 1
                 if 0 <= nxt < m:
                     miss = [_angle(guess, t[nxt - s]) for t in turned]
-                    r[s:e] = turned[int(np.argmin(miss))]
+                    r[s:e] = turned[int(np.argmin(miss))]  # a tie: the first, the joint's own side
                     continue
             r[s:e] = turned[0]
     return lo, rows
