@@ -55,25 +55,36 @@ def glitch_turn(fps: float) -> float:
     return min(GLITCH_RATE / float(fps), GLITCH_TURN_MOST)
 
 
-def glitch_steps(rotations: np.ndarray, fps: float) -> np.ndarray:
+def over_bound(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
+    """Which steps of local rotations ``rotations (F, J, 4)`` turn a joint (of ``joints``, all by
+    default) further than :func:`glitch_turn`: (F-1, J) booleans. Only these can be glitch steps,
+    of the clip or of any stretch of it."""
+    q = np.asarray(rotations, dtype=float)
+    out = quat.angle_between(q[:-1], q[1:]) > glitch_turn(fps)
+    if joints is not None:
+        out[:, np.setdiff1d(np.arange(out.shape[1]), joints)] = False
+    return out
+
+
+def glitch_steps(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     """Which steps of local rotations ``rotations (F, J, 4)`` (unit) are glitches: (F-1, J)
-    booleans, step ``t`` from frame ``t`` to ``t + 1`` (see the module's docstring). A clip of
-    fewer than three frames has none (one step says nothing of what is usual)."""
+    booleans, step ``t`` from frame ``t`` to ``t + 1`` (see the module's docstring); of
+    ``joints`` only, where given. A clip of fewer than three frames has none (one step says
+    nothing of what is usual)."""
     q = np.asarray(rotations, dtype=float)
     n = len(q)
     out = np.zeros((max(n - 1, 0),) + q.shape[1:2], dtype=bool)
     if n < 3:
         return out
     limit = glitch_turn(fps)
-    step = quat.angle_between(q[:-1], q[1:])
-    big = step > limit
+    big = over_bound(q, fps, joints)
     if not big.any():
         return out
     # Step t predicted by the step before it (frame t+1 as t times t-1's step) and by the one
     # after it (frame t as t+1 times t+2's step back).
-    ahead = np.full(step.shape, np.inf)
+    ahead = np.full(big.shape, np.inf)
     ahead[1:] = quat.angle_between(quat.mul(q[1:-1], quat.mul(quat.inv(q[:-2]), q[1:-1])), q[2:])
-    back = np.full(step.shape, np.inf)
+    back = np.full(big.shape, np.inf)
     back[:-1] = quat.angle_between(quat.mul(q[1:-1], quat.mul(quat.inv(q[2:]), q[1:-1])), q[:-2])
     # Both sides must miss it (a real start or stop misses one: the still side's); at either
     # end of the clip the one side there is.
@@ -98,9 +109,7 @@ def steadied(rotations: np.ndarray, fps: float, joints=None) -> np.ndarray:
     given (the clip's own state is the one it holds most). Any other step is left as it is:
     neither side says it is the wrong one. ``joints``: the joints (indices) to steady, all by
     default."""
-    glitches = glitch_steps(rotations, fps)
-    if joints is not None:
-        glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
+    glitches = glitch_steps(rotations, fps, joints)
     joints = np.nonzero(glitches.any(axis=0))[0]
     if not len(joints):
         return rotations
@@ -164,9 +173,7 @@ def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, sp
     n = len(rotations)
     lo, hi = (frame, min(n, frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
     q = rotations[lo:hi]
-    glitches = glitch_steps(q, fps)
-    if joints is not None:
-        glitches[:, np.setdiff1d(np.arange(glitches.shape[1]), joints)] = False
+    glitches = glitch_steps(q, fps, joints)
     if not glitches.any():
         return None
     rows = np.array(q, dtype=float)

@@ -138,8 +138,9 @@ class TransitionEngine:
         # (id(track), seam frame, whether B's) -> (track, the track as that seam reads it), for
         # seams beside a glitch step (see _seam_view).
         self._seam_views: dict[tuple, tuple] = {}
-        self._steadied = None  # the joints whose glitch steps a seam's view takes out
+        self._steadied = None  # the joints whose glitch steps are taken out (all below the root)
         self._learned: dict[int, tuple] = {}  # id(track) -> (track, its rotations as a map learns them)
+        self._over: dict[int, tuple] = {}  # id(track) -> (track, its steps over the glitch bound, counted)
         # Without a motion library: (id(A), id(B)[, A's end, B's start: a gap in a take]) -> (A, B,
         # the hinges found in their frames, see _clip_limbs).
         self._clip_limbs: dict[tuple, tuple] = {}
@@ -178,6 +179,7 @@ class TransitionEngine:
         if self._root is None:
             self._root, self._up = root_index(motion), up_axis(motion)
         self._chain = np.array(ancestors(self.skeleton.parents, self._root), dtype=np.int64)
+        self._steadied = glitches.steadied_joints(self.skeleton, self._root)
         space = self.model.space_ if self.model is not None else None
         if self._rest is None:
             self._rest = upright_rest(root_global(motion, self._root)[0], self._up)
@@ -235,7 +237,7 @@ class TransitionEngine:
         other."""
         _forget_gone_clips(self)  # a clip replaced since its last transition is not copied
         shared = {id(self.model): self.model, **{id(t): t for t in self.tracks.values()}, id(self._own): {},
-                  id(self._seam_views): {}, id(self._learned): {},
+                  id(self._seam_views): {}, id(self._learned): {}, id(self._over): {},
                   id(self._own_frames): {}, id(self._own_base): None}
         library = getattr(self.model, "library_", None)
         if library is not None:  # a retriever built before the copy keeps it
@@ -320,6 +322,8 @@ class TransitionEngine:
                 if len(limbs[3]):
                     for track in self.tracks.values():
                         _limb_bends(self, track, limbs)
+            for track in self.tracks.values():  # where a seam may meet a glitch step (about 1 ms a
+                _over_bound(self, track)        # 1,000 frames; a clip's first transition would pay)
         finally:
             self.last = last
             self._buffers = {**self._buffers, **buffers}
@@ -372,13 +376,15 @@ class TransitionEngine:
         itself unless a glitch step lies within :data:`SEAM_WINDOW_S` of the seam on its side
         (after it with ``forward``, B's; before it, A's). The last few are kept
         (:data:`SEAM_VIEWS_KEPT`: a slider's new alpha reads the same seams)."""
+        span = max(2, round(SEAM_WINDOW_S * track.motion.fps))
+        lo, hi = (frame, min(len(track.gpos), frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
+        over = _over_bound(self, track)
+        if over[hi - 1] == over[lo]:  # no step there turns a joint as far as a glitch: nearly every seam
+            return track
         key = (id(track), frame, forward)
         kept = self._seam_views.get(key)
         if kept is not None and kept[0] is track:
             return kept[1]
-        if self._steadied is None:
-            self._steadied = glitches.steadied_joints(self.skeleton, self._root)
-        span = max(2, round(SEAM_WINDOW_S * track.motion.fps))
         view = seam_view(track, frame, forward, span, self._steadied)
         if view is not track:
             while len(self._seam_views) >= SEAM_VIEWS_KEPT:
@@ -536,6 +542,7 @@ def _forget_gone_clips(eng: TransitionEngine) -> None:
     live = {id(t): t for t in eng.tracks.values()}
     eng._seam_views = {k: v for k, v in eng._seam_views.items() if live.get(k[0]) is v[0]}
     eng._learned = {k: v for k, v in eng._learned.items() if live.get(k) is v[0]}
+    eng._over = {k: v for k, v in eng._over.items() if live.get(k) is v[0]}
     eng._limb_bends = {k: v for k, v in eng._limb_bends.items() if live.get(k) is v[0]}
     eng._own = {k: v for k, v in eng._own.items() if live.get(k[0]) is v[0] and live.get(k[1]) is v[1]}
     eng._own_frames = {k: v for k, v in eng._own_frames.items() if live.get(k) is v[0]}
@@ -1041,9 +1048,19 @@ def _learned_rows(eng: TransitionEngine, track: Track) -> np.ndarray:
     track = track.base or track
     kept = eng._learned.get(id(track))
     if kept is None or kept[0] is not track:
-        if eng._steadied is None:
-            eng._steadied = glitches.steadied_joints(eng.skeleton, eng._root)
         kept = eng._learned[id(track)] = (track, glitches.steadied(track.rots, track.motion.fps, eng._steadied))
+    return kept[1]
+
+
+def _over_bound(eng: TransitionEngine, track: Track) -> np.ndarray:
+    """How many of ``track``'s steps up to each frame turn a joint below the root further than a
+    glitch's bound (:func:`posturemap.core.glitches.over_bound`): (F,), 0 at frame 0; once per
+    clip, so that a seam tells in two reads whether any step beside it can be a glitch."""
+    track = track.base or track
+    kept = eng._over.get(id(track))
+    if kept is None or kept[0] is not track:
+        over = glitches.over_bound(track.motion.rotations, track.motion.fps, eng._steadied).any(axis=1)
+        kept = eng._over[id(track)] = (track, np.concatenate([[0], np.cumsum(over)]))
     return kept[1]
 
 
