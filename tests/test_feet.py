@@ -790,7 +790,8 @@ def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips, monk
             # the last frame's swing may lift the foot a little: not asserted).
             heights = ankle[:, up] - g[:, up]
             assert np.all(np.abs(heights[:k0]) < 1e-6)
-            assert heights[k0 + step // 2] > 0.5 * min(feet.STEP_LIFT * leg, 0.5 * np.linalg.norm(landing - g[0] * flat))
+            way = np.linalg.norm(landing - g[0] * flat) - feet.STAND_STEP * leg
+            assert heights[k0 + step // 2] > 0.5 * min(feet.STEP_LIFT * leg, feet.STEP_RISE * way)
 
 
 def test_a_run_held_to_one_seam_steps_there_when_it_lands_far_and_lets_go_where_that_foot_moves():
@@ -976,7 +977,7 @@ def test_soft_ik_bends_the_knee_smoothly_near_full_reach():
                                                   (9, 100.0, 4.0), (9, 8.0, 40.0)])
 def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     # Planted at A's end, all through the gap and at B's start, on two different spots: the foot
-    # holds A's spot, steps (lifted on a squared sine no higher than `lift` and the way beyond
+    # holds A's spot, steps (lifted on a squared sine no higher than `lift` and STEP_RISE of the way beyond
     # `shuffle`, easing off the floor and onto it; the target moving monotonically, in
     # the step's middle only: the foot rises and comes down in place) and holds B's spot; it never
     # jumps. A way shorter than `shuffle` slides: the same target, no lift.
@@ -1005,7 +1006,7 @@ def test_a_foot_planted_all_through_steps_from_a_to_b(step, lift, shuffle):
     if k >= 3:
         assert 0 < along[k0 + k // 2] < 1  # it does travel in the middle
     assert not raised[:k0].any() and not raised[k0 + k:].any()
-    high = min(lift, max(dist - shuffle, 0.0))
+    high = min(lift, feet.STEP_RISE * max(dist - shuffle, 0.0))
     if k and high > 0:
         assert raised.max() == pytest.approx(high, rel=0.05)
         assert np.all(raised[k0: k0 + k] > 0)
@@ -1093,7 +1094,7 @@ def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_cl
             np.testing.assert_allclose(ankles[k0 + k:, i] * flat, np.tile(b_spot[i], (length - k0 - k, 1)),
                                        atol=0.002 * leg)
             lifted = ankles[k0: k0 + k, i, up] - g[k0: k0 + k, i, up]
-            assert lifted.min() > 0 and lifted.max() > 0.5 * min(feet.STEP_LIFT * leg, 0.09 * leg)
+            assert lifted.min() > 0 and lifted.max() > 0.5 * feet.STEP_RISE * (0.18 - feet.STAND_STEP) * leg
     np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
     # A leg the motion lifts between the seams (a kick: the thigh turned 1.2 rad at mid-gap) is
     # left to the motion; the other still holds and steps (in the middle: it is alone now).
@@ -1752,7 +1753,7 @@ def test_a_short_stretch_between_far_held_spots_is_widened_and_stepped():
     assert q - p >= d / pace and q - p - 1 < offset[p + 1, 0] / pace  # wide enough, no wider
     assert (p, q) == (3, 8)  # frames 4, 6 and 7 let go (the longer run first): 0.225 over 5 frames
     assert np.all(weight[~held] == 0) and np.all(weight[held] == 1)
-    high = min(lift, max(d - shuffle, 0.0))
+    high = min(lift, feet.STEP_RISE * max(d - shuffle, 0.0))
     u = (np.arange(p + 1, q) - p) / (q - p)
     np.testing.assert_allclose(raised[p + 1: q], high * np.sin(np.pi * u) ** 2)
     assert np.all(raised[held] == 0)
@@ -1888,7 +1889,7 @@ def test_a_foot_held_while_its_motion_moves_on_is_let_go_soon_enough_to_catch_it
     assert np.linalg.norm(np.diff(carried, 2, axis=0), axis=-1).max() <= accel * (1 + 1e-9)
 
 
-def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
+def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound(monkeypatch):
     # The foot held on its spot (0) for frames 0-19 while the motion's foot walks on 0.3 a frame
     # (its correction grows as much), let go sooner (the run's rate counted): between the held
     # frame and B's (frame 30, on the motion's foot) the foot itself travels the motion's way
@@ -1896,6 +1897,7 @@ def test_a_widened_pass_lifts_the_foot_by_its_own_way_within_the_bound():
     # lifted by that way (beyond the shuffle, the lift at most), a squared sine no
     # higher than lets it accelerate within the bound.
     length, accel, rate, lift, shuffle = 30, 0.3, 0.3, 4.0, 4.0
+    monkeypatch.setattr(feet, "STEP_RISE", 1.0)  # the whole way beyond the shuffle: the bound binds
     foot = np.zeros((length + 2, 2))  # A's last frame, the new ones, B's first
     foot[:, 0] = -rate * np.arange(-1, length + 1)
 
@@ -2005,7 +2007,7 @@ def test_pace_passes_is_the_same_compiled():
         foot = np.concatenate([seams[:1], gpos[:, ankle], seams[1:]])[:, [(up + 1) % 3, (up + 2) % 3]]
         feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, accel, least, carry)
+        numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, feet.STEP_RISE, accel, least, carry)
         for g, w in zip(got, want):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
         changed += not np.array_equal(want[0], held)
@@ -2017,7 +2019,7 @@ def test_pace_passes_is_the_same_compiled():
     feet.pace_passes(*want, h, pace, 1.0, 0.5, accel, 1, len(held))
     gpos = np.zeros((len(held), 1, 3))
     numba_kernels._pace_passes(held, weight, offset, raised, gpos, 0, 1, np.zeros(3), np.zeros(3), pace, 1.0, 0.5,
-                               accel, 1, len(held))
+                               feet.STEP_RISE, accel, 1, len(held))
     assert np.array_equal(held, want[0]) and not held[5]
     np.testing.assert_allclose(raised, want[3], rtol=0, atol=1e-12)
 

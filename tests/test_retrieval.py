@@ -2164,8 +2164,8 @@ def test_a_segment_is_matched_at_the_speed_it_is_replayed_at(model, clips):
 def test_a_foot_passed_between_held_spots_sets_off_no_faster_than_a_walking_ankle(engine, clips, monkeypatch):
     # A tired walk into a happy one, 20 frames: at the pace alone (feet.PASS_SPEED) a held foot's
     # correction set off from rest in a few frames and came down on a run a frame or two long,
-    # the largest acceleration of any joint 2.7 times the largest in A's last and B's first
-    # frames. Bounded by a walking ankle's acceleration (feet.PASS_ACCEL), with no run left
+    # the largest acceleration of any joint 1.6 times the largest in A's last and B's first
+    # frames (2.7 while a step lifted the foot by its whole way, before feet.STEP_RISE). Bounded by a walking ankle's acceleration (feet.PASS_ACCEL), with no run left
     # shorter than feet.PASS_LEAST_S, it is under theirs. (The knee's bound, feet.KNEE_ACCEL,
     # is off at the pace alone: it also softens that pass, to 1.25 times theirs.)
     from posturemap.synth import feet as feet_module
@@ -2192,7 +2192,7 @@ def test_a_foot_passed_between_held_spots_sets_off_no_faster_than_a_walking_ankl
         r, p = eng.generate(a, b, length=length, a_end=a_end, b_start=b_start, method="retrieval")
         g = np.concatenate([clips[a].global_positions()[a_end - 1: a_end + 1], fk(sk.parents, r, p)[1]])
         peak[bound] = largest(g)
-    assert peak["pace"] > 2.0 * own and peak["accel"] < own, (peak, own)
+    assert peak["pace"] > 1.5 * own and peak["accel"] < own, (peak, own)
 
 
 def test_a_foot_passed_between_two_held_spots_is_not_snapped_across(engine, clips, monkeypatch):

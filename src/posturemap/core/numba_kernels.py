@@ -1049,13 +1049,14 @@ def _pass_accel(offset, p, q, lo, hi, n_l, carry):
 
 
 @nb.njit(**_OPTS)
-def _step_high(k, way, lift, stand, accel):
+def _step_high(k, way, lift, stand, rise, accel):
     """The height of :func:`posturemap.synth.feet.step_lift`'s squared sine over ``k`` frames."""
-    return min(lift, max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
+    return min(lift, rise * max(way - stand, 0.0), accel * (k + 1.0) ** 2 / (2.0 * math.pi**2))
 
 
 @nb.njit(**_OPTS)
-def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pace, lift, stand, accel, least, carry):
+def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pace, lift, stand, rise, accel, least,
+                 carry):
     """:func:`posturemap.synth.feet.pace_passes` of one leg: ``on`` (L,) its held frames,
     ``weight``, ``offset`` (L, 2), ``raised`` in place; the ankle's height and way from ``gpos``,
     A's last frame's and B's first's ankle ``a_foot``, ``b_foot`` (3,)."""
@@ -1159,7 +1160,7 @@ def _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_foot, b_foot, pa
             if p >= 0:
                 wa, wb = wa - offset[p, 0], wb - offset[p, 1]
             d = math.sqrt(wa * wa + wb * wb)
-        high = _step_high(q - p - 1, d, lift, stand, accel)
+        high = _step_high(q - p - 1, d, lift, stand, rise, accel)
         hp = gpos[p, ankle, up] if p >= 0 else gpos[0, ankle, up]
         hq = gpos[q, ankle, up] if q < n_l else gpos[n_l - 1, ankle, up]
         base = min(hp, hq)
@@ -1202,7 +1203,7 @@ def _stance_windows(moves, length, step, least):
 @nb.njit(**_OPTS)
 def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_tol, speed_tol, contacts,
               drift_lo, drift_hi, eps, soft, hinge, step, lift, step_lag, toes, toe_floor, clear, clear_lo, clear_hi,
-              curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, farthest, a_toes, b_toes, toe_most,
+              curve_v, curve_h, clear_r, clear_fade, a_floor, b_floor, stand, rise, farthest, a_toes, b_toes, toe_most,
               toe_gap, toe_catch, pace, accel, least, carry, hinge_sure, knee_through, knee_accel, knee_passes,
               knee_plain, knee_relax, knee_exact, weights):
     """The whole of :func:`posturemap.synth.feet.lock_feet` after its forward kinematics, every leg.
@@ -1230,7 +1231,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     through, or without contacts whose motion keeps the ankle under ``lift`` above its floor and
     within ``drift_lo`` legs of the line between them, step one after another
     (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step lifts the foot (by
-    the rest of its way, ``lift`` at most); farthest (length unit): ``STEP_MOST`` of a leg, beyond
+    rise times the rest of its way, ``STEP_RISE``, ``lift`` at most); farthest (length unit): ``STEP_MOST`` of a leg, beyond
     which a run planted at both seams on spots that far apart is not held; weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
@@ -1368,7 +1369,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 elif to_b and far > reach:  # the landing moved toward B's spot by reach
                     xa, xb, stepping = ea + (ya - ea) * (reach / far), eb + (yb - eb) * (reach / far), True
             way = math.sqrt((ya - xa) ** 2 + (yb - xb) ** 2)
-            high = _step_high(k, way, lift, stand, accel)
+            high = _step_high(k, way, lift, stand, rise, accel)
             lag = step_lag  # less where the step is too quick for it (feet.step_lag)
             if k > 0 and way > 0.0 and accel < np.inf:
                 lag = min(max(0.5 * (1.0 - math.sqrt(6.0 * way / accel) / (k + 1.0)), 0.0), step_lag)
@@ -1471,7 +1472,7 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
                 raised[t] *= scale
         # Stretches too short for the offset to pass at ``pace`` widened (feet.pace_passes).
         _pace_passes(on, weight, offset, raised, gpos, ankle, up, a_feet[1, leg], b_feet[0, leg], pace, lift, stand,
-                     accel, least, carry)
+                     rise, accel, least, carry)
         # Carried through the frames between the runs: a smoothstep from the value at one run's
         # end (0 on frame -1) to the next one's start (0 on frame L), each end's rate carried
         # ``carry`` frames at most by the cubic Hermite's terms for it (feet.swing_offsets).

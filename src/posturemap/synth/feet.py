@@ -107,12 +107,16 @@ STEP_S = 0.3  # seconds of the step between two spots of one run (A's and B's, o
 STEP_MOST = 1.0  # leg lengths: a foot planted at both seams on spots farther apart is not held through the
 #                  gap (no step of a standing foot makes it; held, its spot crossed the gliding foot
 #                  and the softly limited pull swapped sides: 35 cm a frame twice)
-STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift, at most half its length
+STEP_LIFT = 0.1  # leg lengths (8 cm on Bandai): the step's highest lift
+STEP_RISE = 0.2  # a step lifts the foot by this share of its way beyond STAND_STEP (STEP_LIFT at most):
+#                  real feet planted at both ends of a gap and moved 0.1-0.2 leg lengths between rise
+#                  0.5-3 cm (the ankle's median, gaps of 0.5-1 s), 0.4-1 leg lengths 4-8 cm (bandai1,
+#                  LaFAN1); a quarter second or less, hardly at all (step_lift)
 STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fifth, comes down in place
 #                  over the last, and travels in between (travelling from the first frame, low, it slid)
 STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): feet held all through the gap whose spots lie
 #                    farther apart than this step one after another (stance_windows); a step lifts the
-#                    foot by its way beyond this (STEP_LIFT at most): a shorter shift slides
+#                    foot by STEP_RISE of its way beyond this (STEP_LIFT at most): a shorter shift slides
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend accelerates at most this
@@ -603,7 +607,7 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
     with a smoothstep (in place over the step's first and last ``STEP_LAG``, less where that would
     set the foot off faster than ``accel`` per frame squared: :func:`step_lag`) while the foot rises
-    by ``lift`` (at most the step's length beyond ``shuffle``) on a squared sine and comes
+    by ``lift`` (at most ``STEP_RISE`` of the step's length beyond ``shuffle``) on a squared sine and comes
     down on B's spot. The lift (L,) is added to the ankle's height. Where the two spots lie
     farther apart than ``farthest``, no step of a standing foot makes it (the motion carries
     the foot there: a body gliding over a standing segment), and the run is not held.
@@ -614,8 +618,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     with ``toe``: a toe planted at a seam (the heel may be up) stays on its spot while ``low`` (L,)
     says the new frames keep it low, at most ``most`` frames, and no longer than lets its offset
     pass on at ``catch`` per frame; after a run of at most ``after_run`` frames from the seam, where
-    the run leaves it (:func:`_hold_seam_toes`). ``shuffle``: a step lifts the foot by its way
-    beyond this (:func:`_step`).
+    the run leaves it (:func:`_hold_seam_toes`). ``shuffle``: a step lifts the foot by ``STEP_RISE``
+    of its way beyond this (:func:`_step`).
 
     ``toe`` (L, 3), when given: per frame the toe's horizontal place relative to the ankle. A
     held foot then turns about its toe, not its ankle: the target moves back by how far the toe
@@ -758,7 +762,7 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     k0 + k - 1`` instead. The foot travels on a smoothstep between the step's first and last
     ``STEP_LAG`` (less where the step is too quick for it: :func:`step_lag`, ``accel``) and
     rises on a squared sine over the whole step (no vertical speed at either end; on a half sine
-    it rose from rest in one frame) to ``lift`` at most and the way beyond ``shuffle``
+    it rose from rest in one frame) to ``lift`` at most and ``STEP_RISE`` of the way beyond ``shuffle``
     (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor; see
     :func:`step_lift`). Returns how far the step has gone at each frame (n,), 0 to 1."""
     n = len(spot)
@@ -885,7 +889,7 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     to five times the acceleration of a walking ankle (46 cm in six frames at 30 fps, 20 cm in
     five at 60), and a run shortened to a frame or two put the foot down between two such
     passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
-    (:func:`step_lift`: ``lift``, at most the way beyond ``shuffle``, on a squared sine
+    (:func:`step_lift`: ``lift`` at most, ``STEP_RISE`` of the way beyond ``shuffle``, on a squared sine
     within ``accel``) less what the motion lifts it already; the way is the foot's own between
     the two held frames, ``foot`` (L + 2, k: the motion's foot, as ``offset`` lies, in A's last
     frame, the new ones and B's first) with the offsets, where given and the stretch no longer
@@ -985,28 +989,41 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
 
 def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np.inf) -> np.ndarray:
     """The lift (k,) of a step over ``k`` frames that moves a foot ``way``: a squared sine
-    (no vertical speed at either end) up to ``lift`` at most and the way beyond ``shuffle`` (a
-    shorter shift slides or pivots on the floor), and no higher than lets it accelerate within
-    ``accel`` per frame squared (a squared sine over ``k + 1`` frames peaks at
+    (no vertical speed at either end) up to ``lift`` at most and ``STEP_RISE`` of the way beyond
+    ``shuffle`` (a shorter shift slides or pivots on the floor), and no higher than lets it
+    accelerate within ``accel`` per frame squared (a squared sine over ``k + 1`` frames peaks at
     ``2 pi^2 / (k + 1)^2`` times its height); :func:`_step`'s and the steps :func:`pace_passes`
     makes.
 
-    Half of the way beyond ``shuffle`` lifted a foot shifted 6.4 cm between two standing clips
-    (Motiondataset-2's raised hand into a wave, 10 frames) 1.2 cm: its toe slid 73 cm/s a
-    centimetre over the floor, and short transitions between standing clips skated twice their
-    real frames. With the whole way, on seeded transitions between clips (100 pairs each; the
-    default with the lock): Motiondataset-2's clips with bandai1's library 2.94 -> 2.09 cm/s at
-    10 frames and 1.54 -> 1.20 at 20 (their real frames' 1.4); bandai1's held-out contents and
-    styles 2.79 / 2.85 -> 2.65 / 2.64 at 10 frames; LaFAN1 at 60 fps 2.60 / 1.60 -> 2.47 / 1.53
-    at 20 / 40 frames. Sudden accelerations (a joint over 1.5x the real frames' largest) the
-    same but one more of 100 on Motiondataset-2 at 10 and at 20 frames; in-betweening's L2P at
-    5 frames 0.370x -> 0.378x SLERP's on the held-out styles (lifted by half of the whole way,
-    no ``shuffle``, the lock's steps had cost 5-frame gaps 5% of their L2P there), within 0.3%
-    elsewhere. Not kept: twice the way (3-15% less skate again, for two more such accelerations
-    of 95 on LaFAN1 at 40 frames), or the way beyond half of ``shuffle`` (5-22% less, as many
-    more, and L2P at 5 frames 0.387x)."""
+    The share is what real feet do. Where a foot is planted at both ends of a gap (within
+    ``CONTACT_HEIGHT`` of its floor, slower than ``CONTACT_SPEED``) and has moved between them,
+    the ankle's highest rise in the gap over the higher of its two ends, in leg lengths, medians
+    over every such window of bandai1 (every second clip) and of LaFAN1's segments of subjects
+    1-4 (every third), by the way moved:
+
+    | way (leg lengths) | 0.5 s gaps: bandai1 / LaFAN1 | 1 s gaps | 0.17 s and 0.3 s gaps |
+    |---|---|---|---|
+    | 0.05-0.1 | 0.000 / 0.002 | 0.011 / 0.005 | 0.000 |
+    | 0.1-0.2 | 0.013 / 0.019 | 0.016 / 0.029 | 0.000-0.012 |
+    | 0.2-0.4 | 0.012 / 0.044 | 0.029 / 0.050 | 0.006-0.017 |
+    | 0.4-1.0 | 0.052 / 0.059 | 0.083 / 0.101 | 0.017-0.042 |
+
+    A foot shifted a few centimetres slides or pivots; one moved half a leg or more steps. A
+    fifth of the way beyond ``shuffle`` follows the medians of 0.5-1 s (0.02 at 0.15 leg lengths,
+    0.05 at 0.3, ``lift`` from 0.55); the acceleration bound lowers it on shorter gaps. The whole
+    way (up to ``lift``) had been kept before for the skate of transitions between standing clips
+    (a foot shifted 6.4 cm between two of Motiondataset-2's clips slid over the floor), but it lifted
+    feet three to ten times higher than real feet rise over the same way, and in-betweening paid for
+    it in L2P: LaFAN1's segments at 60 fps, 0.17 / 0.5 / 1 s, 0.315 / 1.191 / 2.528 -> 0.282 / 1.187 /
+    2.518 with a quarter of the way; bandai1's held-out contents 0.330 / 1.191 / 1.797 -> 0.325 /
+    1.190 / 1.795 (every share from the whole way to none lowered L2P a little more, none lowest; none
+    would glide every foot that steps). The price is paid between clips, where B's stance is not
+    A's: on 100 seeded transitions between bandai1's clips (every second clip, B placed to continue
+    A; the default with the lock) the skate at 10 / 20 / 30 frames went 2.71 / 1.68 / 1.38 -> 4.26 /
+    2.42 / 1.90 cm/s with a fifth of the way, the clips' own windows 2.66 / 2.24 / 2.40, SLERP's 25 /
+    21 / 18."""
     u = np.arange(1, k + 1) / (k + 1.0)
-    high = min(lift, max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
+    high = min(lift, STEP_RISE * max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
     return high * np.sin(np.pi * u) ** 2
 
 
@@ -1088,7 +1105,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, STEP_LAG, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
-                      STEP_MOST * body,
+                      STEP_RISE, STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
                       *passes, HINGE_SURE, KNEE_THROUGH, KNEE_ACCEL / fps**2, rest.REST_PASSES, rest.REST_PLAIN,
                       rest.REST_RELAX, rest.REST_EXACT, weights)
