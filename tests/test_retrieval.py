@@ -1100,21 +1100,23 @@ def test_inspect_describes_the_library(model, tmp_path, capsys):
     assert d["toe_clearance"]["speeds"] == [0.375, 0.75, 1.25, 2.0, 3.25, 6.0]
 
 
-def test_auto_uses_the_spline_for_short_gaps_and_retrieval_for_longer_ones(engine, clips, model):
-    from posturemap.synth.request import AUTO_SHORT_S
-
+def test_auto_is_retrieval_at_every_gap_length(engine, clips, model):
     name = HELD_OUT[0]
-    for length, expected in ((5, "spline"), (int(AUTO_SHORT_S * 30) + 1, "retrieval"), (30, "retrieval")):
+    for length in (1, 5, 7, 30):  # 0.07 s to 1 s at 30 fps
         r1 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False, method="auto",
                              foot_lock=True)[0].copy()
-        assert engine.last["method"] == expected
-        r2 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False, method=expected,
-                             foot_lock=True)[0]
-        assert engine.last["method"] == expected  # an explicit method is named too
+        assert engine.last["method"] == "retrieval"
+        assert "lower" in engine.last["retrieval"]["parts"]
+        r2 = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False,
+                             method="retrieval", foot_lock=True)[0]
+        assert engine.last["method"] == "retrieval"  # an explicit method is named too
         assert np.array_equal(r1, r2)
+        spline = engine.generate(name, name, length=length, a_end=40, b_start=41 + length, align=False,
+                                 method="spline", foot_lock=True)[0]
+        assert not np.allclose(r1, spline)  # the legs are retrieved, not the spline's
     report = {}
     transition(clips[name], clips[name], model, length=5, a_end=40, b_start=46, align=False, report=report)
-    assert report == {"method": "spline"}
+    assert report["method"] == "retrieval"
 
 
 def test_standing_seams_are_left_to_interpolation(model, clips):
@@ -1460,10 +1462,8 @@ def test_the_prefilter_keeps_as_many_moments_at_any_frame_rate():
 
 
 def test_the_upper_body_fades_into_the_spline_on_short_gaps():
-    from posturemap.synth.request import AUTO_SHORT_S
-
-    # The ramp runs from where auto takes the spline to where the fallback stops being it.
-    assert retrieval.UPPER_RAMP_S == (AUTO_SHORT_S, retrieval.FALLBACK_SHORT[1])
+    # The ramp runs from a quarter second to where the fallback stops being the spline.
+    assert retrieval.UPPER_RAMP_S == (0.25, retrieval.FALLBACK_SHORT[1])
     lo, hi = retrieval.UPPER_RAMP_S
     assert retrieval.upper_weight(5, 30.0) == 0.0  # 0.2 s
     assert retrieval.upper_weight(29, 120.0) == 0.0  # 0.25 s at 120 fps: seconds count, not frames

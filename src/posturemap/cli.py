@@ -11,7 +11,7 @@ import sys
 from . import __version__
 from .errors import UserError, require_extra
 from .learn.limits import MAX_EPOCHS, MAX_NEIGHBORHOOD, MAX_RADIUS, MAX_SEED
-from .synth.request import AUTO_SHORT_S, DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHOD_INFO, METHODS
+from .synth.request import DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHOD_INFO, METHODS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -526,9 +526,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--split-animations", action="store_true",
                    help="glTF only: also write A's part, the transition and B's part as three named animations")
     r.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"transition method ({DEFAULT_METHOD}: the spline for gaps under {AUTO_SHORT_S:g} s "
-                        "from A's last kept frame to B's first, (length + 1) / fps, real motion retrieved from "
-                        "the map's library for longer ones; see the README)")
+                   help=f"transition method ({DEFAULT_METHOD}: real motion retrieved from the map's library, "
+                        "at every gap length; see the README)")
     r.set_defaults(func=_cmd_transition)
 
     i = sub.add_parser("inspect", help="describe a map file (or a BVH file's skeleton and bone classes)")

@@ -12,8 +12,9 @@ The interpolating methods are each a linear map from the seam values to the in-b
 real motion:
 
 ``auto`` (default)
-    ``spline`` for gaps shorter than ``AUTO_SHORT_S`` seconds (too short for a step, where
-    matching the seam velocities is what counts), ``retrieval`` otherwise.
+    ``retrieval`` at every gap length (the spline took gaps under 0.25 s until held-out gaps of
+    1-7 frames at 30 fps, 2-14 at 60 and 4-28 at 120 showed retrieval ahead there too; the
+    name stays the default's, whatever ``posturemap bench`` finds best).
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back by
@@ -77,7 +78,7 @@ from .feet import FLOOR_S, lock_feet
 from .keys import MapKeys
 from .library import MotionLibrary, own_frames, own_library
 from .periodic import PERIODIC_MIN_SAMPLES, continued
-from .request import AUTO_SHORT_S, KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
+from .request import KEYED, METHODS, RequestError, TransitionRequest, describe, frame_index
 from .splice import spliced
 from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
                          rotate_about_up, seam_path, seam_view, through_seams)
@@ -436,16 +437,9 @@ class TransitionEngine:
 
 # -- the methods ------------------------------------------------------------------------------
 def _auto(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req: TransitionRequest):
-    """``spline`` for gaps shorter than :data:`AUTO_SHORT_S`, ``retrieval`` otherwise."""
-    method = "spline" if (req.length + 1) / ta.motion.fps < AUTO_SHORT_S else "retrieval"
-    if method == "retrieval":
-        out = _retrieval(eng, ta, tb, a, b, req.replace(method=method))
-    else:  # the spline, its knees and elbows held as retrieval's are (before the foot lock)
-        out = _interpolated(eng, ta, tb, a, b, req.replace(method=method, foot_lock=False))
-        _unbend_limbs(eng, ta, tb, req.a_end, req.b_start, *out)
-        if req.foot_lock and eng._legs:
-            eng.last["planted"] = eng._lock_feet(ta, tb, req, *out, eng.last["dtheta"], eng.last["shift"])
-    eng.last["method"] = method
+    """The default: ``retrieval`` at every gap length (``eng.last["method"]`` says so)."""
+    out = _retrieval(eng, ta, tb, a, b, req.replace(method="retrieval"))
+    eng.last["method"] = "retrieval"
     return out
 
 

@@ -59,7 +59,6 @@ import numpy as np
 from ..core import kernels, quat
 from ..learn.features import wrap_diff
 from ..core.joints import ancestors, head_joint, part_masks, upper_tops
-from .request import AUTO_SHORT_S
 from .trajectory import rotate_about_up
 from .library import INDEX_CLASS, MotionLibrary, clip_features, heading_frame, motion_features
 
@@ -113,7 +112,7 @@ UPPER_TRAVEL_S = 1.0
 IN_STEP = 0.8
 UPPER_IN_STEP_WEIGHT = 2.0
 UPPER_IN_STEP_S = 1.5  # see Retriever.upper_in_step for 1 s
-UPPER_RAMP_S = (AUTO_SHORT_S, FALLBACK_SHORT[1])  # gap seconds: see upper_weight
+UPPER_RAMP_S = (0.25, FALLBACK_SHORT[1])  # gap seconds: the upper body the fallback's up to the first (see upper_weight)
 # The upper body and the legs come from different segments, each with its own pelvis. The upper
 # body's top joints (the spine's first) are turned this fraction of the way from the legs'
 # pelvis to the upper segments' own, in the heading frame (see lift_upper): 0 keeps them
@@ -880,7 +879,7 @@ def confidences(distance, still: float, upper: float, both: bool = True, *, alig
 
 def upper_weight(length: int, fps: float) -> float:
     """How much of the upper body is retrieved on a gap of ``length`` frames: 0 up to
-    ``UPPER_RAMP_S[0]`` seconds (where ``auto`` takes the spline for the whole body), 1 from
+    ``UPPER_RAMP_S[0]`` seconds (the fallback's there, the spline's), 1 from
     ``UPPER_RAMP_S[1]`` (where the fallback turns from the spline to ``damped``), linear in
     between, where the arms are a per-joint SLERP of the spline and the retrieved motion.
 
