@@ -300,7 +300,8 @@ def test_quick_run_writes_every_file(quick):
     assert report.markdown(json.loads((out / "results.json").read_text())) == md  # rebuilt from the JSON alone
     for m in METHODS:
         assert md.count(f"| {m} |") >= 3 * len(report.METRIC_TITLES), m  # every table of every hold-out
-    for title in report.HOLDOUT_TITLES.values():
+    for name in evaluate.HOLDOUTS:
+        title = report.HOLDOUT_TITLES[name]
         assert f"## {title}" in md and f"**{title}**" in md  # a section and an acceptance table
     assert "| truth |" in md and "L=180" in md and "angry, old, proud" in md and "dash, walk-back, byebye" in md
     assert "## More splits of bandai1" in md and "**Every Bandai split**" in md
@@ -581,3 +582,99 @@ def test_cross_clip_sequences_put_b_where_each_method_placed_it(tiny_state, monk
         expect = rotate_about_up(root_global(b, root)[1][pair["b_start"]], turn, up) + shift
         got = fk(b.skeleton.parents, rots[i], pos[i])[1][N_PAST + length, root]
         np.testing.assert_allclose(got, expect, atol=1e-6)
+
+
+# -- a user's own clips: `posturemap bench --train ... --test ...` -------------------------------
+def _own_folders(tmp_path, bandai_paths):
+    """A training folder of walks and a run; two test folders (named for what they hold) of a
+    backward walk and a wave, none of them in training: symbolic links to the data, not copies."""
+    groups = {"train": ["walk_normal_001", "walk_happy_001", "run_normal_001"],
+              "backwards": ["walk-back_normal_001"], "waves": ["bye_normal_001"]}
+    paths = bandai_paths([n for names in groups.values() for n in names])
+    folders = {}
+    for group, names in groups.items():
+        folders[group] = tmp_path / group
+        folders[group].mkdir()
+        for n in names:
+            (folders[group] / paths[n].name).symlink_to(paths[n])
+    return folders
+
+
+def test_own_clips_are_benched_as_the_hold_outs_are(tmp_path, bandai_paths, capsys):
+    from clikit import run
+
+    from posturemap.evaluate import runner
+    from posturemap.evaluate.scoring import score_inbetween
+
+    f = _own_folders(tmp_path, bandai_paths)
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "bench", "--train", f["train"], "--test", f["backwards"], f["waves"], "--quick",
+                       "--lengths", "5,30", "--out", out)
+    assert code == 0, err
+    results = json.loads((out / "results.json").read_text())
+    assert list(results["holdouts"]) == ["own"] and results["more_splits"] == {}
+    hold = results["holdouts"]["own"]
+    inb = hold["inbetween"]
+    assert hold["split"]["train_files"] == sorted(p.name for p in f["train"].iterdir())
+    assert hold["split"]["test_files"] == [p.name for k in ("backwards", "waves") for p in f[k].iterdir()]
+    assert inb["lengths"] == [5, 30] and inb["criteria_lengths"] == [15, 30, 45]
+    # The windows are the test clips' (the quick run's seeded 8 of them), grouped by the folder they came from.
+    split = evaluate.load_own([str(f["train"])], [str(f["backwards"]), str(f["waves"])], (5, 30))
+    every = [(c, s) for c, m in enumerate(split.test) for s in evaluate.window_starts(len(m), N_PAST + 30 + N_FUTURE)]
+    assert inb["windows"] == min(8, len(every)) == len(inb["window_list"])
+    windows = [(hold["split"]["test_files"].index(n), s) for n, s in inb["window_list"]]
+    assert set(windows) <= set(every)
+    assert split.contents == ["backwards", "waves"]
+    assert set(inb["per_content"]) == {split.contents[c] for c, _ in windows}
+    # SLERP's L2Q at 30 frames, scored again from the same windows of the same clips.
+    state = runner.prepare(split, Settings.quick_run(), 0, log=lambda m: None, full=False)
+    tr, tp, preds = runner.predict_windows(runner.empty_engines(state), ["slerp"], state["test"], windows, 30)
+    again = score_inbetween(state["ctx"], tr, tp, *preds["slerp"], 30, accuracy_only=True)["l2q"]
+    assert inb["methods"]["slerp"]["30"]["l2q"] == pytest.approx(again, rel=1e-9)
+    md = (out / "results.md").read_text()
+    assert f"--train {f['train']} --test {f['backwards']} {f['waves']} --lengths 5,30 --quick" in md
+    assert "## Your clips (library from --train, gaps in --test)" in md
+    # The criteria's 15 and 45 frames did not run: the skate's checks 30 alone, the goal's 30 alone.
+    assert "skate <= 1.5x truth at 30 |" in md and "goal: L2Q, L2P <= 0.7x slerp at 30 |" in md
+    assert "not the clips given" in md  # the bench/ scripts measure bandai1: said, not run
+
+
+def test_own_clips_at_60_fps_take_the_bench_gaps_durations(tmp_path, bandai_paths):
+    from posturemap.io import bvh
+
+    f = _own_folders(tmp_path, bandai_paths)
+    fast = tmp_path / "fast"
+    fast.mkdir()
+    for p in f["waves"].iterdir():
+        bvh.write(fast / p.name, resample(bvh.read(p), 60.0))
+    split = evaluate.load_own([str(f["train"])], [str(fast)])
+    assert split.lengths == (10, 30, 60, 90) and split.criteria == (30, 60, 90)  # 5, 15, 30, 45 at 30 fps
+    assert split.test[0].fps == pytest.approx(60.0, rel=1e-5) and split.train[0].fps == pytest.approx(30.0, rel=1e-5)
+    assert split.contents == ["fast"]
+    inb = {"lengths": [10, 30, 60, 90], "criteria_lengths": [30, 60, 90]}
+    assert report.criteria_lengths(inb) == ([30, 60, 90], [60, 90])
+    assert report.criteria_lengths({"lengths": [5, 15, 30, 45]}) == ([15, 30, 45], [30, 45])  # the bench's own
+
+
+def test_own_clips_refused_with_one_line(tmp_path, bandai_paths, capsys, cmu_file):
+    from clikit import assert_refused
+
+    from posturemap import cli
+
+    f = _own_folders(tmp_path, bandai_paths)
+    out = tmp_path / "out"
+    assert_refused(capsys, "--test", "bench", "--train", f["train"], "--out", out, words=["give both"])
+    assert_refused(capsys, "--lengths", "bench", "--lengths", "5,30", "--out", out, words=["only with"])
+    assert_refused(capsys, cmu_file, "bench", "--train", f["train"], "--test", cmu_file, "--out", out,
+                   words=["skeleton differs"])
+    clip = next(f["backwards"].iterdir())
+    assert_refused(capsys, clip, "bench", "--train", f["train"], "--test", clip, "--lengths", "9000", "--out", out,
+                   words=["no test clip is longer than one window of 9020 frames"])
+    with pytest.raises(SystemExit) as exc:  # argparse's refusal
+        cli.main(["bench", "--train", str(f["train"]), "--test", str(clip), "--lengths", "0,5"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == ("posturemap: error: --lengths: must be comma-separated whole numbers from 1 "
+                                       "to 10000, got '0,5'\n")
+    assert_refused(capsys, clip, "bench", "--train", f["train"], "--test", clip, "--out", clip,
+                   words=["is a file"])
+    assert not out.exists()  # nothing written

@@ -11,7 +11,7 @@ import sys
 from . import __version__
 from .errors import UserError, require_extra
 from .learn.limits import MAX_EPOCHS, MAX_NEIGHBORHOOD, MAX_RADIUS, MAX_SEED
-from .synth.request import DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, METHOD_INFO, METHODS
+from .synth.request import DEFAULT_ALPHA, DEFAULT_LENGTH, DEFAULT_METHOD, MAX_LENGTH, METHOD_INFO, METHODS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -38,7 +38,15 @@ def _data_folder(given: str | None) -> str:
 
 def _cmd_bench(args) -> int:
     require_extra("bench", "minisom", "matplotlib", what="bench")
-    args.data = _data_folder(args.data)
+    if bool(args.train) != bool(args.test):
+        raise UserError("--train" if args.test else "--test", "give both --train and --test (your own clips), "
+                        "or neither (the bench's hold-outs of bandai1 and CMU)")
+    if args.lengths and not args.train:
+        raise UserError("--lengths", "only with --train and --test (the bench's hold-outs fix their gaps)")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise UserError(args.out, "is a file, expected the output folder")
+    if not args.train:
+        args.data = _data_folder(args.data)
     from . import evaluate
     from .core import kernels
 
@@ -105,6 +113,8 @@ _positive = _checked(float, lambda v: 0 < v <= MAX_RADIUS, f"a positive number u
 _hops = _checked(int, lambda v: 0 <= v <= MAX_NEIGHBORHOOD, f"a whole number from 0 to {MAX_NEIGHBORHOOD}")
 _epochs = _checked(int, lambda v: 1 <= v <= MAX_EPOCHS, f"a whole number from 1 to {MAX_EPOCHS}")
 _seed = _checked(int, lambda v: 0 <= v <= MAX_SEED, f"a whole number from 0 to {MAX_SEED}")
+_gaps = _checked(lambda t: tuple(int(x) for x in t.split(",")), lambda v: all(1 <= n <= MAX_LENGTH for n in v),
+                 f"comma-separated whole numbers from 1 to {MAX_LENGTH}")
 
 
 def _radius(text: str):
@@ -546,9 +556,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("bench", help="evaluate every method on a style, a content and a 120 fps hold-out "
                                      "(in-betweening accuracy, realism, speed), the main methods on four more "
-                                     "splits of bandai1, and write results.md, results.json and plots")
-    e.add_argument("--quick", action="store_true", help="small run for CI (about 20 s on 2 idle cores)")
+                                     "splits of bandai1, and write results.md, results.json and plots; or, with "
+                                     "--train and --test, on your own clips")
+    e.add_argument("--quick", action="store_true", help="small run for CI (about 20 s on 2 idle cores); with --test, "
+                                                        "8 seeded windows")
     e.add_argument("--data", default=None, help="data folder holding bandai1/ and cmu/ (default: $POSTUREMAP_DATA)")
+    e.add_argument("--train", nargs="+", metavar="INPUT", default=None,
+                   help="your own clips instead (BVH files or folders): the map and its library learn these ...")
+    e.add_argument("--test", nargs="+", metavar="INPUT", default=None,
+                   help="... and the gaps are cut from these (10 frames of context each side, a window every 40 "
+                        "frames; one skeleton for all; the per-motion tables group them by the INPUT they came from)")
+    e.add_argument("--lengths", type=_gaps, default=None, metavar="N,N,...",
+                   help="with --test: the gaps in frames at the test clips' rate (default: 5, 15, 30 and 45 frames "
+                        "at 30 fps, as long at that rate); the criteria take the lengths of 15, 30 and 45 at 30 fps")
     e.add_argument("--out", default="bench-results", help="output folder (default: bench-results)")
     e.add_argument("--seed", type=_seed, default=0, help="random seed (0)")
     e.set_defaults(func=_cmd_bench)

@@ -85,6 +85,13 @@ the true posture at ``key_at`` (next to the alpha-blend's, A's and B's and the n
 neuron's), overall and per bone class; stand-ins (:data:`VARIANTS`) through the same spline;
 a sweep of ``alpha`` and ``key_at``.
 
+A user's own clips (``posturemap bench --train INPUT... --test INPUT...``; :func:`load_own`,
+:func:`run_own`): one hold-out, ``own``, with the library from the training clips and the gaps
+cut from the test clips as above, at the bench's durations (5, 15, 30 and 45 frames at 30 fps,
+as long at the test clips' rate) or ``--lengths``; every method and metric, the per-motion tables
+by the input each test clip came from, the speed on its map; no Bandai split, no ``bench/``
+script.
+
 Speed (on the style hold-out's map): per-method latency of :meth:`TransitionEngine.generate`
 (median, p99), UPM training against MiniSom at equal neuron count (samples/s), and the scripts
 in the repository's ``bench/`` folder when present (BVH loading against other readers, ...).
@@ -94,14 +101,15 @@ from . import report
 from .baselines import (KeyModel, KeyTable, centred, engine_call, fixed_key_model, grid_edges, set_key, som_grid,
                         som_model, train_som)
 from .protocol import (ASF_UNIT_CM, CMU_FILE, CMU_LENGTHS, CROSS_LENGTH, DEFAULT_SPEC, FEET, FLOOR_PERCENTILE,
-                       HOLDOUTS, LENGTHS, METHODS, MORE_SPLITS, N_FUTURE, N_PAST, QUALITY_KEYS, SPLIT_LENGTHS,
+                       HOLDOUTS, LENGTHS, METHODS, MORE_SPLITS, N_FUTURE, N_PAST, OWN, OWN_LENGTHS_30, QUALITY_KEYS,
+                       SPLIT_LENGTHS,
                        SPLIT_METHODS, STATS_STRIDE,
                        STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS, TEST_CONTENTS, TEST_STYLES, UNIT_CM,
-                       VARIANTS, WHOLE_CLIP, Settings, Split, load_split, make_windows, method_spec,
+                       VARIANTS, WHOLE_CLIP, Settings, Split, load_own, load_split, make_windows, method_spec, own_lengths,
                        parse_name,
                        random_pairs, split_files, unit_cm, window_starts)
 from .runner import (clips_in, code_version, default_data_dir, empty_engines, generate_from_context,
-                     make_engines, predict_whole_clip, predict_windows, prepare, round_per_window, run, run_cli,
+                     make_engines, predict_whole_clip, predict_windows, prepare, round_per_window, run, run_cli, run_own,
                      run_cross,
                      run_diagnostics, run_holdout, run_inbetween, run_split, sweep)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, PER_CONTENT_KEYS, Context, global_windows,
@@ -112,13 +120,15 @@ from .speed import bench_dir, latency, run_bench_script, training_speed
 __all__ = ["report", "KeyModel", "KeyTable", "centred", "engine_call", "fixed_key_model", "grid_edges",
            "set_key", "som_grid", "som_model", "train_som", "ASF_UNIT_CM", "CMU_FILE", "CMU_LENGTHS",
            "CROSS_LENGTH", "DEFAULT_SPEC", "FEET", "FLOOR_PERCENTILE", "HOLDOUTS",
-           "LENGTHS", "METHODS", "MORE_SPLITS", "N_FUTURE", "N_PAST", "SPLIT_LENGTHS", "SPLIT_METHODS",
+           "LENGTHS", "METHODS", "MORE_SPLITS", "N_FUTURE", "N_PAST", "OWN", "OWN_LENGTHS_30", "SPLIT_LENGTHS",
+           "SPLIT_METHODS",
            "QUALITY_KEYS", "STATS_STRIDE", "STATS_WINDOW",
            "STRIDE", "SWEEP_FRACTIONS", "SWEEP_LENGTHS", "TEST_CONTENTS", "TEST_STYLES", "UNIT_CM",
-           "VARIANTS", "WHOLE_CLIP", "Settings", "Split", "load_split", "make_windows", "method_spec",
+           "VARIANTS", "WHOLE_CLIP", "Settings", "Split", "load_own", "load_split", "make_windows", "method_spec",
+           "own_lengths",
            "parse_name", "random_pairs", "split_files", "unit_cm", "window_starts", "code_version",
            "default_data_dir", "generate_from_context", "clips_in", "empty_engines", "round_per_window",
-           "make_engines", "predict_whole_clip", "predict_windows", "prepare", "run", "run_cli", "run_cross",
+           "make_engines", "predict_whole_clip", "predict_windows", "prepare", "run", "run_cli", "run_own", "run_cross",
            "run_diagnostics",
            "run_holdout", "run_inbetween", "run_split", "sweep", "NATURAL_FRAMES", "NATURAL_STRIDE_S",
            "PER_CONTENT_KEYS", "Context",

@@ -16,6 +16,8 @@ from ..synth.request import DEFAULT_METHOD
 from ..synth.request import METHODS as ENGINE_METHODS
 
 HOLDOUTS = ("style", "content", "cmu")
+OWN = "own"  # the hold-out of a user's own clips (`posturemap bench --train ... --test ...`: load_own)
+OWN_LENGTHS_30 = (5, 15, 30, 45)  # its default gaps: the bench's, frames at 30 fps (as long at the test clips' rate)
 TEST_STYLES = ("angry", "old", "proud")
 TEST_CONTENTS = ("dash", "walk-back", "byebye")
 # More splits of bandai1, each holding out other whole styles or motion types (every clip of
@@ -136,6 +138,8 @@ class Split:
     lengths : transition lengths (frames); rule : the split in words
     cm : centimetres per unit of the clips; unit : how that unit was found
     train_clips_all : training clips before ``Settings.train_stride``
+    criteria : the lengths (frames) the acceptance criteria take for the bench's 15, 30 and 45
+        frames at 30 fps (None: those frame counts themselves)
     """
 
     name: str
@@ -149,6 +153,7 @@ class Split:
     cm: float
     unit: str
     train_clips_all: int
+    criteria: tuple | None = None
 
 
 def unit_cm(motion: Motion) -> tuple[float, str]:
@@ -193,6 +198,65 @@ def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
     kinds = [(parse_name(f) or {"content": "other"})["content"] for f in test_f]
     return Split(name, rule, train, [f.name for f in used], test, [f.name for f in test_f], kinds,
                  LENGTHS if name in HOLDOUTS else SPLIT_LENGTHS, cm, unit, len(train_f))
+
+
+def own_lengths(fps: float) -> tuple:
+    """The bench's gaps, :data:`OWN_LENGTHS_30` frames at 30 fps, as long at ``fps`` (at least one frame)."""
+    return tuple(sorted({max(1, round(n * fps / 30.0)) for n in OWN_LENGTHS_30}))
+
+
+def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=None) -> Split:
+    """The hold-out of a user's own clips: the library from ``train_inputs``, gaps in
+    ``test_inputs`` (BVH files or folders of them; :func:`posturemap.io.bvh.read_inputs`).
+
+    Every clip must have the first training clip's skeleton. Test clips at another rate than
+    the first test clip's are resampled to it, training clips to the first training clip's (a map
+    serves clips at another rate). ``lengths``: the gaps in frames at the test clips' rate
+    (default :func:`own_lengths`). The per-motion tables group the test clips by the input each
+    came from (a folder's name, a file's stem). Raises :class:`~posturemap.errors.UserError`
+    naming the file for a clip of another skeleton, a test set with no clip long enough for one
+    window, or a training set with no clip long enough for the L2P statistics' windows.
+    """
+    import os
+
+    from ..core.motion import at_one_rate, resampled_note
+    from ..errors import UserError
+    from ..io import bvh
+
+    def read(inputs):
+        groups = []
+        for item in inputs:
+            clips = bvh.read_inputs([item])
+            label = os.path.basename(os.path.normpath(item)) if os.path.isdir(item) else Path(item).stem
+            groups += [(path, m, label) for path, m in clips]
+        motions, changed = at_one_rate([m for _, m, _ in groups], names=[p for p, _, _ in groups])
+        for i in changed:
+            (log or _log)(resampled_note(groups[i][0], groups[i][1].fps, motions[0].fps))
+        return [p for p, _, _ in groups], motions, [k for _, _, k in groups]
+
+    train_paths, train, _ = read(train_inputs)
+    test_paths, test, kinds = read(test_inputs)
+    first = train[0].skeleton
+    for path, m in zip(train_paths + test_paths, train + test):
+        if not m.skeleton.same_as(first):
+            whose = f"{train_paths[0]}'s"
+            raise UserError(path, f"skeleton differs from {whose} ({m.skeleton.difference(first, whose)})")
+    fps = float(test[0].fps)
+    lengths = own_lengths(fps) if lengths is None else tuple(sorted(set(int(n) for n in lengths)))
+    window = N_PAST + max(lengths) + N_FUTURE
+    if not any(len(m) > window for m in test):
+        raise UserError(test_paths[0], f"no test clip is longer than one window of {window} frames "
+                                       f"({N_PAST} before the gap, {max(lengths)} in it, {N_FUTURE} after): "
+                                       "give longer clips or shorter --lengths")
+    if not any(len(m) > STATS_WINDOW for m in train):
+        raise UserError(train_paths[0], f"no training clip is longer than {STATS_WINDOW} frames (the windows "
+                                        "L2P's statistics are taken over)")
+    cm, unit = unit_cm(test[0])
+    criteria = tuple(max(1, round(n * fps / 30.0)) for n in (15, 30, 45))
+    rule = (f"training = {len(train)} clips of {', '.join(train_inputs)}; "
+            f"test = {len(test)} clips of {', '.join(test_inputs)}")
+    return Split(OWN, rule, train, [os.path.basename(p) for p in train_paths], test,
+                 [os.path.basename(p) for p in test_paths], kinds, lengths, cm, unit, len(train), criteria)
 
 
 def window_starts(num_frames: int, window: int, stride: int = STRIDE) -> list[int]:

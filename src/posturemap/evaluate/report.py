@@ -21,6 +21,7 @@ HOLDOUT_TITLES = {
     "style": "Style hold-out (unseen styles of known motion types)",
     "content": "Content hold-out (motion types absent from the library)",
     "cmu": "CMU 01_01 at 120 fps (library from the first half, gaps in the second)",
+    "own": "Your clips (library from --train, gaps in --test)",
 }
 PLOT_METRICS = (("l2q", "L2Q (global quaternions)"), ("l2p", "L2P (normalised global positions)"),
                 ("skate", "foot skate (cm/s)"), ("naturalness", "naturalness (distance to nearest real window)"))
@@ -170,6 +171,16 @@ METRIC_TITLES = {
 }
 
 
+def criteria_lengths(inb: dict) -> tuple[list[int], list[int]]:
+    """The lengths (frames) of one hold-out's criteria: the skate's (:data:`SKATE_LENGTHS`) and the
+    goal's (:data:`GOAL_LENGTHS`), or, where the hold-out names them (``criteria_lengths``: its
+    frames for 15, 30 and 45 at 30 fps, a user's own clips at another rate), those; only the
+    lengths it ran."""
+    own = inb.get("criteria_lengths")
+    skate, goal = (SKATE_LENGTHS, GOAL_LENGTHS) if not own else (tuple(own), tuple(own[1:]))
+    return [n for n in skate if n in inb["lengths"]], [n for n in goal if n in inb["lengths"]]
+
+
 def acceptance(inb: dict) -> dict:
     """The issue's acceptance criteria per method, from one hold-out's in-betweening results.
 
@@ -177,27 +188,33 @@ def acceptance(inb: dict) -> dict:
     at most 1.5x the truth's at 15, 30, 45 frames), ``l2q``/``l2p`` (no worse than slerp at any
     length), ``goal`` (L2Q and L2P at most 0.7x slerp's at 30 and 45) and ``beats_baselines``
     (L2Q and L2P below spline's and inertialize's at 30 and 45). A ratio is the method's figure
-    divided by the reference's; the worst over the lengths (and metrics) is reported.
+    divided by the reference's; the worst over the lengths (and metrics) is reported. A criterion
+    none of whose lengths ran (a user's own ``--lengths``) is ``(None, None)``.
     """
     lengths = inb["lengths"]
     meth, truth = inb["methods"], inb["truth"]
 
     def worst(m, metric, ref, ns, factor=1.0):
         ratios = [meth[m][str(n)][metric] / ref[str(n)][metric] for n in ns if str(n) in ref]
-        r = max(ratios) if ratios else float("nan")
+        if not ratios:
+            return None, None
+        r = max(ratios)
         return r <= factor, r
 
+    def joined(parts):  # several checks as one: passed if all did, the worst ratio; none ran: (None, None)
+        parts = [p for p in parts if p[0] is not None]
+        return (all(p[0] for p in parts), max(p[1] for p in parts)) if parts else (None, None)
+
     out = {}
-    long_ns = [n for n in GOAL_LENGTHS if n in lengths]
+    skate_ns, long_ns = criteria_lengths(inb)
     for m in meth:
         slerp = meth.get("slerp", {})
-        row = {"skate": worst(m, "skate", truth, [n for n in SKATE_LENGTHS if n in lengths], SKATE_FACTOR),
+        row = {"skate": worst(m, "skate", truth, skate_ns, SKATE_FACTOR),
                "l2q": worst(m, "l2q", slerp, lengths), "l2p": worst(m, "l2p", slerp, lengths)}
-        goal = [worst(m, k, slerp, long_ns, GOAL_FACTOR) for k in ("l2q", "l2p")]
-        row["goal"] = (all(g[0] for g in goal), max(g[1] for g in goal))
+        row["goal"] = joined([worst(m, k, slerp, long_ns, GOAL_FACTOR) for k in ("l2q", "l2p")])
         beats = [worst(m, k, meth[b], long_ns) for b in ("spline", "inertialize") if b in meth and b != m
                  for k in ("l2q", "l2p")]
-        row["beats_baselines"] = (all(b[0] for b in beats), max(b[1] for b in beats)) if beats else (False, None)
+        row["beats_baselines"] = joined(beats) if beats else (False, None)
         out[m] = row
     return out
 
@@ -207,12 +224,15 @@ def _acceptance_rows(r: list[str], name: str, inb: dict) -> None:
 
     def cell(v):
         ok, ratio = v
+        if ok is None and ratio is None:
+            return "-"  # none of its lengths ran
         return ("yes" if ok else "NO") + (f" ({ratio:.2f})" if ratio is not None else "")
 
+    skate_ns, long_ns = ("/".join(map(str, ns)) or "(none of these lengths)" for ns in criteria_lengths(inb))
     r.append(f"**{HOLDOUT_TITLES.get(name, name)}** ({inb['windows']} windows):\n")
-    _table(r, ["method", f"skate <= {SKATE_FACTOR:g}x truth at 15/30/45", "L2Q <= slerp, every L",
-               "L2P <= slerp, every L", f"goal: L2Q, L2P <= {GOAL_FACTOR:g}x slerp at 30/45",
-               "L2Q, L2P < spline, inertialize at 30/45"],
+    _table(r, ["method", f"skate <= {SKATE_FACTOR:g}x truth at {skate_ns}", "L2Q <= slerp, every L",
+               "L2P <= slerp, every L", f"goal: L2Q, L2P <= {GOAL_FACTOR:g}x slerp at {long_ns}",
+               f"L2Q, L2P < spline, inertialize at {long_ns}"],
            [[m] + [cell(v[k]) for k in ("skate", "l2q", "l2p", "goal", "beats_baselines")] for m, v in acc.items()])
 
 
@@ -333,7 +353,8 @@ def markdown(results: dict) -> str:
     holds = results["holdouts"]
     r.append("# posturemap bench: results\n")
     scripts = "" if cfg["quick"] or cfg.get("bench_scripts", True) else " without the bench/ scripts"
-    r.append(f"Run: `posturemap bench{' --quick' if cfg['quick'] else ''} --seed {cfg['seed']}`{scripts} on "
+    given = f" {cfg['command']}" if cfg.get("command") else ""
+    r.append(f"Run: `posturemap bench{given}{' --quick' if cfg['quick'] else ''} --seed {cfg['seed']}`{scripts} on "
              f"{results['machine']['cpus']} CPUs (shared with other jobs), Python {results['machine']['python']}, "
              f"code `{results['machine']['code']}`; wall time **{results['wall_seconds']:.0f} s** ("
              + ", ".join(f"{k} {v:.0f} s" for k, v in results["section_seconds"].items()) + ").\n")
@@ -341,20 +362,22 @@ def markdown(results: dict) -> str:
     r.append(f"Ratios in brackets: the worst over the lengths (and over L2Q and L2P) of the method's figure "
              f"divided by the reference's (truth's skate, slerp's, spline's and inertialize's errors); `yes` when "
              f"the criterion holds. Skate: at most {SKATE_FACTOR:g}x the truth's at 15, 30, 45 frames. Goal: L2Q "
-             f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames.\n")
+             f"and L2P at most {GOAL_FACTOR:g}x slerp's at 30 and 45 frames (at 30 fps; a hold-out of your own clips "
+             "at another rate takes as long gaps).\n")
     for name, hold in holds.items():
         _acceptance_rows(r, name, hold["inbetween"])
-    whole = [(name, hold["inbetween"]) for name, hold in holds.items() if hold["inbetween"].get("whole_clip")]
+    whole = [(name, hold["inbetween"]) for name, hold in holds.items()
+             if hold["inbetween"].get("whole_clip") and criteria_lengths(hold["inbetween"])[1]]
     if whole:
-        def goal_ratios(inb, k):  # the default with the whole clip, over slerp, at GOAL_LENGTHS
+        def goal_ratios(inb, k):  # the default with the whole clip, over slerp, at the goal's lengths
             wc, sl = inb["whole_clip"]["methods"][inb["default_method"]], inb["methods"]["slerp"]
-            return " / ".join(f"{wc[str(n)][k] / sl[str(n)][k]:.3f}" for n in GOAL_LENGTHS)
+            return " / ".join(f"{wc[str(n)][k] / sl[str(n)][k]:.3f}" for n in criteria_lengths(inb)[1])
 
         r.append(f"**A gap in a take** (the same windows with the whole clip as context instead of {N_PAST} frames "
-                 "each side; see each hold-out's section): the default's L2Q and L2P as ratios to slerp's at "
-                 + " and ".join(map(str, GOAL_LENGTHS)) + " frames: "
-                 + "; ".join(f"{name} L2Q {goal_ratios(inb, 'l2q')}, L2P {goal_ratios(inb, 'l2p')}"
-                             for name, inb in whole if all(str(n) in inb["methods"]["slerp"] for n in GOAL_LENGTHS))
+                 "each side; see each hold-out's section): the default's L2Q and L2P as ratios to slerp's at the "
+                 "goal's lengths: "
+                 + "; ".join(f"{name} ({' / '.join(map(str, criteria_lengths(inb)[1]))} frames) L2Q "
+                             f"{goal_ratios(inb, 'l2q')}, L2P {goal_ratios(inb, 'l2p')}" for name, inb in whole)
                  + ".\n")
     ratios = split_ratios(results) if results.get("more_splits") else None
     default = next(iter(holds.values()))["inbetween"]["default_method"]

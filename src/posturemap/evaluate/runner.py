@@ -19,9 +19,9 @@ from ..core.skeleton import fk
 from ..synth.engine import TransitionEngine
 from . import report
 from .baselines import centred, engine_call, fixed_key_model, set_key, som_model
-from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST,
+from .protocol import (CMU_FILE, CROSS_LENGTH, DEFAULT_SPEC, FLOOR_PERCENTILE, METHODS, N_FUTURE, N_PAST, OWN,
                        SPLIT_METHODS, STATS_STRIDE, STATS_WINDOW, STRIDE, SWEEP_FRACTIONS, SWEEP_LENGTHS,
-                       TEST_CONTENTS, TEST_STYLES, VARIANTS, WHOLE_CLIP, Settings, Split, _log, load_split,
+                       TEST_CONTENTS, TEST_STYLES, VARIANTS, WHOLE_CLIP, Settings, Split, _log, load_own, load_split,
                        make_windows, method_spec, random_pairs, window_starts)
 from .scoring import (NATURAL_FRAMES, NATURAL_STRIDE_S, Context, foot_float, global_windows, natural_reference,
                       naturalness_fn, paired_difference, per_content, rebuilt_frames, score_inbetween,
@@ -205,6 +205,7 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
     ctx, engines = state["ctx"], empty_engines(state)
     test, lengths = state["test"], state["split"].lengths
     res = {"windows": len(windows), "lengths": list(lengths), "methods": {m: {} for m in METHODS},
+           "criteria_lengths": None if state["split"].criteria is None else list(state["split"].criteria),
            "truth": {}, "default_method": DEFAULT_SPEC, "vs_slerp": {m: {} for m in METHODS},
            "window_list": [[state["test_files"][c], s] for c, s in windows],
            "whole_clip": {"methods": {v: {} for v in WHOLE_CLIP}, "own_share": {v: {} for v in WHOLE_CLIP}}}
@@ -441,14 +442,17 @@ def run_cross(state: dict, settings: Settings, seed: int, log=_log) -> dict:
     return out
 
 
-def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_log) -> tuple[dict, dict, dict, dict]:
+def run_holdout(name: str, data_dir: Path, settings: Settings, seed: int, log=_log,
+                split: Split | None = None) -> tuple[dict, dict, dict, dict]:
     """One hold-out end to end: read, train on its training side, in-betweening, cross-clip.
+    ``split``: the hold-out's clips when given (a user's own: :func:`protocol.load_own`), else
+    read by :func:`load_split`.
 
     Returns ``(results, diagnostics, example, state)`` (diagnostics for the style hold-out
     when ``settings.diagnostics``; ``state`` for the speed figures; it holds the engines of
     :func:`make_engines` when the diagnostics ran).
     """
-    split = load_split(name, data_dir, settings)
+    split = split or load_split(name, data_dir, settings)
     state = prepare(split, settings, seed, log)
     diagnostics = settings.diagnostics and name == "style"
     if diagnostics:
@@ -505,14 +509,18 @@ def run_split(name: str, data_dir: Path, settings: Settings, seed: int, log=_log
     return out
 
 
-def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log) -> dict:
+def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log, splits: dict | None = None,
+        command: str | None = None) -> dict:
     """Run the benchmark; writes results.md, results.json and PNG plots into ``out``.
 
+    ``splits`` (name -> :class:`Split`): run these hold-outs instead of ``settings.holdouts``
+    (``data_dir`` then unused; a user's own clips, :func:`protocol.load_own`); ``command``: the
+    command line's arguments that chose them, for the report.
     Returns the results dict (the content of results.json).
     """
     settings = settings or Settings.full()
     t_start = time.perf_counter()
-    data_dir, out = Path(data_dir), Path(out)
+    data_dir, out = Path(data_dir or "."), Path(out)
     out.mkdir(parents=True, exist_ok=True)
     np.random.seed(seed)  # third-party code that draws from numpy's global generator
     import platform
@@ -529,16 +537,17 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
         clock = now
 
     holdouts, examples, diag, speed_state = {}, {}, {}, None
-    for name in settings.holdouts:
-        holdouts[name], d, examples[name], state = run_holdout(name, data_dir, settings, seed, log)
+    for name in (splits or settings.holdouts):
+        holdouts[name], d, examples[name], state = run_holdout(name, data_dir, settings, seed, log,
+                                                               (splits or {}).get(name))
         diag = diag or d
         if speed_state is None or name == "style":
             speed_state = state
         lap(f"{name} hold-out")
-    splits = {}
-    for name in settings.more_splits:
+    more = {}
+    for name in () if splits else settings.more_splits:
         log(f"split {name}")
-        splits[name] = run_split(name, data_dir, settings, seed, log)
+        more[name] = run_split(name, data_dir, settings, seed, log)
         lap(f"split {name}")
     log("speed: latency")
     if "engines" not in speed_state:
@@ -550,20 +559,22 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
     speed_state = state = None
     lap("speed: latency and training")
     for name in ("transition_speed", "train_speed", "bvh_load"):
-        if settings.bench_scripts:
+        if settings.bench_scripts and not splits:
             log(f"speed: bench/{name}.py")
             speed["bench"][name] = run_bench_script(name, data_dir, settings, seed, log)
         else:
-            speed["bench"][name] = {"status": "skipped", "reason": "--quick skips the bench/ scripts" if settings.quick
+            speed["bench"][name] = {"status": "skipped", "reason": "they measure bandai1, not the clips given"
+                                    if splits else "--quick skips the bench/ scripts" if settings.quick
                                     else "this run left the bench/ scripts out (Settings.bench_scripts=False)"}
         lap(f"bench/{name}.py")
     results = {
-        "config": {"seed": seed, **dataclasses.asdict(settings), "n_past": N_PAST, "n_future": N_FUTURE,
+        "config": {"seed": seed, **dataclasses.asdict(settings), "command": command, "n_past": N_PAST,
+                   "n_future": N_FUTURE,
                    "stride": STRIDE, "cross_length": CROSS_LENGTH, "natural_frames": NATURAL_FRAMES,
                    "natural_stride_s": NATURAL_STRIDE_S, "skate_height_legs": metrics.SKATE_HEIGHT_LEGS,
                    "test_styles": list(TEST_STYLES), "test_contents": list(TEST_CONTENTS)},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "code": code},
-        "holdouts": holdouts, "more_splits": splits, "diagnostics": diag, "speed": speed,
+        "holdouts": holdouts, "more_splits": more, "diagnostics": diag, "speed": speed,
         "section_seconds": sections,
     }
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
@@ -606,9 +617,32 @@ def default_data_dir() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[4] / "shared" / "data"
 
 
+def run_own(train_inputs, test_inputs, out, seed: int = 0, quick: bool = False, lengths=None, log=_log) -> dict:
+    """Every method on a user's own clips (:func:`protocol.load_own`: the map and its library from
+    ``train_inputs``, gaps in ``test_inputs``), scored as the bench's hold-outs are; writes
+    results.md, results.json and the plots into ``out`` as :func:`run` does (no Bandai split, no
+    ``bench/`` script). ``quick``: 8 seeded windows, 10 cross-clip pairs, a quarter of a MiniSom
+    epoch, 100 latency calls (every training clip is used)."""
+    import sys
+
+    split = load_own(train_inputs, test_inputs, lengths, log=lambda s: print(s, file=sys.stderr))
+    base = Settings.quick_run() if quick else Settings.full()
+    settings = dataclasses.replace(base, holdouts=(OWN,), more_splits=(), train_stride=1, bench_scripts=False,
+                                   diagnostics=False, sweep=False)
+    results = run(None, out, seed=seed, settings=settings, log=log, splits={OWN: split},
+                  command=" ".join(["--train", *map(str, train_inputs), "--test", *map(str, test_inputs)]
+                                   + ([] if lengths is None else ["--lengths", ",".join(map(str, lengths))])))
+    return results
+
+
 def run_cli(args) -> int:
-    """Entry point of ``posturemap bench`` (``args.quick``, ``args.data``, ``args.out``, ``args.seed``)."""
+    """Entry point of ``posturemap bench`` (``args.quick``, ``args.data``, ``args.out``, ``args.seed``;
+    ``args.train``, ``args.test`` and ``args.lengths`` for a user's own clips: :func:`run_own`)."""
     from ..errors import UserError
+
+    if getattr(args, "train", None):
+        run_own(args.train, args.test, args.out, seed=args.seed, quick=args.quick, lengths=args.lengths)
+        return 0
 
     data = Path(args.data) if args.data else default_data_dir()
     if not (data / "bandai1").is_dir():
