@@ -615,8 +615,8 @@ def test_own_clips_are_benched_as_the_hold_outs_are(tmp_path, bandai_paths, caps
     assert list(results["holdouts"]) == ["own"] and results["more_splits"] == {}
     hold = results["holdouts"]["own"]
     inb = hold["inbetween"]
-    assert hold["split"]["train_files"] == sorted(p.name for p in f["train"].iterdir())
-    assert hold["split"]["test_files"] == [p.name for k in ("backwards", "waves") for p in f[k].iterdir()]
+    assert hold["split"]["train_files"] == sorted(str(p) for p in f["train"].iterdir())
+    assert hold["split"]["test_files"] == [str(p) for k in ("backwards", "waves") for p in f[k].iterdir()]
     assert inb["lengths"] == [5, 30] and inb["criteria_lengths"] == [15, 30, 45]
     # The windows are the test clips' (the quick run's seeded 8 of them), grouped by the folder they came from.
     split = evaluate.load_own([str(f["train"])], [str(f["backwards"]), str(f["waves"])], (5, 30))
@@ -624,7 +624,7 @@ def test_own_clips_are_benched_as_the_hold_outs_are(tmp_path, bandai_paths, caps
     assert inb["windows"] == min(8, len(every)) == len(inb["window_list"])
     windows = [(hold["split"]["test_files"].index(n), s) for n, s in inb["window_list"]]
     assert set(windows) <= set(every)
-    assert split.contents == ["backwards", "waves"]
+    assert split.contents == [str(f["backwards"]), str(f["waves"])]  # the folders as given
     assert set(inb["per_content"]) == {split.contents[c] for c, _ in windows}
     # SLERP's L2Q at 30 frames, scored again from the same windows of the same clips.
     state = runner.prepare(split, Settings.quick_run(), 0, log=lambda m: None, full=False)
@@ -650,7 +650,7 @@ def test_own_clips_at_60_fps_take_the_bench_gaps_durations(tmp_path, bandai_path
     split = evaluate.load_own([str(f["train"])], [str(fast)])
     assert split.lengths == (10, 30, 60, 90) and split.criteria == (30, 60, 90)  # 5, 15, 30, 45 at 30 fps
     assert split.test[0].fps == pytest.approx(60.0, rel=1e-5) and split.train[0].fps == pytest.approx(30.0, rel=1e-5)
-    assert split.contents == ["fast"]
+    assert split.contents == [str(fast)]
     inb = {"lengths": [10, 30, 60, 90], "criteria_lengths": [30, 60, 90]}
     assert report.criteria_lengths(inb) == ([30, 60, 90], [60, 90])
     assert report.criteria_lengths({"lengths": [5, 15, 30, 45]}) == ([15, 30, 45], [30, 45])  # the bench's own
@@ -660,6 +660,7 @@ def test_own_clips_refused_with_one_line(tmp_path, bandai_paths, capsys, cmu_fil
     from clikit import assert_refused
 
     from posturemap import cli
+    from posturemap.io import bvh
 
     f = _own_folders(tmp_path, bandai_paths)
     out = tmp_path / "out"
@@ -677,4 +678,33 @@ def test_own_clips_refused_with_one_line(tmp_path, bandai_paths, capsys, cmu_fil
                                        "to 10000, got '0,5'\n")
     assert_refused(capsys, clip, "bench", "--train", f["train"], "--test", clip, "--out", clip,
                    words=["is a file"])
+    assert_refused(capsys, "--data", "bench", "--train", f["train"], "--test", clip, "--data", tmp_path, "--out", out)
+    one = tmp_path / "one"  # a clip of one frame beside a valid one: refused by name, not a traceback
+    one.mkdir()
+    bvh.write(one / "still.bvh", bvh.read(clip)[:1])
+    assert_refused(capsys, one / "still.bvh", "bench", "--train", f["train"], "--test", f["waves"], one, "--out", out,
+                   words=["2 frames at least"])
     assert not out.exists()  # nothing written
+
+
+def test_own_clips_given_for_training_and_testing_are_named(tmp_path, bandai_paths):
+    f = _own_folders(tmp_path, bandai_paths)
+    said = []
+    clip = next(f["train"].iterdir())
+    evaluate.load_own([str(f["train"])], [str(clip)], (5,), log=said.append)
+    assert len(said) == 1 and said[0].startswith(f"posturemap: warning: {clip}: given for training and for testing")
+    said.clear()
+    evaluate.load_own([str(f["train"])], [str(f["waves"])], (5,), log=said.append)
+    assert said == []
+
+
+def test_a_reference_without_error_leaves_its_ratios_out():
+    # SLERP over a held pose makes no error, nor NPSS over a one-frame gap: no ratio to it, not a
+    # division by zero (a user's own clips can be so).
+    inb = _inb([0.5] * 4, [0.6] * 4, [1.0, 1.2, 1.4, 1.5], [1.0] * 4)
+    inb["methods"]["slerp"]["30"]["l2q"] = 0.0
+    inb["truth"]["15"]["skate"] = 0.0
+    acc = report.acceptance(inb)["m"]
+    assert acc["l2q"] == (True, 0.5)  # the other lengths' ratio
+    assert acc["skate"] == (True, pytest.approx(1.5))  # 30 and 45 frames' (15's truth is 0)
+    assert report._over(1.0, 0.0, 3, "x") == "-" and report._over(1.0, 4.0, 2, "x") == "0.25x"

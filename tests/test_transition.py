@@ -804,7 +804,7 @@ def test_an_interpolating_methods_foot_lock_straightens_a_knee_bent_backward_fir
 @pytest.mark.parametrize("length, method", [(20, "retrieval"), (20, "auto"), (5, "auto"), (20, "damped"),
                                             (5, "spline")])
 def test_no_new_knee_bends_backward_past_the_librarys(clips, model, length, method, monkeypatch):
-    # The interpolation under the default (retrieval's fallback, auto's spline on short gaps)
+    # The interpolation under the default (retrieval's fallback: the spline on short gaps)
     # made to bend the left knee 40 degrees backward in the middle of the gap, as damped did
     # carrying a dash's knee on past straight: retrieval and auto turn it forward onto the
     # library's bound (its knees never go past straight by more than a hair), in its plane,

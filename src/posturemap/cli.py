@@ -43,6 +43,8 @@ def _cmd_bench(args) -> int:
                         "or neither (the bench's hold-outs of bandai1 and CMU)")
     if args.lengths and not args.train:
         raise UserError("--lengths", "only with --train and --test (the bench's hold-outs fix their gaps)")
+    if args.data and args.train:
+        raise UserError("--data", "not with --train and --test (they give the clips)")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise UserError(args.out, "is a file, expected the output folder")
     if not args.train:

@@ -213,9 +213,11 @@ def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=
     the first test clip's are resampled to it, training clips to the first training clip's (a map
     serves clips at another rate). ``lengths``: the gaps in frames at the test clips' rate
     (default :func:`own_lengths`). The per-motion tables group the test clips by the input each
-    came from (a folder's name, a file's stem). Raises :class:`~posturemap.errors.UserError`
-    naming the file for a clip of another skeleton, a test set with no clip long enough for one
-    window, or a training set with no clip long enough for the L2P statistics' windows.
+    came from (a folder as given, a file's stem); clips are named by their paths as given.
+    Raises :class:`~posturemap.errors.UserError` naming the file for a clip of another skeleton,
+    a test clip of fewer than two frames, a test set with no clip long enough for one window, or
+    a training set with no clip long enough for the L2P statistics' windows. A clip given both
+    for training and for testing is named in a warning (its gaps are in the library).
     """
     import os
 
@@ -227,7 +229,8 @@ def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=
         groups = []
         for item in inputs:
             clips = bvh.read_inputs([item])
-            label = os.path.basename(os.path.normpath(item)) if os.path.isdir(item) else Path(item).stem
+            label = (os.path.normpath(item) if os.path.normpath(item) != "." else os.path.basename(os.getcwd())
+                     ) if os.path.isdir(item) else Path(item).stem
             groups += [(path, m, label) for path, m in clips]
         motions, changed = at_one_rate([m for _, m, _ in groups], names=[p for p, _, _ in groups])
         for i in changed:
@@ -236,6 +239,14 @@ def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=
 
     train_paths, train, _ = read(train_inputs)
     test_paths, test, kinds = read(test_inputs)
+    both = {os.path.realpath(p) for p in train_paths} & {os.path.realpath(p) for p in test_paths}
+    for path in test_paths:
+        if os.path.realpath(path) in both:
+            (log or _log)(f"posturemap: warning: {path}: given for training and for testing: its gaps are in the "
+                          "library, and the scores flatter every method that reads it")
+    for path, m in zip(test_paths, test):
+        if len(m) < 2:
+            raise UserError(path, f"a test clip needs 2 frames at least (it has {len(m)})")
     first = train[0].skeleton
     for path, m in zip(train_paths + test_paths, train + test):
         if not m.skeleton.same_as(first):
@@ -255,8 +266,8 @@ def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=
     criteria = tuple(max(1, round(n * fps / 30.0)) for n in (15, 30, 45))
     rule = (f"training = {len(train)} clips of {', '.join(train_inputs)}; "
             f"test = {len(test)} clips of {', '.join(test_inputs)}")
-    return Split(OWN, rule, train, [os.path.basename(p) for p in train_paths], test,
-                 [os.path.basename(p) for p in test_paths], kinds, lengths, cm, unit, len(train), criteria)
+    return Split(OWN, rule, train, list(train_paths), test, list(test_paths), kinds, lengths, cm, unit, len(train),
+                 criteria)
 
 
 def window_starts(num_frames: int, window: int, stride: int = STRIDE) -> list[int]:

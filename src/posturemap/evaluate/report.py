@@ -34,7 +34,7 @@ GOAL_FACTOR = 0.7
 
 def plot(results: dict, examples: dict, out: Path) -> list[str]:
     """PNG plots per hold-out: L2Q, L2P, foot skate and naturalness against length (truth as a
-    black line where it has a value); one joint's angle through a window at 30 frames.
+    black line where it has a value); one joint's angle through a window at 30 frames (at 30 fps).
 
     ``examples`` (from :func:`posturemap.evaluate.run_inbetween`, per hold-out, may be empty):
     per method and ``truth`` the local rotations (F, J, 4) of one window at 30 frames, with
@@ -87,9 +87,9 @@ FILMSTRIP_METHODS = ("slerp", "spline", "inertialize", "upm", "upm-valid+feet")
 
 
 def _filmstrip_example(example: dict, default: str, n_past: int, out: Path, filename: str, title: str) -> str:
-    """One window at 30 frames as side-view filmstrips, one row each: the truth, the baselines
-    and the default (:func:`posturemap.io.preview.filmstrip_rows`; the 30 rebuilt frames in colour,
-    the context grey)."""
+    """One window (30 frames at 30 fps, or the length nearest as long) as side-view filmstrips, one
+    row each: the truth, the baselines and the default (:func:`posturemap.io.preview.filmstrip_rows`;
+    the rebuilt frames in colour, the context grey)."""
     from ..io.preview import filmstrip_rows
     from ..core.skeleton import fk
 
@@ -119,8 +119,9 @@ def _plot_example(plt, example: dict, methods: list[str], n_past: int, out: Path
         ang = np.degrees(2 * np.arccos(np.clip(np.abs(example[m][:, joint, 0]), 0, 1)))
         ax.plot(t, ang, lw=2.5 if m == "truth" else 1.2, color="k" if m == "truth" else None,
                 ls="-" if m == "truth" else "--", label=m)
-    ax.axvspan(1, 30, color="0.9")
-    ax.set_xlabel("frame (0 = last past-context frame; grey: the 30 rebuilt frames)")
+    gap = len(example["truth"]) - 2 * n_past
+    ax.axvspan(1, gap, color="0.9")
+    ax.set_xlabel(f"frame (0 = last past-context frame; grey: the {gap} rebuilt frames)")
     ax.set_ylabel(f"{names[joint]} rotation angle (deg)")
     ax.set_title(f"{example['clip']}, frames {s}..{s + len(t) - 1}", fontsize=9)
     ax.grid(alpha=0.3)
@@ -129,6 +130,12 @@ def _plot_example(plt, example: dict, methods: list[str], n_past: int, out: Path
     fig.savefig(out / filename)
     plt.close(fig)
     return filename
+
+
+def _over(a, b, digits: int, suffix: str = "") -> str:
+    """``a / b`` to ``digits`` decimals (then ``suffix``); ``-`` where ``b`` is 0 (a reference that
+    makes no error: SLERP over a held pose, NPSS of a one-frame gap)."""
+    return f"{a / b:.{digits}f}{suffix}" if b else "-"
 
 
 def _fmt(v, digits=3):
@@ -195,7 +202,9 @@ def acceptance(inb: dict) -> dict:
     meth, truth = inb["methods"], inb["truth"]
 
     def worst(m, metric, ref, ns, factor=1.0):
-        ratios = [meth[m][str(n)][metric] / ref[str(n)][metric] for n in ns if str(n) in ref]
+        # A length where the reference makes no error (a held pose's SLERP, a truth that never
+        # slides) says nothing about the ratio: left out.
+        ratios = [meth[m][str(n)][metric] / ref[str(n)][metric] for n in ns if str(n) in ref and ref[str(n)][metric]]
         if not ratios:
             return None, None
         r = max(ratios)
@@ -247,7 +256,7 @@ def _holdout_section(r: list[str], name: str, hold: dict, cfg: dict) -> None:
     used = f" (every {cfg['train_stride']}th used)" if cfg["train_stride"] > 1 and name != "cmu" else ""
     r.append(f"- Split: {sp['rule']}. Test: {sp['test_clips']} clips, {sp['test_frames']} frames; training: "
              f"{sp['train_clips_all']} clips{used}, {sp['train_clips']} clips, {sp['train_frames']} frames "
-             f"({sp['fps']:g} fps, {sp['joints']} joints, unit: {sp['unit']}, {sp['cm_per_unit']:.4g} cm). "
+             f"(test clips at {sp['fps']:g} fps; {sp['joints']} joints, unit: {sp['unit']}, {sp['cm_per_unit']:.4g} cm). "
              "The map (and any library a method keeps), SOM, L2P statistics, planted foot heights and "
              "validity index see the training side only.")
     r.append(f"- Windows: {inb['windows']}, L = {', '.join(map(str, lengths))}.")
@@ -325,10 +334,10 @@ def _whole_clip_section(r: list[str], inb: dict) -> None:
         ref = [inb["methods"]["slerp"][str(n)][k] for n in lengths]
         body.append([f"{title}: slerp"] + ref)
         body.append([f"{title}: {default}, {N_PAST} frames each side"]
-                    + [f"{inb['methods'][default][str(n)][k] / v:.3f}x" for n, v in zip(lengths, ref)])
+                    + [_over(inb['methods'][default][str(n)][k], v, 3, "x") for n, v in zip(lengths, ref)])
         for label in labels[::-1]:
             body.append([f"{title}: {label}, whole clip"]
-                        + [f"{wc['methods'][label][str(n)][k] / v:.3f}x" for n, v in zip(lengths, ref)])
+                        + [_over(wc['methods'][label][str(n)][k], v, 3, "x") for n, v in zip(lengths, ref)])
     for label in labels[::-1]:
         body.append([f"skate: {label}, whole clip"] + [wc["methods"][label][str(n)]["skate"] for n in lengths])
     body.append(["skate: truth"] + [inb["truth"][str(n)]["skate"] for n in lengths])
@@ -341,7 +350,7 @@ def _whole_clip_section(r: list[str], inb: dict) -> None:
         body = []
         for content, pc in wc["per_content"].items():
             sl = inb["per_content"][content]["methods"]["slerp"]
-            body.append([content, pc["windows"]] + [" ".join(f"{pc['methods'][labels[0]][str(n)][k] / sl[str(n)][k]:.2f}"
+            body.append([content, pc["windows"]] + [" ".join(_over(pc['methods'][labels[0]][str(n)][k], sl[str(n)][k], 2)
                                                              for n in lengths) for k in ("l2q", "l2p")])
         _table(r, ["content", "windows", "L2Q / slerp", "L2P / slerp"], body)
 
@@ -371,7 +380,7 @@ def markdown(results: dict) -> str:
     if whole:
         def goal_ratios(inb, k):  # the default with the whole clip, over slerp, at the goal's lengths
             wc, sl = inb["whole_clip"]["methods"][inb["default_method"]], inb["methods"]["slerp"]
-            return " / ".join(f"{wc[str(n)][k] / sl[str(n)][k]:.3f}" for n in criteria_lengths(inb)[1])
+            return " / ".join(_over(wc[str(n)][k], sl[str(n)][k], 3) for n in criteria_lengths(inb)[1])
 
         r.append(f"**A gap in a take** (the same windows with the whole clip as context instead of {N_PAST} frames "
                  "each side; see each hold-out's section): the default's L2Q and L2P as ratios to slerp's at the "

@@ -213,6 +213,10 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
             "sweep": {}} if diagnostics else {}
     example = {}
     ref = natural_reference(ctx, test)
+    # The example plotted: a window of 30 frames at 30 fps (as long at a user's own clips' rate),
+    # or the length nearest that.
+    shown = 30 if state["split"].criteria is None else state["split"].criteria[1]
+    shown = min(lengths, key=lambda n: (abs(n - shown), n))
     for length in lengths:
         t0 = time.perf_counter()
         truth_r, truth_p, preds = predict_windows(engines, METHODS, test, windows, length)
@@ -236,7 +240,7 @@ def run_inbetween(state: dict, windows, settings: Settings, seed: int, log=_log,
                 for k in ("l2q", "l2p")}
         if diagnostics:
             run_diagnostics(state, windows, settings, seed, length, truth_r, truth_p, preds, diag)
-        if length == 30:  # plot a walking window when there is one
+        if length == shown:  # plot a walking window when there is one
             names = [state["test_files"][c] for c, _ in windows]
             e = next((i for i, nm in enumerate(names) if "_walk_" in nm), 0)
             example = {m: np.concatenate([truth_r[e, :N_PAST], preds[m][0][e], truth_r[e, N_PAST + length:]])
@@ -580,8 +584,9 @@ def run(data_dir, out, seed: int = 0, settings: Settings | None = None, log=_log
     results["plots"] = report.plot(results, examples, out) if settings.plots else []
     results["wall_seconds"] = time.perf_counter() - t_start
     results = round_per_window(jsonable(results))
-    write_bytes_atomic(out / "results.json", report.dumps(results).encode())
-    write_bytes_atomic(out / "results.md", report.markdown(results).encode())
+    text, md = report.dumps(results), report.markdown(results)  # both made before either is written
+    write_bytes_atomic(out / "results.json", text.encode())
+    write_bytes_atomic(out / "results.md", md.encode())
     log(f"wrote {out / 'results.md'}, {out / 'results.json'} and {len(results['plots'])} plots "
         f"in {results['wall_seconds']:.0f} s")
     return results

@@ -13,8 +13,9 @@ real motion:
 
 ``auto`` (default)
     ``retrieval`` at every gap length (the spline took gaps under 0.25 s until held-out gaps of
-    1-7 frames at 30 fps, 2-14 at 60 and 4-28 at 120 showed retrieval ahead there too; the
-    name stays the default's, whatever ``posturemap bench`` finds best).
+    1-7 frames at 30 fps, 2-14 at 60 and 4-28 at 120 showed retrieval ahead there too in L2P on
+    bandai1 and LaFAN1, and in L2Q on CMU at 120 fps, whose L2P it loses by 1-5% at 4-16 frames;
+    the name stays the default's, whatever ``posturemap bench`` finds best).
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back by
@@ -83,8 +84,8 @@ from .splice import spliced
 from .trajectory import (Track, aligned, alignment, bend_fit, carry_chain, make_track, placement, put_root,
                          rotate_about_up, seam_path, seam_view, through_seams)
 
-# TransitionEngine.warm_up: gaps (seconds) short enough for auto's spline, of a second (the
-# upper body from travelling frames), and long (the legs in step).
+# TransitionEngine.warm_up: gaps (seconds) short enough for retrieval's spline fallback and
+# upper body, of a second (the upper body from travelling frames), and long (the legs in step).
 WARM_UP_GAPS_S = (0.2, 1.0, 2.0)
 # Retrieval searches the clips' own motion beside the gap besides the library: at most this many
 # seconds of A up to its end and of B from its start (the frames nearest the gap; a capture of
@@ -274,8 +275,8 @@ class TransitionEngine:
         ``kernels.compiled()`` alone the first few calls take 10-500 ms each instead of about one.
 
         ``methods``: the methods (or one method's name) the caller will ask for (those needing a
-        map are skipped without one); ``auto`` brings ``spline``, ``retrieval`` and its fallbacks
-        with it. The transitions run between the first and the last clip added, from their ends and their
+        map are skipped without one); ``auto`` is ``retrieval``, which brings its fallbacks
+        (``spline``, ``damped``) with it. The transitions run between the first and the last clip added, from their ends and their
         middles, at gaps of :data:`WARM_UP_GAPS_S` seconds, both placing B after A and keeping
         B where it is (matches of every confidence, as these clips give them); then, with a
         motion library, what runs at one confidence only (every part retrieved; a splice), run

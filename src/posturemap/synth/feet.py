@@ -1017,7 +1017,10 @@ def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np
     it in L2P: LaFAN1's segments at 60 fps, 0.17 / 0.5 / 1 s, 0.315 / 1.191 / 2.528 -> 0.282 / 1.187 /
     2.518 with a quarter of the way; bandai1's held-out contents 0.330 / 1.191 / 1.797 -> 0.325 /
     1.190 / 1.795 (every share from the whole way to none lowered L2P a little more, none lowest; none
-    would glide every foot that steps). The price is paid between clips, where B's stance is not
+    would glide every foot that steps). With the fifth kept: LaFAN1 at 60 fps, 0.5 / 1 / 1.5 s,
+    1.186 / 2.528 / 3.856 -> 1.182 / 2.516 / 3.843; the bench's held-out contents at 15 / 30 / 45
+    frames 1.170 / 1.788 / 2.089 -> 1.168 / 1.786 / 2.087, held-out styles 0.611 / 1.005 / 1.200 ->
+    0.609 / 1.000 / 1.198. The price is paid between clips, where B's stance is not
     A's: on 100 seeded transitions between bandai1's clips (every second clip, B placed to continue
     A; the default with the lock) the skate at 10 / 20 / 30 frames went 2.71 / 1.68 / 1.38 -> 4.26 /
     2.42 / 1.90 cm/s with a fifth of the way, the clips' own windows 2.66 / 2.24 / 2.40, SLERP's 25 /
