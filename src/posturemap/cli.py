@@ -345,11 +345,10 @@ def _warn_seam_glitches(seams) -> None:
     reference pose, a solver's flip): the new frames start from (land on) the frame as given, at
     the velocity of the frames beside it, so that they turn into it over the gap
     (:func:`posturemap.synth.trajectory.seam_view`)."""
-    from .core.glitches import changed_joint, steadied_joints
-    from .core.motion import root_index
+    from .core.glitches import changed_joint
 
     for path, clip, frame, what, way_out in seams:
-        found = changed_joint(clip, frame, steadied_joints(clip.skeleton, root_index(clip)))
+        found = changed_joint(clip, frame)
         if found is not None:
             j, angle = found
             print(f"posturemap: warning: {path}: {what} is a glitch at {clip.skeleton.names[j]} "

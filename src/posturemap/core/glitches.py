@@ -33,7 +33,7 @@ import numpy as np
 
 from . import quat
 from .joints import ancestors
-from .motion import Motion
+from .motion import Motion, root_index
 
 # A step is a glitch when it and both its prediction errors are over GLITCH_RATE / fps radians
 # (a quarter turn at 30 fps, 45 degrees at 60, 22.5 at 120), and at most GLITCH_TURN_MOST (135
@@ -158,6 +158,13 @@ def _most_as_given(q: np.ndarray, given: np.ndarray, cuts: list[int], limit: flo
         q[a] = given[a]
 
 
+def seam_frames(num_frames: int, frame: int, forward: bool, span: int) -> tuple[int, int]:
+    """``(lo, hi)``: the frames ``lo:hi`` a seam at ``frame`` reads on its side of a clip of
+    ``num_frames``: the seam and up to ``span`` after it with ``forward`` (B's start), else up to
+    ``span`` before it and the seam (A's end)."""
+    return (frame, min(num_frames, frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
+
+
 def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, span: int,
                 joints=None) -> tuple[int, np.ndarray] | None:
     """The frames a transition reads beside its seam at ``frame`` with the glitch steps among them
@@ -170,8 +177,7 @@ def seam_window(rotations: np.ndarray, fps: float, frame: int, forward: bool, sp
     motion's velocity on the seam's side the better; the joint's own where no frame there tells,
     or both continue it alike: a solver flips a joint about its bone) to continue the frame on
     the seam's side with no step. ``joints`` as :func:`steadied` takes them."""
-    n = len(rotations)
-    lo, hi = (frame, min(n, frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
+    lo, hi = seam_frames(len(rotations), frame, forward, span)
     q = rotations[lo:hi]
     glitches = glitch_steps(q, fps, joints)
     if not glitches.any():
@@ -217,21 +223,22 @@ def _continued(q: np.ndarray, s: int, e: int, fixed: int, own: int, left: bool) 
     return -piece if np.dot(piece[own - s], q[fixed]) < 0.0 else piece
 
 
-def steady_motion(motion: Motion, joints=None) -> Motion:
-    """``motion`` with its rotations :func:`steadied`: the same object where it has no glitch
-    step, otherwise a copy (the translations as they are; without the file's own channel
-    values, which are the glitches' numbers); ``joints`` as :func:`steadied` takes them."""
-    rots = steadied(motion.rotations, motion.fps, joints)
+def steady_motion(motion: Motion) -> Motion:
+    """``motion`` with the rotations of its joints below the root :func:`steadied`
+    (:func:`steadied_joints`), as the maps and a motion library learn a clip: the same object
+    where it has no glitch step, otherwise a copy (the translations as they are; without the
+    file's own channel values, which are the glitches' numbers)."""
+    rots = steadied(motion.rotations, motion.fps, steadied_joints(motion.skeleton, root_index(motion)))
     if rots is motion.rotations:
         return motion
     return Motion(motion.skeleton, rots, motion.positions.copy(), motion.fps, None)
 
 
-def changed_joint(motion: Motion, frame: int, joints=None) -> tuple[int, float] | None:
-    """Where :func:`steadied` moves frame ``frame`` of ``motion`` by more than the glitch bound
-    (:func:`glitch_turn`): ``(joint, angle in radians)`` of the joint it moves the most, or None.
-    ``joints`` as :func:`steadied` takes them."""
-    rots = steadied(motion.rotations, motion.fps, joints)
+def changed_joint(motion: Motion, frame: int) -> tuple[int, float] | None:
+    """Where :func:`steady_motion` moves frame ``frame`` of ``motion`` by more than the glitch
+    bound (:func:`glitch_turn`): ``(joint, angle in radians)`` of the joint it moves the most, or
+    None."""
+    rots = steady_motion(motion).rotations
     if rots is motion.rotations:
         return None
     moved = quat.angle_between(rots[frame], motion.rotations[frame])

@@ -25,9 +25,9 @@ from ..errors import UserError
 from .features import CLASSES, FeatureSpace
 from ..io.fileio import write_bytes_atomic
 from ..io.mapfile import FORMAT, VERSION, MapFileError  # noqa: F401 - MapFileError re-exported
-from ..core.glitches import steadied_joints, steady_motion
+from ..core.glitches import steady_motion
 from ..core.joints import describe_legs
-from ..core.motion import Motion, root_index, same_fps
+from ..core.motion import Motion, same_fps
 from ..core.skeleton import Skeleton
 from .upm import UniformPostureMap
 
@@ -99,7 +99,7 @@ class PostureMap:
                                       "rate: resample the clips to one rate first, posturemap.resample or "
                                       "posturemap resample)")
         t0 = time.perf_counter()
-        motions = _steady(motions)  # a flipped toe is no posture to learn
+        motions = [steady_motion(m) for m in motions]  # a flipped toe is no posture to learn
         space = features.fit_space(motions, self.features, self.classes)
         x = np.concatenate([space.encode(m) for m in motions])
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
@@ -172,7 +172,7 @@ class PostureMap:
             if not same_fps(m.fps, fps):
                 raise UserError(name, f"{m.fps:g} fps, the map's clips {fps:g} fps: resample it to their rate first "
                                      "(posturemap.resample; on the command line, posturemap resample)")
-        motions = _steady(motions)  # as fit reads them
+        motions = [steady_motion(m) for m in motions]  # as fit reads them
         parts = self.space_.split(np.concatenate([self.space_.encode(m) for m in motions]))
         seq = np.concatenate([np.full(len(m), i) for i, m in enumerate(motions)])
         for c, m in enumerate(self.maps_):
@@ -376,9 +376,3 @@ class PostureMap:
                                                                                 self.library_.upper])],
                 "toe_clearance": self._toe_clearance()},
         }
-
-
-def _steady(motions: list[Motion]) -> list[Motion]:
-    """The clips with the glitch steps of their joints below the root taken out
-    (:func:`posturemap.core.glitches.steady_motion`), as the maps and the motion library learn them."""
-    return [steady_motion(m, steadied_joints(m.skeleton, root_index(m))) for m in motions]

@@ -379,7 +379,7 @@ class TransitionEngine:
         (after it with ``forward``, B's; before it, A's). The last few are kept
         (:data:`SEAM_VIEWS_KEPT`: a slider's new alpha reads the same seams)."""
         span = max(2, round(SEAM_WINDOW_S * track.motion.fps))
-        lo, hi = (frame, min(len(track.gpos), frame + span + 1)) if forward else (max(0, frame - span), frame + 1)
+        lo, hi = glitches.seam_frames(len(track.gpos), frame, forward, span)
         over = _over_bound(self, track)
         if over[hi - 1] == over[lo]:  # no step there turns a joint as far as a glitch: nearly every seam
             return track
