@@ -1135,6 +1135,40 @@ def _pair_engine(bandai_files, a_name: str, b_name: str):
     return e, a, b
 
 
+def test_a_short_gap_lifts_its_steps_by_its_share_of_step_rise_s(sample_clips):
+    # Real feet hardly rise over a fifth of a second: a gap shorter than STEP_RISE_S lifts its
+    # steps by STEP_RISE times its share of it (step_rise), in both the numpy code and the kernel;
+    # from STEP_RISE_S on, by STEP_RISE. The two feet of the interpolated stance change above,
+    # over 6 new frames at 30 fps (0.23 s from A's last frame to B's first) and over 16.
+    fps = 30.0
+    assert feet.step_rise(6, fps) == pytest.approx(feet.STEP_RISE * 7.0 / (fps * feet.STEP_RISE_S))
+    assert feet.step_rise(16, fps) == feet.step_rise(100, fps) == feet.STEP_RISE
+    assert feet.step_rise(0, fps) == feet.STEP_RISE
+    m = sample_clips["walk"]
+    assert m.fps == fps
+    sk, up = m.skeleton, up_axis(m)
+    chains = leg_chains(sk)
+    leg = leg_length(sk, chains)
+    side = (np.arange(3) == (up + 1) % 3).astype(float)
+    flat = 1 - (np.arange(3) == up)
+    way = (0.18 - feet.STAND_STEP) * leg  # each foot's way beyond the shuffle
+    peaks = {}
+    for length in (6, 16):
+        rots, pos = m.rotations[np.full(length, 30)].copy(), m.positions[np.full(length, 30)].copy()
+        pos[:, 0] += 0.18 * leg * np.linspace(0.0, 1.0, length)[:, None] * side
+        g = fk(sk.parents, rots, pos)[1][:, [c[2] for c in chains]]
+        a_feet, b_feet = np.repeat(g[:1], 2, axis=0), np.repeat(g[-1:], 2, axis=0)
+        out = lock_both(sk, chains, rots, pos, up, a_feet, b_feet, fps)
+        np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
+        ankles = fk(sk.parents, out["numpy"][0], pos)[1][:, [c[2] for c in chains]]
+        peaks[length] = (ankles[..., up] - g[..., up]).max(axis=0)
+        # Well within the acceleration's bound here: the lift is the share's (a squared sine over
+        # a few frames peaks between them: three quarters of it over two).
+        high = feet.step_rise(length, fps) * way
+        assert np.all(peaks[length] < 1.05 * high) and np.all(peaks[length] > 0.7 * high), (peaks, high)
+    assert np.all(peaks[6] < 0.55 * peaks[16])
+
+
 def test_foot_lock_never_jumps_a_planted_foot(bandai_files, monkeypatch):
     # Transitions from a bow to a walk, B placed to continue A: between two frames where a foot
     # is fully locked it moves at most as fast as the step's smoothstep allows (1.5 / (step + 1)

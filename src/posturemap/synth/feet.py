@@ -112,6 +112,8 @@ STEP_RISE = 0.2  # a step lifts the foot by this share of its way beyond STAND_S
 #                  real feet planted at both ends of a gap and moved 0.1-0.2 leg lengths between rise
 #                  0.5-3 cm (the ankle's median, gaps of 0.5-1 s), 0.4-1 leg lengths 4-8 cm (bandai1,
 #                  LaFAN1); a quarter second or less, hardly at all (step_lift)
+STEP_RISE_S = 0.5  # seconds: a gap shorter than this (A's last frame to B's first) lifts its steps by
+#                    STEP_RISE times its share of this (step_rise): real feet hardly rise in 0.2 s
 STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fifth, comes down in place
 #                  over the last, and travels in between (travelling from the first frame, low, it slid)
 STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): feet held all through the gap whose spots lie
@@ -587,7 +589,7 @@ def _glides(ankle: np.ndarray, a_spot: np.ndarray, b_spot: np.ndarray, flat: np.
 
 def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height_tol, speed=None,
                              speed_tol=np.inf, on=None, step=0, lift=0.0, reach=np.inf, window=None, toe=None,
-                             toe_seams=None, shuffle=0.0, accel=np.inf, farthest=np.inf):
+                             toe_seams=None, shuffle=0.0, accel=np.inf, farthest=np.inf, rise=None):
     """Per frame of the new frames: lock weight (L,), horizontal target (L, 3) and lift (L,).
 
     ``h`` (L,) ankle heights, ``horiz`` (L, 3) ankle positions with the up coordinate zeroed,
@@ -607,8 +609,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     ``step`` frames in its middle (at most the run but one frame at each end): the target moves
     with a smoothstep (in place over the step's first and last ``STEP_LAG``, less where that would
     set the foot off faster than ``accel`` per frame squared: :func:`step_lag`) while the foot rises
-    by ``lift`` (at most ``STEP_RISE`` of the step's length beyond ``shuffle``) on a squared sine and comes
-    down on B's spot. The lift (L,) is added to the ankle's height. Where the two spots lie
+    by ``lift`` (at most ``rise``, else ``STEP_RISE``, of the step's length beyond ``shuffle``) on a
+    squared sine and comes down on B's spot. The lift (L,) is added to the ankle's height. Where the two spots lie
     farther apart than ``farthest``, no step of a standing foot makes it (the motion carries
     the foot there: a body gliding over a standing segment), and the run is not held.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
@@ -666,15 +668,15 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
         if from_a and to_b and np.linalg.norm(b_spot - a_spot) > farthest:
             continue  # no step makes it: the motion's own foot
         if from_a and to_b:  # planted all through: A's spot, a step in the middle of the run, B's spot
-            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle, accel)
+            ref = _step(spot, raised[start:stop], a_spot, b_spot, step, lift, window, shuffle, accel, rise)
         elif from_a and 0 < step <= n - 2 and np.linalg.norm(horiz[stop - 1] - a_spot) > reach:
             ref = _step(spot, raised[start:stop], a_spot, _toward(horiz[stop - 1], a_spot, reach), step, lift,
-                        None, shuffle, accel)
+                        None, shuffle, accel, rise)
         elif from_a:
             spot[:] = a_spot
         elif to_b and 0 < step <= n - 2 and np.linalg.norm(b_spot - horiz[start]) > reach:
             ref = _step(spot, raised[start:stop], _toward(horiz[start], b_spot, reach), b_spot, step, lift,
-                        None, shuffle, accel)
+                        None, shuffle, accel, rise)
         elif to_b:
             spot[:] = b_spot
             ref[:] = 1.0
@@ -755,7 +757,7 @@ def step_lag(k: int, way: float, accel: float) -> float:
 
 
 def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndarray, step: int, lift: float,
-          window=None, shuffle: float = 0.0, accel: float = np.inf) -> np.ndarray:
+          window=None, shuffle: float = 0.0, accel: float = np.inf, rise: float | None = None) -> np.ndarray:
     """A run's spots (n, 3) and lift (n,), in place: ``first``, a step over the ``step`` frames in
     the run's middle (at most the run but one frame at each end), ``last``. A run of 1 or 2
     frames: ``first`` (if 2), then ``last``. ``window`` ``(k0, k)``: the step over frames ``k0 ..
@@ -780,7 +782,7 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
         v = np.clip((u - lag) / (1.0 - 2.0 * lag), 0.0, 1.0)
         share[k0: k0 + k] = v * v * (3 - 2 * v)
         spot[k0: k0 + k] = first + share[k0: k0 + k, None] * (last - first)
-        raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle, accel)
+        raised[k0: k0 + k] = step_lift(k, float(np.linalg.norm(last - first)), lift, shuffle, accel, rise)
     return share
 
 
@@ -864,7 +866,7 @@ def pass_accel(way: np.ndarray, rate_p: np.ndarray, rate_q: np.ndarray, span: in
 
 def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised: np.ndarray, h: np.ndarray,
                 pace: float, lift: float, shuffle: float, accel: float = np.inf, least: int = 1,
-                carry: int | None = None, foot: np.ndarray | None = None) -> None:
+                carry: int | None = None, foot: np.ndarray | None = None, rise: float | None = None) -> None:
     """Widen the free stretches between held runs whose offsets differ by more than ``pace`` (per
     frame) and ``accel`` (per frame squared) allow; in place, before :func:`swing_offsets` carries
     the offsets through them.
@@ -889,7 +891,7 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     to five times the acceleration of a walking ankle (46 cm in six frames at 30 fps, 20 cm in
     five at 60), and a run shortened to a frame or two put the foot down between two such
     passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
-    (:func:`step_lift`: ``lift`` at most, ``STEP_RISE`` of the way beyond ``shuffle``, on a squared sine
+    (:func:`step_lift`: ``lift`` at most, ``rise`` (else ``STEP_RISE``) of the way beyond ``shuffle``, on a squared sine
     within ``accel``) less what the motion lifts it already; the way is the foot's own between
     the two held frames, ``foot`` (L + 2, k: the motion's foot, as ``offset`` lies, in A's last
     frame, the new ones and B's first) with the offsets, where given and the stretch no longer
@@ -983,14 +985,16 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
             # the motion's with the offsets' (a longer stretch is the motion's own after carry frames)
             way = float(np.linalg.norm(foot[q + 1] + (offset[q] if q < length else zero)
                                        - foot[p + 1] - (offset[p] if p >= 0 else zero)))
-        raised[free] = np.maximum(raised[free], step_lift(q - p - 1, way, lift, shuffle, accel)
+        raised[free] = np.maximum(raised[free], step_lift(q - p - 1, way, lift, shuffle, accel, rise)
                                   - np.maximum(h[free] - base, 0.0))
 
 
-def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np.inf) -> np.ndarray:
+def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np.inf,
+              rise: float | None = None) -> np.ndarray:
     """The lift (k,) of a step over ``k`` frames that moves a foot ``way``: a squared sine
-    (no vertical speed at either end) up to ``lift`` at most and ``STEP_RISE`` of the way beyond
-    ``shuffle`` (a shorter shift slides or pivots on the floor), and no higher than lets it
+    (no vertical speed at either end) up to ``lift`` at most and ``rise`` (``STEP_RISE``; the lock
+    gives :func:`step_rise` of its gap) of the way beyond ``shuffle`` (a shorter shift slides or
+    pivots on the floor), and no higher than lets it
     accelerate within ``accel`` per frame squared (a squared sine over ``k + 1`` frames peaks at
     ``2 pi^2 / (k + 1)^2`` times its height); :func:`_step`'s and the steps :func:`pace_passes`
     makes.
@@ -1010,7 +1014,8 @@ def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np
 
     A foot shifted a few centimetres slides or pivots; one moved half a leg or more steps. A
     fifth of the way beyond ``shuffle`` follows the medians of 0.5-1 s (0.02 at 0.15 leg lengths,
-    0.05 at 0.3, ``lift`` from 0.55); the acceleration bound lowers it on shorter gaps. The whole
+    0.05 at 0.3, ``lift`` from 0.55); on gaps under ``STEP_RISE_S`` the lock asks for less
+    (:func:`step_rise`, its ``rise``), and the acceleration bound lowers it too. The whole
     way (up to ``lift``) had been kept before for the skate of transitions between standing clips
     (a foot shifted 6.4 cm between two of Motiondataset-2's clips slid over the floor), but it lifted
     feet three to ten times higher than real feet rise over the same way, and in-betweening paid for
@@ -1026,8 +1031,35 @@ def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np
     2.42 / 1.90 cm/s with a fifth of the way, the clips' own windows 2.66 / 2.24 / 2.40, SLERP's 25 /
     21 / 18."""
     u = np.arange(1, k + 1) / (k + 1.0)
-    high = min(lift, STEP_RISE * max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
+    rise = STEP_RISE if rise is None else rise
+    high = min(lift, rise * max(way - shuffle, 0.0), accel * (k + 1.0) ** 2 / (2.0 * np.pi**2))
     return high * np.sin(np.pi * u) ** 2
+
+
+def step_rise(length: int, fps: float) -> float:
+    """The share of its way (beyond ``STAND_STEP``) by which a step in a gap of ``length`` new
+    frames lifts the foot: ``STEP_RISE``, times the gap's share of ``STEP_RISE_S`` where it is
+    shorter (from A's last frame to B's first, ``(length + 1) / fps`` seconds).
+
+    Real feet hardly rise over short gaps (the table of :func:`step_lift`: over 0.17-0.3 s, a
+    foot planted at both ends rose about a twentieth of its way, at 0.5-1 s a fifth), and a
+    step the lock lifted by a fifth there cost in-betweening its L2P: the knees and feet, held
+    higher than the truth's, carried the lock's whole cost in the vertical (L2P divides a height
+    by its small spread). With this, L2P of the default at 0.1 / 0.2 / 0.3 s (seconds scaled by
+    the clips' rate; the bench's protocol, 10 context frames each side): bandai1's held-out
+    styles 0.1053 / 0.2759 / 0.4216 -> 0.1022 / 0.2547 / 0.4191, held-out contents 0.1587 / 0.3994
+    / 0.6474 -> 0.1555 / 0.3726 / 0.6424, LaFAN1's subject 5 at 60 fps 0.1220 / 0.3615 / 0.6155 ->
+    0.1171 / 0.3352 / 0.6114; CMU 01_01 at 120 fps within 0.2%; from 0.5 s the same. The skate
+    against the truth at 0.2 s: 1.79 -> 1.84 cm/s (held-out styles; the truth's about 3.7).
+    Scaled over a whole second instead (a tenth at 0.5 s, as the 0.5 s medians), L2P fell
+    further (0.2444 / 0.3644 / 0.3240 at 0.2 s) but transitions between two of bandai1's clips,
+    whose stances differ more than a gap's, slid their feet at 0.5 s: the skate of 100 seeded
+    transitions of 15 frames 2.79 -> 4.52 cm/s (the clips' own windows 2.42); with 0.5 s, at 10
+    frames 4.27 -> 5.25 (1.88), at 5 frames 19.1 -> 21.3 (2.56: a foot must reach B's stance in
+    a sixth of a second), from 15 frames the same."""
+    if length <= 0 or not np.isfinite(fps) or fps <= 0.0:
+        return STEP_RISE
+    return STEP_RISE * min(1.0, (length + 1.0) / (fps * STEP_RISE_S))
 
 
 def _planted(seam, next_to_it, floor: float, up: int, height_tol: float, speed_tol: float) -> bool:
@@ -1093,6 +1125,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
     a_floor, b_floor = (np.nan, np.nan) if seam_floors is None else (float(seam_floors[0]), float(seam_floors[1]))
     passes = (PASS_SPEED * body / fps, PASS_ACCEL * body / fps**2, max(1, round(PASS_LEAST_S * fps)),
               max(1, round(CARRY_S * fps)))  # pace_passes' and swing_offsets'
+    rise = step_rise(len(rots), fps)
     jit = _compiled()
     if jit is not None:  # the same steps, compiled: one call for every leg and frame
         legs = np.array(chains, dtype=np.int64).reshape(-1, 3)
@@ -1108,7 +1141,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                       STEP_LIFT * body, STEP_LAG, toes, toe_floor, TOE_CLEAR * body, CLEAR_SPEED[0] * body / fps,
                       CLEAR_SPEED[1] * body / fps, *_clearance_table(clearance, body, fps),
                       max(1, round(CLEAR_S * fps)), _fade_frames(fps), a_floor, b_floor, STAND_STEP * body,
-                      STEP_RISE, STEP_MOST * body,
+                      rise, STEP_MOST * body,
                       *seam_toes, round(SEAM_TOE_S * fps), SEAM_TOE_GAP, SEAM_TOE_CATCH * body / fps,
                       *passes, HINGE_SURE, KNEE_THROUGH, KNEE_ACCEL / fps**2, rest.REST_PASSES, rest.REST_PLAIN,
                       rest.REST_RELAX, rest.REST_EXACT, weights)
@@ -1156,7 +1189,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
                                                           on, step, STEP_LIFT * body, MAX_DRIFT[0] * body,
                                                           None if windows[leg, 0] < 0 else windows[leg],
                                                           (gpos[:, toes[leg]] - gpos[:, ankle]) * flat, toe_seams,
-                                                          STAND_STEP * body, passes[1], STEP_MOST * body)
+                                                          STAND_STEP * body, passes[1], STEP_MOST * body, rise)
         # The runs' offsets, softly limited where the spot is far from the foot; carried through
         # the frames between the runs.
         offset = target - horiz
@@ -1167,7 +1200,7 @@ def lock_feet(sk: Skeleton, chains, rots, positions, gpos_fn, up: int, a_feet, b
         offset[held] *= scale[held, None]
         raised[held] *= scale[held]
         pace_passes(held, weight, offset, raised, h, passes[0], STEP_LIFT * body, STAND_STEP * body, *passes[1:],
-                    foot=np.concatenate([a_feet[1:, leg] * flat, horiz, b_feet[:1, leg] * flat]))
+                    foot=np.concatenate([a_feet[1:, leg] * flat, horiz, b_feet[:1, leg] * flat]), rise=rise)
         swing_offsets(offset, contact_runs(held), passes[3])
         weights[:, leg] = weight
         locks.append((offset, raised, held))
