@@ -791,6 +791,7 @@ def test_a_far_spot_makes_a_step_where_the_run_is_long_enough(sample_clips, monk
             heights = ankle[:, up] - g[:, up]
             assert np.all(np.abs(heights[:k0]) < 1e-6)
             way = np.linalg.norm(landing - g[0] * flat) - feet.STAND_STEP * leg
+            # (20 frames at 30 fps: no shorter than STEP_RISE_S, so the whole STEP_RISE.)
             assert heights[k0 + step // 2] > 0.5 * min(feet.STEP_LIFT * leg, feet.STEP_RISE * way)
 
 
@@ -1094,6 +1095,7 @@ def test_interpolated_feet_change_stance_by_stepping_one_after_another(sample_cl
             np.testing.assert_allclose(ankles[k0 + k:, i] * flat, np.tile(b_spot[i], (length - k0 - k, 1)),
                                        atol=0.002 * leg)
             lifted = ankles[k0: k0 + k, i, up] - g[k0: k0 + k, i, up]
+            # (16 frames at 30 fps: no shorter than STEP_RISE_S, so the whole STEP_RISE.)
             assert lifted.min() > 0 and lifted.max() > 0.5 * feet.STEP_RISE * (0.18 - feet.STAND_STEP) * leg
     np.testing.assert_allclose(out["numba"][0], out["numpy"][0], atol=IK_ATOL)
     # A leg the motion lifts between the seams (a kick: the thigh turned 1.2 rad at mid-gap) is
@@ -1144,6 +1146,7 @@ def test_a_short_gap_lifts_its_steps_by_its_share_of_step_rise_s(sample_clips):
     assert feet.step_rise(6, fps) == pytest.approx(feet.STEP_RISE * 7.0 / (fps * feet.STEP_RISE_S))
     assert feet.step_rise(16, fps) == feet.step_rise(100, fps) == feet.STEP_RISE
     assert feet.step_rise(0, fps) == feet.STEP_RISE
+    assert feet.step_rise(24, 120.0) == pytest.approx(feet.STEP_RISE * 25.0 / (120.0 * feet.STEP_RISE_S))
     m = sample_clips["walk"]
     assert m.fps == fps
     sk, up = m.skeleton, up_axis(m)
@@ -1969,7 +1972,7 @@ def test_a_widened_pass_from_a_seam_sets_off_from_the_clips_own_foot():
     # foot it would be 30.
     length, lift, shuffle = 30, 100.0, 20.0
 
-    def widened(a_foot):
+    def widened(a_foot, rise=None):
         held = np.zeros(length, dtype=bool)
         held[2:] = True
         offset = np.zeros((length, 2))
@@ -1978,7 +1981,7 @@ def test_a_widened_pass_from_a_seam_sets_off_from_the_clips_own_foot():
         foot = np.zeros((length + 2, 2))
         foot[0, 0] = a_foot
         feet.pace_passes(held, held.astype(float), offset, raised, np.zeros(length), 2.0, lift, shuffle,
-                         np.inf, 1, length + 1, foot)
+                         np.inf, 1, length + 1, foot, rise=rise)
         return np.flatnonzero(held)[0], raised
 
     q, raised = widened(-4.0)
@@ -1986,6 +1989,11 @@ def test_a_widened_pass_from_a_seam_sets_off_from_the_clips_own_foot():
     np.testing.assert_allclose(raised[:q], feet.step_lift(q, 34.0, lift, shuffle), rtol=1e-12)
     np.testing.assert_allclose(widened(0.0)[1][:q], feet.step_lift(q, 30.0, lift, shuffle), rtol=1e-12)
     assert raised[:q].max() > 1.3 * widened(0.0)[1][:q].max()  # 14 high, not 10
+    # The lock's share for its gap (step_rise), where given, instead of STEP_RISE: half as high.
+    half = widened(-4.0, rise=0.5 * feet.STEP_RISE)[1]
+    np.testing.assert_allclose(half[:q], feet.step_lift(q, 34.0, lift, shuffle, rise=0.5 * feet.STEP_RISE),
+                               rtol=1e-12)
+    np.testing.assert_allclose(half[:q], 0.5 * raised[:q], rtol=1e-12)
 
 
 def rechecked_runs():
@@ -2036,12 +2044,13 @@ def test_pace_passes_is_the_same_compiled():
         accel, least = ((float(rng.uniform(0.002, 0.05)), int(rng.integers(1, 5))) if rng.random() < 0.5
                         else (np.inf, 1))
         carry = int(rng.integers(1, 40))  # the runs' rates carried that far: shorter or longer than the stretches
+        rise = float(rng.uniform(0.03, feet.STEP_RISE))  # the lock's share for a gap's length (step_rise)
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
         seams = rng.normal(0.0, 0.05, (2, 3))  # A's last and B's first ankle
         foot = np.concatenate([seams[:1], gpos[:, ankle], seams[1:]])[:, [(up + 1) % 3, (up + 2) % 3]]
-        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot)
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot, rise=rise)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
-        numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, feet.STEP_RISE, accel, least, carry)
+        numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, rise, accel, least, carry)
         for g, w in zip(got, want):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
         changed += not np.array_equal(want[0], held)

@@ -118,7 +118,7 @@ STEP_LAG = 0.2  # of a step's frames: the foot rises in place over the first fif
 #                  over the last, and travels in between (travelling from the first frame, low, it slid)
 STAND_STEP = 0.05  # leg lengths (4 cm on Bandai): feet held all through the gap whose spots lie
 #                    farther apart than this step one after another (stance_windows); a step lifts the
-#                    foot by STEP_RISE of its way beyond this (STEP_LIFT at most): a shorter shift slides
+#                    foot by step_rise of its way beyond this (STEP_LIFT at most): a shorter shift slides
 IK_EPS = 1e-5  # the two-bone IK keeps the thigh-ankle distance this far inside [0, thigh + shin]
 SOFT_REACH = 0.05  # the lock's IK approaches the last 5% of the leg's reach softly (soft_limit)
 KNEE_ACCEL = 135.0  # radians per second^2: the lock's change of a knee's bend accelerates at most this
@@ -620,8 +620,8 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     with ``toe``: a toe planted at a seam (the heel may be up) stays on its spot while ``low`` (L,)
     says the new frames keep it low, at most ``most`` frames, and no longer than lets its offset
     pass on at ``catch`` per frame; after a run of at most ``after_run`` frames from the seam, where
-    the run leaves it (:func:`_hold_seam_toes`). ``shuffle``: a step lifts the foot by ``STEP_RISE``
-    of its way beyond this (:func:`_step`).
+    the run leaves it (:func:`_hold_seam_toes`). ``shuffle``: a step lifts the foot by ``rise``
+    (``STEP_RISE``; the lock: :func:`step_rise` of its gap) of its way beyond this (:func:`_step`).
 
     ``toe`` (L, 3), when given: per frame the toe's horizontal place relative to the ankle. A
     held foot then turns about its toe, not its ankle: the target moves back by how far the toe
@@ -764,9 +764,9 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     k0 + k - 1`` instead. The foot travels on a smoothstep between the step's first and last
     ``STEP_LAG`` (less where the step is too quick for it: :func:`step_lag`, ``accel``) and
     rises on a squared sine over the whole step (no vertical speed at either end; on a half sine
-    it rose from rest in one frame) to ``lift`` at most and ``STEP_RISE`` of the way beyond ``shuffle``
-    (``STAND_STEP``: a foot shifted a few centimetres slides or pivots on the floor; see
-    :func:`step_lift`). Returns how far the step has gone at each frame (n,), 0 to 1."""
+    it rose from rest in one frame) to ``lift`` at most and ``rise`` (``STEP_RISE``; the lock:
+    :func:`step_rise` of its gap) of the way beyond ``shuffle`` (``STAND_STEP``: a foot shifted a
+    few centimetres slides or pivots on the floor; see :func:`step_lift`). Returns how far the step has gone at each frame (n,), 0 to 1."""
     n = len(spot)
     if window is None:
         k = max(0, min(step, n - 2))
@@ -1039,11 +1039,12 @@ def step_lift(k: int, way: float, lift: float, shuffle: float, accel: float = np
 def step_rise(length: int, fps: float) -> float:
     """The share of its way (beyond ``STAND_STEP``) by which a step in a gap of ``length`` new
     frames lifts the foot: ``STEP_RISE``, times the gap's share of ``STEP_RISE_S`` where it is
-    shorter (from A's last frame to B's first, ``(length + 1) / fps`` seconds).
+    shorter (from A's last frame to B's first, ``(length + 1) / fps`` seconds): 0.093 for 6 new
+    frames at 30 fps. No frames or an unknown rate: ``STEP_RISE``.
 
     Real feet hardly rise over short gaps (the table of :func:`step_lift`: over 0.17-0.3 s, a
-    foot planted at both ends rose about a twentieth of its way, at 0.5-1 s a fifth), and a
-    step the lock lifted by a fifth there cost in-betweening its L2P: the knees and feet, held
+    foot planted at both ends rose about a twentieth of its way, at 0.5 s a tenth to a fifth, at
+    1 s about a fifth), and a step the lock lifted by a fifth there cost in-betweening its L2P: the knees and feet, held
     higher than the truth's, carried the lock's whole cost in the vertical (L2P divides a height
     by its small spread). With this, L2P of the default at 0.1 / 0.2 / 0.3 s (seconds scaled by
     the clips' rate; the bench's protocol, 10 context frames each side): bandai1's held-out
@@ -1056,7 +1057,9 @@ def step_rise(length: int, fps: float) -> float:
     whose stances differ more than a gap's, slid their feet at 0.5 s: the skate of 100 seeded
     transitions of 15 frames 2.79 -> 4.52 cm/s (the clips' own windows 2.42); with 0.5 s, at 10
     frames 4.27 -> 5.25 (1.88), at 5 frames 19.1 -> 21.3 (2.56: a foot must reach B's stance in
-    a sixth of a second), from 15 frames the same."""
+    a sixth of a second), from 15 frames the same. So at 0.3 s the lock still lifts twice as
+    high as real feet rise (0.12 of the way), and at 0.5 s as high as the highest medians: a
+    compromise with the feet of transitions between clips, not the truth's medians."""
     if length <= 0 or not np.isfinite(fps) or fps <= 0.0:
         return STEP_RISE
     return STEP_RISE * min(1.0, (length + 1.0) / (fps * STEP_RISE_S))
