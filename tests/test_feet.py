@@ -2048,7 +2048,8 @@ def test_pace_passes_is_the_same_compiled():
         want = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
         seams = rng.normal(0.0, 0.05, (2, 3))  # A's last and B's first ankle
         foot = np.concatenate([seams[:1], gpos[:, ankle], seams[1:]])[:, [(up + 1) % 3, (up + 2) % 3]]
-        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot, rise=rise)
+        feet.pace_passes(*want, gpos[:, ankle, up].copy(), pace, lift, stand, accel, least, carry, foot,
+                         rise=rise)
         got = [held.copy(), weight.copy(), offset.copy(), raised.copy()]
         numba_kernels._pace_passes(*got, gpos, ankle, up, *seams, pace, lift, stand, rise, accel, least, carry)
         for g, w in zip(got, want):

@@ -1231,8 +1231,9 @@ def lock_legs(parents, legs, rots, grot, gpos, up, a_feet, b_feet, body, height_
     through, or without contacts whose motion keeps the ankle under ``lift`` above its floor and
     within ``drift_lo`` legs of the line between them, step one after another
     (:func:`posturemap.synth.feet.stance_windows`), and beyond which a step lifts the foot (by
-    rise times the rest of its way: ``posturemap.synth.feet.step_rise`` of the gap, ``lift`` at most); farthest (length unit): ``STEP_MOST`` of a leg, beyond
-    which a run planted at both seams on spots that far apart is not held; weights (L, n) out.
+    rise times the rest of its way: ``posturemap.synth.feet.step_rise`` of the gap, ``lift`` at
+    most); farthest (length unit): ``STEP_MOST`` of a leg, beyond which a run planted at both
+    seams on spots that far apart is not held; weights (L, n) out.
     A run held on one seam's spot steps where the foot's other end lies farther than
     ``drift_lo * body`` (``lock_weights_and_targets``' reach). a_toes/b_toes (2, n, 3): the toes in
     A's last two and B's first two frames, or an array with no rows for none; a toe planted at a

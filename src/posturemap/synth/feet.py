@@ -610,9 +610,10 @@ def lock_weights_and_targets(h, horiz, a_on, a_spot, b_on, b_spot, floor, height
     with a smoothstep (in place over the step's first and last ``STEP_LAG``, less where that would
     set the foot off faster than ``accel`` per frame squared: :func:`step_lag`) while the foot rises
     by ``lift`` (at most ``rise``, else ``STEP_RISE``, of the step's length beyond ``shuffle``) on a
-    squared sine and comes down on B's spot. The lift (L,) is added to the ankle's height. Where the two spots lie
-    farther apart than ``farthest``, no step of a standing foot makes it (the motion carries
-    the foot there: a body gliding over a standing segment), and the run is not held.
+    squared sine and comes down on B's spot. The lift (L,) is added to the ankle's height. Where
+    the two spots lie farther apart than ``farthest``, no step of a standing foot makes it (the
+    motion carries the foot there: a body gliding over a standing segment), and the run is not
+    held.
     ``window`` ``(k0, k)``, when given: that step over frames ``k0 .. k0 + k - 1`` of the run
     instead (:func:`stance_windows`).
 
@@ -766,7 +767,8 @@ def _step(spot: np.ndarray, raised: np.ndarray, first: np.ndarray, last: np.ndar
     rises on a squared sine over the whole step (no vertical speed at either end; on a half sine
     it rose from rest in one frame) to ``lift`` at most and ``rise`` (``STEP_RISE``; the lock:
     :func:`step_rise` of its gap) of the way beyond ``shuffle`` (``STAND_STEP``: a foot shifted a
-    few centimetres slides or pivots on the floor; see :func:`step_lift`). Returns how far the step has gone at each frame (n,), 0 to 1."""
+    few centimetres slides or pivots on the floor; see :func:`step_lift`). Returns how far the
+    step has gone at each frame (n,), 0 to 1."""
     n = len(spot)
     if window is None:
         k = max(0, min(step, n - 2))
@@ -891,9 +893,10 @@ def pace_passes(held: np.ndarray, weight: np.ndarray, offset: np.ndarray, raised
     to five times the acceleration of a walking ankle (46 cm in six frames at 30 fps, 20 cm in
     five at 60), and a run shortened to a frame or two put the foot down between two such
     passes, a hop. Every stretch that changed lifts the foot as a step of the lock does
-    (:func:`step_lift`: ``lift`` at most, ``rise`` (else ``STEP_RISE``) of the way beyond ``shuffle``, on a squared sine
-    within ``accel``) less what the motion lifts it already; the way is the foot's own between
-    the two held frames, ``foot`` (L + 2, k: the motion's foot, as ``offset`` lies, in A's last
+    (:func:`step_lift`: ``lift`` at most, ``rise`` (else ``STEP_RISE``) of the way beyond
+    ``shuffle``, on a squared sine within ``accel``) less what the motion lifts it already; the
+    way is the foot's own between the two held frames, ``foot`` (L + 2, k: the motion's foot, as
+    ``offset`` lies, in A's last
     frame, the new ones and B's first) with the offsets, where given and the stretch no longer
     than ``carry`` frames (a longer one follows
     the motion's own foot after those: lifted over the whole of it, a foot the motion glided
@@ -1044,9 +1047,10 @@ def step_rise(length: int, fps: float) -> float:
 
     Real feet hardly rise over short gaps (the table of :func:`step_lift`: over 0.17-0.3 s, a
     foot planted at both ends rose about a twentieth of its way, at 0.5 s a tenth to a fifth, at
-    1 s about a fifth), and a step the lock lifted by a fifth there cost in-betweening its L2P: the knees and feet, held
-    higher than the truth's, carried the lock's whole cost in the vertical (L2P divides a height
-    by its small spread). With this, L2P of the default at 0.1 / 0.2 / 0.3 s (seconds scaled by
+    1 s about a fifth), and a step the lock lifted by a fifth there cost in-betweening its L2P:
+    the knees and feet, held higher than the truth's, carried the lock's whole cost in the
+    vertical (L2P divides a height by its small spread). With this, L2P of the default at 0.1 /
+    0.2 / 0.3 s (seconds scaled by
     the clips' rate; the bench's protocol, 10 context frames each side): bandai1's held-out
     styles 0.1053 / 0.2759 / 0.4216 -> 0.1022 / 0.2547 / 0.4191, held-out contents 0.1587 / 0.3994
     / 0.6474 -> 0.1555 / 0.3726 / 0.6424, LaFAN1's subject 5 at 60 fps 0.1220 / 0.3615 / 0.6155 ->
