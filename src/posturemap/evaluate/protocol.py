@@ -200,9 +200,14 @@ def load_split(name: str, data_dir: Path, settings: Settings) -> Split:
                  LENGTHS if name in HOLDOUTS else SPLIT_LENGTHS, cm, unit, len(train_f))
 
 
+def _as_long(frames_30, fps: float) -> tuple:
+    """Frame counts at 30 fps as long at ``fps`` (at least one frame each), in their order."""
+    return tuple(max(1, round(n * fps / 30.0)) for n in frames_30)
+
+
 def own_lengths(fps: float) -> tuple:
     """The bench's gaps, :data:`OWN_LENGTHS_30` frames at 30 fps, as long at ``fps`` (at least one frame)."""
-    return tuple(sorted({max(1, round(n * fps / 30.0)) for n in OWN_LENGTHS_30}))
+    return tuple(sorted(set(_as_long(OWN_LENGTHS_30, fps))))
 
 
 def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=None) -> Split:
@@ -263,7 +268,7 @@ def load_own(train_inputs: list[str], test_inputs: list[str], lengths=None, log=
         raise UserError(train_paths[0], f"no training clip is longer than {STATS_WINDOW} frames (the windows "
                                         "L2P's statistics are taken over)")
     cm, unit = unit_cm(test[0])
-    criteria = tuple(max(1, round(n * fps / 30.0)) for n in (15, 30, 45))
+    criteria = _as_long((15, 30, 45), fps)
     rule = (f"training = {len(train)} clips of {', '.join(train_inputs)}; "
             f"test = {len(test)} clips of {', '.join(test_inputs)}")
     return Split(OWN, rule, train, list(train_paths), test, list(test_paths), kinds, lengths, cm, unit, len(train),
