@@ -1484,14 +1484,39 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
     assert ramped.confidence[0] == flat.confidence[0] > 0
     assert flat.confidence[1] > 0
     assert ramped.confidence[1] == pytest.approx(flat.confidence[1] * retrieval.upper_weight(12, tr.motion.fps))
-    # 6 frames (0.23 s): the arms are the spline's, frame for frame; the legs are retrieved.
+    # 6 frames (0.23 s): the arms and the spine below its first joint are the spline's, frame for
+    # frame; the legs are retrieved.
     kw = dict(length=6, a_end=40, b_start=47, align=False, foot_lock=False)
     r = engine.generate(HELD_OUT[0], HELD_OUT[0], method="retrieval", **kw)[0].copy()
     assert engine.last["retrieval"]["parts"]["upper"]["confidence"] == 0.0
     assert engine.last["retrieval"]["parts"]["lower"]["confidence"] > 0.0
     spline = engine.generate(HELD_OUT[0], HELD_OUT[0], method="spline", **kw)[0]
-    np.testing.assert_array_equal(r[:, rt.upper_mask], spline[:, rt.upper_mask])
+    below = rt.upper_mask.copy()
+    below[rt.upper_tops] = False
+    assert below.any() and len(rt.upper_tops)
+    np.testing.assert_array_equal(r[:, below], spline[:, below])
     assert not np.allclose(r[:, rt.lower_mask], spline[:, rt.lower_mask], atol=1e-3)
+    # The spine's first joint: the spline's chest over the retrieved pelvis, turned with it about
+    # up only (engine._fallback_chest): in the world it differs from the spline's chest by a turn
+    # about the up axis, though the two pelvises differ by more (a tilt).
+    up = np.zeros(3)
+    up[engine._up] = 1.0
+    pelvis = engine._chain.tolist() + [engine._root]  # the joints above the root, then the root
+
+    def world(rots, joints):  # the last joint's rotation in the world, down the chain
+        q = rots[:, joints[0]]
+        for k in joints[1:]:
+            q = quat.mul(q, rots[:, k])
+        return q
+
+    def tilt_between(a, b):  # the angle from b to a once any turn about up is taken out
+        swing, _ = quat.swing_twist(quat.mul(a, quat.inv(b)), up)
+        return 2 * np.arccos(np.clip(np.abs(swing[..., 0]), 0.0, 1.0))
+
+    assert tilt_between(world(r, pelvis), world(spline, pelvis)).max() > np.radians(1.0)
+    for t in rt.upper_tops.tolist():
+        np.testing.assert_allclose(tilt_between(world(r, pelvis + [t]), world(spline, pelvis + [t])), 0.0, atol=1e-6)
+        assert not np.allclose(r[:, t], spline[:, t], atol=1e-3)  # not the spline's local rotation
 
 
 def test_compiled_search_matches_the_numpy_steps(engine, clips):

@@ -941,16 +941,20 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
             if res.confidence[0] < 1.0:
                 heading, went = _blend_root(eng, rots_fb, out_r, heading, res.confidence[0], align)
             kernels.compose_root(eng._chain, eng._root, eng._up, out_r, out_p, res.gpos, heading)
+        upper_fb = rots_fb
+        if res.confidence[0] > 0.0 and res.confidence[1] < 1.0 and len(rt.upper_tops):
+            upper_fb = _fallback_chest(eng, rots_fb, out_r, rt.upper_tops)
         for mask, c in ((rt.lower_mask, res.confidence[0]), (rt.upper_mask, res.confidence[1])):
+            fb = upper_fb if mask is rt.upper_mask else rots_fb
             if c <= 0.0:
-                out_r[:, mask] = rots_fb[:, mask]
+                out_r[:, mask] = fb[:, mask]
             elif c < 1.0:  # no flip where the two pass a half turn apart (kernels.slerp_track)
                 # On the arc that goes on through the frames, every joint moving to whichever of
                 # the two the confidence is nearer where the arc goes past a half turn round.
                 if mask is rt.lower_mask:  # but the root, blended already (_blend_root)
                     mask = rt.legs_mask
                 part = out_r[:, mask]
-                kernels.slerp_track(rots_fb[:, mask], part, c, part, np.ones(part.shape[1], dtype=bool))
+                kernels.slerp_track(fb[:, mask], part, c, part, np.ones(part.shape[1], dtype=bool))
                 out_r[:, mask] = part
         if 0.0 < res.confidence[0] < 1.0:
             r = eng._root
@@ -986,6 +990,41 @@ def _retrieval(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, req:
     if req.foot_lock and eng._legs:
         eng.last["planted"] = eng._lock_feet(ta, tb, req, out_r, out_p, dtheta, shift, contacts)
     return out_r, out_p
+
+
+def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarray, tops: np.ndarray) -> np.ndarray:
+    """``rots_fb`` (the fallback's frames) with the upper body's top joints ``tops`` (the spine's
+    first, :func:`posturemap.core.joints.upper_tops`) turned so that over the root of ``out_r``
+    (the retrieved legs' pelvis, its heading and tilt) the chest leans and turns against the
+    body's heading as the fallback's did over its own pelvis; a copy.
+
+    Where the upper body is (in part) the fallback's and the legs are retrieved (gaps under 0.6 s
+    by :func:`posturemap.synth.retrieval.upper_weight`, or an upper body far from the library),
+    the fallback's spine rotations were made for the fallback's pelvis. Copied as local
+    rotations onto a retrieved pelvis, which tilts and rocks with its own steps, the chest took
+    that rocking too and moved off the seams' course. Now only the turn about the up axis
+    between the two pelvises carries the chest (the body's heading is the retrieved one); at the
+    seams both pelvises are the clips', so nothing changes there.
+
+    Held out (the bench's protocol, windows cut per length; retrieval + foot lock, L2P before ->
+    after): CMU 01_01 at 120 fps, 15 / 30 / 45 frames 0.506 / 0.984 / 1.873 -> 0.449 / 0.908 /
+    1.787 (the spline 0.478 / 1.013 / -); held-out styles at 5 / 15 / 30 / 45 frames 0.201 /
+    0.634 / 1.005 / 1.198 -> 0.194 / 0.621 / 0.994 / 1.189; held-out contents 0.316 / 1.220 /
+    1.795 / 2.087 -> 0.308 / 1.215 / 1.793 / 2.084; LaFAN1 at 60 fps, 10 / 30 frames 0.245 /
+    1.197 -> 0.238 / 1.191. L2Q lower too, the skate unchanged. Keeping the fallback chest's
+    orientation in the world (its heading too) scored up to 1% lower again in in-betweening, but
+    where the retrieved legs turn another way than the fallback's (a transition between clips,
+    B placed by the retrieved motion) the chest would face away from the body.
+    """
+    w_fb, w_out = rots_fb[:, eng._root], out_r[:, eng._root]
+    for j in eng._chain.tolist()[::-1]:  # the joints above the root: the same in both
+        w_fb, w_out = quat.mul(rots_fb[:, j], w_fb), quat.mul(out_r[:, j], w_out)
+    up = np.zeros(3)
+    up[eng._up] = 1.0
+    _, turn = quat.swing_twist(quat.mul(w_out, quat.inv(w_fb)), up)  # pelvis to pelvis, about up
+    out = rots_fb.copy()
+    out[:, tops] = quat.normalize(quat.mul(quat.mul(quat.inv(w_out), quat.mul(turn, w_fb))[:, None], rots_fb[:, tops]))
+    return out
 
 
 def _own_retriever(eng: TransitionEngine, ta: Track, tb: Track, a: str, b: str, a_end: int, b_start: int,
