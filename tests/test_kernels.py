@@ -322,6 +322,34 @@ def test_turn_toward_agrees_and_turns_the_last_joint_only(jit, t):
     np.testing.assert_allclose(quat.angle_between(got, goal), (1 - t) * whole, atol=1e-6)
 
 
+@pytest.mark.parametrize("up", [0, 1, 2])
+def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, up):
+    rng = np.random.default_rng(12)
+    n, j_count = 40, 7
+    other, rots = random_quats(rng, (n, j_count)), random_quats(rng, (n, j_count))
+    chain, joints = np.array([0, 2], dtype=np.int64), np.array([3, 5], dtype=np.int64)  # 3 and 5 under 2 under 0
+    outs = []
+    for impl in (kernels.NUMPY, jit):
+        out = np.zeros((n, j_count, 4))
+        impl.chest_turned(chain, up, other, rots, joints, out)
+        outs.append(out)
+    assert np.all(quat.angle_between(outs[0][:, joints], outs[1][:, joints]) < 1e-6)
+    others = np.setdiff1d(np.arange(j_count), joints)
+    assert not outs[0][:, others].any() and not outs[1][:, others].any()  # nothing else written
+
+    def world(r):
+        return quat.mul(r[:, 0], r[:, 2])
+
+    axis = np.zeros(3)
+    axis[up] = 1.0
+    chains = quat.mul(world(rots), quat.inv(world(other)))
+    swing, turn = quat.swing_twist(chains, axis)
+    assert np.median(quat.angle_between(swing, quat.identity())) > 0.5  # the chains differ by more than a turn
+    for j in joints:
+        moved = quat.mul(quat.mul(world(rots), outs[1][:, j]), quat.inv(quat.mul(world(other), other[:, j])))
+        np.testing.assert_allclose(quat.angle_between(moved, turn), 0.0, atol=1e-6)  # the chains' turn about up
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_transitions_agree_across_backends(sample_clips, method):
     a, b = sample_clips["walk"], sample_clips["run"]

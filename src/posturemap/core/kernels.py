@@ -31,7 +31,7 @@ FADE_SPAN = np.radians(90.0)  # slerp_track's fade columns: from a half turn rou
 
 # Per-transition kernels with a numpy version here and a compiled one in numba_kernels.
 HOT = ("log_relative", "exp_relative", "compose_root", "fk", "nearest",
-       "project_to_map", "key_from_blend", "slerp", "slerp_track", "turn_toward", "blend_root")
+       "project_to_map", "key_from_blend", "slerp", "slerp_track", "turn_toward", "blend_root", "chest_turned")
 # Training kernels: compiled only (a numpy UPM epoch would be hundreds of times slower).
 COMPILED_ONLY = ("upm_epoch", "two_nearest", "nearest_sample_dist", "sqdist", "move")
 
@@ -215,6 +215,22 @@ def turn_toward(chain, rots, other, t):
         up_own, up_other = quat.mul(up_own, rots[:, c]), quat.mul(up_other, other[:, c])
     own = quat.mul(up_own, rots[:, j])
     rots[:, j] = quat.mul(quat.inv(up_own), quat.slerp(own, quat.mul(up_other, other[:, j]), t))
+
+
+def chest_turned(chain, up, other, rots, joints, out):
+    """``out[:, joints]``: the joints ``joints`` of ``other (N, J, 4)`` (children of the last joint
+    of ``chain``) put under the chain of ``rots (N, J, 4)`` so that they differ in the world from
+    ``other``'s only by the turn about axis ``up`` (0, 1, 2) between the two chains' last joints
+    (the swing-twist twist of the rotation from ``other``'s to ``rots``'s); ``chain`` top first,
+    the top without a parent. Nothing else of ``out (N, J, 4)`` is written."""
+    w_other, w_rots = other[:, chain[0]], rots[:, chain[0]]
+    for c in chain[1:]:
+        w_other, w_rots = quat.mul(w_other, other[:, c]), quat.mul(w_rots, rots[:, c])
+    axis = np.zeros(3)
+    axis[up] = 1.0
+    _, turn = quat.swing_twist(quat.mul(w_rots, quat.inv(w_other)), axis)
+    onto = quat.mul(quat.inv(w_rots), quat.mul(turn, w_other))
+    out[:, joints] = quat.normalize(quat.mul(onto[:, None], other[:, joints]))
 
 
 def fk(parents, rots, positions, grot, gpos):

@@ -1693,6 +1693,37 @@ def turn_toward(chain, rots, other, t):
 
 
 @nb.njit(**_OPTS)
+def chest_turned(chain, up, other, rots, joints, out):
+    """``out[:, joints]``: ``other``'s joints under ``rots``'s chain, differing from ``other``'s in
+    the world by the two chains' turn about ``up`` only (:func:`posturemap.core.kernels.chest_turned`,
+    the reference)."""
+    k = chain.shape[0]
+    for n in range(rots.shape[0]):
+        c = chain[0]
+        a = (other[n, c, 0], other[n, c, 1], other[n, c, 2], other[n, c, 3])
+        b = (rots[n, c, 0], rots[n, c, 1], rots[n, c, 2], rots[n, c, 3])
+        for i in range(1, k):
+            c = chain[i]
+            a = _mul(a[0], a[1], a[2], a[3], other[n, c, 0], other[n, c, 1], other[n, c, 2], other[n, c, 3])
+            b = _mul(b[0], b[1], b[2], b[3], rots[n, c, 0], rots[n, c, 1], rots[n, c, 2], rots[n, c, 3])
+        d = _mul(b[0], b[1], b[2], b[3], a[0], -a[1], -a[2], -a[3])  # other's chain to rots's, in the world
+        w, v = d[0], d[1 + up]
+        norm = np.sqrt(w * w + v * v)
+        if norm > 1e-12:
+            w, v = w / norm, v / norm
+        else:
+            w, v = 1.0, 0.0
+        t1, t2, t3 = (v if up == 0 else 0.0), (v if up == 1 else 0.0), (v if up == 2 else 0.0)
+        q = _mul(w, t1, t2, t3, a[0], a[1], a[2], a[3])  # the turn, then other's chain
+        q = _mul(b[0], -b[1], -b[2], -b[3], q[0], q[1], q[2], q[3])  # under rots's chain
+        for i in range(joints.shape[0]):
+            j = joints[i]
+            r = _mul(q[0], q[1], q[2], q[3], other[n, j, 0], other[n, j, 1], other[n, j, 2], other[n, j, 3])
+            s = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3])
+            out[n, j, 0], out[n, j, 1], out[n, j, 2], out[n, j, 3] = r[0] / s, r[1] / s, r[2] / s, r[3] / s
+
+
+@nb.njit(**_OPTS)
 def _group_energy(rows, c0, c1, step):
     """The mean squared velocity and acceleration of the columns ``c0:c1`` of ``rows`` (summed
     over the columns; 0, 0 with fewer than 3 samples): :func:`posturemap.synth.bases.damped_time_scales`'s."""

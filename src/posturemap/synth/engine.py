@@ -1016,14 +1016,8 @@ def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarra
     where the retrieved legs turn another way than the fallback's (a transition between clips,
     B placed by the retrieved motion) the chest would face away from the body.
     """
-    w_fb, w_out = rots_fb[:, eng._root], out_r[:, eng._root]
-    for j in eng._chain.tolist()[::-1]:  # the joints above the root: the same in both
-        w_fb, w_out = quat.mul(rots_fb[:, j], w_fb), quat.mul(out_r[:, j], w_out)
-    up = np.zeros(3)
-    up[eng._up] = 1.0
-    _, turn = quat.swing_twist(quat.mul(w_out, quat.inv(w_fb)), up)  # pelvis to pelvis, about up
     out = rots_fb.copy()
-    out[:, tops] = quat.normalize(quat.mul(quat.mul(quat.inv(w_out), quat.mul(turn, w_fb))[:, None], rots_fb[:, tops]))
+    kernels.chest_turned(np.append(eng._chain, eng._root), eng._up, rots_fb, out_r, tops, out)
     return out
 
 
