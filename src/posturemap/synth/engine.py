@@ -13,11 +13,12 @@ real motion:
 
 ``auto`` (default)
     ``retrieval`` at every gap length (the spline took gaps under 0.25 s until held-out gaps of
-    1-7 frames at 30 fps, 2-14 at 60 and 4-28 at 120 showed retrieval ahead there too in L2P on
-    bandai1 and in L2Q on CMU at 120 fps; with the foot lock, its L2P stays up to 7% behind the
-    spline's (without it, as the bench runs it) on CMU at 5-15 frames and on LaFAN1 at 60 fps at
-    10, the held-out contents' 1% at 5; the name stays the default's, whatever ``posturemap
-    bench`` finds best).
+    1-7 frames at 30 fps, 2-14 at 60 and 4-28 at 120 showed retrieval ahead there too, both with
+    the foot lock, in L2P but on CMU at 4 frames (4% behind) and in L2Q but on LaFAN1 at 60 fps
+    at 4-6 frames (2% behind); against the spline without the lock (as the bench runs it) the
+    lock's cost on the shortest gaps leaves its L2P behind on CMU at 5 frames (3%) and on LaFAN1
+    at 60 fps at 0.1-0.17 s (4-19%); the name stays the default's, whatever ``posturemap bench``
+    finds best).
 ``retrieval``
     Real motion from the map's motion library, found through the map's index, replayed between
     the seams with smooth seam corrections and its planted feet kept planted, falling back by
