@@ -209,6 +209,35 @@ def test_cli_transition_warns_of_a_seam_frame_that_is_a_glitch(sample_clips, tmp
         assert steps.max() < 30.0, steps
 
 
+def test_cli_transition_reads_and_steadies_one_file_once_and_warns_of_both_seams(sample_clips, tmp_path, capsys,
+                                                                                  monkeypatch):
+    # A and B from one file (a loop from a take's end back to its start, a gap in a take): it
+    # was read twice and steadied once for each seam.
+    from posturemap.core import glitches, quat
+    from posturemap.core.motion import Motion
+
+    run_ = sample_clips["run"]
+    rots = run_.rotations.copy()
+    j, last = 5, len(run_) - 1
+    for f, beside in ((0, 1), (last, last - 1)):  # B's first frame and A's last, each a glitch
+        rots[f, j] = quat.mul(quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(2.4)), rots[beside, j])
+    take = tmp_path / "take.bvh"
+    bvh.write(take, Motion(run_.skeleton, rots, run_.positions, run_.fps))
+    reads, steadied = [], []
+    real_read, real_steady = bvh.read, glitches.steady_motion
+    monkeypatch.setattr(bvh, "read", lambda path: reads.append(path) or real_read(path))
+    monkeypatch.setattr(glitches, "steady_motion", lambda m: steadied.append(m) or real_steady(m))
+    out = tmp_path / "loop.bvh"
+    assert cli.main(["transition", str(take), str(take), "-o", str(out), "--method", "spline", "--length", "10"]) == 0
+    assert len(reads) == 1 and len(steadied) == 1
+    err = capsys.readouterr().err
+    name = run_.skeleton.names[j]
+    assert f"{take}: its last frame is a glitch at {name}" in err, err
+    assert f"{take}: its frame 0 is a glitch at {name}" in err, err
+    monkeypatch.undo()
+    assert len(bvh.read(str(out))) == 2 * len(run_) + 10
+
+
 def test_cli_transition_writes_both_outputs_or_neither(sample_clips, tmp_path, capsys, monkeypatch):
     # The output was written before the filmstrip was drawn: a filmstrip that could not be
     # written (an immutable folder, a full disk) left the output behind with exit code 2.

@@ -225,7 +225,8 @@ def _cmd_transition(args) -> int:
         if not args.preview.lower().endswith(".png"):
             raise UserError(args.preview, "a preview file name must end in .png")
         _check_output(args.preview, [args.a, args.b])
-    a, b = bvh.read(args.a), bvh.read(args.b)
+    a = bvh.read(args.a)
+    b = a if _same_file(args.a, args.b) else bvh.read(args.b)  # a take: read and steadied once
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} ({b.skeleton.difference(a.skeleton, 'its')})")
     why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
@@ -345,10 +346,13 @@ def _warn_seam_glitches(seams) -> None:
     reference pose, a solver's flip): the new frames start from (land on) the frame as given, at
     the velocity of the frames beside it, so that they turn into it over the gap
     (:func:`posturemap.synth.trajectory.seam_view`)."""
-    from .core.glitches import changed_joint
+    from .core.glitches import changed_joint, steady_motion
 
+    steadied = {}  # one clip read once for A and B (a gap in a take) is steadied once
     for path, clip, frame, what, way_out in seams:
-        found = changed_joint(clip, frame)
+        if id(clip) not in steadied:
+            steadied[id(clip)] = steady_motion(clip)
+        found = changed_joint(clip, frame, steadied[id(clip)])
         if found is not None:
             j, angle = found
             print(f"posturemap: warning: {path}: {what} is a glitch at {clip.skeleton.names[j]} "

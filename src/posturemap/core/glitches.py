@@ -234,11 +234,11 @@ def steady_motion(motion: Motion) -> Motion:
     return Motion(motion.skeleton, rots, motion.positions.copy(), motion.fps, None)
 
 
-def changed_joint(motion: Motion, frame: int) -> tuple[int, float] | None:
+def changed_joint(motion: Motion, frame: int, steady: Motion | None = None) -> tuple[int, float] | None:
     """Where :func:`steady_motion` moves frame ``frame`` of ``motion`` by more than the glitch
     bound (:func:`glitch_turn`): ``(joint, angle in radians)`` of the joint it moves the most, or
-    None."""
-    rots = steady_motion(motion).rotations
+    None. ``steady``: ``steady_motion(motion)`` where already made (two seams of one take)."""
+    rots = (steady if steady is not None else steady_motion(motion)).rotations
     if rots is motion.rotations:
         return None
     moved = quat.angle_between(rots[frame], motion.rotations[frame])
