@@ -323,11 +323,13 @@ def test_turn_toward_agrees_and_turns_the_last_joint_only(jit, t):
 
 
 @pytest.mark.parametrize("up", [0, 1, 2])
-def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, up):
+@pytest.mark.parametrize("above", [[0], []])
+def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, up, above):
     rng = np.random.default_rng(12)
     n, j_count = 40, 7
     other, rots = random_quats(rng, (n, j_count)), random_quats(rng, (n, j_count))
-    chain, joints = np.array([0, 2], dtype=np.int64), np.array([3, 5], dtype=np.int64)  # 3 and 5 under 2 under 0
+    # 3 and 5 under the root 2, itself under 0 (Bandai's joint_Root) or a top joint (CMU's Hips)
+    chain, joints = np.array(above + [2], dtype=np.int64), np.array([3, 5], dtype=np.int64)
     outs = []
     for impl in (kernels.NUMPY, jit):
         out = np.zeros((n, j_count, 4))
@@ -338,7 +340,7 @@ def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, 
     assert not outs[0][:, others].any() and not outs[1][:, others].any()  # nothing else written
 
     def world(r):
-        return quat.mul(r[:, 0], r[:, 2])
+        return quat.mul(r[:, 0], r[:, 2]) if above else r[:, 2]
 
     axis = np.zeros(3)
     axis[up] = 1.0

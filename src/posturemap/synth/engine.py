@@ -1004,18 +1004,20 @@ def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarra
     the fallback's spine rotations were made for the fallback's pelvis. Copied as local
     rotations onto a retrieved pelvis, which tilts and rocks with its own steps, the chest took
     that rocking too and moved off the seams' course. Now only the turn about the up axis
-    between the two pelvises carries the chest (the body's heading is the retrieved one); at the
-    seams both pelvises are the clips', so nothing changes there.
+    between the two pelvises carries the chest (the swing-twist twist of the rotation from one to
+    the other: their change of heading, within a part of a degree for tilts under 10 degrees); at
+    the seams both pelvises are the clips', so nothing changes there.
 
-    Held out (the bench's protocol, windows cut per length; retrieval + foot lock, L2P before ->
-    after): CMU 01_01 at 120 fps, 15 / 30 / 45 frames 0.506 / 0.984 / 1.873 -> 0.449 / 0.908 /
-    1.787 (the spline 0.478 / 1.013 / -); held-out styles at 5 / 15 / 30 / 45 frames 0.201 /
-    0.634 / 1.005 / 1.198 -> 0.194 / 0.621 / 0.994 / 1.189; held-out contents 0.316 / 1.220 /
-    1.795 / 2.087 -> 0.308 / 1.215 / 1.793 / 2.084; LaFAN1 at 60 fps, 10 / 30 frames 0.245 /
-    1.197 -> 0.238 / 1.191. L2Q lower too, the skate unchanged. Keeping the fallback chest's
-    orientation in the world (its heading too) scored up to 1% lower again in in-betweening, but
-    where the retrieved legs turn another way than the fallback's (a transition between clips,
-    B placed by the retrieved motion) the chest would face away from the body.
+    Held out (the bench's protocol but windows cut per length, so not ``docs/results.md``'s
+    figures; retrieval + foot lock, L2P before -> after): CMU 01_01 at 120 fps, 15 / 30 / 45
+    frames 0.506 / 0.984 / 1.873 -> 0.449 / 0.908 / 1.787 (the spline 0.478 / 1.013 / -);
+    held-out styles at 5 / 15 / 30 / 45 frames 0.201 / 0.634 / 1.005 / 1.198 -> 0.194 / 0.621 /
+    0.994 / 1.189; held-out contents 0.316 / 1.220 / 1.795 / 2.087 -> 0.308 / 1.215 / 1.793 /
+    2.084; LaFAN1 at 60 fps, 10 / 30 frames 0.245 / 1.197 -> 0.238 / 1.191. L2Q lower too, the
+    skate unchanged. Keeping the fallback chest's orientation in the world (its heading too)
+    scored up to 1% lower again in in-betweening, but where the retrieved legs turn another way
+    than the fallback's (a transition between clips, B placed by the retrieved motion) the chest
+    would face away from the body.
     """
     out = rots_fb.copy()
     kernels.chest_turned(np.append(eng._chain, eng._root), eng._up, rots_fb, out_r, tops, out)

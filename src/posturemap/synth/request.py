@@ -37,8 +37,8 @@ class Method:
 # Every method, in the order they are offered. The engine has one implementation per name.
 METHOD_INFO = {
     "auto": Method("the default: retrieval at every gap length (held out, ahead of the spline on short gaps too, "
-                   "but for L2P at 60-120 fps under 0.2 s, where the foot lock costs: up to 19% behind the "
-                   "spline without it); the name stays what `posturemap bench` finds best", keyed=True),
+                   "but on the shortest at 60-120 fps, 0.03-0.17 s, where its foot lock costs L2P: up to 19% "
+                   "behind the spline without it); the name stays what `posturemap bench` finds best", keyed=True),
     "retrieval": Method("real motion from the map's library (between clips, A's continuation spliced into B's "
                         "arrival when no one segment fits), seams blended, feet planted", keyed=True),
     "upm": Method("the paper's key posture from the four class maps, through a B-spline", keyed=True, key_at=True),
