@@ -212,7 +212,7 @@ def test_cli_transition_warns_of_a_seam_frame_that_is_a_glitch(sample_clips, tmp
 def test_cli_transition_reads_and_steadies_one_file_once_and_warns_of_both_seams(sample_clips, tmp_path, capsys,
                                                                                   monkeypatch):
     # A and B from one file (a loop from a take's end back to its start, a gap in a take): it
-    # was read twice and steadied once for each seam.
+    # used to be read twice and steadied once for each seam's warning; now once each.
     from posturemap.core import glitches, quat
     from posturemap.core.motion import Motion
 
