@@ -324,7 +324,8 @@ def test_turn_toward_agrees_and_turns_the_last_joint_only(jit, t):
 
 @pytest.mark.parametrize("up", [0, 1, 2])
 @pytest.mark.parametrize("above", [[0], []])
-def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, up, above):
+@pytest.mark.parametrize("free", [0.0, 0.7, np.pi])
+def test_chest_turned_agrees_and_differs_from_the_other_by_the_turn_about_up_beyond_free(jit, up, above, free):
     rng = np.random.default_rng(12)
     n, j_count = 40, 7
     other, rots = random_quats(rng, (n, j_count)), random_quats(rng, (n, j_count))
@@ -333,7 +334,7 @@ def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, 
     outs = []
     for impl in (kernels.NUMPY, jit):
         out = np.zeros((n, j_count, 4))
-        impl.chest_turned(chain, up, other, rots, joints, out)
+        impl.chest_turned(chain, up, other, rots, joints, free, out)
         outs.append(out)
     assert np.all(quat.angle_between(outs[0][:, joints], outs[1][:, joints]) < 1e-6)
     others = np.setdiff1d(np.arange(j_count), joints)
@@ -344,12 +345,18 @@ def test_chest_turned_agrees_and_differs_from_the_other_by_a_turn_about_up(jit, 
 
     axis = np.zeros(3)
     axis[up] = 1.0
-    chains = quat.mul(world(rots), quat.inv(world(other)))
-    swing, turn = quat.swing_twist(chains, axis)
+    swing, twist = quat.swing_twist(quat.mul(world(rots), quat.inv(world(other))), axis)
     assert np.median(quat.angle_between(swing, quat.identity())) > 0.5  # the chains differ by more than a turn
+    theta = 2.0 * np.arctan2(twist[:, 1:] @ axis, twist[:, 0])  # the chains' turn about up, in [-pi, pi]
+    theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
+    within = np.abs(theta) <= free
+    assert within.sum() < n or free == np.pi
+    assert within.any() or free == 0.0
+    turn = quat.from_axis_angle(np.broadcast_to(axis, (n, 3)), theta - np.clip(theta, -free, free))
     for j in joints:
         moved = quat.mul(quat.mul(world(rots), outs[1][:, j]), quat.inv(quat.mul(world(other), other[:, j])))
-        np.testing.assert_allclose(quat.angle_between(moved, turn), 0.0, atol=1e-6)  # the chains' turn about up
+        np.testing.assert_allclose(quat.angle_between(moved, turn), 0.0, atol=1e-6)  # the turn beyond free
+        np.testing.assert_allclose(quat.angle_between(moved[within], quat.identity()), 0.0, atol=1e-6)
 
 
 @pytest.mark.parametrize("method", METHODS)

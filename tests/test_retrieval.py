@@ -1490,15 +1490,15 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
     r = engine.generate(HELD_OUT[0], HELD_OUT[0], method="retrieval", **kw)[0].copy()
     assert engine.last["retrieval"]["parts"]["upper"]["confidence"] == 0.0
     assert engine.last["retrieval"]["parts"]["lower"]["confidence"] > 0.0
-    spline = engine.generate(HELD_OUT[0], HELD_OUT[0], method="spline", **kw)[0]
+    spline = engine.generate(HELD_OUT[0], HELD_OUT[0], method="spline", **kw)[0].copy()  # a buffer, reused
     below = rt.upper_mask.copy()
     below[rt.upper_tops] = False
     assert below.any() and len(rt.upper_tops)
     np.testing.assert_array_equal(r[:, below], spline[:, below])
     assert not np.allclose(r[:, rt.lower_mask], spline[:, rt.lower_mask], atol=1e-3)
-    # The spine's first joint: the spline's chest over the retrieved pelvis, turned with it about
-    # up only (engine._fallback_chest): in the world it differs from the spline's chest by the
-    # pelvises' turn about the up axis, though the two pelvises differ by more (a tilt).
+    # The spine's first joint: the spline's chest over the retrieved pelvis (engine._fallback_chest),
+    # in the world the spline's chest turned about up by the pelvises' turn beyond CHEST_FREE_DEG,
+    # though the two pelvises differ by more (a tilt).
     up = np.zeros(3)
     up[engine._up] = 1.0
     pelvis = engine._chain.tolist() + [engine._root]  # the joints above the root, then the root
@@ -1514,12 +1514,23 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
         return 2 * np.arccos(np.clip(np.abs(swing[..., 0]), 0.0, 1.0))
 
     assert tilt_between(world(r, pelvis), world(spline, pelvis)).max() > np.radians(1.0)
-    _, turn = quat.swing_twist(quat.mul(world(r, pelvis), quat.inv(world(spline, pelvis))), up)
-    assert quat.angle_between(turn, quat.identity()).max() > np.radians(0.5)  # the pelvises turn apart too
-    for t in rt.upper_tops.tolist():
-        chest = quat.mul(world(r, pelvis + [t]), quat.inv(world(spline, pelvis + [t])))
-        np.testing.assert_allclose(quat.angle_between(chest, turn), 0.0, atol=1e-6)  # by the pelvises' turn
-        assert not np.allclose(r[:, t], spline[:, t], atol=1e-3)  # not the spline's local rotation
+    _, twist = quat.swing_twist(quat.mul(world(r, pelvis), quat.inv(world(spline, pelvis))), up)
+    theta = 2.0 * np.arctan2(twist[:, 1:] @ up, twist[:, 0])
+    assert np.abs(theta).max() > np.radians(0.5)  # the pelvises turn apart too
+    for free in (retrieval.CHEST_FREE_DEG, 0.0):  # as made, then turning with the pelvis in full
+        with monkeypatch.context() as m:
+            m.setattr(retrieval, "CHEST_FREE_DEG", free)
+            got = engine.generate(HELD_OUT[0], HELD_OUT[0], method="retrieval", **kw)[0].copy()
+        np.testing.assert_array_equal(got[:, ~np.isin(np.arange(got.shape[1]), rt.upper_tops)],
+                                      r[:, ~np.isin(np.arange(r.shape[1]), rt.upper_tops)])
+        bound = np.radians(free)
+        turn = quat.from_axis_angle(np.broadcast_to(up, (len(theta), 3)), theta - np.clip(theta, -bound, bound))
+        for t in rt.upper_tops.tolist():
+            chest = quat.mul(world(got, pelvis + [t]), quat.inv(world(spline, pelvis + [t])))
+            np.testing.assert_allclose(quat.angle_between(chest, turn), 0.0, atol=1e-6)
+            if free == 0.0:
+                assert not np.allclose(got[:, t], r[:, t], atol=1e-4)  # the full turn is another chest
+                assert not np.allclose(got[:, t], spline[:, t], atol=1e-3)  # not the spline's local rotation
 
 
 def test_compiled_search_matches_the_numpy_steps(engine, clips):

@@ -1693,10 +1693,10 @@ def turn_toward(chain, rots, other, t):
 
 
 @nb.njit(**_OPTS)
-def chest_turned(chain, up, other, rots, joints, out):
+def chest_turned(chain, up, other, rots, joints, free, out):
     """``out[:, joints]``: ``other``'s joints under ``rots``'s chain, differing from ``other``'s in
-    the world by the two chains' turn about ``up`` only (:func:`posturemap.core.kernels.chest_turned`,
-    the reference)."""
+    the world by the two chains' turn about ``up`` beyond ``free`` radians only
+    (:func:`posturemap.core.kernels.chest_turned`, the reference)."""
     k = chain.shape[0]
     for n in range(rots.shape[0]):
         c = chain[0]
@@ -1707,12 +1707,10 @@ def chest_turned(chain, up, other, rots, joints, out):
             a = _mul(a[0], a[1], a[2], a[3], other[n, c, 0], other[n, c, 1], other[n, c, 2], other[n, c, 3])
             b = _mul(b[0], b[1], b[2], b[3], rots[n, c, 0], rots[n, c, 1], rots[n, c, 2], rots[n, c, 3])
         d = _mul(b[0], b[1], b[2], b[3], a[0], -a[1], -a[2], -a[3])  # other's chain to rots's, in the world
-        w, v = d[0], d[1 + up]
-        norm = np.sqrt(w * w + v * v)
-        if norm > 1e-12:
-            w, v = w / norm, v / norm
-        else:
-            w, v = 1.0, 0.0
+        theta = 2.0 * np.arctan2(d[1 + up], d[0])  # its turn about up
+        theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
+        half = 0.5 * (theta - min(max(theta, -free), free))  # beyond free
+        w, v = np.cos(half), np.sin(half)
         t1, t2, t3 = (v if up == 0 else 0.0), (v if up == 1 else 0.0), (v if up == 2 else 0.0)
         q = _mul(w, t1, t2, t3, a[0], a[1], a[2], a[3])  # the turn, then other's chain
         q = _mul(b[0], -b[1], -b[2], -b[3], q[0], q[1], q[2], q[3])  # under rots's chain
