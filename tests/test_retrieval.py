@@ -1497,8 +1497,8 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
     np.testing.assert_array_equal(r[:, below], spline[:, below])
     assert not np.allclose(r[:, rt.lower_mask], spline[:, rt.lower_mask], atol=1e-3)
     # The spine's first joint: the spline's chest over the retrieved pelvis (engine._fallback_chest),
-    # in the world the spline's chest turned about up by the pelvises' turn beyond CHEST_FREE_DEG,
-    # though the two pelvises differ by more (a tilt).
+    # in the world the spline's chest turned about up by the pelvises' turn beyond CHEST_FREE_DEG
+    # (smoothly: theta - free tanh(theta / free)), though the two pelvises differ by more (a tilt).
     up = np.zeros(3)
     up[engine._up] = 1.0
     pelvis = engine._chain.tolist() + [engine._root]  # the joints above the root, then the root
@@ -1524,13 +1524,25 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
         np.testing.assert_array_equal(got[:, ~np.isin(np.arange(got.shape[1]), rt.upper_tops)],
                                       r[:, ~np.isin(np.arange(r.shape[1]), rt.upper_tops)])
         bound = np.radians(free)
-        turn = quat.from_axis_angle(np.broadcast_to(up, (len(theta), 3)), theta - np.clip(theta, -bound, bound))
+        beyond = theta - bound * np.tanh(theta / bound) if bound > 0.0 else theta
+        turn = quat.from_axis_angle(np.broadcast_to(up, (len(theta), 3)), beyond)
         for t in rt.upper_tops.tolist():
             chest = quat.mul(world(got, pelvis + [t]), quat.inv(world(spline, pelvis + [t])))
             np.testing.assert_allclose(quat.angle_between(chest, turn), 0.0, atol=1e-6)
             if free == 0.0:
                 assert not np.allclose(got[:, t], r[:, t], atol=1e-4)  # the full turn is another chest
                 assert not np.allclose(got[:, t], spline[:, t], atol=1e-3)  # not the spline's local rotation
+    # Between clips (B placed by the retrieved motion, the fallback's B placed by its own) the
+    # chest turns with the pelvis in full: the bound is not used there.
+    between = dict(kw, align=True)
+    outs = []
+    for free in (retrieval.CHEST_FREE_DEG, 0.0):
+        with monkeypatch.context() as m:
+            m.setattr(retrieval, "CHEST_FREE_DEG", free)
+            outs.append(engine.generate(HELD_OUT[0], HELD_OUT[0], method="retrieval", **between)[0].copy())
+        assert engine.last["retrieval"]["parts"]["upper"]["confidence"] < 1.0
+        assert engine.last["retrieval"]["parts"]["lower"]["confidence"] > 0.0
+    np.testing.assert_array_equal(outs[0], outs[1])
 
 
 def test_compiled_search_matches_the_numpy_steps(engine, clips):

@@ -220,17 +220,18 @@ def turn_toward(chain, rots, other, t):
 def chest_turned(chain, up, other, rots, joints, free, out):
     """``out[:, joints]``: the joints ``joints`` of ``other (N, J, 4)`` (children of the last joint
     of ``chain``) put under the chain of ``rots (N, J, 4)`` so that they differ in the world from
-    ``other``'s only by a turn about axis ``up`` (0, 1, 2): the turn between the two chains' last
-    joints (the swing-twist twist of the rotation from ``other``'s to ``rots``'s, of angle theta
-    in [-pi, pi]) beyond ``free`` radians, ``theta - clip(theta, -free, free)``; none within it.
-    ``chain`` top first, the top without a parent. Nothing else of ``out (N, J, 4)`` is written."""
+    ``other``'s only by a turn about axis ``up`` (0, 1, 2): of the turn between the two chains'
+    last joints (the swing-twist twist of the rotation from ``other``'s to ``rots``'s, of angle
+    theta in [-pi, pi]) what lies beyond ``free`` radians, smoothly, ``theta - free tanh(theta /
+    free)`` (all of it with ``free`` 0). ``chain`` top first, the top without a parent. Nothing
+    else of ``out (N, J, 4)`` is written."""
     w_other, w_rots = other[:, chain[0]], rots[:, chain[0]]
     for c in chain[1:]:
         w_other, w_rots = quat.mul(w_other, other[:, c]), quat.mul(w_rots, rots[:, c])
     d = quat.mul(w_rots, quat.inv(w_other))
     theta = 2.0 * np.arctan2(d[:, 1 + up], d[:, 0])
     theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
-    half = 0.5 * (theta - np.clip(theta, -free, free))
+    half = 0.5 * (theta - free * np.tanh(theta / free)) if free > 0.0 else 0.5 * theta
     turn = np.zeros((len(d), 4))
     turn[:, 0], turn[:, 1 + up] = np.cos(half), np.sin(half)
     onto = quat.mul(quat.inv(w_rots), quat.mul(turn, w_other))

@@ -118,10 +118,10 @@ UPPER_RAMP_S = (0.25, FALLBACK_SHORT[1])  # gap seconds: the upper body the fall
 # pelvis to the upper segments' own, in the heading frame (see lift_upper): 0 keeps them
 # relative to the legs' pelvis, 1 keeps the chest as its own segments carried it.
 UPPER_LIFT = 0.5
-# Where the upper body is the fallback's over retrieved legs, the chest keeps the fallback's
-# heading in the world while the retrieved pelvis turns away from it by up to this (degrees), as
-# a chest holds its course while the pelvis swings with the steps; beyond, it turns with the
-# pelvis by the excess (engine._fallback_chest).
+# Where the upper body is the fallback's over retrieved legs and B stays where it is, the chest
+# turns with the pelvis about the up axis by theta - free tanh(theta / free), free this many
+# degrees: it holds its course while the pelvis swings with the steps, and follows a real turn
+# (engine._fallback_chest; between clips it turns in full).
 CHEST_FREE_DEG = 15.0
 # In-betweening, a segment's path bends with its heading's correction (see bend_paths) in full
 # where that removes at least BEND_GATE[1] of its miss at B, not at all below BEND_GATE[0].
