@@ -349,12 +349,31 @@ def test_chest_turned_agrees_and_differs_from_the_other_by_the_turn_about_up_bey
     assert np.median(quat.angle_between(swing, quat.identity())) > 0.5  # the chains differ by more than a turn
     theta = 2.0 * np.arctan2(twist[:, 1:] @ axis, twist[:, 0])  # the chains' turn about up, in [-pi, pi]
     theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
-    beyond = theta - free * np.tanh(theta / free) if free > 0.0 else theta  # the turn beyond free, smoothly
+    beyond = theta - free * np.tanh(np.sin(theta) / free) if free > 0.0 else theta  # the turn beyond free
     assert np.abs(beyond - theta).max() > (0.1 if free > 0.0 else -1.0)  # free holds some of the turn back
     turn = quat.from_axis_angle(np.broadcast_to(axis, (n, 3)), beyond)
     for j in joints:
         moved = quat.mul(quat.mul(world(rots), outs[1][:, j]), quat.inv(quat.mul(world(other), other[:, j])))
         np.testing.assert_allclose(quat.angle_between(moved, turn), 0.0, atol=1e-6)
+
+
+def test_chest_turned_turns_a_half_turn_either_way_alike(jit):
+    # Pelvises a half turn apart about up, just short of it either way, are one turn: the chest
+    # must come out the same (a bound on theta itself jumped by twice the bound there).
+    free = np.radians(15.0)
+    eps = 1e-6
+    for impl in (kernels.NUMPY, jit):
+        worlds = []
+        for theta in (np.pi - eps, -np.pi + eps):
+            other = np.zeros((1, 2, 4))
+            other[..., 0] = 1.0  # the pelvis and the chest as they are
+            rots = other.copy()
+            rots[0, 0] = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.array(theta))
+            out = other.copy()
+            impl.chest_turned(np.array([0], dtype=np.int64), 1, other, rots, np.array([1], dtype=np.int64), free, out)
+            worlds.append(quat.mul(rots[0, 0], out[0, 1]))
+        assert quat.angle_between(worlds[0], worlds[1]) < 1e-4
+        assert quat.angle_between(worlds[0], quat.identity()) > np.pi - 1e-3  # turned with the pelvis, all of it
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -1498,7 +1498,7 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
     assert not np.allclose(r[:, rt.lower_mask], spline[:, rt.lower_mask], atol=1e-3)
     # The spine's first joint: the spline's chest over the retrieved pelvis (engine._fallback_chest),
     # in the world the spline's chest turned about up by the pelvises' turn beyond CHEST_FREE_DEG
-    # (smoothly: theta - free tanh(theta / free)), though the two pelvises differ by more (a tilt).
+    # (smoothly: theta - free tanh(sin(theta) / free)), though the two pelvises differ by more (a tilt).
     up = np.zeros(3)
     up[engine._up] = 1.0
     pelvis = engine._chain.tolist() + [engine._root]  # the joints above the root, then the root
@@ -1524,7 +1524,7 @@ def test_a_short_gap_takes_the_arms_from_the_spline_and_keeps_the_retrieved_legs
         np.testing.assert_array_equal(got[:, ~np.isin(np.arange(got.shape[1]), rt.upper_tops)],
                                       r[:, ~np.isin(np.arange(r.shape[1]), rt.upper_tops)])
         bound = np.radians(free)
-        beyond = theta - bound * np.tanh(theta / bound) if bound > 0.0 else theta
+        beyond = theta - bound * np.tanh(np.sin(theta) / bound) if bound > 0.0 else theta
         turn = quat.from_axis_angle(np.broadcast_to(up, (len(theta), 3)), beyond)
         for t in rt.upper_tops.tolist():
             chest = quat.mul(world(got, pelvis + [t]), quat.inv(world(spline, pelvis + [t])))

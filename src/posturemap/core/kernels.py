@@ -222,8 +222,8 @@ def chest_turned(chain, up, other, rots, joints, free, out):
     of ``chain``) put under the chain of ``rots (N, J, 4)`` so that they differ in the world from
     ``other``'s only by a turn about axis ``up`` (0, 1, 2): of the turn between the two chains'
     last joints (the swing-twist twist of the rotation from ``other``'s to ``rots``'s, of angle
-    theta in [-pi, pi]) what lies beyond ``free`` radians, smoothly, ``theta - free tanh(theta /
-    free)`` (all of it with ``free`` 0). ``chain`` top first, the top without a parent. Nothing
+    theta in [-pi, pi]) what lies beyond ``free`` radians, smoothly, ``theta - free tanh(sin(theta)
+    / free)`` (all of it with ``free`` 0; the sine makes a half turn either way the same turn). ``chain`` top first, the top without a parent. Nothing
     else of ``out (N, J, 4)`` is written."""
     w_other, w_rots = other[:, chain[0]], rots[:, chain[0]]
     for c in chain[1:]:
@@ -231,7 +231,7 @@ def chest_turned(chain, up, other, rots, joints, free, out):
     d = quat.mul(w_rots, quat.inv(w_other))
     theta = 2.0 * np.arctan2(d[:, 1 + up], d[:, 0])
     theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
-    half = 0.5 * (theta - free * np.tanh(theta / free)) if free > 0.0 else 0.5 * theta
+    half = 0.5 * (theta - free * np.tanh(np.sin(theta) / free)) if free > 0.0 else 0.5 * theta
     turn = np.zeros((len(d), 4))
     turn[:, 0], turn[:, 1 + up] = np.cos(half), np.sin(half)
     onto = quat.mul(quat.inv(w_rots), quat.mul(turn, w_other))

@@ -1709,7 +1709,7 @@ def chest_turned(chain, up, other, rots, joints, free, out):
         d = _mul(b[0], b[1], b[2], b[3], a[0], -a[1], -a[2], -a[3])  # other's chain to rots's, in the world
         theta = 2.0 * np.arctan2(d[1 + up], d[0])  # its turn about up
         theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
-        half = 0.5 * (theta - free * np.tanh(theta / free)) if free > 0.0 else 0.5 * theta  # beyond free
+        half = 0.5 * (theta - free * np.tanh(np.sin(theta) / free)) if free > 0.0 else 0.5 * theta  # beyond free
         w, v = np.cos(half), np.sin(half)
         t1, t2, t3 = (v if up == 0 else 0.0), (v if up == 1 else 0.0), (v if up == 2 else 0.0)
         q = _mul(w, t1, t2, t3, a[0], a[1], a[2], a[3])  # the turn, then other's chain

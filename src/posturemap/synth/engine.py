@@ -1010,8 +1010,10 @@ def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarra
     fallback's lean; its heading turns with the pelvis (the swing-twist twist of the rotation
     from the fallback's pelvis to the retrieved one, theta). Where B stays where it is, both
     pelvises start at A's and end at B's, and a walking pelvis swings about a chest that holds
-    its course: the chest turns by ``theta - free tanh(theta / free)`` only (``free`` = 15
-    degrees: a few degrees of swing hardly turn it, a real turn carries it all but 15 degrees).
+    its course: the chest turns by ``theta - free tanh(sin(theta) / free)`` only (``free`` = 15
+    degrees: a few degrees of swing hardly turn it, a real turn carries it all but 15 degrees; the
+    sine, theta within 15% up to 60 degrees, makes a half turn either way the same turn, so the
+    chest never jumps where the pelvises face apart).
     Between clips the fallback's B is placed by its own alignment, the retrieved one's by the
     retrieved motion; the two pelvises end apart, and a chest held back had to catch up: 14-18
     of 100 of the bench's transitions between clips then had a joint accelerating over 1.5x as

@@ -119,7 +119,7 @@ UPPER_RAMP_S = (0.25, FALLBACK_SHORT[1])  # gap seconds: the upper body the fall
 # relative to the legs' pelvis, 1 keeps the chest as its own segments carried it.
 UPPER_LIFT = 0.5
 # Where the upper body is the fallback's over retrieved legs and B stays where it is, the chest
-# turns with the pelvis about the up axis by theta - free tanh(theta / free), free this many
+# turns with the pelvis about the up axis by theta - free tanh(sin(theta) / free), free this many
 # degrees: it holds its course while the pelvis swings with the steps, and follows a real turn
 # (engine._fallback_chest; between clips it turns in full).
 CHEST_FREE_DEG = 15.0
