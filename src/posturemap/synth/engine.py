@@ -1002,23 +1002,23 @@ def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarra
     (``align``), beyond :data:`~posturemap.synth.retrieval.CHEST_FREE_DEG` where B stays where
     it is; a copy.
 
-    Where the upper body is (in part) the fallback's and the legs are retrieved (gaps under 0.6 s
-    by :func:`posturemap.synth.retrieval.upper_weight`, or an upper body far from the library),
-    the fallback's spine rotations were made for the fallback's pelvis. Copied as local
-    rotations onto a retrieved pelvis, which tilts, rocks and swings about the up axis with its
-    own steps, the chest took all of that too and moved off the seams' course. Now it keeps the
-    fallback's lean; its heading turns with the pelvis (the swing-twist twist of the rotation
-    from the fallback's pelvis to the retrieved one, theta). Where B stays where it is, both
-    pelvises start at A's and end at B's, and a walking pelvis swings about a chest that holds
-    its course: the chest turns by ``theta - free tanh(sin(theta) / free)`` only (``free`` = 15
-    degrees: a few degrees of swing hardly turn it, a real turn carries it all but 15 degrees; the
-    sine, theta within 15% up to 60 degrees, makes a half turn either way the same turn, so the
-    chest never jumps where the pelvises face apart).
+    Where the upper body is (in part) the fallback's and the legs are retrieved (gaps under 0.6
+    s by :func:`posturemap.synth.retrieval.upper_weight`, or an upper body far from the
+    library), the fallback's spine rotations were made for the fallback's pelvis. Copied as
+    local rotations onto a retrieved pelvis, which tilts, rocks and swings about the up axis
+    with its own steps, the chest took all of that too and moved off the seams' course. Now it
+    keeps the fallback's lean; its heading turns with the pelvis (the swing-twist twist of the
+    rotation from the fallback's pelvis to the retrieved one, theta). Where B stays where it is,
+    both pelvises start at A's and end at B's (up to whole turns), and a walking pelvis swings
+    about a chest that holds its course: the chest turns by ``theta - free tanh(sin(theta) /
+    free)`` only (``free`` = 15 degrees: a few degrees of swing hardly turn it, a real turn
+    carries it all but 15 degrees; the sine, theta within 15% up to 60 degrees, makes a half
+    turn either way the same turn, so the chest never jumps where the pelvises face apart).
     Between clips the fallback's B is placed by its own alignment, the retrieved one's by the
     retrieved motion; the two pelvises end apart, and a chest held back had to catch up: 14-18
     of 100 of the bench's transitions between clips then had a joint accelerating over 1.5x as
-    fast as the real frames do (0-2 with the full turn), their jerk 20% higher. At the seams both
-    pelvises are the clips', so nothing changes there.
+    fast as the real frames do (0-2 with the full turn), their jerk 20% higher. At the seams
+    both pelvises are the clips', so nothing changes there.
 
     Held out (the bench's protocol but windows cut per length, so not ``docs/results.md``'s
     figures; retrieval + foot lock, L2Q / L2P; as local rotations -> turning in full (code
@@ -1027,8 +1027,13 @@ def _fallback_chest(eng: TransitionEngine, rots_fb: np.ndarray, out_r: np.ndarra
     0.6156 / 2.083; CMU 01_01 at 120 fps, 15 frames 0.0790 / 0.506 -> 0.0781 / 0.449 -> 0.0779 /
     0.446 (the spline 0.0874 / 0.478), 60 frames 0.2828 / 2.529 -> 0.2793 / 2.456 -> 0.2763 /
     2.439; LaFAN1 at 60 fps, 30 frames 0.2929 / 1.197 -> 0.2921 / 1.191 -> 0.2897 / 1.187. The
-    skate unchanged (the legs are untouched). 10 degrees gives nearly as much; 20, 30 and no
-    bound at all within 0.001.
+    skate unchanged (the legs are untouched). 10 degrees gives nearly as much; 20 and 30 within
+    0.0003, and no turn at all (the fallback chest's heading kept in the world whatever the
+    pelvis does) within 0.001. Where the pelvises turn a half turn apart (a gap between two
+    moments of a take that face opposite ways, the retrieved heading counted round otherwise than
+    the fallback's), the first version's ``free tanh(theta / free)`` flipped the chest by 30
+    degrees in one frame (CMU 01_01, 30 frames from its frame 2242 back to 1842: 38 degrees
+    against 9 a frame); with the sine, 8.4 (8.3 turning in full).
     """
     out = rots_fb.copy()
     free = 0.0 if align else float(np.radians(retrieval.CHEST_FREE_DEG))
