@@ -222,9 +222,10 @@ def chest_turned(chain, up, other, rots, joints, free, out):
     of ``chain``) put under the chain of ``rots (N, J, 4)`` so that they differ in the world from
     ``other``'s only by a turn about axis ``up`` (0, 1, 2): of the turn between the two chains'
     last joints (the swing-twist twist of the rotation from ``other``'s to ``rots``'s, of angle
-    theta in [-pi, pi)) what lies beyond ``free`` radians, smoothly, ``theta - free tanh(sin(theta)
-    / free)`` (all of it with ``free`` 0; the sine makes a half turn either way the same turn). ``chain`` top first, the top without a parent. Nothing
-    else of ``out (N, J, 4)`` is written."""
+    theta in [-pi, pi)) what lies beyond ``free`` radians, smoothly, ``theta - free
+    tanh(sin(theta) / free)`` (all of it with ``free`` 0; the sine makes a half turn either way
+    the same turn). ``chain`` top first, the top without a parent. Nothing else of ``out (N, J,
+    4)`` is written."""
     w_other, w_rots = other[:, chain[0]], rots[:, chain[0]]
     for c in chain[1:]:
         w_other, w_rots = quat.mul(w_other, other[:, c]), quat.mul(w_rots, rots[:, c])
