@@ -226,7 +226,8 @@ def _cmd_transition(args) -> int:
             raise UserError(args.preview, "a preview file name must end in .png")
         _check_output(args.preview, [args.a, args.b])
     a = bvh.read(args.a)
-    b = a if _same_file(args.a, args.b) else bvh.read(args.b)  # a take: read and steadied once
+    one_take = _same_file(args.a, args.b)
+    b = a if one_take else bvh.read(args.b)  # a take: read and steadied once
     if not b.skeleton.same_as(a.skeleton):
         raise UserError(args.b, f"skeleton differs from {args.a} ({b.skeleton.difference(a.skeleton, 'its')})")
     why = b.skeleton.body_mismatch(a.skeleton, f"{args.a}'s")
@@ -253,7 +254,7 @@ def _cmd_transition(args) -> int:
         model.check_skeleton(a.skeleton, args.a)
     given = model is not None
     gap = args.b_start - args.a_end - 1 if args.a_end is not None else 0
-    if args.no_align and gap > 0 and args.length != gap and rate_note is None and _same_file(args.a, args.b):
+    if args.no_align and gap > 0 and args.length != gap and rate_note is None and one_take:
         print(f"posturemap: warning: {args.b}: A and B are one take and --length {args.length} is not the {gap} frames "
               f"between --a-end and --b-start: the take comes out {abs(gap - args.length)} frames "
               f"{'shorter' if args.length < gap else 'longer'} (--length {gap} keeps its duration)", file=sys.stderr)
